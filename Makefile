@@ -1,0 +1,34 @@
+# holofit — developer entry points. Needs only Python 3.11 and make.
+PYTHON ?= $(shell command -v python3.11 2>/dev/null || command -v python3)
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-stamp
+# one thread per process for numbers that are comparable across machines
+ONE_CORE := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 NUMBA_NUM_THREADS=1
+
+.PHONY: install test test-all demo bench lint clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	@touch $(STAMP)
+
+install: $(STAMP)
+
+test: install
+	$(BIN)/python -m pytest -m "not slow" -q
+
+test-all: install
+	$(BIN)/python -m pytest -q
+
+demo: install
+	$(BIN)/holofit demo --out demo-out
+
+bench: install
+	$(ONE_CORE) $(BIN)/python bench/run.py --out bench/results.json
+
+lint: install
+	$(BIN)/ruff check holofit tests bench
+
+clean:
+	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache

@@ -1,0 +1,46 @@
+"""Illumination and medium: what every scattering calculation needs to know about the light."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from holofit.conventions import medium_wavenumber, polarization_vector
+
+__all__ = ["Optics"]
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Plane-wave illumination in a homogeneous medium.
+
+    Parameters
+    ----------
+    wavelength_um : float
+        Vacuum wavelength, um.
+    n_medium : float
+        Refractive index of the medium (real).
+    polarization_rad : float
+        Angle of the linear polarisation from lab x, rad.
+    """
+
+    wavelength_um: float
+    n_medium: float
+    polarization_rad: float = 0.0
+
+    @property
+    def k(self) -> float:
+        """Wavenumber in the medium, rad/um."""
+        return medium_wavenumber(self.wavelength_um, self.n_medium)
+
+    @property
+    def wavelength_medium_um(self) -> float:
+        """Wavelength in the medium, um."""
+        return self.wavelength_um / self.n_medium
+
+    @property
+    def polarization(self) -> NDArray[np.float64]:
+        """Unit polarisation vector in the lab frame."""
+        return polarization_vector(self.polarization_rad)

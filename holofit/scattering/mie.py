@@ -1,0 +1,191 @@
+"""Exact Lorenz-Mie scattering by a homogeneous sphere.
+
+Far-field amplitudes ``S1, S2`` (Bohren & Huffman), cross sections, and the exact scattered
+field at arbitrary points with spherical Hankel functions (near-field terms and the radial
+component included). Bohren & Huffman's formulas assume light travelling along +z polarised
+along x; holofit's light travels along -z with polarisation angle beta, so points and fields are
+mapped through the rotation ``M = Rz(beta) Rx(pi)`` (:func:`bh_frame`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from holofit.conventions import DetectorGrid
+from holofit.models import ParticleModel, Sphere
+from holofit.optics import Optics
+from holofit.scattering.mie_coefficients import mie_coefficients
+from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, field_on_grid
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+
+__all__ = [
+    "CrossSections",
+    "LorenzMie",
+    "MieWave",
+    "bh_frame",
+    "cross_sections",
+    "far_field_amplitudes",
+]
+
+
+def _series_weights(nmax: int) -> NDArray[np.float64]:
+    n = np.arange(1, nmax + 1)
+    return (2 * n + 1) / (n * (n + 1.0))
+
+
+def far_field_amplitudes(
+    m: complex, x: float, theta: ArrayLike, nmax: int | None = None
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """Amplitude-matrix elements ``S1(theta)``, ``S2(theta)`` of a sphere (B&H eq. 4.74).
+
+    Parameters
+    ----------
+    m : complex
+        Relative refractive index (``Im m > 0`` absorbs; time dependence ``exp(-i omega t)``).
+    x : float
+        Size parameter ``k a``.
+    theta : array_like
+        Scattering angles from the forward direction, rad.
+    nmax : int, optional
+        Number of series terms (:func:`~holofit.scattering.mie_coefficients.n_stop` by
+        default).
+
+    Returns
+    -------
+    S1, S2 : ndarray of complex, shape of ``theta``
+    """
+    a, b = mie_coefficients(m, x, nmax)
+    return _amplitudes(a, b, theta)
+
+
+def _amplitudes(a: NDArray, b: NDArray, theta: ArrayLike) -> tuple[NDArray, NDArray]:
+    """``S1, S2`` from the series coefficients."""
+    theta = np.asarray(theta, dtype=float)
+    w = _series_weights(a.size)
+    pi, tau = angular_pi_tau(np.ascontiguousarray(np.cos(theta).ravel()), a.size)
+    s1 = (w * a) @ pi + (w * b) @ tau
+    s2 = (w * a) @ tau + (w * b) @ pi
+    return s1.reshape(theta.shape), s2.reshape(theta.shape)
+
+
+@dataclass(frozen=True)
+class CrossSections:
+    """Extinction, scattering and absorption cross sections (um^2) and efficiencies."""
+
+    extinction_um2: float
+    scattering_um2: float
+    absorption_um2: float
+    q_extinction: float
+    q_scattering: float
+    q_absorption: float
+
+
+def cross_sections(m: complex, radius_um: float, k: float) -> CrossSections:
+    """Cross sections of a sphere of radius ``radius_um`` (um) for wavenumber ``k`` (rad/um)."""
+    x = k * radius_um
+    a, b = mie_coefficients(m, x)
+    n = np.arange(1, a.size + 1)
+    cext = 2 * np.pi / k**2 * float(np.sum((2 * n + 1) * (a + b).real))
+    csca = 2 * np.pi / k**2 * float(np.sum((2 * n + 1) * (abs(a) ** 2 + abs(b) ** 2)))
+    geo = np.pi * radius_um**2
+    return CrossSections(cext, csca, cext - csca, cext / geo, csca / geo, (cext - csca) / geo)
+
+
+def bh_frame(polarization_rad: float) -> NDArray[np.float64]:
+    """Rotation from the lab frame to the Bohren & Huffman frame of the sphere.
+
+    In the B&H frame the light travels along +z and is polarised along x. ``p_bh = M @ p_lab``
+    and ``E_lab = M.T @ E_bh``.
+    """
+    c, s = np.cos(polarization_rad), np.sin(polarization_rad)
+    rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rz @ np.diag([1.0, -1.0, -1.0])
+
+
+class MieWave(ScatteredWave):
+    """Scattered wave of a sphere, from its Lorenz-Mie coefficients.
+
+    Parameters
+    ----------
+    sphere : Sphere
+        The particle.
+    optics : Optics
+        Illumination.
+    """
+
+    exact_near_field = True
+
+    def __init__(self, sphere: Sphere, optics: Optics) -> None:
+        self.sphere = sphere
+        self.optics = optics
+        k = optics.k
+        self.m = complex(sphere.index) / optics.n_medium
+        self.x = k * sphere.radius_um
+        self.a, self.b = mie_coefficients(self.m, self.x)
+        n = np.arange(1, self.a.size + 1)
+        e_n = (1j) ** n * (2 * n + 1) / (n * (n + 1.0))
+        c1 = 1j * e_n * self.a
+        c2 = -e_n * self.b
+        self._coefs = tuple(np.ascontiguousarray(v) for v in (c1.real, c1.imag, c2.real, c2.imag))
+        self._frame = bh_frame(optics.polarization_rad)
+
+    def far_field_amplitudes(self, theta: ArrayLike) -> tuple[NDArray, NDArray]:
+        """``S1, S2`` at scattering angles ``theta`` (rad from the propagation direction)."""
+        return _amplitudes(self.a, self.b, theta)
+
+    def _check_outside(self, distance_um: NDArray) -> None:
+        inside = int(np.sum(distance_um <= self.sphere.radius_um))
+        if inside:
+            raise ValueError(
+                f"the scattered-field series is valid outside the sphere only; {inside} "
+                f"point(s) lie within {self.sphere.radius_um} um of its centre"
+            )
+
+    def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
+        pts = np.atleast_2d(np.asarray(points_um, dtype=float))
+        self._check_outside(np.linalg.norm(pts, axis=1))
+        p_bh = np.ascontiguousarray(pts @ self._frame.T)
+        e_bh = np.empty((p_bh.shape[0], 3), dtype=complex)
+        field_at_points(p_bh, self.optics.k, *self._coefs, bool(far_field), e_bh)
+        return e_bh @ self._frame
+
+    def field_on_detector(
+        self, position_um: ArrayLike, grid: DetectorGrid, far_field: bool = False
+    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        xp, yp, zp = (float(v) for v in position_um)
+        if abs(zp) <= self.sphere.radius_um:
+            self._check_outside(np.array([abs(zp)]))
+        rows = (grid.corner[0] + np.arange(grid.shape[0])) * grid.pixel_size_um
+        cols = (grid.corner[1] + np.arange(grid.shape[1])) * grid.pixel_size_um
+        ex = np.empty(grid.shape, dtype=complex)
+        ey = np.empty(grid.shape, dtype=complex)
+        field_on_grid(
+            cols,
+            rows,
+            xp,
+            yp,
+            zp,
+            self._frame,
+            self.optics.k,
+            *self._coefs,
+            bool(far_field),
+            ex,
+            ey,
+        )
+        return ex, ey
+
+
+class LorenzMie(ScatteringTheory):
+    """Exact Lorenz-Mie theory for homogeneous spheres."""
+
+    name = "mie"
+
+    def solve(
+        self, model: ParticleModel, optics: Optics, orientation: Orientation | None = None
+    ) -> MieWave:
+        if not isinstance(model, Sphere):
+            raise TypeError(f"Lorenz-Mie theory handles spheres only, not {model.kind!r}")
+        return MieWave(model, optics)

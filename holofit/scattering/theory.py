@@ -1,0 +1,112 @@
+"""The scattering-theory interface that every engine implements.
+
+A :class:`ScatteringTheory` (Lorenz-Mie, the built-in DDA, ADDA) turns a particle model, an
+orientation and the optics into a :class:`ScatteredWave`: a solved problem that knows the
+scattered field at any point outside the particle. Positions are applied afterwards, so one
+solve serves every position change. The hologram code, ``simulate`` and the fits only talk to
+these two classes.
+
+Field convention (see :mod:`holofit.conventions`): fields are lab-frame Cartesian, relative to
+the incident plane wave, whose phase is zero at the particle centre; the incident phase at the
+particle, ``exp(-i k z_p)``, is applied by the detector-level functions.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from holofit.conventions import DetectorGrid, incident_phase_at
+from holofit.models import ParticleModel
+from holofit.optics import Optics
+
+__all__ = ["Orientation", "ScatteredWave", "ScatteringTheory"]
+
+
+@dataclass(frozen=True)
+class Orientation:
+    """zyz Euler angles of the particle, rad (:func:`holofit.conventions.euler_zyz`)."""
+
+    psi: float = 0.0
+    theta: float = 0.0
+    phi: float = 0.0
+
+    def as_tuple(self) -> tuple[float, float, float]:
+        return (self.psi, self.theta, self.phi)
+
+
+class ScatteredWave(ABC):
+    """A solved scattering problem: particle, orientation and illumination fixed.
+
+    Attributes
+    ----------
+    optics : Optics
+        The illumination it was solved for.
+    exact_near_field : bool
+        True if :meth:`field_at` includes the near-field terms exactly; False for engines that
+        only know the far-field amplitudes (ADDA), whose fields use the asymptotic form.
+    """
+
+    optics: Optics
+    exact_near_field: bool = True
+
+    @abstractmethod
+    def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
+        """Scattered field at points relative to the particle centre.
+
+        Parameters
+        ----------
+        points_um : array_like, shape (N, 3)
+            Lab-frame positions relative to the particle centre, um.
+        far_field : bool
+            If True, use the asymptotic form ``exp(ikr)/(-ikr) F(r_hat)`` instead of the exact
+            field (what ADDA and the paper used).
+
+        Returns
+        -------
+        ndarray of complex, shape (N, 3)
+            Lab Cartesian field, relative to the incident field with zero phase at the particle
+            centre.
+        """
+
+    def field_on_detector(
+        self,
+        position_um: ArrayLike,
+        grid: DetectorGrid,
+        far_field: bool = False,
+    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        """Transverse scattered field at the pixels of ``grid``, incident phase included.
+
+        Parameters
+        ----------
+        position_um : array_like, shape (3,)
+            Full-frame particle position ``(x, y, z)``, um.
+        grid : DetectorGrid
+            The pixels.
+        far_field : bool
+            Asymptotic far-field form instead of the exact field.
+
+        Returns
+        -------
+        e_x, e_y : ndarray of complex, shape ``grid.shape``
+        """
+        xp, yp, zp = (float(v) for v in position_um)
+        x, y = grid.coordinates()
+        pts = np.stack([x.ravel() - xp, y.ravel() - yp, np.full(x.size, -zp)], axis=1)
+        e = self.field_at(pts, far_field=far_field) * incident_phase_at(zp, self.optics.k)
+        return e[:, 0].reshape(grid.shape), e[:, 1].reshape(grid.shape)
+
+
+class ScatteringTheory(ABC):
+    """An engine that solves a particle model for a given orientation and illumination."""
+
+    name: str = ""
+
+    @abstractmethod
+    def solve(
+        self, model: ParticleModel, optics: Optics, orientation: Orientation | None = None
+    ) -> ScatteredWave:
+        """Solve the scattering problem; the result serves every particle position."""
