@@ -1,0 +1,93 @@
+"""The dipole lattice: a cubic grid fixed to the particle, with per-voxel material fractions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["Lattice"]
+
+
+@dataclass(frozen=True, eq=False)
+class Lattice:
+    """Occupied voxels of a particle on a cubic lattice, in the particle frame.
+
+    The lattice is fixed to the particle: voxel ``(i, j, l)`` of the box has its centre at
+    ``origin + d * (i, j, l)`` relative to the particle centre (um). Each occupied voxel holds
+    volume fractions of the particle's materials; the rest of the voxel is medium.
+
+    Attributes
+    ----------
+    d : float
+        Dipole size (lattice spacing), um.
+    shape : tuple of int
+        Box size ``(nx, ny, nz)`` in voxels (tight around the occupied voxels).
+    origin : ndarray, shape (3,)
+        Particle-frame position of the centre of box voxel (0, 0, 0), um.
+    ijk : ndarray of int, shape (N, 3)
+        Box indices of the occupied voxels, in C order of the box.
+    fractions : ndarray, shape (N, n_materials)
+        Volume fraction of each material in each voxel (sum <= 1).
+    indices : tuple of complex
+        Absolute refractive index of each material.
+    """
+
+    d: float
+    shape: tuple[int, int, int]
+    origin: NDArray[np.float64]
+    ijk: NDArray[np.int64]
+    fractions: NDArray[np.float64]
+    indices: tuple[complex, ...]
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    @property
+    def n_dipoles(self) -> int:
+        return int(self.ijk.shape[0])
+
+    @property
+    def positions(self) -> NDArray[np.float64]:
+        """Particle-frame dipole positions relative to the particle centre, um, shape (N, 3)."""
+        if "positions" not in self._cache:
+            self._cache["positions"] = self.origin + self.d * self.ijk
+        return self._cache["positions"]
+
+    @property
+    def flat_index(self) -> NDArray[np.int64]:
+        """C-order flat index of each occupied voxel in the box."""
+        if "flat" not in self._cache:
+            self._cache["flat"] = np.ravel_multi_index(self.ijk.T, self.shape)
+        return self._cache["flat"]
+
+    @property
+    def box_centre(self) -> NDArray[np.float64]:
+        """Particle-frame position of the centre of the box (ADDA's phase origin), um."""
+        return self.origin + self.d * (np.asarray(self.shape) - 1) / 2
+
+    def relative_permittivity(self, n_medium: float) -> NDArray[np.complex128]:
+        """Effective ``eps_voxel / eps_medium`` of each voxel (volume-weighted mixing).
+
+        ``eps = eps_m + sum_k f_k (eps_k - eps_m)``: a fully filled voxel has the material's
+        permittivity, a partly filled one a linear mix with the medium, so a voxel's
+        polarisability goes to zero continuously as its filling does.
+        """
+        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices])
+        return 1.0 + self.fractions @ (m2 - 1.0)
+
+    def occupied_volume_um3(self) -> NDArray[np.float64]:
+        """Volume of each material, um^3 (sum of fractions times d^3)."""
+        return self.fractions.sum(axis=0) * self.d**3
+
+    def cache_key(self) -> tuple:
+        """Hashable description of the geometry (positions and fractions)."""
+        if "key" not in self._cache:
+            self._cache["key"] = (
+                self.d,
+                self.shape,
+                tuple(np.round(self.origin, 12)),
+                hash(self.ijk.tobytes()),
+                hash(np.round(self.fractions, 14).tobytes()),
+                self.indices,
+            )
+        return self._cache["key"]

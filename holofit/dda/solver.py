@@ -1,0 +1,160 @@
+"""Krylov solvers for the complex-symmetric DDA system ``A x = b``.
+
+QMR for complex symmetric matrices (Freund 1992): a Lanczos process in the bilinear form
+``u^T v`` (no conjugation), whose tridiagonal matrix is reduced by unitary Givens rotations
+to minimise the quasi-residual; one matrix-vector product per iteration. The residual vector
+is updated by recurrence (no extra product) and its true norm drives the stopping test
+``||r|| / ||b|| < tol`` (the same relative residual ADDA reports). BiCGStab (scipy) is offered
+as a fallback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["ConvergenceError", "SolveResult", "bicgstab", "qmr_cs"]
+
+
+class ConvergenceError(RuntimeError):
+    """The iterative solver did not reach its tolerance (message gives the residual reached)."""
+
+
+@dataclass
+class SolveResult:
+    """Outcome of an iterative solve."""
+
+    x: NDArray[np.complexfloating]
+    iterations: int
+    residual: float
+    converged: bool
+    history: list[float] = field(default_factory=list)
+
+
+def _bilinear(u: NDArray, v: NDArray) -> complex:
+    return complex(np.dot(u, v))
+
+
+def qmr_cs(
+    matvec: Callable[[NDArray], NDArray],
+    b: NDArray[np.complexfloating],
+    x0: NDArray[np.complexfloating] | None = None,
+    tol: float = 1e-5,
+    maxiter: int = 1000,
+) -> SolveResult:
+    """Solve ``A x = b`` for complex symmetric ``A`` (``A^T = A``) by QMR.
+
+    Parameters
+    ----------
+    matvec : callable
+        ``v -> A v`` on 1-D complex vectors.
+    b : ndarray
+        Right-hand side.
+    x0 : ndarray, optional
+        Initial guess (warm start); zero if None.
+    tol : float
+        Target relative residual ``||b - A x|| / ||b||``.
+    maxiter : int
+        Maximum number of iterations (= matrix-vector products).
+
+    Returns
+    -------
+    SolveResult
+        ``converged`` is False if ``maxiter`` was reached; the caller decides whether to raise.
+    """
+    b_norm = float(np.linalg.norm(b))
+    if b_norm == 0:
+        return SolveResult(np.zeros_like(b), 0, 0.0, True, [0.0])
+    if x0 is None:
+        x = np.zeros_like(b)
+        r = b.copy()
+    else:
+        x = x0.astype(b.dtype, copy=True)
+        r = b - matvec(x)
+    res = float(np.linalg.norm(r)) / b_norm
+    history = [res]
+    if res < tol:
+        return SolveResult(x, 0, res, True, history)
+
+    # Lanczos vectors in the bilinear form, weighted by omega_k = ||v_k|| (Freund's choice)
+    beta = np.sqrt(_bilinear(r, r))
+    v = r / beta
+    v_prev = np.zeros_like(b)
+    omega = float(np.linalg.norm(v))
+    omega_prev = 0.0
+    beta_curr = beta  # beta_k (couples v_k and v_{k-1}); beta_1 is the start value
+    tau_bar = omega * beta  # quasi-residual, rotated
+    c_prev = c_curr = 1.0
+    s_prev = s_curr = 0.0 + 0.0j
+    p_prev = np.zeros_like(b)
+    p_prev2 = np.zeros_like(b)
+    for it in range(1, maxiter + 1):
+        av = matvec(v)
+        alpha = _bilinear(v, av)
+        v_next = av - alpha * v - beta_curr * v_prev
+        # entries of column k of the weighted tridiagonal after the previous two rotations
+        theta = np.conj(s_prev) * omega_prev * beta_curr
+        eta = c_prev * c_curr * omega_prev * beta_curr + np.conj(s_curr) * omega * alpha
+        zeta_t = c_curr * omega * alpha - s_curr * c_prev * omega_prev * beta_curr
+        beta_next = np.sqrt(_bilinear(v_next, v_next))
+        norm_next = float(np.linalg.norm(v_next))
+        if abs(beta_next) < 1e-300 or norm_next == 0.0:
+            # (near) breakdown or exact convergence of the Krylov space
+            omega_next = 1.0
+            beta_next = 0.0
+        else:
+            omega_next = norm_next / abs(beta_next)
+        # new Givens rotation annihilating omega_{k+1} beta_{k+1}
+        h = omega_next * beta_next
+        zeta_abs = float(np.sqrt(abs(zeta_t) ** 2 + abs(h) ** 2))
+        zeta = zeta_abs if abs(zeta_t) < 1e-300 else zeta_abs * zeta_t / abs(zeta_t)
+        c_new = abs(zeta_t) / zeta_abs
+        s_new = h / zeta
+        # search direction and solution update
+        p = (v - eta * p_prev - theta * p_prev2) / zeta
+        tau = c_new * tau_bar
+        tau_bar = -s_new * tau_bar
+        x += tau * p
+        # residual recurrence: r_k = |s_k|^2 r_{k-1} + (c_k tau_bar_{k+1} / omega_{k+1}) v_{k+1}
+        if beta_next != 0.0:
+            v_next = v_next / beta_next
+        r = abs(s_new) ** 2 * r + (c_new * tau_bar / omega_next) * v_next
+        res = float(np.linalg.norm(r)) / b_norm
+        history.append(res)
+        if res < tol or beta_next == 0.0:
+            return SolveResult(x, it, res, res < tol or beta_next == 0.0, history)
+        # shift
+        p_prev2, p_prev = p_prev, p
+        v_prev, v = v, v_next
+        omega_prev, omega = omega, omega_next
+        beta_curr = beta_next
+        c_prev, c_curr = c_curr, c_new
+        s_prev, s_curr = s_curr, s_new
+    return SolveResult(x, maxiter, res, False, history)
+
+
+def bicgstab(
+    matvec: Callable[[NDArray], NDArray],
+    b: NDArray[np.complexfloating],
+    x0: NDArray[np.complexfloating] | None = None,
+    tol: float = 1e-5,
+    maxiter: int = 1000,
+) -> SolveResult:
+    """BiCGStab (scipy) with the same interface and relative-residual criterion."""
+    from scipy.sparse.linalg import LinearOperator
+    from scipy.sparse.linalg import bicgstab as _bicgstab
+
+    n = b.size
+    count = {"mv": 0}
+
+    def mv(v: NDArray) -> NDArray:
+        count["mv"] += 1
+        return matvec(v)
+
+    op = LinearOperator((n, n), matvec=mv, dtype=b.dtype)
+    x, info = _bicgstab(op, b, x0=x0, rtol=tol, atol=0.0, maxiter=maxiter)
+    res = float(np.linalg.norm(b - matvec(x)) / np.linalg.norm(b))
+    return SolveResult(x, count["mv"], res, info == 0 and res < 10 * tol, [res])

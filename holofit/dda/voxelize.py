@@ -1,0 +1,300 @@
+"""Discretisation of particle models on a cubic lattice fixed to the particle.
+
+Scheme ("smooth fractional filling")
+------------------------------------
+Voxel centres sit on the fixed lattice ``d * (j + 1/2)``, ``j`` integer, relative to the
+particle centre, so the lattice never moves when a size changes. Each voxel gets a volume
+fraction of every material from the shape's signed distance ``s`` (negative inside) at the
+voxel centre,
+
+    f = 1 - smootherstep((w + s/d) / (2 w)),     w = 15/16,
+
+a C2 ramp that is 1 for ``s <= -w d`` and exactly 0 for ``s >= w d``, with slope ``-1/d`` at
+the surface, the exact volume fraction of a voxel cut by a plane parallel to a face. Partly
+filled voxels get the volume-weighted permittivity ``eps_m + f (eps - eps_m)`` and through it
+their polarisability, which therefore goes to zero smoothly: as a size parameter changes, no
+voxel ever switches on or off, and holograms, residuals and finite-difference Jacobians are
+smooth in every size parameter (binary voxelisation, ``filling="binary"``, is kept for
+comparisons with ADDA). Multi-material particles split the fraction of the union between the
+materials (Janus cap = union - core).
+
+The ``filling="binary"`` mode keeps a voxel if its centre lies inside the shape (ADDA's rule
+for built-in shapes, without ADDA's volume correction).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from holofit.dda.lattice import Lattice
+from holofit.models import (
+    Cylinder,
+    Dimer,
+    Ellipsoid,
+    JanusSphere,
+    ParticleModel,
+    Sphere,
+    Spherocylinder,
+    Spheroid,
+    VoxelShape,
+)
+
+__all__ = [
+    "RAMP_HALF_WIDTH",
+    "dipole_size",
+    "read_adda_shape",
+    "ramp",
+    "voxelize",
+    "write_adda_shape",
+]
+
+RAMP_HALF_WIDTH = 15.0 / 16.0
+
+
+def ramp(s: NDArray[np.float64], w: float = RAMP_HALF_WIDTH) -> NDArray[np.float64]:
+    """Filling fraction for signed distance ``s`` in units of d (C2, exactly 0/1 outside |s|<w)."""
+    t = np.clip((w - s) / (2.0 * w), 0.0, 1.0)
+    return t * t * t * (t * (6.0 * t - 15.0) + 10.0)
+
+
+def dipole_size(model: ParticleModel, wavelength_medium_um: float, n_medium: float,
+                dipoles_per_wavelength: float = 10.0) -> float:
+    """Dipole size from the dipoles-per-wavelength rule, um.
+
+    ``d = lambda_medium / (dpl * max |m|)``: at least ``dpl`` dipoles per wavelength inside
+    the most refractive material (ADDA's default rule with dpl = 10).
+    """
+    if isinstance(model, VoxelShape):
+        return model.dipole_size_um
+    indices = [complex(getattr(model, f)) for f in model.index_fields]
+    m_max = max(abs(n) / n_medium for n in indices)
+    return wavelength_medium_um / (dipoles_per_wavelength * m_max)
+
+
+# -- signed distances (um), negative inside ------------------------------------------------
+
+
+def _sdf_sphere(p: NDArray, radius: float, z0: float = 0.0) -> NDArray:
+    return np.sqrt(p[:, 0] ** 2 + p[:, 1] ** 2 + (p[:, 2] - z0) ** 2) - radius
+
+
+def _sdf_capsule(p: NDArray, a: float, b: float) -> NDArray:
+    h = b - a
+    zc = np.clip(p[:, 2], -h, h)
+    return np.sqrt(p[:, 0] ** 2 + p[:, 1] ** 2 + (p[:, 2] - zc) ** 2) - a
+
+
+def _sdf_cylinder(p: NDArray, radius: float, half_length: float) -> NDArray:
+    dr = np.hypot(p[:, 0], p[:, 1]) - radius
+    dz = np.abs(p[:, 2]) - half_length
+    outside = np.hypot(np.maximum(dr, 0.0), np.maximum(dz, 0.0))
+    return outside + np.minimum(np.maximum(dr, dz), 0.0)
+
+
+def _sdf_ellipsoid(p: NDArray, axes: NDArray) -> NDArray:
+    # first-order distance estimate k0 (k0 - 1) / k1 (exact on the surface, accurate within a
+    # few voxels of it, which is all the ramp needs)
+    q = p / axes
+    k0 = np.sqrt((q**2).sum(axis=1))
+    k1 = np.sqrt(((p / axes**2) ** 2).sum(axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = k0 * (k0 - 1.0) / k1
+    return np.where(k1 > 0, s, -axes.min())
+
+
+def _shape_fractions(model: ParticleModel, p: NDArray, d: float, binary: bool) -> NDArray:
+    """Material fractions (M, n_mat) at voxel centres ``p`` (M, 3)."""
+
+    def fill(s: NDArray) -> NDArray:
+        return (s <= 0).astype(float) if binary else ramp(s / d)
+
+    if isinstance(model, Sphere):
+        return fill(_sdf_sphere(p, model.radius_um))[:, None]
+    if isinstance(model, Spherocylinder):
+        return fill(_sdf_capsule(p, model.a_um, model.b_um))[:, None]
+    if isinstance(model, Cylinder):
+        return fill(_sdf_cylinder(p, model.radius_um, model.half_length_um))[:, None]
+    if isinstance(model, Spheroid):
+        axes = np.array([model.a_um, model.a_um, model.c_um])
+        return fill(_sdf_ellipsoid(p, axes))[:, None]
+    if isinstance(model, Ellipsoid):
+        axes = np.array([model.ax_um, model.ay_um, model.az_um])
+        return fill(_sdf_ellipsoid(p, axes))[:, None]
+    if isinstance(model, JanusSphere):
+        s_core = _sdf_sphere(p, model.radius_um)
+        s_shell = np.maximum(_sdf_sphere(p, model.radius_um + model.cap_thickness_um), -p[:, 2])
+        f_core = fill(s_core)
+        f_union = fill(np.minimum(s_core, s_shell))
+        return np.column_stack([f_core, np.maximum(f_union - f_core, 0.0)])
+    if isinstance(model, Dimer):
+        z1, z2 = model.sphere_centres_z()
+        s1 = _sdf_sphere(p, model.radius1_um, z1)
+        s2 = _sdf_sphere(p, model.radius2_um, z2)
+        f1, f2 = fill(s1), fill(s2)
+        f_union = fill(np.minimum(s1, s2))
+        total = f1 + f2
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.where(total > 0, f1 / total, 0.0)
+        return np.column_stack([f_union * share, f_union * (1.0 - share)])
+    raise TypeError(f"no voxelisation for particle model {type(model).__name__}")
+
+
+def _extent(model: ParticleModel) -> tuple[NDArray, NDArray]:
+    """Lower and upper corners of the shape's bounding box, particle frame, um."""
+    if isinstance(model, JanusSphere):
+        r = model.radius_um + model.cap_thickness_um
+        return np.array([-r, -r, -model.radius_um]), np.array([r, r, r])
+    if isinstance(model, Dimer):
+        z1, z2 = model.sphere_centres_z()
+        rx = max(model.radius1_um, model.radius2_um)
+        return (np.array([-rx, -rx, z1 - model.radius1_um]),
+                np.array([rx, rx, z2 + model.radius2_um]))
+    if isinstance(model, Spherocylinder):
+        return np.array([-model.a_um, -model.a_um, -model.b_um]), np.array(
+            [model.a_um, model.a_um, model.b_um])
+    if isinstance(model, Cylinder):
+        r, h = model.radius_um, model.half_length_um
+        return np.array([-r, -r, -h]), np.array([r, r, h])
+    if isinstance(model, Spheroid):
+        ax = np.array([model.a_um, model.a_um, model.c_um])
+        return -ax, ax
+    if isinstance(model, Ellipsoid):
+        ax = np.array([model.ax_um, model.ay_um, model.az_um])
+        return -ax, ax
+    if isinstance(model, Sphere):
+        r = model.radius_um
+        return np.full(3, -r), np.full(3, r)
+    raise TypeError(f"no voxelisation for particle model {type(model).__name__}")
+
+
+def _material_indices(model: ParticleModel) -> tuple[complex, ...]:
+    return tuple(complex(getattr(model, f)) for f in model.index_fields)
+
+
+def voxelize(model: ParticleModel, d: float, filling: str = "fractional") -> Lattice:
+    """Discretise ``model`` on the lattice of spacing ``d`` fixed to the particle.
+
+    Parameters
+    ----------
+    model : ParticleModel
+        The particle (its centre is the shape's centre).
+    d : float
+        Dipole size, um.
+    filling : {"fractional", "binary"}
+        Smooth fractional filling (default; see the module docstring) or centre-inside voxels.
+
+    Returns
+    -------
+    Lattice
+    """
+    if isinstance(model, VoxelShape):
+        return _voxel_file_lattice(model)
+    if filling not in ("fractional", "binary"):
+        raise ValueError(f"filling must be 'fractional' or 'binary', got {filling!r}")
+    binary = filling == "binary"
+    lo, hi = _extent(model)
+    margin = 0.0 if binary else RAMP_HALF_WIDTH * d
+    j_lo = np.floor((lo - margin) / d - 0.5).astype(int) - 1
+    j_hi = np.ceil((hi + margin) / d - 0.5).astype(int) + 1
+    axes = [np.arange(a, b + 1) for a, b in zip(j_lo, j_hi, strict=True)]
+    jj = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    pts = (jj + 0.5) * d
+    frac = _shape_fractions(model, pts, d, binary)
+    keep = frac.sum(axis=1) > 0
+    if not np.any(keep):
+        raise ValueError(f"{model.kind}: no voxel is occupied at dipole size {d} um")
+    jj, frac = jj[keep], frac[keep]
+    j0 = jj.min(axis=0)
+    ijk = jj - j0
+    shape = tuple(int(v) for v in ijk.max(axis=0) + 1)
+    order = np.lexsort((ijk[:, 2], ijk[:, 1], ijk[:, 0]))
+    return Lattice(
+        d=float(d),
+        shape=shape,  # type: ignore[arg-type]
+        origin=(j0 + 0.5) * d,
+        ijk=np.ascontiguousarray(ijk[order]),
+        fractions=np.ascontiguousarray(frac[order]),
+        indices=_material_indices(model),
+    )
+
+
+# -- ADDA shape files ----------------------------------------------------------------------
+
+
+def read_adda_shape(path: str | Path) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Read an ADDA text shape file.
+
+    Returns
+    -------
+    ijk : ndarray of int, shape (N, 3)
+        Dipole indices as in the file.
+    domain : ndarray of int, shape (N,)
+        0-based domain (material) of each dipole.
+    """
+    path = Path(path)
+    rows = []
+    try:
+        with path.open() as fh:
+            for lineno, line in enumerate(fh, 1):
+                text = line.split("#", 1)[0].strip()
+                if not text or text.lower().startswith("nmat"):
+                    continue
+                parts = text.split()
+                if len(parts) not in (3, 4):
+                    raise ValueError(f"{path}:{lineno}: expected 'ix iy iz [domain]', got {text!r}")
+                rows.append([int(v) for v in parts] + ([1] if len(parts) == 3 else []))
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: shape file not found") from None
+    if not rows:
+        raise ValueError(f"{path}: no dipoles in shape file")
+    arr = np.array(rows, dtype=np.int64)
+    if arr[:, 3].min() < 1:
+        raise ValueError(f"{path}: domain numbers start at 1")
+    return arr[:, :3], arr[:, 3] - 1
+
+
+def write_adda_shape(path: str | Path, lattice: Lattice, threshold: float = 0.5) -> int:
+    """Write a lattice as an ADDA text shape file (binary voxels: fraction >= threshold).
+
+    The dominant material of each kept voxel becomes its domain. Returns the number of
+    dipoles written.
+    """
+    total = lattice.fractions.sum(axis=1)
+    keep = total >= threshold
+    domain = np.argmax(lattice.fractions, axis=1) + 1
+    n_mat = lattice.fractions.shape[1]
+    lines = ["# holofit lattice", f"# d = {lattice.d!r} um"]
+    if n_mat > 1:
+        lines.append(f"Nmat={n_mat}")
+    for (i, j, k), dom in zip(lattice.ijk[keep], domain[keep], strict=True):
+        lines.append(f"{i} {j} {k} {dom}" if n_mat > 1 else f"{i} {j} {k}")
+    Path(path).write_text("\n".join(lines) + "\n")
+    return int(keep.sum())
+
+
+def _voxel_file_lattice(model: VoxelShape) -> Lattice:
+    ijk, domain = read_adda_shape(model.path)
+    n_mat = int(domain.max()) + 1
+    if n_mat > len(model.indices):
+        raise ValueError(
+            f"{model.path}: uses {n_mat} domains but {len(model.indices)} indices are given"
+        )
+    lo = ijk.min(axis=0)
+    ijk = ijk - lo
+    shape = tuple(int(v) for v in ijk.max(axis=0) + 1)
+    d = model.dipole_size_um
+    frac = np.zeros((ijk.shape[0], len(model.indices)))
+    frac[np.arange(ijk.shape[0]), domain] = 1.0
+    order = np.lexsort((ijk[:, 2], ijk[:, 1], ijk[:, 0]))
+    origin = -d * (np.asarray(shape) - 1) / 2 - np.asarray(model.centre_um)
+    return Lattice(
+        d=d,
+        shape=shape,  # type: ignore[arg-type]
+        origin=origin,
+        ijk=np.ascontiguousarray(ijk[order]),
+        fractions=np.ascontiguousarray(frac[order]),
+        indices=model.indices,
+    )
