@@ -45,8 +45,8 @@ from holofit.models import (
 __all__ = [
     "RAMP_HALF_WIDTH",
     "dipole_size",
-    "read_adda_shape",
     "ramp",
+    "read_adda_shape",
     "voxelize",
     "write_adda_shape",
 ]

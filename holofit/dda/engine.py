@@ -1,0 +1,259 @@
+"""The built-in DDA engine: a :class:`~holofit.scattering.theory.ScatteringTheory`.
+
+Solving a particle (``BuiltinDDA.solve``):
+
+1. discretise the model on its lattice (cached per model and dipole size);
+2. rotate the incident wave into the particle frame (no re-voxelisation on rotation) and solve
+   only the instrument's polarisation, warm-started from the nearest earlier solution of the
+   same lattice; the interaction's FFT is cached per (grid, d, k);
+3. the returned :class:`DDAWave` knows the exact scattered field everywhere outside the
+   particle: a multipole expansion (built lazily from the far-field pattern) serves points
+   outside 1.5x the circumscribing sphere, direct dipole summation the points closer in; on a
+   camera plane the expansion is evaluated through :mod:`holofit.dda.multipole`'s
+   interpolated grid, so a new particle position costs milliseconds, not a new solve.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from holofit.conventions import PROPAGATION_DIRECTION, DetectorGrid, euler_zyz, incident_phase_at
+from holofit.dda import multipole
+from holofit.dda.dipoles import DipoleSolution, DipoleSystem
+from holofit.dda.farfield import far_field
+from holofit.dda.lattice import Lattice
+from holofit.dda.multipole import (
+    MultipoleExpansion,
+    PlaneGrid,
+    default_order,
+    evaluate_plane,
+    expansion_from_far_field,
+    plane_grid,
+)
+from holofit.dda.nearfield import direct_field
+from holofit.dda.settings import DDASettings
+from holofit.dda.voxelize import dipole_size, voxelize
+from holofit.models import ParticleModel
+from holofit.optics import Optics
+from holofit.scattering.registry import ENGINES
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+
+__all__ = ["BuiltinDDA", "DDAWave"]
+
+#: points closer to the centre than this multiple of the circumscribing radius use direct sums
+NEAR_ZONE = 1.5
+#: warm-start from an earlier solution only if its incident wave is this close (rad-ish)
+WARM_START_RADIUS = 0.3
+#: relative size below which trailing multipole orders are dropped (numerical noise)
+COEFF_FLOOR = 1e-13
+
+
+def _trim(expansion: MultipoleExpansion) -> MultipoleExpansion:
+    mag = np.maximum(np.abs(expansion.p).max(axis=1), np.abs(expansion.q).max(axis=1))
+    keep = np.nonzero(mag > COEFF_FLOOR * mag.max())[0]
+    L = max(int(keep.max()) if keep.size else 1, 1)
+    old = expansion.order
+    sl = (slice(0, L + 1), slice(old - L, old + L + 1))
+    return MultipoleExpansion(expansion.k, expansion.p[sl].copy(), expansion.q[sl].copy(),
+                              expansion.radius_um)
+
+
+class DDAWave(ScatteredWave):
+    """A solved DDA problem: particle, orientation and illumination fixed.
+
+    Attributes
+    ----------
+    solution : DipoleSolution
+        Dipole moments in the particle frame.
+    rotation : ndarray (3, 3)
+        Particle-to-lab rotation.
+    radius_um : float
+        Radius of the sphere about the particle centre containing all dipole cells.
+    """
+
+    exact_near_field = True
+
+    def __init__(self, model: ParticleModel, optics: Optics, orientation: Orientation,
+                 solution: DipoleSolution, rotation: NDArray[np.float64]) -> None:
+        self.model = model
+        self.optics = optics
+        self.orientation = orientation
+        self.solution = solution
+        self.rotation = rotation
+        lat = solution.lattice
+        self.radius_um = float(np.sqrt((lat.positions**2).sum(axis=1)).max()
+                               + lat.d * np.sqrt(3) / 2)
+        self._expansion: MultipoleExpansion | None = None
+        self._grids: OrderedDict[tuple, PlaneGrid] = OrderedDict()
+
+    # -- far field ----------------------------------------------------------------------
+    @property
+    def lattice(self) -> Lattice:
+        return self.solution.lattice
+
+    def far_field_amplitude(self, directions: ArrayLike) -> NDArray[np.complex128]:
+        """``F(n)`` (lab frame) at lab unit directions, by direct dipole summation:
+        ``E_sca = exp(ikr)/(-ikr) F``, phase origin at the particle centre."""
+        d = np.atleast_2d(np.asarray(directions, dtype=float))
+        f_p = far_field(self.lattice, self.solution.P, self.optics.k, d @ self.rotation)
+        return f_p @ self.rotation.T
+
+    @property
+    def expansion(self) -> MultipoleExpansion:
+        """Multipole expansion of the scattered field about the particle centre (lab frame)."""
+        if self._expansion is None:
+            k = self.optics.k
+            order = default_order(k, self.radius_um)
+            full = expansion_from_far_field(
+                lambda d: 1j * self.far_field_amplitude(d), k, order, self.radius_um
+            )
+            self._expansion = _trim(full)
+        return self._expansion
+
+    # -- fields ---------------------------------------------------------------------------
+    def _direct_lab(self, points_lab: NDArray) -> NDArray[np.complex128]:
+        pts_p = points_lab @ self.rotation
+        e_p = direct_field(pts_p, self.lattice.positions, self.solution.P, self.optics.k)
+        return e_p @ self.rotation.T
+
+    def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
+        pts = np.atleast_2d(np.asarray(points_um, dtype=float))
+        r = np.linalg.norm(pts, axis=1)
+        out = np.empty((pts.shape[0], 3), dtype=complex)
+        if far_field:
+            k = self.optics.k
+            n = pts / r[:, None]
+            f = self.far_field_amplitude(n)
+            return f * (np.exp(1j * k * r) / (-1j * k * r))[:, None]
+        near = r < NEAR_ZONE * self.radius_um
+        if np.any(near):
+            out[near] = self._direct_lab(pts[near])
+        if np.any(~near):
+            out[~near] = self.expansion.field_at(pts[~near])
+        return out
+
+    def _plane_grid(self, z_p: float, delta_max: float, far: bool) -> PlaneGrid:
+        key = (z_p, far)
+        grid = self._grids.get(key)
+        if grid is None or grid.delta_max < delta_max:
+            expansion = self.expansion
+            step = multipole.STEP_FACTOR / (2 * expansion.order + 2)
+            limit = np.pi / 2 - (multipole.STENCIL + 3) * step
+            grid = plane_grid(expansion, z_p, max(min(1.03 * delta_max + 0.01, limit),
+                                                  delta_max), far)
+            self._grids[key] = grid
+            while len(self._grids) > 4:
+                self._grids.popitem(last=False)
+        else:
+            self._grids.move_to_end(key)
+        return grid
+
+    def field_on_detector(
+        self, position_um: ArrayLike, grid: DetectorGrid, far_field: bool = False
+    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        xp, yp, zp = (float(v) for v in position_um)
+        rows = (grid.corner[0] + np.arange(grid.shape[0])) * grid.pixel_size_um
+        cols = (grid.corner[1] + np.arange(grid.shape[1])) * grid.pixel_size_um
+        dx = np.array([cols[0] - xp, cols[-1] - xp])
+        dy = np.array([rows[0] - yp, rows[-1] - yp])
+        rho_max = float(np.sqrt(np.max(dx**2) + np.max(dy**2)))
+        delta_max = float(np.arctan2(rho_max, abs(zp)))
+        phase = complex(incident_phase_at(zp, self.optics.k))
+        skip = None
+        if not far_field and abs(zp) < NEAR_ZONE * self.radius_um:
+            rr2 = (cols[None, :] - xp) ** 2 + (rows[:, None] - yp) ** 2 + zp**2
+            skip = rr2 < (NEAR_ZONE * self.radius_um) ** 2
+        pg = self._plane_grid(zp, delta_max, far_field)
+        ex, ey = evaluate_plane(pg, cols, rows, xp, yp, phase, skip)
+        if skip is not None and np.any(skip):
+            ii, jj = np.nonzero(skip)
+            pts = np.column_stack([cols[jj] - xp, rows[ii] - yp, np.full(ii.size, -zp)])
+            e = self._direct_lab(pts) * phase
+            ex[ii, jj] = e[:, 0]
+            ey[ii, jj] = e[:, 1]
+        return ex, ey
+
+
+class BuiltinDDA(ScatteringTheory):
+    """holofit's own discrete-dipole engine.
+
+    Parameters
+    ----------
+    settings : DDASettings, optional
+        Discretisation and solver settings.
+    """
+
+    name = "builtin"
+
+    def __init__(self, settings: DDASettings | None = None, **options: Any) -> None:
+        self.settings = (settings or DDASettings()).replace(**options) if options else (
+            settings or DDASettings())
+        self._lattices: OrderedDict[tuple, Lattice] = OrderedDict()
+        self._systems: OrderedDict[tuple, DipoleSystem] = OrderedDict()
+        self._solutions: dict[tuple, list[DipoleSolution]] = {}
+        self.last_iterations = 0
+
+    def dipole_size(self, model: ParticleModel, optics: Optics) -> float:
+        """The lattice spacing this engine uses for ``model``, um."""
+        if self.settings.dipole_size_um is not None:
+            return self.settings.dipole_size_um
+        return dipole_size(model, optics.wavelength_medium_um, optics.n_medium,
+                           self.settings.dipoles_per_wavelength)
+
+    def lattice(self, model: ParticleModel, optics: Optics) -> Lattice:
+        """The (cached) discretisation of ``model``."""
+        d = self.dipole_size(model, optics)
+        key = (model, d, self.settings.filling)
+        lat = self._lattices.get(key)
+        if lat is None:
+            lat = voxelize(model, d, self.settings.filling)
+            self._lattices[key] = lat
+            while len(self._lattices) > 16:
+                self._lattices.popitem(last=False)
+        return lat
+
+    def _system(self, lat: Lattice, optics: Optics) -> tuple[tuple, DipoleSystem]:
+        dtype = np.complex64 if self.settings.precision == "single" else np.complex128
+        key = (lat.cache_key(), optics.k, optics.n_medium, self.settings.polarizability, dtype)
+        system = self._systems.get(key)
+        if system is None:
+            system = DipoleSystem(lat, optics.k, optics.n_medium, self.settings.polarizability,
+                                  dtype)
+            self._systems[key] = system
+            while len(self._systems) > 8:
+                old, _ = self._systems.popitem(last=False)
+                self._solutions.pop(old, None)
+        return key, system
+
+    def solve(self, model: ParticleModel, optics: Optics,
+              orientation: Orientation | None = None) -> DDAWave:
+        orientation = orientation or Orientation()
+        rot = euler_zyz(*orientation.as_tuple())
+        a_p = rot.T @ PROPAGATION_DIRECTION
+        e_p = rot.T @ optics.polarization
+        lat = self.lattice(model, optics)
+        key, system = self._system(lat, optics)
+        previous = self._solutions.setdefault(key, [])
+        x0 = None
+        if previous:
+            def distance(s: DipoleSolution) -> float:
+                return float(np.sum((s.propagation - a_p) ** 2)
+                             + np.sum((s.polarization - e_p) ** 2))
+
+            best = min(previous, key=distance)
+            if distance(best) < WARM_START_RADIUS**2:
+                x0 = best.x
+        sol = system.solve(a_p, e_p, tol=self.settings.tolerance, x0=x0,
+                           maxiter=self.settings.max_iterations)
+        self.last_iterations = sol.iterations
+        previous.append(sol)
+        if len(previous) > 8:
+            previous.pop(0)
+        return DDAWave(model, optics, orientation, sol, rot)
+
+
+ENGINES["builtin"] = BuiltinDDA

@@ -1,0 +1,403 @@
+"""Vector spherical-wave (multipole) expansion of a scattered field, and its fast evaluation
+on a camera plane.
+
+Outside the sphere that circumscribes the sources, the scattered field is exactly
+
+    E(r) = sum_{n=1}^{L} sum_{m=-n}^{n} p_nm N_nm(kr) + q_nm M_nm(kr),
+    M_nm = h_n(kr) [ (i m / sin th) Y_nm e_th - dY_nm/dth e_ph ],
+    N_nm = n(n+1) h_n(kr)/(kr) Y_nm e_r + xi_n'(kr)/(kr) [ dY_nm/dth e_th + (i m / sin th) Y_nm e_ph ],
+
+with ``Y_nm`` orthonormal spherical harmonics (Condon-Shortley phase), ``h_n = h_n^(1)`` and
+``xi_n(x) = x h_n(x)``; the truncation error falls super-exponentially once ``L`` exceeds
+``k R``. The coefficients follow from the far-field pattern ``A(n) = lim kr exp(-ikr) E`` by
+projection, ``p_nm = i^n <A, Phi_nm> / (n(n+1))``, ``q_nm = i^(n+1) <A, X_nm> / (n(n+1))``,
+done exactly with Gauss-Legendre nodes in ``cos th`` and an FFT in ``phi``.
+
+Camera plane
+------------
+On the plane ``Z = -z_p`` below the particle the field is ``exp(ikr)/(kr) U(th, phi)`` where
+``U`` is smooth and band-limited (degree <= 2L in ``th`` because ``1/(kr) = |cos th|/(k z_p)``,
+<= L+1 in ``phi``). ``U`` is computed exactly on a uniform ``(th, phi)`` grid (per ``th`` row:
+Legendre tables and radial functions, then an FFT over ``m``), and evaluated at every pixel by
+local Lagrange interpolation, oversampled so that the interpolation error is ~1e-9 of the
+field; the exact factor ``exp(ikr)/(kr)`` is applied per pixel. A lateral move of the particle
+only repeats the interpolation; a change of ``z_p`` also recomputes the grid.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from holofit.dda.legendre import legendre_tables
+
+__all__ = ["MultipoleExpansion", "default_order", "expansion_from_far_field"]
+
+
+def default_order(k: float, radius_um: float) -> int:
+    """Series length for sources within ``radius_um``: ``kR + 6 (kR)^(1/3) + 3``."""
+    x = k * radius_um
+    return int(np.ceil(x + 6.0 * x ** (1.0 / 3.0) + 3.0))
+
+
+# -- radial functions -----------------------------------------------------------------------
+
+
+@numba.njit(cache=True, nogil=True)
+def _radial(kr, lmax, far):  # pragma: no cover - compiled
+    """h_n(kr), xi_n'(kr)/(kr) and n(n+1) h_n(kr)/(kr) for n = 0..lmax at each kr."""
+    npts = kr.shape[0]
+    h = np.zeros((npts, lmax + 1), dtype=np.complex128)
+    dx = np.zeros((npts, lmax + 1), dtype=np.complex128)
+    hk = np.zeros((npts, lmax + 1), dtype=np.complex128)
+    for p in range(npts):
+        x = kr[p]
+        e = np.cos(x) + 1j * np.sin(x)
+        if far:
+            fac = e / x
+            c = -1j  # h_n -> (-i)^(n+1) e/x ; xi'/x -> (-i)^n e/x
+            pw = 1.0 + 0j
+            for n in range(lmax + 1):
+                dx[p, n] = pw * fac
+                pw *= c
+                h[p, n] = pw * fac
+                hk[p, n] = 0.0
+            continue
+        h0 = -1j * e / x
+        h[p, 0] = h0
+        if lmax >= 1:
+            h[p, 1] = -e * (x + 1j) / (x * x)
+        for n in range(1, lmax):
+            h[p, n + 1] = (2 * n + 1) / x * h[p, n] - h[p, n - 1]
+        dx[p, 0] = h0 + 0.0  # xi_0'(x)/x = (x h_0)'/x; unused (n >= 1)
+        for n in range(1, lmax + 1):
+            dx[p, n] = h[p, n - 1] - n * h[p, n] / x
+            hk[p, n] = n * (n + 1) * h[p, n] / x
+    return h, dx, hk
+
+
+# -- the expansion --------------------------------------------------------------------------
+
+
+def _full_tables(mu: NDArray, lmax: int) -> tuple[NDArray, NDArray, NDArray]:
+    """Legendre tables extended to negative m: index [point, n, m + L]."""
+    pb, dp, mp = legendre_tables(np.ascontiguousarray(mu, dtype=float), lmax)
+    L = lmax
+    m = np.arange(1, L + 1)
+    sign = (-1.0) ** m
+    shape = (pb.shape[0], L + 1, 2 * L + 1)
+    pf, df, mf = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+    pf[:, :, L:] = pb
+    df[:, :, L:] = dp
+    mf[:, :, L:] = mp
+    # Y_{n,-m} = (-1)^m conj(Y_nm): Pbar^{-m} = (-1)^m Pbar^m, (-m) Pbar^{-m}/sin = -(-1)^m m Pbar^m/sin
+    pf[:, :, L - m] = pb[:, :, m] * sign
+    df[:, :, L - m] = dp[:, :, m] * sign
+    mf[:, :, L - m] = -mp[:, :, m] * sign
+    return pf, df, mf
+
+
+@dataclass
+class MultipoleExpansion:
+    """Coefficients of the outgoing vector spherical-wave expansion of a field (lab frame).
+
+    Attributes
+    ----------
+    k : float
+        Wavenumber in the medium, rad/um.
+    p, q : ndarray, shape (L+1, 2L+1)
+        Coefficients of ``N_nm`` and ``M_nm`` at ``[n, m + L]`` (row n = 0 unused).
+    radius_um : float
+        Radius of the sphere about the origin that contains the sources; the expansion is
+        valid outside it.
+    """
+
+    k: float
+    p: NDArray[np.complex128]
+    q: NDArray[np.complex128]
+    radius_um: float
+
+    @property
+    def order(self) -> int:
+        return self.p.shape[0] - 1
+
+    def spherical_components(
+        self, r: NDArray, theta: NDArray, far: bool = False
+    ) -> tuple[NDArray, NDArray, NDArray]:
+        """Per-m components ``E_r^m, E_th^m, E_ph^m`` (npts, 2L+1) at (r, theta).
+
+        The field is ``sum_m E^m exp(i m phi)``. With ``far`` the asymptotic radial forms are
+        used (and ``E_r = 0``); the factor ``exp(ikr)/(kr)`` is then included as well.
+        """
+        L = self.order
+        kr = self.k * np.asarray(r, dtype=float)
+        h, dx, hk = _radial(np.ascontiguousarray(kr), L, far)
+        pf, df, mf = _full_tables(np.cos(theta), L)
+        n_idx = slice(1, L + 1)
+        p, q = self.p[n_idx], self.q[n_idx]  # (L, 2L+1)
+        h, dx, hk = h[:, n_idx, None], dx[:, n_idx, None], hk[:, n_idx, None]
+        pf, df, mf = pf[:, n_idx], df[:, n_idx], mf[:, n_idx]
+        e_r = np.sum(p * hk * pf, axis=1)
+        e_t = np.sum(p * dx * df + 1j * q * h * mf, axis=1)
+        e_p = np.sum(1j * p * dx * mf - q * h * df, axis=1)
+        return e_r, e_t, e_p
+
+    def field_at(self, points: NDArray, far: bool = False) -> NDArray[np.complex128]:
+        """Field (N, 3), lab Cartesian, at points (N, 3) relative to the expansion centre."""
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        r = np.linalg.norm(pts, axis=1)
+        theta = np.arccos(np.clip(pts[:, 2] / r, -1.0, 1.0))
+        phi = np.arctan2(pts[:, 1], pts[:, 0])
+        L = self.order
+        e_r, e_t, e_p = self.spherical_components(r, theta, far)
+        phase = np.exp(1j * np.outer(phi, np.arange(-L, L + 1)))
+        er, et, ep = (np.sum(c * phase, axis=1) for c in (e_r, e_t, e_p))
+        st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
+        return np.stack(
+            [er * st * cp + et * ct * cp - ep * sp,
+             er * st * sp + et * ct * sp + ep * cp,
+             er * ct - et * st],
+            axis=1,
+        )
+
+    def far_amplitude(self, directions: NDArray) -> NDArray[np.complex128]:
+        """Far-field pattern ``A(n) = lim kr exp(-ikr) E(r n)`` (N, 3) at unit directions."""
+        d = np.atleast_2d(np.asarray(directions, dtype=float))
+        r = 1.0 / self.k  # kr = 1: the far form then carries exp(i)/1
+        e = self.field_at(d * r, far=True)
+        return e * np.exp(-1j)
+
+
+def quadrature(lmax: int, extra: int = 6) -> tuple[NDArray, NDArray, NDArray]:
+    """Gauss-Legendre nodes/weights in cos(theta) and uniform phi, exact to degree ~2L."""
+    n_theta = lmax + 1 + extra
+    n_phi = 2 * lmax + 2 + 2 * extra
+    mu, w = np.polynomial.legendre.leggauss(n_theta)
+    phi = 2.0 * np.pi * np.arange(n_phi) / n_phi
+    return mu, w, phi
+
+
+def expansion_from_far_field(
+    amplitude: Callable[[NDArray], NDArray], k: float, lmax: int, radius_um: float,
+) -> MultipoleExpansion:
+    """Project a far-field pattern onto vector spherical harmonics.
+
+    Parameters
+    ----------
+    amplitude : callable
+        ``directions (M, 3) -> A (M, 3)``: ``A(n) = lim kr exp(-ikr) E(r n)``, lab frame.
+    k : float
+        Wavenumber, rad/um.
+    lmax : int
+        Highest order kept.
+    radius_um : float
+        Radius of the sources' circumscribing sphere (recorded for validity checks).
+    """
+    mu, w, phi = quadrature(lmax)
+    st = np.sqrt(1.0 - mu**2)
+    n_t, n_p = mu.size, phi.size
+    cp, sp = np.cos(phi), np.sin(phi)
+    dirs = np.stack(
+        [np.outer(st, cp), np.outer(st, sp), np.repeat(mu[:, None], n_p, axis=1)], axis=-1
+    ).reshape(-1, 3)
+    a = amplitude(dirs).reshape(n_t, n_p, 3)
+    e_t = np.stack([np.outer(mu, cp), np.outer(mu, sp), np.repeat(-st[:, None], n_p, 1)], -1)
+    e_p = np.stack([np.repeat(-sp[None, :], n_t, 0), np.repeat(cp[None, :], n_t, 0),
+                    np.zeros((n_t, n_p))], -1)
+    a_t = np.sum(a * e_t, axis=-1)
+    a_p = np.sum(a * e_p, axis=-1)
+    # Fourier coefficients over phi: f^m = (1/N) sum_j f_j exp(-i m phi_j)
+    ft = np.fft.fft(a_t, axis=1) / n_p
+    fp = np.fft.fft(a_p, axis=1) / n_p
+    L = lmax
+    m = np.arange(-L, L + 1)
+    ft_m, fp_m = ft[:, m % n_p], fp[:, m % n_p]  # (n_t, 2L+1)
+    pf, df, mf = _full_tables(mu, L)  # (n_t, L+1, 2L+1)
+    wt = 2.0 * np.pi * w[:, None, None]
+    phi_proj = np.sum(wt * (ft_m[:, None, :] * df - fp_m[:, None, :] * 1j * mf), axis=0)
+    x_proj = np.sum(wt * (-ft_m[:, None, :] * 1j * mf - fp_m[:, None, :] * df), axis=0)
+    n = np.arange(L + 1)[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        norm = np.where(n > 0, 1.0 / (n * (n + 1.0)), 0.0)
+    p = (1j**n) * norm * phi_proj
+    q = (1j ** (n + 1)) * norm * x_proj
+    valid = np.abs(m)[None, :] <= n
+    p = np.where(valid, p, 0.0)
+    q = np.where(valid, q, 0.0)
+    p[0] = 0.0
+    q[0] = 0.0
+    return MultipoleExpansion(k=k, p=p, q=q, radius_um=radius_um)
+
+
+# -- fast evaluation on a camera plane -------------------------------------------------------
+
+#: Lagrange stencil (points per axis) and oversampling: the interpolation error of a band-limited
+#: function is ~ 43 (c)^8 / 8! with c = (band limit) x (grid step) = 0.25, i.e. ~2e-8 of the
+#: amplitude of its highest harmonic (whose own amplitude is far below the field's).
+STENCIL = 8
+STEP_FACTOR = 0.25
+
+
+@dataclass
+class PlaneGrid:
+    """``U = kr exp(-ikr) E_{x,y}`` of a field on a plane, sampled on a (delta, phi) grid.
+
+    ``delta`` is the angle from the downward (or upward, for ``z_p < 0``) vertical through the
+    expansion centre; row ``i`` holds ``delta = (i - n_ext) * step`` (rows ``< n_ext`` are the
+    reflection through the pole, ``U(-delta, phi) = U(delta, phi + pi)``).
+    """
+
+    ux: NDArray[np.complex128]
+    uy: NDArray[np.complex128]
+    step: float
+    delta_max: float
+    n_phi: int
+    n_ext: int
+    z_p: float
+    k: float
+
+
+def plane_grid(
+    expansion: MultipoleExpansion, z_p: float, delta_max: float, far: bool = False
+) -> PlaneGrid:
+    """Sample ``U`` on the plane ``Z = -z_p`` (relative to the expansion centre).
+
+    Parameters
+    ----------
+    expansion : MultipoleExpansion
+        The field.
+    z_p : float
+        Height of the expansion centre above the plane, um (non-zero; negative: below).
+    delta_max : float
+        Largest angle from the vertical that the pixels need, rad.
+    far : bool
+        Use the asymptotic (far-field) radial dependence.
+    """
+    if z_p == 0:
+        raise ValueError("the particle centre lies in the detector plane (z = 0)")
+    L = expansion.order
+    k = expansion.k
+    step = STEP_FACTOR / (2 * L + 2)
+    n_phi = int(np.ceil(2 * np.pi * (L + 1) / STEP_FACTOR / 2.0)) * 2
+    n_ext = STENCIL
+    n_rows = int(np.ceil(delta_max / step)) + STENCIL // 2 + 2
+    delta = np.arange(n_rows) * step
+    if delta[-1] >= np.pi / 2:
+        raise ValueError(
+            f"pixels up to {np.degrees(delta_max):.1f} deg off the vertical through the "
+            "particle: too close to grazing for the plane grid"
+        )
+    r = abs(z_p) / np.cos(delta)
+    theta = np.pi - delta if z_p > 0 else delta
+    e_r, e_t, e_p = expansion.spherical_components(r, theta, far)
+    m = np.arange(-L, L + 1)
+    cols = m % n_phi
+    grids = []
+    for comp in (e_r, e_t, e_p):
+        g = np.zeros((n_rows, n_phi), dtype=complex)
+        np.add.at(g, (slice(None), cols), comp)
+        grids.append(np.fft.ifft(g, axis=1) * n_phi)
+    er, et, ep = grids
+    phi = 2.0 * np.pi * np.arange(n_phi) / n_phi
+    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
+    cp, sp = np.cos(phi)[None, :], np.sin(phi)[None, :]
+    rho_part = er * st + et * ct
+    ex = rho_part * cp - ep * sp
+    ey = rho_part * sp + ep * cp
+    if not far:
+        factor = (k * r * np.exp(-1j * k * r))[:, None]
+        ex, ey = ex * factor, ey * factor
+    # far mode: spherical_components already included exp(ikr)/(kr); remove it the same way
+    else:
+        factor = (k * r * np.exp(-1j * k * r))[:, None]
+        ex, ey = ex * factor, ey * factor
+    half = n_phi // 2
+    ext_x = np.roll(ex[1 : n_ext + 1][::-1], half, axis=1)
+    ext_y = np.roll(ey[1 : n_ext + 1][::-1], half, axis=1)
+    return PlaneGrid(
+        ux=np.ascontiguousarray(np.vstack([ext_x, ex])),
+        uy=np.ascontiguousarray(np.vstack([ext_y, ey])),
+        step=step, delta_max=float(delta_max), n_phi=n_phi, n_ext=n_ext, z_p=float(z_p), k=k,
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def _lagrange_weights(t, n, w):  # pragma: no cover - compiled
+    """Weights of the n-point Lagrange interpolant at t (nodes 0..n-1) into w."""
+    for a in range(n):
+        v = 1.0
+        for b in range(n):
+            if b != a:
+                v *= (t - b) / (a - b)
+        w[a] = v
+
+
+@numba.njit(cache=True, nogil=True)
+def _interp_plane(ux, uy, step, n_phi, n_ext, z_p, k, xs, ys, xp, yp, phase_r, phase_i,
+                  ex, ey, skip):  # pragma: no cover - compiled
+    n = STENCIL
+    half = n // 2 - 1
+    wt = np.empty(n)
+    wp = np.empty(n)
+    two_pi = 2.0 * np.pi
+    hphi = two_pi / n_phi
+    az = abs(z_p)
+    ph = phase_r + 1j * phase_i
+    for i in range(ys.shape[0]):
+        dy = ys[i] - yp
+        for j in range(xs.shape[0]):
+            if skip[i, j]:
+                continue
+            dx = xs[j] - xp
+            rho = np.sqrt(dx * dx + dy * dy)
+            r = np.sqrt(rho * rho + az * az)
+            delta = np.arctan2(rho, az)
+            phi = np.arctan2(dy, dx)
+            if phi < 0.0:
+                phi += two_pi
+            t = delta / step + n_ext
+            i0 = int(np.floor(t)) - half
+            _lagrange_weights(t - i0, n, wt)
+            u = phi / hphi
+            j0 = int(np.floor(u)) - half
+            _lagrange_weights(u - j0, n, wp)
+            sx = 0.0 + 0.0j
+            sy = 0.0 + 0.0j
+            for a in range(n):
+                rx = 0.0 + 0.0j
+                ry = 0.0 + 0.0j
+                row = i0 + a
+                for b in range(n):
+                    col = (j0 + b) % n_phi
+                    rx += wp[b] * ux[row, col]
+                    ry += wp[b] * uy[row, col]
+                sx += wt[a] * rx
+                sy += wt[a] * ry
+            kr = k * r
+            f = (np.cos(kr) + 1j * np.sin(kr)) / kr * ph
+            ex[i, j] = sx * f
+            ey[i, j] = sy * f
+
+
+def evaluate_plane(
+    grid: PlaneGrid, xs: NDArray, ys: NDArray, xp: float, yp: float,
+    phase: complex = 1.0, skip: NDArray | None = None,
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """Transverse field ``(E_x, E_y)`` at pixel centres (columns ``xs``, rows ``ys``, um).
+
+    ``(xp, yp)`` is the lateral position of the expansion centre; ``phase`` multiplies the
+    result (the incident phase at the particle); pixels where ``skip`` is True are left 0.
+    """
+    ex = np.zeros((ys.size, xs.size), dtype=complex)
+    ey = np.zeros_like(ex)
+    if skip is None:
+        skip = np.zeros(ex.shape, dtype=np.bool_)
+    _interp_plane(grid.ux, grid.uy, grid.step, grid.n_phi, grid.n_ext, grid.z_p, grid.k,
+                  np.ascontiguousarray(xs, dtype=float), np.ascontiguousarray(ys, dtype=float),
+                  float(xp), float(yp), complex(phase).real, complex(phase).imag, ex, ey,
+                  np.ascontiguousarray(skip))
+    return ex, ey

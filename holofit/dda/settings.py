@@ -1,0 +1,87 @@
+"""Settings of the built-in DDA engine (the ``[dda]`` table of a particle-model file)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from holofit.config import ConfigError, Spec, validate_table
+
+__all__ = ["DDASettings"]
+
+_SPECS: dict[str, Spec] = {
+    "dipole_size_um": Spec("float", "the dipole size in um", 0.001, 1.0, required=False),
+    "dipoles_per_wavelength": Spec(
+        "float", "dipoles per wavelength in the particle", 3.0, 100.0, required=False,
+        default=10.0,
+    ),
+    "filling": Spec("str", "'fractional' or 'binary'", required=False, default="fractional"),
+    "polarizability": Spec("str", "'ldr' or 'cm'", required=False, default="ldr"),
+    "tolerance": Spec("float", "the solver's relative residual", 1e-14, 0.1, required=False,
+                      default=1e-5),
+    "max_iterations": Spec("int", "the solver's iteration limit", 1, 100000, required=False,
+                           default=2000),
+    "precision": Spec("str", "'double' or 'single' FFT convolution", required=False,
+                      default="double"),
+    "engine": Spec("str", "'builtin' or 'adda'", required=False, default="builtin"),
+}
+
+
+@dataclass(frozen=True)
+class DDASettings:
+    """How the built-in engine discretises and solves a particle.
+
+    Attributes
+    ----------
+    dipole_size_um : float or None
+        Lattice spacing; None: from ``dipoles_per_wavelength`` and the model's largest index.
+        Fits must keep it fixed (the fit stage freezes it at its first model).
+    dipoles_per_wavelength : float
+        ``d = lambda_medium / (dpl * max |m|)``; 10 is ADDA's rule.
+    filling : {"fractional", "binary"}
+        Smooth fractional filling (default) or centre-inside voxels.
+    polarizability : {"ldr", "cm"}
+        Lattice dispersion relation (ADDA's default) or Clausius-Mossotti.
+    tolerance : float
+        Relative residual of the QMR solve (ADDA's default 1e-5).
+    max_iterations : int
+        Iteration limit; a solve that hits it raises :class:`~holofit.dda.solver.ConvergenceError`.
+    precision : {"double", "single"}
+        Precision of the FFT convolution (single is ~1.7x faster, ~1e-7 relative error).
+    engine : {"builtin", "adda"}
+        Which engine a pipeline run uses for this particle.
+    """
+
+    dipole_size_um: float | None = None
+    dipoles_per_wavelength: float = 10.0
+    filling: str = "fractional"
+    polarizability: str = "ldr"
+    tolerance: float = 1e-5
+    max_iterations: int = 2000
+    precision: str = "double"
+    engine: str = "builtin"
+
+    def __post_init__(self) -> None:
+        choices = {"filling": ("fractional", "binary"), "polarizability": ("ldr", "cm"),
+                   "precision": ("double", "single"), "engine": ("builtin", "adda")}
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"dda {name} must be one of {allowed}, got {getattr(self, name)!r}")
+
+    @classmethod
+    def from_dict(cls, table: dict[str, Any], path: str | Path = "<dda settings>") -> DDASettings:
+        """Validated settings from a ``[dda]`` table (errors name the file and key)."""
+        values = validate_table(table, _SPECS, Path(path), "dda")
+        try:
+            return cls(**values)
+        except ValueError as exc:
+            raise ConfigError(f"{path}: [dda]: {exc}") from None
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def replace(self, **changes: Any) -> DDASettings:
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values.update(changes)
+        return DDASettings(**values)
