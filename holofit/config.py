@@ -93,6 +93,16 @@ def _check_value(path: Path, where: str, key: str, value: Any, spec: Spec) -> An
         return value
     if spec.kind == "index":
         return _check_index(loc, value, spec)
+    if spec.kind == "indices":
+        if not isinstance(value, list) or not value:
+            raise ConfigError(f"{loc}: expected {spec.expected} as a list, got {value!r}")
+        sub = Spec("index", "an absolute refractive index", *INDEX_RANGE)
+        return tuple(_check_index(f"{loc}[{i}]", v, sub) for i, v in enumerate(value))
+    if spec.kind == "vector3":
+        if (not isinstance(value, list) or len(value) != 3
+                or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)):
+            raise ConfigError(f"{loc}: expected {spec.expected} as [x, y, z], got {value!r}")
+        return tuple(float(v) for v in value)
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ConfigError(f"{loc}: expected {spec.expected} (a number), got {value!r}")
     if spec.kind == "int":
@@ -290,12 +300,22 @@ INDEX_RANGE = (1.0, 5.0)
 def model_specs(kind: str) -> dict[str, Spec]:
     """Key specifications for the parameters of particle model ``kind``."""
     cls = MODEL_TYPES[kind]
+    if kind == "voxels":
+        return {
+            "path": Spec("str", "the ADDA shape file (relative to this config file)"),
+            "dipole_size_um": Spec("float", "the dipole size in um", 0.001, 1.0, hint=_nm_hint),
+            "indices": Spec("indices", "the refractive index of each domain"),
+            "centre_um": Spec("vector3", "the particle centre relative to the dipole box "
+                              "centre, um", required=False, default=(0.0, 0.0, 0.0)),
+        }
     specs: dict[str, Spec] = {}
     for name in (f.name for f in dataclasses.fields(cls)):
         if name in cls.size_fields:
-            specs[name] = Spec(
-                "float", f"{name.removesuffix('_um')} in um", *SIZE_RANGE_UM, hint=_nm_hint
-            )
+            specs[name] = Spec("float", f"{name.removesuffix('_um')} in um", *SIZE_RANGE_UM,
+                               hint=_nm_hint)
+        elif name in cls.nonnegative_fields:
+            specs[name] = Spec("float", f"{name.removesuffix('_um')} in um (>= 0)", 0.0,
+                               SIZE_RANGE_UM[1], hint=_nm_hint)
         elif name in cls.index_fields:
             specs[name] = Spec("index", "an absolute refractive index", *INDEX_RANGE)
         else:
@@ -328,6 +348,12 @@ class ParticleConfig:
         }
         return {"model": self.model.kind, **params, "settings": self.settings, "path": self.path}
 
+    def dda_settings(self) -> Any:
+        """The ``[dda]`` table as :class:`holofit.dda.settings.DDASettings` (defaults if absent)."""
+        from holofit.dda.settings import DDASettings
+
+        return DDASettings.from_dict(self.settings.get("dda", {}), self.path)
+
 
 def load_particle(path: str | Path) -> ParticleConfig:
     """Load and validate a particle-model TOML file.
@@ -354,11 +380,24 @@ def load_particle(path: str | Path) -> ParticleConfig:
     specs["description"] = Spec("str", "free text", required=False, default="")
     values = validate_table(params, specs, path, "particle")
     values.pop("description")
+    if kind == "voxels":
+        shape_file = Path(values["path"])
+        if not shape_file.is_absolute():
+            shape_file = path.parent / shape_file
+        if not shape_file.is_file():
+            raise ConfigError(f"{path}: [particle] key 'path': shape file {shape_file} not found")
+        values["path"] = str(shape_file)
     try:
         model = MODEL_TYPES[kind](**values)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{path}: [particle]: {exc}") from None
     settings = {k: v for k, v in doc.items() if k != "particle"}
+    if "dda" in settings:
+        from holofit.dda.settings import DDASettings
+
+        if not isinstance(settings["dda"], dict):
+            raise ConfigError(f"{path}: [dda] must be a table")
+        DDASettings.from_dict(settings["dda"], path)  # validate now, with the file's name
     return ParticleConfig(model=model, settings=settings, path=str(path))
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from holofit.dda.interaction import Interaction, get_interaction
+from holofit.dda.interaction import Convolver, Interaction, get_interaction
 from holofit.dda.lattice import Lattice
 from holofit.dda.polarizability import ldr_s_term, polarizability
 from holofit.dda.solver import ConvergenceError, SolveResult, qmr_cs
@@ -74,8 +74,11 @@ class DipoleSystem:
         self.dtype = np.dtype(dtype)
         self.eps_rel = lattice.relative_permittivity(n_medium)
         self.interaction: Interaction = get_interaction(lattice.shape, lattice.d, self.k, dtype)
-        self._box = np.zeros((3, *lattice.shape), dtype=self.dtype)
-        self._flat = lattice.flat_index
+        self._conv = Convolver(self.interaction, lattice.shape)
+        nx, ny, nz = lattice.shape
+        # flat index of each dipole in the (z, y, x) box layout of the convolver
+        self._flat = np.ravel_multi_index(
+            (lattice.ijk[:, 2], lattice.ijk[:, 1], lattice.ijk[:, 0]), (nz, ny, nx))
         self.matvecs = 0
 
     def alpha(self, propagation: ArrayLike, polarization: ArrayLike) -> NDArray[np.complex128]:
@@ -85,13 +88,13 @@ class DipoleSystem:
 
     def _matvec(self, x: NDArray, sqrt_alpha: NDArray) -> NDArray:
         n = self.lattice.n_dipoles
-        y = (x.reshape(n, 3) * sqrt_alpha[:, None]).astype(self.dtype, copy=False)
-        box = self._box
-        box.fill(0)
-        flat = box.reshape(3, -1)
+        y = x.reshape(n, 3) * sqrt_alpha[:, None]
+        field = self._conv.field
+        field.fill(0)
+        flat = field.reshape(3, -1)
         flat[:, self._flat] = y.T
-        z = self.interaction.convolve(box)
-        gz = z.reshape(3, -1)[:, self._flat].T.astype(np.complex128, copy=False)
+        z = self._conv.convolve()
+        gz = z.reshape(3, -1)[:, self._flat].T
         self.matvecs += 1
         return (x.reshape(n, 3) - sqrt_alpha[:, None] * gz).ravel()
 

@@ -8,7 +8,7 @@ Solving a particle (``BuiltinDDA.solve``):
    same lattice; the interaction's FFT is cached per (grid, d, k);
 3. the returned :class:`DDAWave` knows the exact scattered field everywhere outside the
    particle: a multipole expansion (built lazily from the far-field pattern) serves points
-   outside 1.5x the circumscribing sphere, direct dipole summation the points closer in; on a
+   outside twice the circumscribing sphere, direct dipole summation the points closer in; on a
    camera plane the expansion is evaluated through :mod:`holofit.dda.multipole`'s
    interpolated grid, so a new particle position costs milliseconds, not a new solve.
 """
@@ -23,20 +23,22 @@ from numpy.typing import ArrayLike, NDArray
 
 from holofit.conventions import PROPAGATION_DIRECTION, DetectorGrid, euler_zyz, incident_phase_at
 from holofit.dda import multipole
-from holofit.dda.dipoles import DipoleSolution, DipoleSystem
-from holofit.dda.farfield import far_field
+from holofit.dda.dipoles import DipoleSolution, DipoleSystem, incident_field
+from holofit.dda.farfield import far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
 from holofit.dda.multipole import (
     MultipoleExpansion,
     PlaneGrid,
     default_order,
     evaluate_plane,
-    expansion_from_far_field,
     plane_grid,
+    project_far_field,
+    quadrature,
 )
 from holofit.dda.nearfield import direct_field
 from holofit.dda.settings import DDASettings
 from holofit.dda.voxelize import dipole_size, voxelize
+from holofit.dda.wigner import rotate_coefficients
 from holofit.models import ParticleModel
 from holofit.optics import Optics
 from holofit.scattering.registry import ENGINES
@@ -45,9 +47,12 @@ from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheo
 __all__ = ["BuiltinDDA", "DDAWave"]
 
 #: points closer to the centre than this multiple of the circumscribing radius use direct sums
-NEAR_ZONE = 1.5
+NEAR_ZONE = 2.0
 #: warm-start from an earlier solution only if its incident wave is this close (rad-ish)
 WARM_START_RADIUS = 0.3
+#: earlier solutions kept per lattice, and used at most in one least-squares warm start
+MAX_STORED_SOLUTIONS = 6
+MAX_WARM_BASIS = 4
 #: relative size below which trailing multipole orders are dropped (numerical noise)
 COEFF_FLOOR = 1e-13
 
@@ -106,12 +111,16 @@ class DDAWave(ScatteredWave):
     def expansion(self) -> MultipoleExpansion:
         """Multipole expansion of the scattered field about the particle centre (lab frame)."""
         if self._expansion is None:
+            # far field on a particle-frame quadrature grid (separable lattice sums), projected
+            # onto vector spherical harmonics there, then rotated to the lab (Wigner D)
             k = self.optics.k
             order = default_order(k, self.radius_um)
-            full = expansion_from_far_field(
-                lambda d: 1j * self.far_field_amplitude(d), k, order, self.radius_um
-            )
-            self._expansion = _trim(full)
+            mu, w, phi = quadrature(order)
+            a = 1j * far_field_on_grid(self.lattice, self.solution.P, k, mu, phi)
+            p, q = project_far_field(a, mu, w, phi, order)
+            p = rotate_coefficients(p, self.rotation)
+            q = rotate_coefficients(q, self.rotation)
+            self._expansion = _trim(MultipoleExpansion(k, p, q, self.radius_um))
         return self._expansion
 
     # -- fields ---------------------------------------------------------------------------
@@ -238,22 +247,55 @@ class BuiltinDDA(ScatteringTheory):
         lat = self.lattice(model, optics)
         key, system = self._system(lat, optics)
         previous = self._solutions.setdefault(key, [])
-        x0 = None
-        if previous:
-            def distance(s: DipoleSolution) -> float:
-                return float(np.sum((s.propagation - a_p) ** 2)
-                             + np.sum((s.polarization - e_p) ** 2))
-
-            best = min(previous, key=distance)
-            if distance(best) < WARM_START_RADIUS**2:
-                x0 = best.x
+        x0 = self._warm_start(lat, optics.k, previous, a_p, e_p, system)
         sol = system.solve(a_p, e_p, tol=self.settings.tolerance, x0=x0,
                            maxiter=self.settings.max_iterations)
         self.last_iterations = sol.iterations
         previous.append(sol)
-        if len(previous) > 8:
+        if len(previous) > MAX_STORED_SOLUTIONS:
             previous.pop(0)
         return DDAWave(model, optics, orientation, sol, rot)
+
+
+    @staticmethod
+    def _warm_start(lat: Lattice, k: float, previous: list[DipoleSolution], a_p: NDArray,
+                    e_p: NDArray, system: DipoleSystem) -> NDArray[np.complex128] | None:
+        """Initial guess for the new incident wave from earlier solutions of the same lattice.
+
+        With several nearby solutions, the new incident field is fitted (least squares) by
+        theirs and the same combination of their dipole moments is the guess (the system is
+        linear); with one, its moments are rotated and re-phased to the new wave (a rotation of
+        the particle rotates the field it feels and shifts its phase by ``exp(ik da.r)``).
+        """
+        def distance(s: DipoleSolution) -> float:
+            return float(np.sum((s.propagation - a_p) ** 2) + np.sum((s.polarization - e_p) ** 2))
+
+        near = sorted((s for s in previous if distance(s) < WARM_START_RADIUS**2), key=distance)
+        if not near:
+            return None
+        pos = lat.positions
+        if len(near) >= 2:
+            near = near[:MAX_WARM_BASIS]
+            basis = np.array([incident_field(pos, k, s.propagation, s.polarization).ravel()
+                              for s in near]).T
+            target = incident_field(pos, k, a_p, e_p).ravel()
+            coef, *_ = np.linalg.lstsq(basis, target, rcond=None)
+            p0 = np.einsum("i,inc->nc", coef, np.array([s.P for s in near]))
+        else:
+            s = near[0]
+            q = _rotation_between((s.propagation, s.polarization), (a_p, e_p))
+            phase = np.exp(1j * k * (pos @ (a_p - s.propagation)))
+            p0 = (s.P @ q.T) * phase[:, None]
+        alpha = system.alpha(a_p, e_p)
+        return (p0 / np.sqrt(alpha)[:, None]).ravel()
+
+
+def _rotation_between(old: tuple[NDArray, NDArray], new: tuple[NDArray, NDArray]) -> NDArray:
+    """Rotation taking the orthonormal pair (a, e) of ``old`` to that of ``new``."""
+    def frame(a: NDArray, e: NDArray) -> NDArray:
+        return np.column_stack([a, e, np.cross(a, e)])
+
+    return frame(*new) @ frame(*old).T
 
 
 ENGINES["builtin"] = BuiltinDDA

@@ -17,7 +17,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from holofit.dda.lattice import Lattice
 
-__all__ = ["adda_amplitude_matrix", "dipole_sum", "far_field"]
+__all__ = [
+    "adda_amplitude_matrix",
+    "dipole_sum",
+    "dipole_sum_on_grid",
+    "far_field",
+    "far_field_on_grid",
+]
 
 
 def dipole_sum(
@@ -81,3 +87,52 @@ def adda_amplitude_matrix(
     s4 = c * fx_p + s * fy_p
     s1 = s * fx_p - c * fy_p
     return np.stack([s1, s2, s3, s4], axis=1)
+
+
+def dipole_sum_on_grid(
+    lattice: Lattice, P: NDArray[np.complex128], k: float, mu: NDArray, phi: NDArray
+) -> NDArray[np.complex128]:
+    """``sum_j P_j exp(-i k n . r_j)`` on a tensor grid of lattice-frame directions.
+
+    ``n = (sin th cos ph, sin th sin ph, cos th)`` with ``cos th = mu[i]``, ``ph = phi[j]``.
+    The z sum is done once per polar angle (one matrix product for all of them) and the x-y
+    sum per polar angle as two small products, so the cost is
+    ``O(N_box (n_theta + n_theta n_phi / n_z))`` instead of ``O(N_box n_theta n_phi)``.
+
+    Returns
+    -------
+    ndarray, shape (n_theta, n_phi, 3)
+    """
+    nx, ny, nz = lattice.shape
+    d = lattice.d
+    box = np.zeros((3, nx * ny * nz), dtype=complex)
+    box[:, lattice.flat_index] = P.T
+    box = box.reshape(3 * nx * ny, nz)
+    ix, iy, iz = (np.arange(m) for m in lattice.shape)
+    ez = np.exp(-1j * k * d * np.outer(iz, mu))  # (nz, n_theta)
+    q = (box @ ez).reshape(3, nx, ny, mu.size)
+    st = np.sqrt(1.0 - mu**2)
+    out = np.empty((mu.size, phi.size, 3), dtype=complex)
+    cp, sp = np.cos(phi), np.sin(phi)
+    ox, oy, oz = lattice.origin
+    for i in range(mu.size):
+        kap = k * st[i] * d
+        ey = np.exp(-1j * kap * np.outer(iy, sp))  # (ny, n_phi)
+        ex = np.exp(-1j * kap * np.outer(ix, cp))  # (nx, n_phi)
+        t = (q[..., i].reshape(3 * nx, ny) @ ey).reshape(3, nx, phi.size)
+        t = np.einsum("cxj,xj->jc", t, ex)
+        phase = np.exp(-1j * k * (st[i] * (cp * ox + sp * oy) + mu[i] * oz))
+        out[i] = t * phase[:, None]
+    return out
+
+
+def far_field_on_grid(
+    lattice: Lattice, P: NDArray[np.complex128], k: float, mu: NDArray, phi: NDArray
+) -> NDArray[np.complex128]:
+    """``F(n)`` (n_theta, n_phi, 3) on a tensor grid of lattice-frame directions."""
+    s = dipole_sum_on_grid(lattice, P, k, mu, phi)
+    st = np.sqrt(1.0 - mu**2)
+    n = np.stack([np.outer(st, np.cos(phi)), np.outer(st, np.sin(phi)),
+                  np.repeat(mu[:, None], phi.size, axis=1)], axis=-1)
+    s_perp = s - n * np.sum(n * s, axis=-1, keepdims=True)
+    return -1j * k**3 * s_perp

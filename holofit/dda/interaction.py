@@ -4,13 +4,21 @@ Point-dipole Green's tensor (Gaussian units, ADDA ``-int poi``):
 
     G(R) = exp(ikR)/R [k^2 (I - R^ R^) - (1 - ikR)/R^2 (I - 3 R^ R^)],   G(0) = 0.
 
-Its values at the lattice offsets are embedded in a circulant grid of ``M >= 2n - 1`` points
-per axis (``M`` an FFT-friendly size), Fourier transformed once and cached per
-``(grid, d, k, precision)``, so the interaction of every box that fits in the grid (any particle
-size and orientation with the same d and k) reuses it. The convolution skips the FFTs of
-all-zero blocks ("pruned" transforms, as ADDA does): the forward transform runs along z on
-the ``nx * ny`` occupied lines only, then y on ``nx * Mz`` lines, then x on all; the inverse in
-the opposite order, keeping only the box. That is 7/12 of the work of full 3D transforms.
+Circulant embedding
+    Its values at the lattice offsets are embedded in a circulant grid of ``M >= 2n`` points per
+    axis (``M`` even and FFT-friendly). Every component is even or odd in each axis (``G_xy`` is
+    odd in x and y, ``G_xx`` even in all), and so is its DFT: only one octant of the transform
+    is stored (1/8 of the memory), computed directly with DCT-I/DST-I transforms of the octant
+    of ``G``, and unfolded with the right signs on the fly. It is cached per
+    ``(grid, d, k, precision)``; every box that fits the grid (any size, any orientation with the
+    same d and k) reuses it.
+
+Pruned transforms
+    Box fields are stored in (component, z, y, x) order. The forward transform runs along z on
+    the ``ny * nx`` occupied lines only, then along y on ``Mz * nx`` lines, then along the
+    contiguous x axis on all; the inverse in the opposite order, keeping only the box. That is
+    7/12 of the work of full 3D transforms, and the full-size passes run along contiguous
+    memory. Buffers are preallocated per box (no allocation per product).
 """
 
 from __future__ import annotations
@@ -23,10 +31,18 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-__all__ = ["Interaction", "get_interaction", "green_tensor"]
+__all__ = ["Convolver", "Interaction", "clear_cache", "get_interaction", "green_tensor",
+           "grid_for_box"]
 
 _CACHE: OrderedDict[tuple, Interaction] = OrderedDict()
 CACHE_SIZE = 3
+#: component order of the stored tensor and, per component, its parity along (x, y, z):
+#: 1 = even, -1 = odd
+COMPONENTS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+PARITY = {
+    (0, 0): (1, 1, 1), (0, 1): (-1, -1, 1), (0, 2): (-1, 1, -1),
+    (1, 1): (1, 1, 1), (1, 2): (1, -1, -1), (2, 2): (1, 1, 1),
+}
 
 
 def green_tensor(r: NDArray[np.float64], k: float) -> NDArray[np.complex128]:
@@ -42,106 +58,181 @@ def green_tensor(r: NDArray[np.float64], k: float) -> NDArray[np.complex128]:
     return np.where((dist > 0)[..., None, None], g, 0.0)
 
 
-def _signed_offsets(m: int) -> NDArray[np.float64]:
-    i = np.arange(m)
-    return np.where(i <= m // 2, i, i - m).astype(float)
+def _smooth_even(m: int) -> int:
+    """Smallest even 5-smooth integer >= m."""
+    m = max(m + (m % 2), 2)
+    while True:
+        r = m
+        for f in (2, 3, 5):
+            while r % f == 0:
+                r //= f
+        if r == 1:
+            return m
+        m += 2
 
 
-@numba.njit(cache=True, nogil=True)
-def _tensor_apply(g, y):  # pragma: no cover - compiled
-    """In place ``y[:, p] = G[:, p] . y[:, p]`` with G stored as xx, xy, xz, yy, yz, zz."""
-    for p in range(y.shape[1]):
-        y0 = y[0, p]
-        y1 = y[1, p]
-        y2 = y[2, p]
-        y[0, p] = g[0, p] * y0 + g[1, p] * y1 + g[2, p] * y2
-        y[1, p] = g[1, p] * y0 + g[3, p] * y1 + g[4, p] * y2
-        y[2, p] = g[2, p] * y0 + g[4, p] * y1 + g[5, p] * y2
+def grid_for_box(shape: tuple[int, int, int]) -> tuple[int, int, int]:
+    """Circulant grid ``(Mx, My, Mz)`` for a box ``(nx, ny, nz)``: even, 5-smooth, ``>= 2n``."""
+    return tuple(_smooth_even(2 * n) for n in shape)  # type: ignore[return-value]
+
+
+def _octant_transform(g: NDArray, parity: tuple[int, int, int]) -> NDArray:
+    """DFT of a circulant array with the given parity, from its octant (z, y, x order).
+
+    ``g`` holds offsets ``0..M/2`` along each axis (axes ordered z, y, x); ``parity`` is given
+    as (x, y, z). Even axes use DCT-I, odd axes DST-I (with ``-i`` factors).
+    """
+    out = g.astype(complex)
+    for axis, par in zip((2, 1, 0), parity, strict=True):  # x is axis 2, z axis 0
+        if par == 1:
+            out = sfft.dct(out.real, type=1, axis=axis) + 1j * sfft.dct(out.imag, type=1,
+                                                                         axis=axis)
+        else:
+            inner = np.take(out, np.arange(1, out.shape[axis] - 1), axis=axis)
+            tr = sfft.dst(inner.real, type=1, axis=axis) + 1j * sfft.dst(inner.imag, type=1,
+                                                                          axis=axis)
+            tr = -1j * tr
+            pad = [(0, 0)] * 3
+            pad[axis] = (1, 1)
+            out = np.pad(tr, pad)
+    return out
 
 
 @dataclass(eq=False)
 class Interaction:
-    """Fourier-transformed interaction tensor on a circulant grid.
+    """Fourier-transformed interaction tensor on a circulant grid (one octant stored).
 
     Attributes
     ----------
     grid : tuple of int
-        FFT grid ``(Mx, My, Mz)``.
+        FFT grid ``(Mx, My, Mz)`` (all even).
     d : float
         Dipole size, um.
     k : float
         Wavenumber in the medium, rad/um.
-    g_hat : ndarray, shape (6, Mx*My*Mz)
-        FFT of the xx, xy, xz, yy, yz, zz components.
+    g_oct : ndarray, shape (6, Mz/2+1, My/2+1, Mx/2+1)
+        Octant of the DFT of xx, xy, xz, yy, yz, zz.
     """
 
     grid: tuple[int, int, int]
     d: float
     k: float
-    g_hat: NDArray[np.complexfloating]
+    g_oct: NDArray[np.complexfloating]
 
     @classmethod
     def build(cls, grid: tuple[int, int, int], d: float, k: float,
               dtype: type = np.complex128) -> Interaction:
-        ox, oy, oz = (_signed_offsets(m) * d for m in grid)
-        x = ox[:, None, None]
-        y = oy[None, :, None]
-        z = oz[None, None, :]
+        if any(m % 2 for m in grid):
+            raise ValueError(f"interaction grid must be even along every axis, got {grid}")
+        mx, my, mz = grid
+        x = (np.arange(mx // 2 + 1) * d)[None, None, :]
+        y = (np.arange(my // 2 + 1) * d)[None, :, None]
+        z = (np.arange(mz // 2 + 1) * d)[:, None, None]
         dist = np.sqrt(x * x + y * y + z * z)
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = np.where(dist > 0, 1.0 / dist, 0.0)
             e = np.exp(1j * k * dist) * inv
             a = e * (k**2 - (1 - 1j * k * dist) * inv**2)
             b = e * (3 * (1 - 1j * k * dist) * inv**2 - k**2)
-        comps = []
-        for p, q in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):
-            rp = (x, y, z)[p] * inv
-            rq = (x, y, z)[q] * inv
-            g = b * rp * rq
+        del e
+        # offsets M/2 are never used by a box that fits (n <= M/2): zero them so that the
+        # embedded array has exact parity
+        outer = np.zeros(dist.shape, dtype=bool)
+        outer[-1, :, :] = outer[:, -1, :] = outer[:, :, -1] = True
+        coords = (x, y, z)
+        g_oct = np.empty((6, mz // 2 + 1, my // 2 + 1, mx // 2 + 1), dtype=dtype)
+        for c, (p, q) in enumerate(COMPONENTS):
+            g = b * (coords[p] * inv) * (coords[q] * inv)
             if p == q:
                 g = g + a
-            g = np.where(dist > 0, g, 0.0)
-            comps.append(sfft.fftn(g, workers=1).ravel())
-        g_hat = np.ascontiguousarray(np.array(comps), dtype=dtype)
-        return cls(grid=tuple(int(v) for v in grid), d=d, k=k, g_hat=g_hat)  # type: ignore[arg-type]
+            g = np.where((dist > 0) & ~outer, g, 0.0)
+            g_oct[c] = _octant_transform(g, PARITY[(p, q)])
+        return cls(grid=tuple(int(v) for v in grid), d=d, k=k, g_oct=g_oct)  # type: ignore[arg-type]
 
     @property
     def dtype(self) -> np.dtype:
-        return self.g_hat.dtype
-
-    def convolve(self, y: NDArray[np.complexfloating]) -> NDArray[np.complexfloating]:
-        """``z_i = sum_j G(r_i - r_j) y_j`` for a box field ``y`` of shape (3, nx, ny, nz)."""
-        _, nx, ny, nz = y.shape
-        mx, my, mz = self.grid
-        if nx > (mx + 1) // 2 or ny > (my + 1) // 2 or nz > (mz + 1) // 2:
-            raise ValueError(f"box {y.shape[1:]} does not fit the interaction grid {self.grid}")
-        t = sfft.fft(y, n=mz, axis=3, workers=1)
-        t = sfft.fft(t, n=my, axis=2, workers=1, overwrite_x=True)
-        t = sfft.fft(t, n=mx, axis=1, workers=1, overwrite_x=True)
-        flat = t.reshape(3, -1)
-        _tensor_apply(self.g_hat, flat)
-        t = sfft.ifft(t, axis=1, workers=1, overwrite_x=True)[:, :nx]
-        t = sfft.ifft(t, axis=2, workers=1)[:, :, :ny]
-        t = sfft.ifft(t, axis=3, workers=1)[:, :, :, :nz]
-        return t
+        return self.g_oct.dtype
 
 
-def grid_for_box(shape: tuple[int, int, int]) -> tuple[int, int, int]:
-    """FFT-friendly circulant grid for a box: ``M >= 2n - 1`` per axis, 5-smooth."""
-    out = []
-    for n in shape:
-        m = max(2 * n - 1, 2)
-        while True:
-            m = sfft.next_fast_len(m)
-            r = m
-            for f in (2, 3, 5):
-                while r % f == 0:
-                    r //= f
-            if r == 1:
-                break
-            m += 1
-        out.append(m)
-    return tuple(out)  # type: ignore[return-value]
+@numba.njit(cache=True, nogil=True)
+def _tensor_apply(g, y, mz, my, mx):  # pragma: no cover - compiled
+    """In place ``y(q) = G(q) . y(q)`` on the full grid, G unfolded from its octant."""
+    hz = mz // 2
+    hy = my // 2
+    hx = mx // 2
+    for iz in range(mz):
+        if iz > hz:
+            fz = mz - iz
+            sz = -1.0
+        else:
+            fz = iz
+            sz = 1.0
+        for iy in range(my):
+            if iy > hy:
+                fy = my - iy
+                sy = -1.0
+            else:
+                fy = iy
+                sy = 1.0
+            for ix in range(mx):
+                if ix > hx:
+                    fx = mx - ix
+                    sx = -1.0
+                else:
+                    fx = ix
+                    sx = 1.0
+                gxx = g[0, fz, fy, fx]
+                gxy = g[1, fz, fy, fx] * (sx * sy)
+                gxz = g[2, fz, fy, fx] * (sx * sz)
+                gyy = g[3, fz, fy, fx]
+                gyz = g[4, fz, fy, fx] * (sy * sz)
+                gzz = g[5, fz, fy, fx]
+                y0 = y[0, iz, iy, ix]
+                y1 = y[1, iz, iy, ix]
+                y2 = y[2, iz, iy, ix]
+                y[0, iz, iy, ix] = gxx * y0 + gxy * y1 + gxz * y2
+                y[1, iz, iy, ix] = gxy * y0 + gyy * y1 + gyz * y2
+                y[2, iz, iy, ix] = gxz * y0 + gyz * y1 + gzz * y2
+
+
+class Convolver:
+    """``z_i = sum_j G(r_i - r_j) y_j`` on one box, with preallocated buffers.
+
+    Parameters
+    ----------
+    interaction : Interaction
+        The transformed tensor (its grid must hold the box).
+    box : tuple of int
+        ``(nx, ny, nz)``.
+    """
+
+    def __init__(self, interaction: Interaction, box: tuple[int, int, int]) -> None:
+        mx, my, mz = interaction.grid
+        nx, ny, nz = box
+        if 2 * nx > mx or 2 * ny > my or 2 * nz > mz:
+            raise ValueError(f"box {box} does not fit the interaction grid {interaction.grid}")
+        self.interaction = interaction
+        self.box = box
+        dt = interaction.dtype
+        self.field = np.zeros((3, nz, ny, nx), dtype=dt)  # the box, (c, z, y, x)
+        self._b1 = np.empty((3, mz, ny, nx), dtype=dt)
+        self._b2 = np.empty((3, mz, my, nx), dtype=dt)
+        self._b3 = np.empty((3, mz, my, mx), dtype=dt)
+
+    def convolve(self) -> NDArray[np.complexfloating]:
+        """Convolve :attr:`field` in place and return it (shape (3, nz, ny, nx))."""
+        mx, my, mz = self.interaction.grid
+        nx, ny, nz = self.box
+        b1, b2, b3 = self._b1, self._b2, self._b3
+        np.fft.fft(self.field, n=mz, axis=1, out=b1)
+        np.fft.fft(b1, n=my, axis=2, out=b2)
+        np.fft.fft(b2, n=mx, axis=3, out=b3)
+        _tensor_apply(self.interaction.g_oct, b3, mz, my, mx)
+        np.fft.ifft(b3, axis=3, out=b3)
+        np.fft.ifft(b3[..., :nx], axis=2, out=b2)
+        np.fft.ifft(b2[:, :, :ny], axis=1, out=b1)
+        self.field[...] = b1[:, :nz]
+        return self.field
 
 
 def get_interaction(shape: tuple[int, int, int], d: float, k: float,
@@ -150,7 +241,7 @@ def get_interaction(shape: tuple[int, int, int], d: float, k: float,
     grid = grid_for_box(shape)
     for key, inter in _CACHE.items():
         g, dd, kk, dt = key
-        fits = all(n <= (m + 1) // 2 for n, m in zip(shape, g, strict=True))
+        fits = all(2 * n <= m for n, m in zip(shape, g, strict=True))
         not_wasteful = all(m <= 1.3 * mi for m, mi in zip(g, grid, strict=True))
         if dd == d and kk == k and dt == np.dtype(dtype) and fits and not_wasteful:
             _CACHE.move_to_end(key)

@@ -5,7 +5,8 @@ Outside the sphere that circumscribes the sources, the scattered field is exactl
 
     E(r) = sum_{n=1}^{L} sum_{m=-n}^{n} p_nm N_nm(kr) + q_nm M_nm(kr),
     M_nm = h_n(kr) [ (i m / sin th) Y_nm e_th - dY_nm/dth e_ph ],
-    N_nm = n(n+1) h_n(kr)/(kr) Y_nm e_r + xi_n'(kr)/(kr) [ dY_nm/dth e_th + (i m / sin th) Y_nm e_ph ],
+    N_nm = n(n+1) h_n(kr)/(kr) Y_nm e_r
+           + xi_n'(kr)/(kr) [ dY_nm/dth e_th + (i m / sin th) Y_nm e_ph ],
 
 with ``Y_nm`` orthonormal spherical harmonics (Condon-Shortley phase), ``h_n = h_n^(1)`` and
 ``xi_n(x) = x h_n(x)``; the truncation error falls super-exponentially once ``L`` exceeds
@@ -94,7 +95,8 @@ def _full_tables(mu: NDArray, lmax: int) -> tuple[NDArray, NDArray, NDArray]:
     pf[:, :, L:] = pb
     df[:, :, L:] = dp
     mf[:, :, L:] = mp
-    # Y_{n,-m} = (-1)^m conj(Y_nm): Pbar^{-m} = (-1)^m Pbar^m, (-m) Pbar^{-m}/sin = -(-1)^m m Pbar^m/sin
+    # Y_{n,-m} = (-1)^m conj(Y_nm): Pbar^{-m} = (-1)^m Pbar^m,
+    # (-m) Pbar^{-m}/sin = -(-1)^m m Pbar^m/sin
     pf[:, :, L - m] = pb[:, :, m] * sign
     df[:, :, L - m] = dp[:, :, m] * sign
     mf[:, :, L - m] = -mp[:, :, m] * sign
@@ -181,30 +183,32 @@ def quadrature(lmax: int, extra: int = 6) -> tuple[NDArray, NDArray, NDArray]:
     return mu, w, phi
 
 
-def expansion_from_far_field(
-    amplitude: Callable[[NDArray], NDArray], k: float, lmax: int, radius_um: float,
-) -> MultipoleExpansion:
-    """Project a far-field pattern onto vector spherical harmonics.
+def quadrature_directions(mu: NDArray, phi: NDArray) -> NDArray[np.float64]:
+    """Unit directions of the (theta, phi) quadrature grid, shape (n_theta * n_phi, 3)."""
+    st = np.sqrt(1.0 - mu**2)
+    return np.stack(
+        [np.outer(st, np.cos(phi)), np.outer(st, np.sin(phi)),
+         np.repeat(mu[:, None], phi.size, axis=1)], axis=-1
+    ).reshape(-1, 3)
+
+
+def project_far_field(
+    a: NDArray[np.complex128], mu: NDArray, w: NDArray, phi: NDArray, lmax: int
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """Coefficients ``p, q`` ([n, m + L]) of a far-field pattern sampled on the quadrature grid.
 
     Parameters
     ----------
-    amplitude : callable
-        ``directions (M, 3) -> A (M, 3)``: ``A(n) = lim kr exp(-ikr) E(r n)``, lab frame.
-    k : float
-        Wavenumber, rad/um.
+    a : ndarray, shape (n_theta, n_phi, 3)
+        ``A(n)`` (Cartesian) at the directions of :func:`quadrature_directions`.
+    mu, w, phi : ndarray
+        The grid of :func:`quadrature`.
     lmax : int
-        Highest order kept.
-    radius_um : float
-        Radius of the sources' circumscribing sphere (recorded for validity checks).
+        Highest order.
     """
-    mu, w, phi = quadrature(lmax)
-    st = np.sqrt(1.0 - mu**2)
     n_t, n_p = mu.size, phi.size
+    st = np.sqrt(1.0 - mu**2)
     cp, sp = np.cos(phi), np.sin(phi)
-    dirs = np.stack(
-        [np.outer(st, cp), np.outer(st, sp), np.repeat(mu[:, None], n_p, axis=1)], axis=-1
-    ).reshape(-1, 3)
-    a = amplitude(dirs).reshape(n_t, n_p, 3)
     e_t = np.stack([np.outer(mu, cp), np.outer(mu, sp), np.repeat(-st[:, None], n_p, 1)], -1)
     e_p = np.stack([np.repeat(-sp[None, :], n_t, 0), np.repeat(cp[None, :], n_t, 0),
                     np.zeros((n_t, n_p))], -1)
@@ -216,7 +220,7 @@ def expansion_from_far_field(
     L = lmax
     m = np.arange(-L, L + 1)
     ft_m, fp_m = ft[:, m % n_p], fp[:, m % n_p]  # (n_t, 2L+1)
-    pf, df, mf = _full_tables(mu, L)  # (n_t, L+1, 2L+1)
+    _, df, mf = _full_tables(mu, L)  # (n_t, L+1, 2L+1)
     wt = 2.0 * np.pi * w[:, None, None]
     phi_proj = np.sum(wt * (ft_m[:, None, :] * df - fp_m[:, None, :] * 1j * mf), axis=0)
     x_proj = np.sum(wt * (-ft_m[:, None, :] * 1j * mf - fp_m[:, None, :] * df), axis=0)
@@ -230,6 +234,28 @@ def expansion_from_far_field(
     q = np.where(valid, q, 0.0)
     p[0] = 0.0
     q[0] = 0.0
+    return p, q
+
+
+def expansion_from_far_field(
+    amplitude: Callable[[NDArray], NDArray], k: float, lmax: int, radius_um: float,
+) -> MultipoleExpansion:
+    """Project a far-field pattern onto vector spherical harmonics.
+
+    Parameters
+    ----------
+    amplitude : callable
+        ``directions (M, 3) -> A (M, 3)``: ``A(n) = lim kr exp(-ikr) E(r n)``.
+    k : float
+        Wavenumber, rad/um.
+    lmax : int
+        Highest order kept.
+    radius_um : float
+        Radius of the sources' circumscribing sphere (recorded for validity checks).
+    """
+    mu, w, phi = quadrature(lmax)
+    a = amplitude(quadrature_directions(mu, phi)).reshape(mu.size, phi.size, 3)
+    p, q = project_far_field(a, mu, w, phi, lmax)
     return MultipoleExpansion(k=k, p=p, q=q, radius_um=radius_um)
 
 

@@ -67,7 +67,9 @@ class DDASettings:
                    "precision": ("double", "single"), "engine": ("builtin", "adda")}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
-                raise ValueError(f"dda {name} must be one of {allowed}, got {getattr(self, name)!r}")
+                raise ValueError(
+                    f"dda {name} must be one of {allowed}, got {getattr(self, name)!r}"
+                )
 
     @classmethod
     def from_dict(cls, table: dict[str, Any], path: str | Path = "<dda settings>") -> DDASettings:

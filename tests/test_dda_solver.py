@@ -1,0 +1,73 @@
+"""The linear system: FFT convolution, QMR, warm starts, loud failures."""
+
+import numpy as np
+import pytest
+
+from holofit.dda.dipoles import DipoleSystem
+from holofit.dda.engine import BuiltinDDA
+from holofit.dda.interaction import Convolver, get_interaction, green_tensor
+from holofit.dda.solver import ConvergenceError, qmr_cs
+from holofit.dda.voxelize import voxelize
+from holofit.models import Spherocylinder
+from holofit.optics import Optics
+from holofit.scattering.theory import Orientation
+
+OPTICS = Optics(0.66, 1.33, 0.0)
+
+
+@pytest.mark.parametrize("dtype,tol", [(np.complex128, 1e-12), (np.complex64, 1e-5)])
+@pytest.mark.parametrize("box", [(3, 4, 5), (6, 2, 3)])
+def test_fft_convolution_equals_direct_sum(box, dtype, tol):
+    d, k = 0.05, 12.0
+    conv = Convolver(get_interaction(box, d, k, dtype), box)
+    rng = np.random.default_rng(0)
+    y = rng.normal(size=(3, *box)) + 1j * rng.normal(size=(3, *box))  # (c, x, y, z)
+    conv.field[...] = y.transpose(0, 3, 2, 1)  # the convolver's (c, z, y, x) layout
+    got = conv.convolve().transpose(0, 3, 2, 1)
+    idx = np.stack(np.meshgrid(*(np.arange(n) for n in box), indexing="ij"), -1).reshape(-1, 3)
+    g = green_tensor((idx[:, None, :] - idx[None, :, :]) * d, k)  # (N, N, 3, 3)
+    ref = np.einsum("ijab,bj->ai", g, y.reshape(3, -1)).reshape(3, *box)
+    assert np.max(np.abs(got - ref)) < tol * np.max(np.abs(ref))
+
+
+def test_qmr_on_random_complex_symmetric_system():
+    rng = np.random.default_rng(1)
+    n = 200
+    a = rng.normal(size=(n, n)) + 1j * rng.normal(size=(n, n))
+    a = 0.04 * (a + a.T) + (1.0 + 0.5j) * np.eye(n)
+    b = rng.normal(size=n) + 1j * rng.normal(size=n)
+    res = qmr_cs(lambda v: a @ v, b, tol=1e-10)
+    assert res.converged
+    assert np.linalg.norm(a @ res.x - b) / np.linalg.norm(b) < 2e-10  # the true residual
+
+
+def test_nonconvergence_is_loud():
+    lat = voxelize(Spherocylinder(0.3, 0.6, 1.5), 0.05)
+    system = DipoleSystem(lat, OPTICS.k, OPTICS.n_medium)
+    with pytest.raises(ConvergenceError, match=r"relative residual .* after 2 iterations"):
+        system.solve([0, 0, -1.0], [1.0, 0, 0], tol=1e-12, maxiter=2)
+    sol = system.solve([0, 0, -1.0], [1.0, 0, 0], tol=1e-12, maxiter=2, raise_on_failure=False)
+    assert sol.residual > 1e-12 and sol.iterations == 2
+
+
+def test_warm_start_gives_the_same_answer_faster():
+    model = Spherocylinder(0.35, 0.8, 1.495)
+    cold_engine = BuiltinDDA(dipole_size_um=0.05, tolerance=1e-8)
+    warm_engine = BuiltinDDA(dipole_size_um=0.05, tolerance=1e-8)
+    warm_engine.solve(model, OPTICS, Orientation(0.5, 1.0, 0.0))
+    warm_engine.solve(model, OPTICS, Orientation(0.51, 1.0, 0.0))
+    target = Orientation(0.505, 1.004, 0.0)
+    cold = cold_engine.solve(model, OPTICS, target)
+    cold_its = cold_engine.last_iterations
+    warm = warm_engine.solve(model, OPTICS, target)
+    assert warm_engine.last_iterations < cold_its
+    scale = np.abs(cold.solution.P).max()
+    np.testing.assert_allclose(warm.solution.P, cold.solution.P, atol=1e-6 * scale)
+
+
+def test_only_the_instrument_polarization_is_solved():
+    eng = BuiltinDDA(dipole_size_um=0.05)
+    wave = eng.solve(Spherocylinder(0.3, 0.6, 1.5), OPTICS, Orientation(0.2, 0.9, 0.0))
+    system = next(iter(eng._systems.values()))
+    # one solve: the iterations plus the initial-residual product(s), not two polarisations
+    assert system.matvecs <= wave.solution.iterations + 2
