@@ -22,7 +22,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.conventions import PROPAGATION_DIRECTION, DetectorGrid, euler_zyz, incident_phase_at
-from holofit.dda import multipole
 from holofit.dda.dipoles import DipoleSolution, DipoleSystem, incident_field
 from holofit.dda.farfield import far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
@@ -149,11 +148,9 @@ class DDAWave(ScatteredWave):
         key = (z_p, far)
         grid = self._grids.get(key)
         if grid is None or grid.delta_max < delta_max:
-            expansion = self.expansion
-            step = multipole.STEP_FACTOR / (2 * expansion.order + 2)
-            limit = np.pi / 2 - (multipole.STENCIL + 3) * step
-            grid = plane_grid(expansion, z_p, max(min(1.03 * delta_max + 0.01, limit),
-                                                  delta_max), far)
+            # a little margin so that small lateral moves reuse the grid
+            margin = min(0.03 * delta_max + 0.01, 0.5 * (np.pi / 2 - delta_max))
+            grid = plane_grid(self.expansion, z_p, delta_max + margin, far)
             self._grids[key] = grid
             while len(self._grids) > 4:
                 self._grids.popitem(last=False)
