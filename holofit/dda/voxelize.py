@@ -11,8 +11,10 @@ voxel centre,
 
 a C2 ramp that is 1 for ``s <= -w d`` and exactly 0 for ``s >= w d``, with slope ``-1/d`` at
 the surface, the exact volume fraction of a voxel cut by a plane parallel to a face. Partly
-filled voxels get the volume-weighted permittivity ``eps_m + f (eps - eps_m)`` and through it
-their polarisability, which therefore goes to zero smoothly: as a size parameter changes, no
+filled voxels get a Maxwell-Garnett effective permittivity (their Clausius-Mossotti factor is
+the fraction-weighted sum of their materials', :meth:`Lattice.relative_permittivity`) and
+through it their polarisability, which therefore goes to zero smoothly: as a size parameter
+changes, no
 voxel ever switches on or off, and holograms, residuals and finite-difference Jacobians are
 smooth in every size parameter (binary voxelisation, ``filling="binary"``, is kept for
 comparisons with ADDA). Multi-material particles split the fraction of the union between the
