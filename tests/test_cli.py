@@ -1,5 +1,6 @@
 """Every stage has a subcommand with --help."""
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -12,3 +13,25 @@ from holofit.cli import main
 def test_help(stage):
     res = CliRunner().invoke(main, [stage, "--help"])
     assert res.exit_code == 0 and "Usage" in res.output
+
+
+def test_simulate_hologram_of_a_rod_and_a_janus_particle(tmp_path):
+    import tifffile
+
+    from tests.conftest import CONFIGS
+
+    for name, orient in (("rod_paper", "30,60,0"), ("janus_paper", "0,120,0")):
+        out = tmp_path / name
+        res = CliRunner().invoke(main, [
+            "simulate", "hologram", "-p", str(CONFIGS / "particles" / f"{name}.toml"),
+            "--position", "5,5,8", "--orientation", orient, "--shape", "96,96", "--no-noise",
+            "-o", str(out)])
+        assert res.exit_code == 0, res.output
+        frame = tifffile.imread(out / "movie.tif").astype(float)
+        background = tifffile.imread(out / "background.tif")[0].astype(float)
+        ratio = frame / background
+        assert ratio.std() > 0.02  # a hologram, not a blank frame
+        # the pattern is centred where the particle is (5 um / 0.106 um ~ pixel 47)
+        w = (ratio - 1) ** 2
+        i, j = np.indices(ratio.shape)
+        assert abs(np.sum(w * i) / w.sum() - 47) < 6 and abs(np.sum(w * j) / w.sum() - 47) < 6

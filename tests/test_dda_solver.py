@@ -71,3 +71,13 @@ def test_only_the_instrument_polarization_is_solved():
     system = next(iter(eng._systems.values()))
     # one solve: the iterations plus the initial-residual product(s), not two polarisations
     assert system.matvecs <= wave.solution.iterations + 2
+
+
+def test_bicgstab_gives_the_same_dipoles():
+    model = Spherocylinder(0.3, 0.6, 1.5)
+    ori = Orientation(0.3, 0.9, 0.0)
+    qmr = BuiltinDDA(dipole_size_um=0.05, tolerance=1e-8).solve(model, OPTICS, ori)
+    bicg = BuiltinDDA(dipole_size_um=0.05, tolerance=1e-8, solver="bicgstab").solve(
+        model, OPTICS, ori)
+    scale = np.abs(qmr.solution.P).max()
+    np.testing.assert_allclose(bicg.solution.P, qmr.solution.P, atol=1e-6 * scale)

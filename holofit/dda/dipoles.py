@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.dda.interaction import Convolver, Interaction, get_interaction
 from holofit.dda.lattice import Lattice
 from holofit.dda.polarizability import ldr_s_term, polarizability
-from holofit.dda.solver import ConvergenceError, SolveResult, qmr_cs
+from holofit.dda.solver import ConvergenceError, SolveResult, bicgstab, qmr_cs
 
 __all__ = ["DipoleSolution", "DipoleSystem", "incident_field"]
 
@@ -106,6 +106,7 @@ class DipoleSystem:
         x0: NDArray[np.complex128] | None = None,
         maxiter: int = 2000,
         raise_on_failure: bool = True,
+        method: str = "qmr",
     ) -> DipoleSolution:
         """Dipole moments for the plane wave ``polarization * exp(i k propagation . r)``.
 
@@ -123,6 +124,8 @@ class DipoleSystem:
         raise_on_failure : bool
             Raise :class:`ConvergenceError` (with the residual reached) if the tolerance is
             not met; otherwise return the last iterate with its residual.
+        method : {"qmr", "bicgstab"}
+            Krylov solver.
         """
         a = np.asarray(propagation, dtype=float)
         e = np.asarray(polarization, dtype=float)
@@ -140,7 +143,8 @@ class DipoleSystem:
             start = b if np.linalg.norm(r_b) < np.linalg.norm(b) else None
         else:
             start = np.asarray(x0, dtype=complex).ravel()
-        result: SolveResult = qmr_cs(mv, b, x0=start, tol=tol, maxiter=maxiter)
+        solver = {"qmr": qmr_cs, "bicgstab": bicgstab}[method]
+        result: SolveResult = solver(mv, b, x0=start, tol=tol, maxiter=maxiter)
         if not result.converged and raise_on_failure:
             raise ConvergenceError(
                 f"DDA solve did not converge: relative residual {result.residual:.3g} after "

@@ -246,7 +246,7 @@ class BuiltinDDA(ScatteringTheory):
         previous = self._solutions.setdefault(key, [])
         x0 = self._warm_start(lat, optics.k, previous, a_p, e_p, system)
         sol = system.solve(a_p, e_p, tol=self.settings.tolerance, x0=x0,
-                           maxiter=self.settings.max_iterations)
+                           maxiter=self.settings.max_iterations, method=self.settings.solver)
         self.last_iterations = sol.iterations
         previous.append(sol)
         if len(previous) > MAX_STORED_SOLUTIONS:

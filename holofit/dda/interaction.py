@@ -31,6 +31,8 @@ import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
+from holofit.dda import fftw
+
 __all__ = ["Convolver", "Interaction", "clear_cache", "get_interaction", "green_tensor",
            "grid_for_box"]
 
@@ -198,6 +200,10 @@ def _tensor_apply(g, y, mz, my, mx):  # pragma: no cover - compiled
 class Convolver:
     """``z_i = sum_j G(r_i - r_j) y_j`` on one box, with preallocated buffers.
 
+    Uses FFTW (through pyFFTW, with measured plans whose wisdom is cached on disk, see
+    :mod:`holofit.dda.fftw`) when it is installed, numpy's pocketfft otherwise; set
+    ``HOLOFIT_FFT=numpy`` to force the latter.
+
     Parameters
     ----------
     interaction : Interaction
@@ -215,23 +221,52 @@ class Convolver:
         self.box = box
         dt = interaction.dtype
         self.field = np.zeros((3, nz, ny, nx), dtype=dt)  # the box, (c, z, y, x)
-        self._b1 = np.empty((3, mz, ny, nx), dtype=dt)
-        self._b2 = np.empty((3, mz, my, nx), dtype=dt)
-        self._b3 = np.empty((3, mz, my, mx), dtype=dt)
+        self._plans = fftw.plans((3, mz, ny, nx), (3, mz, my, nx), (3, mz, my, mx), dt)
+        if self._plans is not None:
+            self._b1, self._b2, self._b3 = self._plans.buffers
+        else:
+            self._b1 = np.empty((3, mz, ny, nx), dtype=dt)
+            self._b2 = np.empty((3, mz, my, nx), dtype=dt)
+            self._b3 = np.empty((3, mz, my, mx), dtype=dt)
+
+    @property
+    def backend(self) -> str:
+        return "fftw" if self._plans is not None else "numpy"
 
     def convolve(self) -> NDArray[np.complexfloating]:
         """Convolve :attr:`field` in place and return it (shape (3, nz, ny, nx))."""
         mx, my, mz = self.interaction.grid
         nx, ny, nz = self.box
         b1, b2, b3 = self._b1, self._b2, self._b3
-        np.fft.fft(self.field, n=mz, axis=1, out=b1)
-        np.fft.fft(b1, n=my, axis=2, out=b2)
-        np.fft.fft(b2, n=mx, axis=3, out=b3)
+        plans = self._plans
+        if plans is None:
+            np.fft.fft(self.field, n=mz, axis=1, out=b1)
+            np.fft.fft(b1, n=my, axis=2, out=b2)
+            np.fft.fft(b2, n=mx, axis=3, out=b3)
+            _tensor_apply(self.interaction.g_oct, b3, mz, my, mx)
+            np.fft.ifft(b3, axis=3, out=b3)
+            np.fft.ifft(b3[..., :nx], axis=2, out=b2)
+            np.fft.ifft(b2[:, :, :ny], axis=1, out=b1)
+            self.field[...] = b1[:, :nz]
+            return self.field
+        # FFTW: zero-padding is explicit, every transform runs in place
+        b1[:, :nz] = self.field
+        b1[:, nz:] = 0
+        plans.forward[0]()
+        b2[:, :, :ny] = b1
+        b2[:, :, ny:] = 0
+        plans.forward[1]()
+        b3[..., :nx] = b2
+        b3[..., nx:] = 0
+        plans.forward[2]()
         _tensor_apply(self.interaction.g_oct, b3, mz, my, mx)
-        np.fft.ifft(b3, axis=3, out=b3)
-        np.fft.ifft(b3[..., :nx], axis=2, out=b2)
-        np.fft.ifft(b2[:, :, :ny], axis=1, out=b1)
+        plans.backward[2]()
+        b2[...] = b3[..., :nx]
+        plans.backward[1]()
+        b1[...] = b2[:, :, :ny]
+        plans.backward[0]()
         self.field[...] = b1[:, :nz]
+        self.field *= 1.0 / (mx * my * mz)
         return self.field
 
 

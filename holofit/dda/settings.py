@@ -24,6 +24,7 @@ _SPECS: dict[str, Spec] = {
                            default=2000),
     "precision": Spec("str", "'double' or 'single' FFT convolution", required=False,
                       default="double"),
+    "solver": Spec("str", "'qmr' or 'bicgstab'", required=False, default="qmr"),
     "engine": Spec("str", "'builtin' or 'adda'", required=False, default="builtin"),
 }
 
@@ -48,7 +49,10 @@ class DDASettings:
     max_iterations : int
         Iteration limit; a solve that hits it raises :class:`~holofit.dda.solver.ConvergenceError`.
     precision : {"double", "single"}
-        Precision of the FFT convolution (single is ~1.7x faster, ~1e-7 relative error).
+        Precision of the FFT convolution (single is faster, ~1e-7 relative error).
+    solver : {"qmr", "bicgstab"}
+        Krylov method: QMR for complex-symmetric systems (one product per iteration, ADDA's
+        default) or BiCGStab (two per iteration).
     engine : {"builtin", "adda"}
         Which engine a pipeline run uses for this particle.
     """
@@ -60,11 +64,13 @@ class DDASettings:
     tolerance: float = 1e-5
     max_iterations: int = 2000
     precision: str = "double"
+    solver: str = "qmr"
     engine: str = "builtin"
 
     def __post_init__(self) -> None:
         choices = {"filling": ("fractional", "binary"), "polarizability": ("ldr", "cm"),
-                   "precision": ("double", "single"), "engine": ("builtin", "adda")}
+                   "precision": ("double", "single"), "engine": ("builtin", "adda"),
+                   "solver": ("qmr", "bicgstab")}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(
