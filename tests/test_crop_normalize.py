@@ -89,7 +89,7 @@ def test_holopy_image01_published_pixel(tmp_path):
     raw = tifffile.imread(folder / "image01.tif")
     bgs = np.stack([tifffile.imread(folder / f"bg0{k}.tif") for k in (1, 2, 3)])
     dark = tifffile.imread(folder / "df01.tif")
-    image, mask = normalize(raw, bgs.astype(float).mean(axis=0), dark)
+    image, _ = normalize(raw, bgs.astype(float).mean(axis=0), dark)
     ratio = (bgs.mean(axis=0) - dark).mean() / (raw.astype(float) - dark).mean()
     assert image[0, 0] / ratio == pytest.approx(0.91964285, abs=1e-6)
 
@@ -105,9 +105,7 @@ def test_reference_stack_reduced_by_median(tmp_path):
     folder.mkdir()
     for k, f in enumerate(frames[:3]):
         tifffile.imwrite(folder / f"bg{k}.tif", f)
-    np.testing.assert_array_equal(
-        read_reference_frame(folder), np.median(frames[:3], axis=0)
-    )
+    np.testing.assert_array_equal(read_reference_frame(folder), np.median(frames[:3], axis=0))
     single = tmp_path / "one.tif"
     tifffile.imwrite(single, frames[0])
     np.testing.assert_array_equal(read_reference_frame(single), frames[0])

@@ -35,7 +35,10 @@ def _match(found, reference):
 
 def _report(name, found, reference):
     dist = _match(found, reference)
-    print(f"\n{name}: " + "; ".join(f"{ref} -> {d:.2f} px" for ref, d in zip(reference, dist)))
+    print(
+        f"\n{name}: "
+        + "; ".join(f"{ref} -> {d:.2f} px" for ref, d in zip(reference, dist, strict=True))
+    )
     return dist
 
 

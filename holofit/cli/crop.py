@@ -83,7 +83,8 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
     type=float,
     default=CenterFinder.min_score,
     show_default=True,
-    help="Smallest accepted detection score (transform peak / frame median).",
+    help="Smallest accepted detection score (transform peak over its rms for pure noise; "
+    "noise alone reaches ~5).",
 )
 @click.option(
     "--min-symmetry",

@@ -111,7 +111,7 @@ def auto_downsample(radius_px: float, shape: tuple[int, int]) -> int:
     About 16 downsampled pixels per vote radius (enough to resolve the central fringes), at
     most 4, and the shrunken frame keeps at least 32 pixels a side.
     """
-    factor = int(round(radius_px / 16.0))
+    factor = round(radius_px / 16.0)
     factor = min(factor, 4, min(shape) // 32)
     return max(factor, 1)
 
@@ -147,7 +147,7 @@ def _find(image: NDArray, mask: NDArray | None, s: CenterFinder) -> pd.DataFrame
         img = np.where(invalid, fill, img)
     factor = s.downsample or auto_downsample(s.radius_px, img.shape)
     small = block_mean(img, factor)
-    radius_ds = max(2, int(round(s.radius_px / factor)))
+    radius_ds = max(2, round(s.radius_px / factor))
     strength, alignment = orientation_alignment(small, radius_ds)
     peak_strength = float(strength.max())
     if not peak_strength > 0:
@@ -155,12 +155,10 @@ def _find(image: NDArray, mask: NDArray | None, s: CenterFinder) -> pd.DataFrame
     noise = noise_strength(estimate_noise(small), radius_ds)
     noise = max(noise, 1e-9 * peak_strength)  # noise-free (synthetic) images
     separation = s.min_separation_px if s.min_separation_px is not None else s.radius_px / 2
-    sep_ds = max(1, int(round(separation / factor)))
+    sep_ds = max(1, round(separation / factor))
     local_max = ndimage.maximum_filter(strength, size=2 * sep_ds + 1, mode="nearest")
     peaks = (
-        (strength == local_max)
-        & (strength >= s.min_score * noise)
-        & (alignment >= s.min_alignment)
+        (strength == local_max) & (strength >= s.min_score * noise) & (alignment >= s.min_alignment)
     )
     rows, cols = np.nonzero(peaks)
     if rows.size == 0:
@@ -179,9 +177,7 @@ def _find(image: NDArray, mask: NDArray | None, s: CenterFinder) -> pd.DataFrame
         y0 = (i + di) * factor + (factor - 1) / 2.0
         x, y, symmetry, refined = x0, y0, float("nan"), False
         if s.refine:
-            fit = refine_center(
-                img, x0, y0, valid=valid, half_width=half_width, search_px=search
-            )
+            fit = refine_center(img, x0, y0, valid=valid, half_width=half_width, search_px=search)
             symmetry = fit.symmetry
             if symmetry < s.min_symmetry:
                 continue  # not a hologram centre: fringe crossing, dust, noise

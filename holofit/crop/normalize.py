@@ -91,9 +91,7 @@ class Normalizer:
         else:
             dk = np.asarray(dark, dtype=np.float64)
             if dk.shape != bg.shape:
-                raise ValueError(
-                    f"dark frame has shape {dk.shape}, the background has {bg.shape}"
-                )
+                raise ValueError(f"dark frame has shape {dk.shape}, the background has {bg.shape}")
             bad = ~np.isfinite(dk)
             if bad.any():
                 raise ValueError(f"dark frame has non-finite values: {_first_bad(bad)}")
@@ -217,7 +215,5 @@ def normalize(
     mask : ndarray of bool
         True where masked.
     """
-    normalizer = Normalizer(
-        background, dark, min_background=min_background, saturation=saturation
-    )
+    normalizer = Normalizer(background, dark, min_background=min_background, saturation=saturation)
     return normalizer(frame)

@@ -3,7 +3,7 @@
 The movie is streamed: one raw frame, its normalised copy and one crop are in memory at a time,
 whatever the movie's length. Outputs (in ``out_dir``):
 
-``crops.tif``
+``crops.tif`` (+ ``crops.tif.json``)
     float32 crops, one page per frame in frame order; normalised (background ~1); NaN where a
     pixel is masked; an all-NaN page for a frame without a particle or that failed.
 ``candidates.csv`` (+ ``.json``)
@@ -41,7 +41,7 @@ from holofit.crop.follow import Follower
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
 from holofit.io.movie import Movie, MovieError, open_movie
-from holofit.io.tables import sidecar_path, write_table
+from holofit.io.tables import sidecar_path, write_json, write_table
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.provenance import sidecar
 
@@ -135,6 +135,7 @@ def _prepare(
     dark: str | Path | float | None,
     min_background: float,
     saturation: float | None,
+    instrument_label: str,
 ) -> tuple[Normalizer, dict[str, Any]]:
     background = read_reference_frame(background_path, "background")
     if background.shape != tuple(movie.frame_shape):
@@ -142,11 +143,17 @@ def _prepare(
             f"{background_path}: background has shape {background.shape}, but the frames of "
             f"{movie.path} have shape {tuple(movie.frame_shape)}"
         )
+    if saturation is not None and float(background.max()) > saturation:
+        raise CropError(
+            f"{background_path}: background counts up to {background.max():g} exceed the full "
+            f"scale {saturation:g} of the bit depth of instrument {instrument_label}: correct "
+            "bit_depth in the instrument config, or do not mask saturated pixels "
+            "(--keep-saturated)"
+        )
     dark_value = read_dark(dark)
     if isinstance(dark_value, np.ndarray) and dark_value.shape != background.shape:
         raise CropError(
-            f"{dark}: dark frame has shape {dark_value.shape}, the background "
-            f"{background.shape}"
+            f"{dark}: dark frame has shape {dark_value.shape}, the background {background.shape}"
         )
     try:
         normalizer = Normalizer(
@@ -251,7 +258,7 @@ def run_crop(
             )
         saturation = _saturation(movie, inst) if mask_saturated else None
         normalizer, norm_info = _prepare(
-            movie, background_path, dark, min_background, saturation
+            movie, background_path, dark, min_background, saturation, inst.path or inst.name
         )
         crops_path = out / "crops.tif"
         table_path = out / "crops.csv"
@@ -277,7 +284,8 @@ def run_crop(
                     f"{movie_path}: every frame failed; first error: {frames['message'].iat[0]}"
                 )
             # a rerun must not leave an old table beside the new stack
-            _remove_stale([table_path, sidecar_path(table_path), cand_path, plot_path])
+            stale = (table_path, cand_path, crops_path)
+            _remove_stale([*stale[:2], *map(sidecar_path, stale), plot_path])
         counts = {s: int((frames["status"] == s).sum()) for s in STATUSES}
         settings = {
             "size_px": size,
@@ -311,36 +319,40 @@ def run_crop(
             from holofit.crop.plot import plot_overview
 
             made_plot = plot_overview(plot_path, preview, frames, cand_table, size)
+        extra = {
+            "settings": settings,
+            "movie": {
+                "frames": len(movie),
+                "frame_shape": list(movie.frame_shape),
+                "dtype": str(movie.dtype),
+            },
+            "crops": {
+                "file": crops_path.name,
+                "table": table_path.name,
+                "pages": len(frames),
+                "page_shape": [size, size],
+                "dtype": "float32",
+                "contents": "normalised hologram (background ~1), one page per frame in frame "
+                "order; NaN marks masked pixels (background ~0 or saturated); frames with "
+                "status no_particle or error get an all-NaN page",
+                "coordinates": "crop pixel [i, j] is full-frame pixel "
+                "[corner_row + i, corner_col + j] (corner_* in the table)",
+            },
+            "status_counts": counts,
+        }
+        config = {"instrument": inst.as_dict()}
+        write_json(
+            sidecar_path(crops_path),
+            sidecar(kind="crop stack", units={"pixel value": "1 (background = 1)"},
+                    config=config, inputs=inputs, extra=extra),
+        )  # fmt: skip
+        # the table goes last: its presence marks a complete run
         write_table(
             table_path,
             frames,
-            sidecar(
-                kind="crop table",
-                units=CROP_UNITS,
-                config={"instrument": inst.as_dict()},
-                inputs=inputs,
-                extra={
-                    "settings": settings,
-                    "movie": {
-                        "frames": len(movie),
-                        "frame_shape": list(movie.frame_shape),
-                        "dtype": str(movie.dtype),
-                    },
-                    "crops": {
-                        "file": crops_path.name,
-                        "pages": len(frames),
-                        "page_shape": [size, size],
-                        "dtype": "float32",
-                        "contents": "normalised hologram (background ~1), one page per frame "
-                        "in frame order; NaN marks masked pixels (background ~0 or saturated); "
-                        "frames with status no_particle or error get an all-NaN page",
-                        "coordinates": "crop pixel [i, j] is full-frame pixel "
-                        "[corner_row + i, corner_col + j]",
-                    },
-                    "status_counts": counts,
-                },
-            ),
-        )
+            sidecar(kind="crop table", units=CROP_UNITS, config=config, inputs=inputs,
+                    extra=extra),
+        )  # fmt: skip
     return CropResult(out, crops_path, table_path, cand_path, made_plot, frames, counts)
 
 
@@ -445,4 +457,3 @@ def _detect(
             f"{source}: frame {k}: centre finder failed ({type(exc).__name__}: {exc})"
         ) from None
     return image, mask, found
-
