@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from holofit.crop.centerfind import CenterFinder, auto_downsample, find_centers
+from holofit.crop.radial import refine_center_radial
 from holofit.crop.symmetry import quadratic_peak, refine_center
 from holofit.crop.transform import block_mean, gradient, orientation_alignment
 from tests.test_crop_synthetic import ring_pattern
@@ -107,12 +108,25 @@ def test_symmetry_refinement_unbiased_by_edges_and_masks():
     assert abs(fit.x_px - x0) < 0.05 and abs(fit.y_px - y0) < 0.05
 
 
+def test_radial_refinement_at_the_edge():
+    x0, y0 = 3.4, 80.7  # 3.4 px from the left edge
+    image = ring_pattern((160, 160), x0, y0)
+    fit = refine_center_radial(image, 5.0, 79.0, radius=60)
+    assert fit.converged
+    assert abs(fit.x_px - x0) < 0.1 and abs(fit.y_px - y0) < 0.1
+    found = find_centers(image)
+    assert found["refinement"].iat[0] == "radial"
+    assert np.hypot(found["x_px"].iat[0] - x0, found["y_px"].iat[0] - y0) < 0.1
+    # a pattern with its centre off the frame has no interior minimum
+    assert not refine_center_radial(ring_pattern((160, 160), -30.0, 80.0), 2.0, 80.0).converged
+
+
 def test_find_centers_on_known_pattern_and_auto_settings():
     shape = (300, 360)
     image = ring_pattern(shape, 211.3, 140.7) + ring_pattern(shape, 60.2, 231.9, amplitude=0.2) - 1
     found = find_centers(image)
     assert len(found) == 2
-    assert list(found.columns) == ["x_px", "y_px", "score", "alignment", "symmetry", "refined"]
+    assert list(found.columns) == ["x_px", "y_px", "score", "alignment", "symmetry", "refinement"]
     assert found["score"].is_monotonic_decreasing
     assert np.hypot(found["x_px"].iat[0] - 211.3, found["y_px"].iat[0] - 140.7) < 0.05
     assert np.hypot(found["x_px"].iat[1] - 60.2, found["y_px"].iat[1] - 231.9) < 0.05
@@ -122,7 +136,7 @@ def test_find_centers_on_known_pattern_and_auto_settings():
     one = find_centers(image, max_centers=1)
     assert len(one) == 1
     coarse = find_centers(image, refine=False)
-    assert not coarse["refined"].any() and coarse["symmetry"].isna().all()
+    assert (coarse["refinement"] == "none").all() and coarse["symmetry"].isna().all()
     assert np.hypot(coarse["x_px"].iat[0] - 211.3, coarse["y_px"].iat[0] - 140.7) < 4
 
 

@@ -9,7 +9,9 @@
    surrounding gradient energy that points at it (noise maxima <= 0.36, holograms 0.7-0.95).
    Both must pass their thresholds, and after refinement so must the point symmetry.
 3. *Refine* (full resolution, only near accepted candidates): the centre of point symmetry
-   (:mod:`holofit.crop.symmetry`), to a few hundredths of a pixel on simulated spheres.
+   (:mod:`holofit.crop.symmetry`), to a few hundredths of a pixel on simulated spheres; within
+   ~10 px of an edge, where few symmetric pixel pairs remain, the centre of the most circular
+   rings (:mod:`holofit.crop.radial`).
 
 Everything is vectorised (FFT convolutions); a 1024 x 1280 frame takes ~20 ms on one core.
 """
@@ -24,6 +26,7 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from holofit.crop.radial import refine_center_radial
 from holofit.crop.symmetry import quadratic_peak, refine_center
 from holofit.crop.transform import (
     block_mean,
@@ -35,7 +38,11 @@ from holofit.crop.transform import (
 __all__ = ["CENTER_COLUMNS", "CenterFinder", "auto_downsample", "find_centers"]
 
 #: Columns of the table returned by :func:`find_centers`, ranked best first.
-CENTER_COLUMNS = ("x_px", "y_px", "score", "alignment", "symmetry", "refined")
+CENTER_COLUMNS = ("x_px", "y_px", "score", "alignment", "symmetry", "refinement")
+
+#: Below this valid pair fraction (centre within ~10 px of an edge) the radial refinement
+#: takes over from the point-symmetry one.
+EDGE_PAIR_FRACTION = 0.5
 
 
 @dataclass(frozen=True)
@@ -124,7 +131,7 @@ def _empty() -> pd.DataFrame:
             "score": pd.Series(dtype=float),
             "alignment": pd.Series(dtype=float),
             "symmetry": pd.Series(dtype=float),
-            "refined": pd.Series(dtype=bool),
+            "refinement": pd.Series(dtype=str),
         }
     )
 
@@ -171,28 +178,34 @@ def _find(image: NDArray, mask: NDArray | None, s: CenterFinder) -> pd.DataFrame
     search = min(search, half_width - 2)
     valid = ~invalid if has_invalid else None
     found: list[tuple[float, ...]] = []
-    for i, j in zip(rows, cols, strict=True):
+    # candidates that fail the symmetry test do not count: bound the work on junk-rich frames
+    for i, j in list(zip(rows, cols, strict=True))[: 3 * s.max_centers]:
         di, dj = quadratic_peak(strength, int(i), int(j))
         x0 = (j + dj) * factor + (factor - 1) / 2.0
         y0 = (i + di) * factor + (factor - 1) / 2.0
-        x, y, symmetry, refined = x0, y0, float("nan"), False
+        x, y, symmetry, refinement = x0, y0, float("nan"), "none"
         if s.refine:
             fit = refine_center(img, x0, y0, valid=valid, half_width=half_width, search_px=search)
             symmetry = fit.symmetry
             if symmetry < s.min_symmetry:
                 continue  # not a hologram centre: fringe crossing, dust, noise
-            if fit.converged:
-                x, y, refined = fit.x_px, fit.y_px, True
+            if fit.converged and fit.pair_fraction >= EDGE_PAIR_FRACTION:
+                x, y, refinement = fit.x_px, fit.y_px, "symmetry"
+            else:  # near an edge (or a mask): circular rings pin the centre across it
+                start = (fit.x_px, fit.y_px) if fit.converged else (x0, y0)
+                radial = refine_center_radial(
+                    img, *start, valid=valid, radius=half_width, reach=min(search, 3.0)
+                )
+                if radial.converged:
+                    x, y, refinement = radial.x_px, radial.y_px, "radial"
         if any(np.hypot(x - fx, y - fy) < separation for fx, fy, *_ in found):
             continue  # same hologram as a stronger candidate
         found.append(
-            (x, y, float(strength[i, j]) / noise, float(alignment[i, j]), symmetry, refined)
+            (x, y, float(strength[i, j]) / noise, float(alignment[i, j]), symmetry, refinement)
         )
         if len(found) >= s.max_centers:
             break
-    table = pd.DataFrame(found, columns=list(CENTER_COLUMNS))
-    table["refined"] = table["refined"].astype(bool)
-    return table
+    return pd.DataFrame(found, columns=list(CENTER_COLUMNS))
 
 
 def find_centers(
@@ -230,9 +243,11 @@ def find_centers(
         ``symmetry``
             point-symmetry score of the refined centre (1 = perfect; NaN without
             ``refine``);
-        ``refined``
-            whether the sub-pixel refinement converged (otherwise the coarse centre, good to
-            about a block of the coarse stage, is returned).
+        ``refinement``
+            how the sub-pixel centre was found: ``"symmetry"`` (point symmetry, the usual
+            case), ``"radial"`` (most circular rings; centres within ~10 px of an edge or a
+            large mask) or ``"none"`` (refinement off or not converged: the coarse centre,
+            good to about a block of the coarse stage).
 
     Examples
     --------

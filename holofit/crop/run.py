@@ -63,7 +63,7 @@ CROP_UNITS = {
     "score": "1 (transform peak / rms transform of pure noise at the frame's noise level)",
     "alignment": "1 (0-1: fraction of nearby gradient energy pointing at the centre)",
     "symmetry": "1 (-1..1: point symmetry about the centre; 1 = perfect)",
-    "refined": "bool (sub-pixel refinement converged)",
+    "refinement": "symmetry | radial (near an edge) | none (coarse centre)",
     "n_candidates": "count (accepted candidate centres in the frame)",
     "n_masked": "pixels (masked, NaN, in the crop)",
 }
@@ -76,7 +76,7 @@ CANDIDATE_UNITS = {
     "score": CROP_UNITS["score"],
     "alignment": CROP_UNITS["alignment"],
     "symmetry": CROP_UNITS["symmetry"],
-    "refined": CROP_UNITS["refined"],
+    "refinement": CROP_UNITS["refinement"],
     "selected": "bool (the candidate cropped in this frame)",
 }
 
@@ -385,7 +385,7 @@ def _crop_frames(
             "score": math.nan,
             "alignment": math.nan,
             "symmetry": math.nan,
-            "refined": False,
+            "refinement": "",
             "n_candidates": 0,
             "n_masked": 0,
         }
@@ -400,7 +400,7 @@ def _crop_frames(
             for rank, cand in enumerate(found.itertuples(index=False)):
                 candidates.append(
                     (k, rank, cand.x_px, cand.y_px, cand.score, cand.alignment,
-                     cand.symmetry, bool(cand.refined), rank == choice.index)
+                     cand.symmetry, cand.refinement, rank == choice.index)
                 )  # fmt: skip
             if choice.index is None:
                 row["status"], row["message"] = "no_particle", choice.message
@@ -423,7 +423,7 @@ def _crop_frames(
                     score=float(best["score"]),
                     alignment=float(best["alignment"]),
                     symmetry=float(best["symmetry"]),
-                    refined=bool(best["refined"]),
+                    refinement=str(best["refinement"]),
                     n_masked=int(
                         mask[corner_row : corner_row + size, corner_col : corner_col + size].sum()
                     ),

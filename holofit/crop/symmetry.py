@@ -2,25 +2,30 @@
 
 The hologram of a sphere is symmetric under inversion through its centre, ``I(c + u) =
 I(c - u)`` (rotating the set-up by pi about the optical axis flips the polarisation and the
-transverse field together, which leaves the intensity unchanged). The centre is the point
-``m`` that maximises the normalised symmetry score
+transverse field together, which leaves the intensity unchanged). With ``f`` the hologram minus
+its median and ``P_m(u)`` a pair weight even in ``u`` (a Gaussian of width ``sigma`` centred on
+the trial centre ``m``, times the validity of both pixels of the pair), the centre is the point
+that minimises the mean squared asymmetry per unit pair weight,
 
-    S(m) = sum_u P_m(u) f(m + u) f(m - u) / sum_u P_m(u) f(m + u)^2 ,
+    A(m) = sum_u P_m(u) (f(m + u) - f(m - u))^2 / sum_u P_m(u) = 2 (D(m) - N(m)) / W(m),
 
-where ``f`` is the hologram minus its median and ``P_m(u)`` a pair weight that is even in
-``u``: a Gaussian of width ``sigma`` centred on ``m`` times the validity of both pixels of the
-pair. By Cauchy-Schwarz ``S <= 1``, with equality exactly at the symmetry centre, so pixels
-outside the frame, masked pixels and the finite window bias nothing: they drop whole pairs.
+with ``N = sum P f(m+u) f(m-u)``, ``D = sum P f(m+u)^2`` and ``W = sum P``. At the true centre
+the signal part of ``A`` vanishes for any set of valid pairs, and camera noise adds the same
+``2 sigma_noise^2`` everywhere, so pixels outside the frame, masked pixels and the finite window
+bias nothing: they drop whole pairs. The normalised *symmetry score* ``S = N / D`` (at most 1
+by Cauchy-Schwarz, 1 for perfect symmetry) is reported for accepting or rejecting candidates.
 
 With a Gaussian window ``w`` centred on the integer pixel ``c0`` the pair weight factorises,
 ``w(r - c0) w(s - r - c0) = exp(-(2r - s)^2 / 4 sigma^2) exp(-(s - 2 c0)^2 / 4 sigma^2)``, so
-for every ``s = 2 m`` at once
+for every ``s = 2 m`` at once ``N``, ``D`` and ``W`` are the FFT convolutions
+``(w M f) * (w M f)``, ``(w M f^2) * (w M)`` and ``(w M) * (w M)`` (``M`` the validity mask;
+the second Gaussian factor is common to all three and cancels exactly in ``A`` and ``S``).
+This gives ``A`` on the half-pixel lattice of trial centres; a quadratic fit to the 3 x 3
+neighbourhood of its minimum gives the sub-pixel centre.
 
-    S(s / 2) = [(w M f) * (w M f)](s) / [(w M f^2) * (w M)](s)
-
-(``*`` is convolution, ``M`` the validity mask; the second Gaussian factor cancels). Two FFT
-convolutions give the score on the half-pixel lattice of candidate centres; a quadratic fit to
-the 3 x 3 neighbourhood of its maximum gives the sub-pixel centre.
+Near an edge only a strip of pairs along it survives, which pins the centre along the edge but
+hardly across it: :func:`refine_center` reports the fraction of the pair weight still valid,
+and the centre finder switches to :mod:`holofit.crop.radial` when it is small.
 """
 
 from __future__ import annotations
@@ -46,9 +51,11 @@ class SymmetryFit:
     symmetry : float
         Normalised symmetry score at the centre (1 = perfectly point-symmetric).
     converged : bool
-        The maximum lies inside the search disc (not on its rim) after the iterations.
+        The optimum lies inside the search disc (not on its rim) after the iterations.
     iterations : int
         Windows evaluated.
+    pair_fraction : float
+        Valid fraction of the pair weight at the centre (1 far from edges and masks).
     """
 
     x_px: float
@@ -56,6 +63,7 @@ class SymmetryFit:
     symmetry: float
     converged: bool
     iterations: int
+    pair_fraction: float = float("nan")
 
 
 def quadratic_peak(values: NDArray, i: int, j: int) -> tuple[float, float]:
@@ -97,8 +105,8 @@ def _full_pair_weight(size: int, sigma: float, n: int) -> NDArray:
 def _score_map(
     image: NDArray, valid: NDArray | None, ci: int, cj: int, half_width: int, sigma: float
 ) -> tuple[NDArray, NDArray, NDArray]:
-    """Numerator and denominator of ``S``, and the valid fraction of the pair weight, for every
-    ``s`` on the lattice of the window."""
+    """``N``, ``D``, ``W`` and the valid fraction of the pair weight for every ``s`` on the
+    lattice of the window."""
     rows, cols = image.shape
     size = 2 * half_width + 1
     f = np.zeros((size, size), dtype=np.float64)
@@ -129,7 +137,7 @@ def _score_map(
     pairs = sfft.irfft2(spec_wm * spec_wm, shape, workers=1)
     full = _full_pair_weight(size, sigma, n)
     fraction = pairs / np.maximum(full, 1e-300)
-    return num, den, fraction
+    return num, den, pairs, fraction
 
 
 def refine_center(
@@ -188,7 +196,7 @@ def refine_center(
     for it in range(1, max_iterations + 1):
         ci, cj = int(np.floor(y + 0.5)), int(np.floor(x + 0.5))
         try:
-            num, den, fraction = _score_map(image, valid, ci, cj, half_width, sigma)
+            num, den, pairs, fraction = _score_map(image, valid, ci, cj, half_width, sigma)
         except ValueError:
             return best
         k0 = 2 * half_width  # s index of the window centre (ci, cj)
@@ -197,15 +205,19 @@ def refine_center(
         tiny = 1e-12 * max(float(np.abs(sub_d).max()), 1e-300)
         usable = (sub_d > tiny) & (fraction[near] >= min_pair_fraction) & ~outside
         score = np.where(usable, sub_n / np.where(usable, sub_d, 1.0), -np.inf)
-        pi, pj = np.unravel_index(int(np.argmax(score)), score.shape)
+        # minus the mean squared asymmetry A (module docstring), up to a factor 2
+        closeness = np.where(usable, (sub_n - sub_d) / np.where(usable, pairs[near], 1.0), -np.inf)
+        pi, pj = np.unravel_index(int(np.argmax(closeness)), closeness.shape)
         if not np.isfinite(score[pi, pj]):
             return best
-        filled = np.where(np.isfinite(score), score, score[pi, pj] - 1.0)
+        filled = np.where(usable, closeness, 2 * closeness[pi, pj] - 1.0)
         di, dj = quadratic_peak(filled, pi, pj)
         x = cj + (pj + dj - reach) / 2.0
         y = ci + (pi + di - reach) / 2.0
         on_rim = bool(rim[pi, pj])
-        best = SymmetryFit(x, y, float(score[pi, pj]), not on_rim, it)
+        best = SymmetryFit(
+            x, y, float(score[pi, pj]), not on_rim, it, float(fraction[near][pi, pj])
+        )
         if not on_rim:
             break
     return best
