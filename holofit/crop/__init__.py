@@ -1,6 +1,6 @@
 """The crop stage: normalise raw frames by the background, find hologram centres with a
-Hough-type (orientation-alignment) transform refined by point symmetry, and crop N x N around
-them.
+Hough-type (orientation-alignment) transform refined to sub-pixel precision by point symmetry
+(by circular symmetry near the frame's edge), and crop N x N around them.
 
 Library entry points:
 
