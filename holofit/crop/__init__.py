@@ -1,0 +1,29 @@
+"""The crop stage: normalise raw frames by the background, find hologram centres with a
+Hough-type (orientation-alignment) transform refined to sub-pixel precision by point symmetry
+(by circular symmetry near the frame's edge), and crop N x N around them.
+
+Library entry points:
+
+- :func:`run_crop`: the whole stage on a movie (streams frames; writes ``crops.tif``,
+  ``crops.csv`` + sidecar, ``candidates.csv``, ``crops.png``);
+- :func:`find_centers`: ranked centres of one normalised image;
+- :func:`normalize`: one raw frame -> normalised image and mask.
+"""
+
+from holofit.crop.centerfind import CenterFinder, find_centers
+from holofit.crop.errors import CropError, FrameError
+from holofit.crop.normalize import Normalizer, normalize
+from holofit.crop.run import CROP_UNITS, STATUSES, CropResult, run_crop
+
+__all__ = [
+    "CROP_UNITS",
+    "STATUSES",
+    "CenterFinder",
+    "CropError",
+    "CropResult",
+    "FrameError",
+    "Normalizer",
+    "find_centers",
+    "normalize",
+    "run_crop",
+]

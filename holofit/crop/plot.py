@@ -1,0 +1,98 @@
+"""Overview figure of a crop run: where the particle is, what its crop looks like, how the
+detection went frame by frame."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from holofit.io.atomic import atomic_path
+
+__all__ = ["plot_overview"]
+
+_STATUS_COLOURS = {"ok": "tab:blue", "edge": "tab:orange", "no_particle": "tab:grey",
+                   "error": "tab:red"}  # fmt: skip
+
+
+def plot_overview(
+    path: str | Path,
+    preview: dict[str, Any],
+    frames: pd.DataFrame,
+    candidates: pd.DataFrame,
+    size: int,
+) -> Path:
+    """Write a PNG with four panels.
+
+    (a) the first frame with a particle, normalised, with its candidates (circles), the crop
+    (square) and the whole track; (b) that crop; (c) x and y of the centre against frame;
+    (d) detection score against frame, coloured by status.
+
+    Parameters
+    ----------
+    path : str or Path
+        PNG to write (atomically).
+    preview : dict
+        ``frame`` (index), ``image`` (normalised frame), ``corner`` (crop corner).
+    frames : pandas.DataFrame
+        The per-frame crop table.
+    candidates : pandas.DataFrame
+        All candidates.
+    size : int
+        Crop side, pixels.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    path = Path(path)
+    k = int(preview["frame"])
+    image = preview["image"]
+    row0, col0 = preview["corner"]
+    finite = image[np.isfinite(image)]
+    lo, hi = np.percentile(finite, [1, 99]) if finite.size else (0.0, 2.0)
+    fig, axes = plt.subplots(2, 2, figsize=(11, 9), constrained_layout=True)
+    ax = axes[0, 0]
+    ax.imshow(image, cmap="gray", vmin=lo, vmax=hi, interpolation="nearest")
+    here = candidates[candidates["frame"] == k]
+    ax.scatter(here["x_px"], here["y_px"], s=120, facecolors="none", edgecolors="yellow",
+               label="candidates")  # fmt: skip
+    ax.plot(frames["x_px"], frames["y_px"], "-", color="tab:cyan", lw=1, label="track")
+    ax.add_patch(Rectangle((col0 - 0.5, row0 - 0.5), size, size, fill=False, ec="tab:red"))
+    ax.set_title(f"frame {k}, normalised; crop {size} x {size}")
+    ax.set_xlabel("x (column), px")
+    ax.set_ylabel("y (row), px")
+    ax.legend(loc="upper right", fontsize=8)
+    ax = axes[0, 1]
+    crop = image[row0 : row0 + size, col0 : col0 + size]
+    ax.imshow(crop, cmap="gray", interpolation="nearest",
+              extent=(col0 - 0.5, col0 + size - 0.5, row0 + size - 0.5, row0 - 0.5))  # fmt: skip
+    sel = frames.loc[frames["frame"] == k]
+    ax.plot(sel["x_px"], sel["y_px"], "+", color="tab:red", ms=14)
+    ax.set_title(f"crop of frame {k} (+ = centre)")
+    ax.set_xlabel("x (column), px")
+    ax.set_ylabel("y (row), px")
+    ax = axes[1, 0]
+    ax.plot(frames["frame"], frames["x_px"], ".-", ms=3, label="x (column)")
+    ax.plot(frames["frame"], frames["y_px"], ".-", ms=3, label="y (row)")
+    ax.set_xlabel("frame")
+    ax.set_ylabel("centre, px")
+    ax.legend(fontsize=8)
+    ax = axes[1, 1]
+    for status, colour in _STATUS_COLOURS.items():
+        part = frames[frames["status"] == status]
+        if len(part):
+            y = part["score"].fillna(1.0) if status in ("ok", "edge") else np.ones(len(part))
+            ax.scatter(part["frame"], y, s=8, color=colour, label=f"{status} ({len(part)})")
+    ax.set_yscale("log")
+    ax.set_xlabel("frame")
+    ax.set_ylabel("detection score")
+    ax.legend(fontsize=8)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90, format="png")
+    plt.close(fig)
+    return path

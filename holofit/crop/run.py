@@ -1,0 +1,459 @@
+"""The crop stage: normalise every frame, find its hologram centre, write an N x N crop.
+
+The movie is streamed: one raw frame, its normalised copy and one crop are in memory at a time,
+whatever the movie's length. Outputs (in ``out_dir``):
+
+``crops.tif`` (+ ``crops.tif.json``)
+    float32 crops, one page per frame in frame order; normalised (background ~1); NaN where a
+    pixel is masked; an all-NaN page for a frame without a particle or that failed.
+``candidates.csv`` (+ ``.json``)
+    every accepted candidate centre of every frame, ranked.
+``crops.png``
+    an overview plot (first frame with a particle, its crop, the track, the scores).
+``crops.csv`` (+ ``crops.csv.json``)
+    one row per frame (columns in :data:`CROP_UNITS`); written last, so its presence means the
+    stage completed.
+
+A frame that cannot be read or normalised gets status ``error`` and the run goes on; input that
+makes the whole run meaningless (unreadable movie, background of another shape, a background
+that is zero everywhere, an empty movie, every frame failing) raises :class:`CropError` and
+leaves no output behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from holofit.config import ConfigError, Instrument, load_instrument, resolve_config
+from holofit.crop.centerfind import CenterFinder
+from holofit.crop.cropping import crop_corner, extract_crop
+from holofit.crop.errors import CropError, FrameError
+from holofit.crop.follow import Follower
+from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
+from holofit.crop.reference import read_dark, read_reference_frame
+from holofit.io.movie import Movie, MovieError, open_movie
+from holofit.io.tables import sidecar_path, write_json, write_table
+from holofit.io.tiffstack import TiffStackWriter
+from holofit.provenance import sidecar
+
+__all__ = ["CANDIDATE_UNITS", "CROP_UNITS", "STATUSES", "CropResult", "run_crop"]
+
+#: Frame statuses in ``crops.csv``.
+STATUSES = ("ok", "edge", "no_particle", "error")
+
+CROP_UNITS = {
+    "frame": "index (0-based, movie order)",
+    "status": "ok | edge (crop shifted to stay inside the frame) | no_particle | error",
+    "message": "text (why a frame is edge, no_particle or error)",
+    "x_px": "pixel, full frame (column; pixel centres are integers)",
+    "y_px": "pixel, full frame (row)",
+    "x_um": "um (x_px * pixel_size_um)",
+    "y_um": "um (y_px * pixel_size_um)",
+    "corner_row": "pixel index, full frame, of crop pixel [0, 0] (empty: no crop)",
+    "corner_col": "pixel index, full frame, of crop pixel [0, 0] (empty: no crop)",
+    "score": "1 (transform peak / rms transform of pure noise at the frame's noise level)",
+    "alignment": "1 (0-1: fraction of nearby gradient energy pointing at the centre)",
+    "symmetry": "1 (-1..1: point symmetry about the centre; 1 = perfect)",
+    "refinement": "symmetry | radial (near an edge) | none (coarse centre)",
+    "n_candidates": "count (accepted candidate centres in the frame)",
+    "n_masked": "pixels (masked, NaN, in the crop)",
+}
+
+CANDIDATE_UNITS = {
+    "frame": "index",
+    "rank": "0 = strongest",
+    "x_px": CROP_UNITS["x_px"],
+    "y_px": CROP_UNITS["y_px"],
+    "score": CROP_UNITS["score"],
+    "alignment": CROP_UNITS["alignment"],
+    "symmetry": CROP_UNITS["symmetry"],
+    "refinement": CROP_UNITS["refinement"],
+    "selected": "bool (the candidate cropped in this frame)",
+}
+
+
+@dataclass
+class CropResult:
+    """What :func:`run_crop` wrote.
+
+    Attributes
+    ----------
+    out_dir : Path
+        Output folder.
+    crops : Path
+        The crop stack (``crops.tif``).
+    table : Path
+        The per-frame table (``crops.csv``; sidecar ``crops.csv.json``).
+    candidates : Path
+        All candidates (``candidates.csv``).
+    plot : Path or None
+        Overview figure (``crops.png``), if made.
+    frames : pandas.DataFrame
+        The per-frame table.
+    counts : dict
+        Frames per status.
+    """
+
+    out_dir: Path
+    crops: Path
+    table: Path
+    candidates: Path
+    plot: Path | None
+    frames: pd.DataFrame
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+def _resolve_instrument(instrument: Instrument | str | Path) -> Instrument:
+    if isinstance(instrument, Instrument):
+        return instrument
+    try:
+        return load_instrument(resolve_config(instrument, "instruments"))
+    except ConfigError as exc:
+        raise CropError(str(exc)) from None
+
+
+def _saturation(movie: Movie, instrument: Instrument) -> float | None:
+    """Full-scale count of an integer movie (None for float data)."""
+    if movie.dtype.kind not in "ui":
+        return None
+    type_max = np.iinfo(movie.dtype).max
+    return float(min(2**instrument.bit_depth - 1, type_max))
+
+
+def _prepare(
+    movie: Movie,
+    background_path: str | Path,
+    dark: str | Path | float | None,
+    min_background: float,
+    saturation: float | None,
+    instrument_label: str,
+) -> tuple[Normalizer, dict[str, Any]]:
+    background = read_reference_frame(background_path, "background")
+    if background.shape != tuple(movie.frame_shape):
+        raise CropError(
+            f"{background_path}: background has shape {background.shape}, but the frames of "
+            f"{movie.path} have shape {tuple(movie.frame_shape)}"
+        )
+    if saturation is not None and float(background.max()) > saturation:
+        raise CropError(
+            f"{background_path}: background counts up to {background.max():g} exceed the full "
+            f"scale {saturation:g} of the bit depth of instrument {instrument_label}: correct "
+            "bit_depth in the instrument config, or do not mask saturated pixels "
+            "(--keep-saturated)"
+        )
+    dark_value = read_dark(dark)
+    if isinstance(dark_value, np.ndarray) and dark_value.shape != background.shape:
+        raise CropError(
+            f"{dark}: dark frame has shape {dark_value.shape}, the background {background.shape}"
+        )
+    try:
+        normalizer = Normalizer(
+            background, dark_value, min_background=min_background, saturation=saturation
+        )
+    except ValueError as exc:
+        where = dark if "dark" in str(exc) and isinstance(dark, str | Path) else background_path
+        raise CropError(f"{where}: {exc}") from None
+    info = {
+        "background": str(background_path),
+        "dark": None if dark is None else (dark if isinstance(dark, int | float) else str(dark)),
+        "min_background_fraction": min_background,
+        "background_mean_counts": normalizer.background_mean,
+        "n_masked_background_pixels": normalizer.n_masked_background,
+        "saturation_counts": saturation,
+    }
+    return normalizer, info
+
+
+def _remove_stale(paths: list[Path]) -> None:
+    for p in paths:
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+
+
+def run_crop(
+    movie_path: str | Path,
+    background_path: str | Path,
+    instrument: Instrument | str | Path,
+    out_dir: str | Path,
+    *,
+    dark: str | Path | float | None = None,
+    size: int = 140,
+    follow: str = "strongest",
+    start: tuple[float, float] | None = None,
+    max_jump_px: float | None = None,
+    finder: CenterFinder | None = None,
+    min_background: float = DEFAULT_MIN_BACKGROUND,
+    mask_saturated: bool = True,
+    plot: bool = True,
+    progress: Callable[[int], Any] | None = None,
+) -> CropResult:
+    """Normalise a raw movie, find the hologram centre of every frame and crop around it.
+
+    Parameters
+    ----------
+    movie_path : str or Path
+        Raw movie: multi-page (or OME-) TIFF, or a folder of TIFF frames; 8 or 16 bit.
+    background_path : str or Path
+        Background: one frame, or a stack / folder reduced by its per-pixel median.
+    instrument : Instrument, str or Path
+        Instrument config (object, file, or name in ``configs/instruments``); its pixel size
+        converts centres to um, its bit depth gives the saturation level.
+    out_dir : str or Path
+        Output folder (created).
+    dark : str, Path or float, optional
+        Dark level: a number of counts (``--dark-count``) or a dark frame / stack file.
+    size : int
+        Crop side N, pixels (default 140, the paper's).
+    follow : {"strongest", "nearest"}
+        Which candidate to crop when a frame has several (see :mod:`holofit.crop.follow`).
+    start : tuple of float, optional
+        ``(x_px, y_px)`` of the particle in the first frame, for ``follow="nearest"``.
+    max_jump_px : float, optional
+        Largest move between frames for ``follow="nearest"`` (default ``size / 4``).
+    finder : CenterFinder, optional
+        Centre-finder settings (default: vote radius ``size / 2``).
+    min_background : float
+        Background pixels at or below this fraction of the median background are masked.
+    mask_saturated : bool
+        Mask (NaN) pixels at the camera's full-scale count.
+    plot : bool
+        Write ``crops.png``.
+    progress : callable, optional
+        Called with 1 after each frame.
+
+    Returns
+    -------
+    CropResult
+
+    Raises
+    ------
+    CropError
+        Unusable input (the message names the file, and the frame where one is at fault).
+    """
+    out = Path(out_dir)
+    inst = _resolve_instrument(instrument)
+    size = int(size)
+    if size < 8:
+        raise CropError(f"crop size must be at least 8 pixels, got {size}")
+    finder = finder or CenterFinder(radius_px=size / 2.0)
+    follower = Follower(follow, start, max_jump_px if max_jump_px is not None else size / 4.0)
+    try:
+        movie = open_movie(movie_path)
+    except MovieError as exc:
+        raise CropError(str(exc)) from None
+    with movie:
+        if size > min(movie.frame_shape):
+            raise CropError(
+                f"{movie_path}: crop size {size} does not fit in frames of "
+                f"{movie.frame_shape[0]} x {movie.frame_shape[1]} pixels; use a smaller --size"
+            )
+        saturation = _saturation(movie, inst) if mask_saturated else None
+        normalizer, norm_info = _prepare(
+            movie, background_path, dark, min_background, saturation, inst.path or inst.name
+        )
+        crops_path = out / "crops.tif"
+        table_path = out / "crops.csv"
+        cand_path = out / "candidates.csv"
+        plot_path = out / "crops.png"
+        meta = {
+            "holofit": "crop stack",
+            "size": size,
+            "frames": len(movie),
+            "table": "crops.csv",
+            "pixels": "float32, normalised (background ~1), NaN = masked or no crop",
+        }
+        with TiffStackWriter(crops_path, meta) as writer:
+            rows, candidates, preview = _crop_frames(
+                movie, normalizer, finder, follower, size, inst.pixel_size_um, writer, progress
+            )
+            frames = pd.DataFrame(rows)
+            for column in ("corner_row", "corner_col"):
+                frames[column] = frames[column].astype("Int64")
+            n_error = int((frames["status"] == "error").sum())
+            if n_error == len(frames):
+                raise CropError(
+                    f"{movie_path}: every frame failed; first error: {frames['message'].iat[0]}"
+                )
+            # a rerun must not leave an old table beside the new stack
+            stale = (table_path, cand_path, crops_path)
+            _remove_stale([*stale[:2], *map(sidecar_path, stale), plot_path])
+        counts = {s: int((frames["status"] == s).sum()) for s in STATUSES}
+        settings = {
+            "size_px": size,
+            "follow": follow,
+            "start_px": list(start) if start is not None else None,
+            "max_jump_px": follower.max_jump_px,
+            "finder": finder.as_dict(),
+            "normalization": {
+                "formula": "(I - dark) / (I_bg - dark) * mean(I_bg - dark) / mean(I - dark)",
+                **norm_info,
+                "mask_saturated": mask_saturated,
+            },
+        }
+        inputs: list[str | Path] = [movie_path, background_path]
+        if isinstance(dark, str | Path):
+            inputs.append(dark)
+        cand_table = pd.DataFrame(candidates, columns=list(CANDIDATE_UNITS))
+        write_table(
+            cand_path,
+            cand_table,
+            sidecar(
+                kind="crop candidates",
+                units=CANDIDATE_UNITS,
+                config={"instrument": inst.as_dict()},
+                inputs=inputs,
+                extra={"settings": settings},
+            ),
+        )
+        made_plot = None
+        if plot and preview is not None:
+            from holofit.crop.plot import plot_overview
+
+            made_plot = plot_overview(plot_path, preview, frames, cand_table, size)
+        extra = {
+            "settings": settings,
+            "movie": {
+                "frames": len(movie),
+                "frame_shape": list(movie.frame_shape),
+                "dtype": str(movie.dtype),
+            },
+            "crops": {
+                "file": crops_path.name,
+                "table": table_path.name,
+                "pages": len(frames),
+                "page_shape": [size, size],
+                "dtype": "float32",
+                "contents": "normalised hologram (background ~1), one page per frame in frame "
+                "order; NaN marks masked pixels (background ~0 or saturated); frames with "
+                "status no_particle or error get an all-NaN page",
+                "coordinates": "crop pixel [i, j] is full-frame pixel "
+                "[corner_row + i, corner_col + j] (corner_* in the table)",
+            },
+            "status_counts": counts,
+        }
+        config = {"instrument": inst.as_dict()}
+        write_json(
+            sidecar_path(crops_path),
+            sidecar(kind="crop stack", units={"pixel value": "1 (background = 1)"},
+                    config=config, inputs=inputs, extra=extra),
+        )  # fmt: skip
+        # the table goes last: its presence marks a complete run
+        write_table(
+            table_path,
+            frames,
+            sidecar(kind="crop table", units=CROP_UNITS, config=config, inputs=inputs,
+                    extra=extra),
+        )  # fmt: skip
+    return CropResult(out, crops_path, table_path, cand_path, made_plot, frames, counts)
+
+
+def _crop_frames(
+    movie: Movie,
+    normalizer: Normalizer,
+    finder: CenterFinder,
+    follower: Follower,
+    size: int,
+    pixel_size_um: float,
+    writer: TiffStackWriter,
+    progress: Callable[[int], Any] | None,
+) -> tuple[list[dict[str, Any]], list[tuple[Any, ...]], dict[str, Any] | None]:
+    """The streaming loop: one frame in memory at a time."""
+    blank = np.full((size, size), np.nan, dtype=np.float32)
+    rows: list[dict[str, Any]] = []
+    candidates: list[tuple[Any, ...]] = []
+    preview: dict[str, Any] | None = None
+    for k in range(len(movie)):
+        row: dict[str, Any] = {
+            "frame": k,
+            "status": "error",
+            "message": "",
+            "x_px": math.nan,
+            "y_px": math.nan,
+            "x_um": math.nan,
+            "y_um": math.nan,
+            "corner_row": pd.NA,
+            "corner_col": pd.NA,
+            "score": math.nan,
+            "alignment": math.nan,
+            "symmetry": math.nan,
+            "refinement": "",
+            "n_candidates": 0,
+            "n_masked": 0,
+        }
+        page: NDArray = blank
+        try:
+            image, mask, found = _detect(movie, k, normalizer, finder)
+        except FrameError as exc:
+            row["message"] = str(exc)
+        else:
+            choice = follower.choose(found)
+            row["n_candidates"] = len(found)
+            for rank, cand in enumerate(found.itertuples(index=False)):
+                candidates.append(
+                    (k, rank, cand.x_px, cand.y_px, cand.score, cand.alignment,
+                     cand.symmetry, cand.refinement, rank == choice.index)
+                )  # fmt: skip
+            if choice.index is None:
+                row["status"], row["message"] = "no_particle", choice.message
+            else:
+                best = found.iloc[choice.index]
+                x, y = float(best["x_px"]), float(best["y_px"])
+                corner_row, corner_col, shifted = crop_corner(x, y, size, image.shape)
+                page = extract_crop(image, (corner_row, corner_col), size)
+                row.update(
+                    status="edge" if shifted else "ok",
+                    message="particle near the frame edge: crop shifted inside the frame"
+                    if shifted
+                    else "",
+                    x_px=x,
+                    y_px=y,
+                    x_um=x * pixel_size_um,
+                    y_um=y * pixel_size_um,
+                    corner_row=corner_row,
+                    corner_col=corner_col,
+                    score=float(best["score"]),
+                    alignment=float(best["alignment"]),
+                    symmetry=float(best["symmetry"]),
+                    refinement=str(best["refinement"]),
+                    n_masked=int(
+                        mask[corner_row : corner_row + size, corner_col : corner_col + size].sum()
+                    ),
+                )
+                if preview is None:
+                    preview = {"frame": k, "image": image, "corner": (corner_row, corner_col)}
+        writer.write(page)
+        rows.append(row)
+        if progress is not None:
+            progress(1)
+    return rows, candidates, preview
+
+
+def _detect(
+    movie: Movie, k: int, normalizer: Normalizer, finder: CenterFinder
+) -> tuple[NDArray, NDArray, pd.DataFrame]:
+    """Read, normalise and search frame ``k``; any failure becomes a :class:`FrameError`."""
+    source = movie.frame_source(k)
+    try:
+        raw = movie[k]
+    except MovieError as exc:
+        raise FrameError(str(exc)) from None
+    try:
+        image, mask = normalizer(raw)
+    except ValueError as exc:
+        raise FrameError(f"{source}: frame {k}: {exc}") from None
+    try:
+        found = finder.find(image, mask)
+    except Exception as exc:  # a bug must not lose the rest of a long movie
+        raise FrameError(
+            f"{source}: frame {k}: centre finder failed ({type(exc).__name__}: {exc})"
+        ) from None
+    return image, mask, found
