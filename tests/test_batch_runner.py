@@ -16,6 +16,7 @@ from holofit.batch import (
     Precomputed,
     ProcessPoolBackend,
     journal_path,
+    partial_path,
     run_batch,
 )
 from holofit.batch.journal import Journal, JournalError, read_journal
@@ -124,9 +125,11 @@ def test_resume_after_interruption_skips_finished_frames_and_gives_the_same_tabl
         _run(tmp_path, "resumed", cfg, load=interrupted)
     out = tmp_path / "resumed" / "table.csv"
     assert calls(logs) == [0, 1, 2, 3, 4]
-    partial = pd.read_csv(out)  # what was done is in the table already
+    assert not out.exists()  # the table appears only when complete (Make-friendly)
+    partial = pd.read_csv(partial_path(out))  # what was done is in the partial table
     assert partial["frame"].tolist() == [0, 1, 2, 3, 4]
-    assert json.loads(out.with_name("table.csv.json").read_text())["batch"]["complete"] is False
+    meta = json.loads(partial_path(out).with_name("table.partial.csv.json").read_text())
+    assert meta["batch"]["complete"] is False
     # a torn last line (killed mid-write) is ignored
     with journal_path(out).open("ab") as fh:
         fh.write(b'{"frame": 5, "status": "o')
@@ -134,6 +137,7 @@ def test_resume_after_interruption_skips_finished_frames_and_gives_the_same_tabl
     assert summary.n_done_before == 5 and summary.n_run == 7
     assert calls(logs) == list(range(12))  # each frame fitted exactly once
     pd.testing.assert_frame_equal(_values(full), _values(out))
+    assert not partial_path(out).exists() and not journal_path(out).exists()
     # a rerun of a finished batch does nothing
     _, again = _run(tmp_path, "resumed", cfg)
     assert again.n_run == 0 and again.n_done_before == 12

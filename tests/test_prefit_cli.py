@@ -143,6 +143,7 @@ def test_sigkill_halfway_then_rerun_finishes_without_refitting(tmp_path):
     assert proc.returncode == -signal.SIGKILL
     _, rows_at_kill, _ = read_journal(journal)
     assert 0 < len(rows_at_kill) < n, "the run was not killed halfway"
+    assert not (out / "prefit.csv").exists()  # a Makefile sees the stage as not done
 
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
@@ -156,15 +157,25 @@ def test_sigkill_halfway_then_rerun_finishes_without_refitting(tmp_path):
     assert not journal.exists()
 
 
-def test_dask_local_cluster_gives_the_process_pool_table(tmp_path, crops6):
-    pytest.importorskip("distributed")
+def test_dask_gives_the_process_pool_table(tmp_path, crops6):
+    distributed = pytest.importorskip("distributed")
     crops, _ = crops6
     pool = _invoke(crops, "-o", tmp_path / "pool", "--workers", "2", "--no-plot")
     assert pool.exit_code == 0, pool.output
+    reference = _values(tmp_path / "pool" / "prefit.csv")
+    # a local cluster started by holofit (loopback only)
     dask = _invoke(crops, "-o", tmp_path / "dask", "--dask-local", "--workers", "2", "--no-plot")
     assert dask.exit_code == 0, dask.output
     meta = json.loads((tmp_path / "dask" / "prefit.csv.json").read_text())
-    assert meta["batch"]["backend"] == "dask"
-    pd.testing.assert_frame_equal(
-        _values(tmp_path / "pool" / "prefit.csv"), _values(tmp_path / "dask" / "prefit.csv")
-    )
+    assert meta["batch"]["backend"] == "dask" and meta["batch"]["scheduler"] == "local cluster"
+    pd.testing.assert_frame_equal(reference, _values(tmp_path / "dask" / "prefit.csv"))
+    # a running scheduler given by its address, as on a cluster
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None
+    ) as cluster:
+        address = cluster.scheduler_address
+        res = _invoke(crops, "-o", tmp_path / "sched", "--scheduler", address, "--no-plot")
+    assert res.exit_code == 0, res.output
+    meta = json.loads((tmp_path / "sched" / "prefit.csv.json").read_text())
+    assert meta["batch"]["scheduler"] == address
+    pd.testing.assert_frame_equal(reference, _values(tmp_path / "sched" / "prefit.csv"))

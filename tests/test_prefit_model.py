@@ -9,6 +9,7 @@ import pytest
 from holofit.conventions import DetectorGrid, hologram_intensity, incident_phase_at
 from holofit.fitting.estimate import SearchSpace, z_grid
 from holofit.fitting.mie_pixels import mie_hologram_on_pixels
+from holofit.fitting.pixels import select_pixels
 from holofit.fitting.profile import annulus_mean_radius, profile_terms, radial_profile
 from holofit.fitting.residuals import SphereResiduals
 from holofit.fitting.statistics import covariance_from_jacobian, estimate_noise_sd
@@ -140,3 +141,20 @@ def test_noise_estimate_on_a_smooth_image_with_white_noise():
     img = smooth + rng.normal(0, 0.02, smooth.shape)
     img[60:70, 60:70] = np.nan
     assert estimate_noise_sd(img) == pytest.approx(0.02, rel=0.05)
+
+
+def test_pixel_selection_masks_subsets_and_places_pixels():
+    grid = _grid()
+    crop = np.ones(grid.shape)
+    crop[3, 4] = np.nan
+    crop[5, 6] = 9.0
+    sel = select_pixels(crop, grid.corner, grid.pixel_size_um, saturation=5.0)
+    assert sel.n_masked == 2 and sel.size == grid.size - 2 and not sel.valid[5, 6]
+    x, y = grid.coordinates()
+    np.testing.assert_array_equal(sel.xs_um, x.ravel()[sel.index])
+    np.testing.assert_array_equal(sel.ys_um, y.ravel()[sel.index])
+    a = select_pixels(crop, grid.corner, 0.12, fraction=0.25, rng=np.random.default_rng(3))
+    b = select_pixels(crop, grid.corner, 0.12, fraction=0.25, rng=np.random.default_rng(3))
+    assert a.size == round(0.25 * (grid.size - 1)) and np.array_equal(a.index, b.index)
+    with pytest.raises(ValueError, match="usable pixels"):
+        select_pixels(crop, grid.corner, 0.12, min_pixels=10**6)

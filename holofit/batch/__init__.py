@@ -11,6 +11,7 @@ from holofit.batch.runner import (
     Precomputed,
     journal_path,
     make_backend,
+    partial_path,
     run_batch,
     run_frame,
 )
@@ -27,6 +28,7 @@ __all__ = [
     "WorkerLost",
     "journal_path",
     "make_backend",
+    "partial_path",
     "run_batch",
     "run_frame",
 ]

@@ -17,8 +17,10 @@ What the runner guarantees:
   that dies is replaced, the frames it may have been running are retried one at a time, and a
   frame that kills a worker again is recorded as ``error``. The batch always goes on.
 - **Results as they come, atomically**: every finished row is appended to a journal
-  (:mod:`holofit.batch.journal`) at once; the output table (CSV + sidecar JSON) is rewritten
-  atomically every few seconds and at the end, sorted by frame.
+  (:mod:`holofit.batch.journal`) at once; the table of the frames done so far,
+  ``<name>.partial.csv`` (+ sidecar), is rewritten atomically every few seconds; the output
+  table (CSV + sidecar JSON, sorted by frame) appears under its own name only when every frame
+  is done, so a Makefile target never mistakes an interrupted run for a finished one.
 - **Resumable**: a rerun of the same batch (same fingerprint) reads the journal (or the
   finished table) and runs only the frames that are missing, so a run killed at any point
   (even by SIGKILL) finishes with the same table as an uninterrupted run. A rerun with other
@@ -60,6 +62,7 @@ __all__ = [
     "available_cpus",
     "journal_path",
     "make_backend",
+    "partial_path",
     "run_batch",
     "run_frame",
 ]
@@ -151,6 +154,19 @@ def journal_path(output: str | Path) -> Path:
     return output.with_name(output.name + ".journal")
 
 
+def partial_path(output: str | Path) -> Path:
+    """``prefit.csv`` -> ``prefit.partial.csv``: the table of the frames done so far."""
+    output = Path(output)
+    return output.with_name(output.stem + ".partial" + output.suffix)
+
+
+def _remove_partial(output: Path) -> None:
+    part = partial_path(output)
+    for p in (part, sidecar_path(part)):
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+
+
 def make_backend(options: BatchOptions) -> Backend:
     """The backend chosen by ``options``."""
     workers = options.workers if options.workers is not None else available_cpus()
@@ -230,6 +246,7 @@ def _earlier_rows(
         for p in (jpath, output, sidecar_path(output)):
             with contextlib.suppress(FileNotFoundError):
                 p.unlink()
+        _remove_partial(output)
         return {}
     hint = "rerun with --overwrite to discard them, or choose another output"
     if jpath.exists():
@@ -292,7 +309,8 @@ def run_batch(
         ``load(frame)`` in the driver process returns the payload of a frame, or a
         :class:`Precomputed` row. An exception is recorded as that frame's ``error``.
     output : str or Path
-        The CSV table (sidecar JSON beside it; journal ``<output>.journal`` while running).
+        The CSV table (sidecar JSON beside it; while running, the journal
+        ``<output>.journal`` and the table so far, ``<name>.partial.csv``).
     columns : sequence of str
         Columns of the table, in order; must include ``frame``, ``status``, ``message``.
     fingerprint : str
@@ -341,6 +359,7 @@ def run_batch(
             _write(output, rows, columns, meta, info)
             with contextlib.suppress(FileNotFoundError):
                 jpath.unlink()
+            _remove_partial(output)
         summary.statuses = statuses()
         summary.elapsed_s = time.perf_counter() - t0
         return summary
@@ -421,12 +440,13 @@ def run_batch(
                 except Exception as exc:  # infrastructure error for this one future
                     record({"frame": frame, "status": "error", "message": f"{exc}"})
             if time.monotonic() - last_flush >= opts.flush_interval_s:
-                _write(output, rows, columns, meta, info)
+                _write(partial_path(output), rows, columns, meta, info)
                 last_flush = time.monotonic()
         info["complete"] = True
         _write(output, rows, columns, meta, info)
         journal.close()
         jpath.unlink()
+        _remove_partial(output)
     except BaseException:
         # keep what is done: results already back, then the table of everything recorded
         for fut in list(in_flight):
@@ -435,7 +455,7 @@ def run_batch(
                     record(be.result(fut))
         journal.close()
         with contextlib.suppress(Exception):
-            _write(output, rows, columns, meta, info)
+            _write(partial_path(output), rows, columns, meta, info)
         raise
     finally:
         bar.close()

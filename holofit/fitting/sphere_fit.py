@@ -27,6 +27,7 @@ from holofit.fitting.estimate import (
     estimate_starts,
     profile_table,
 )
+from holofit.fitting.pixels import select_pixels
 from holofit.fitting.profile import radial_profile
 from holofit.fitting.residuals import SPHERE_PARAMETERS, SphereResiduals
 from holofit.fitting.statistics import covariance_from_jacobian, estimate_noise_sd
@@ -150,15 +151,6 @@ class SphereFit:
     setup_s: float = 0.0
 
 
-def _pixel_coordinates(
-    shape: tuple[int, int], corner_rc: tuple[int, int], pixel_size_um: float
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    rows = (corner_rc[0] + np.arange(shape[0])) * pixel_size_um
-    cols = (corner_rc[1] + np.arange(shape[1])) * pixel_size_um
-    y, x = np.meshgrid(rows, cols, indexing="ij")
-    return x, y
-
-
 def _lm(
     res: SphereResiduals, p0: NDArray[np.float64], max_nfev: int, ftol: float, xtol: float
 ):  # scipy OptimizeResult
@@ -214,25 +206,19 @@ def fit_sphere_crop(
     t0 = time.perf_counter()
     opts = options or FitOptions()
     data = np.asarray(crop, dtype=float)
-    if data.ndim != 2:
-        raise ValueError(f"crop must be 2-D, got shape {data.shape}")
-    valid = np.isfinite(data)
-    if opts.saturation is not None:
-        valid &= data < opts.saturation
-    n_valid = int(valid.sum())
-    n_masked = data.size - n_valid
     n_free = 6 - (opts.fix_alpha is not None)
-    if n_valid < max(100, 10 * n_free):
-        raise ValueError(f"only {n_valid} usable pixels in a {data.shape} crop")
-    x_all, y_all = _pixel_coordinates(data.shape, corner_rc, pixel_size_um)
-    idx = np.flatnonzero(valid.ravel())
     rng = np.random.default_rng(seed)
-    if opts.pixel_fraction < 1:
-        keep = max(round(opts.pixel_fraction * idx.size), 10 * n_free)
-        idx = np.sort(rng.choice(idx, size=keep, replace=False))
-    d = data.ravel()[idx]
-    xs = x_all.ravel()[idx]
-    ys = y_all.ravel()[idx]
+    pix = select_pixels(
+        data,
+        corner_rc,
+        pixel_size_um,
+        saturation=opts.saturation,
+        fraction=opts.pixel_fraction,
+        rng=rng,
+        min_pixels=max(100, 10 * n_free),
+    )
+    valid, n_masked = pix.valid, pix.n_masked
+    d, xs, ys = pix.data, pix.xs_um, pix.ys_um
 
     # automatic start: radial profile about the crop stage's centre
     xc, yc = (float(v) for v in centre_xy_um)
