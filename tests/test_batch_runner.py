@@ -207,3 +207,19 @@ def test_journal_round_trips_floats_exactly_and_rejects_foreign_files(tmp_path):
     other.write_text('{"a": 1}\n')
     with pytest.raises(JournalError, match="not a holofit batch journal"):
         read_journal(other)
+
+
+def test_a_dask_worker_that_dies_is_recorded_and_the_batch_goes_on(tmp_path):
+    dask = pytest.importorskip("dask")
+    pytest.importorskip("distributed")
+    serial, _ = _run(tmp_path, "serial")
+    # the scheduler gives up on a task after it killed one worker (default: 3 workers)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with DaskBackend(scheduler=None, workers=2) as backend:
+            out, summary = _run(tmp_path, "dask", ToyConfig(crash_frames=(6,)), backend=backend)
+    table = pd.read_csv(out)
+    assert table.loc[6, "status"] == "error" and "died" in table.loc[6, "message"]
+    assert summary.statuses == {"ok": 11, "error": 1}
+    keep = table["frame"] != 6
+    cols = ["frame", "status", "a", "b", "c"]
+    pd.testing.assert_frame_equal(_values(serial)[keep][cols], _values(out)[keep][cols])

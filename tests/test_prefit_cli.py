@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -109,6 +110,17 @@ def test_cli_errors_name_the_problem(tmp_path, crops6):
     assert res.exit_code != 0 and "MIN < MAX" in res.output
     res = _invoke(crops, "-o", tmp_path / "o", "--pixel-fraction", "0")
     assert res.exit_code != 0
+    # a crop folder whose sidecar names no instrument needs --instrument
+    bare = tmp_path / "bare"
+    shutil.copytree(crops, bare)
+    doc = json.loads((bare / "crops.csv.json").read_text())
+    doc["config"] = {}
+    (bare / "crops.csv.json").write_text(json.dumps(doc))
+    res = _invoke(bare, "-o", tmp_path / "o", "-j", "0", "--frames", "0:1", "--no-plot")
+    assert res.exit_code != 0 and "names no instrument" in res.output
+    res = _invoke(bare, "-o", tmp_path / "o", "-j", "0", "--frames", "0:1", "--no-plot",
+                  "-i", "paper_100x_oil")  # fmt: skip
+    assert res.exit_code == 0, res.output
 
 
 def _holofit_command():

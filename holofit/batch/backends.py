@@ -46,6 +46,10 @@ class Backend:
     #: how many calls can run at the same time
     slots: int = 1
     name: str = ""
+    #: True if a dying worker takes only its own call down (Dask: the scheduler reruns the
+    #: others and reports the call that killed workers); False if it breaks every call in
+    #: flight (a process pool)
+    isolates_lost_workers: bool = True
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Any:  # pragma: no cover
         raise NotImplementedError
@@ -107,6 +111,7 @@ class ProcessPoolBackend(Backend):
     """
 
     name = "processes"
+    isolates_lost_workers = False
 
     def __init__(self, workers: int) -> None:
         if workers < 1:
@@ -207,7 +212,7 @@ class DaskBackend(Backend):
         try:
             return future.result()
         except self._distributed.KilledWorker as exc:
-            raise WorkerLost(f"Dask worker died running this frame ({exc})") from None
+            raise WorkerLost(f"Dask workers died running this frame ({exc})") from None
 
     def describe(self) -> dict[str, Any]:
         return {

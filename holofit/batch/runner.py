@@ -428,6 +428,9 @@ def run_batch(
                 try:
                     record(be.result(fut))
                 except WorkerLost as exc:
+                    if be.isolates_lost_workers:
+                        record({"frame": frame, "status": "error", "message": str(exc)})
+                        continue
                     lost = [(frame, payload, attempts), *list(in_flight.values())]
                     in_flight.clear()
                     be.restart()
