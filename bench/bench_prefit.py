@@ -1,0 +1,121 @@
+"""Prefit speed: one frame on one core from the automatic start, and a batch on 2 workers.
+
+Synthetic 8-bit holograms of spheres (a 0.5-1 um, n 1.45-1.6, z 5-30 um) with the paper's 60x
+water set-up (0.1767 um pixels), 140x140 crops whose centre is 0.5 px off, as the crop stage
+gives them. The estimator's table is built once per process (timed separately as
+``prefit_table_build_s``); the per-frame time includes everything else: radial profile,
+table search, profile refinement, screening of ambiguous starts, the full fit and its
+statistics.
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from holofit.batch import BatchOptions
+from holofit.camera import Camera
+from holofit.config import load_instrument, resolve_config
+from holofit.conventions import DetectorGrid
+from holofit.fitting.estimate import profile_table
+from holofit.fitting.prefit import run_prefit
+from holofit.fitting.sphere_fit import FitOptions, fit_sphere_crop
+from holofit.hologram import calc_hologram
+from holofit.io import write_table
+from holofit.io.tiffstack import write_tiff_stack
+from holofit.models import Sphere
+from holofit.provenance import sidecar
+from holofit.scattering.mie import MieWave
+
+
+def _frames(inst, n, size, seed=0):
+    """n noisy normalised crops with the crop-stage centre; yields (crop, corner, centre, truth)."""
+    px = inst.pixel_size_um
+    rng = np.random.default_rng(seed)
+    cam = Camera(background_counts=0.47 * 255)
+    corner = (200, 300)
+    grid = DetectorGrid((size, size), px, corner)
+    for _ in range(n):
+        a, m, z = rng.uniform(0.5, 1.0), rng.uniform(1.45, 1.6), rng.uniform(5, 30)
+        r = corner[0] + size / 2 - 0.5 + rng.uniform(-0.5, 0.5)
+        c = corner[1] + size / 2 - 0.5 + rng.uniform(-0.5, 0.5)
+        holo = calc_hologram(MieWave(Sphere(a, m), inst.optics), (c * px, r * px, z), grid)
+        raw = cam.expose(holo, rng)
+        crop = raw / cam.background_counts
+        crop[raw >= 255] = np.nan
+        centre = ((c + rng.uniform(-0.5, 0.5)) * px, (r + rng.uniform(-0.5, 0.5)) * px)
+        yield crop, corner, centre, (c * px, r * px, z, a, m)
+
+
+def _one_core(inst, size, n):
+    opts = FitOptions()
+    t0 = time.perf_counter()
+    profile_table(inst.optics, inst.pixel_size_um, size // 2 - 1, opts.search)
+    t_table = time.perf_counter() - t0
+    times, evals = [], []
+    for crop, corner, centre, _ in _frames(inst, n, size):
+        t0 = time.perf_counter()
+        fit = fit_sphere_crop(crop, corner, centre, inst.optics, inst.pixel_size_um, opts)
+        times.append(time.perf_counter() - t0)
+        evals.append(fit.n_holograms)
+    return t_table, statistics.median(times), statistics.median(evals)
+
+
+def bench_prefit_frame() -> dict[str, float]:
+    inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
+    t_table, t_frame, n_eval = _one_core(inst, 140, 30)
+    pyl = load_instrument(resolve_config("pylorenzmie", "instruments"))
+    t_table_390, t_390, _ = _one_core(pyl, 390, 5)
+    return {
+        "prefit_frame_140px_s": t_frame,
+        "prefit_frame_140px_evaluations": float(n_eval),
+        "prefit_table_build_140px_s": t_table,
+        "prefit_frame_390px_s": t_390,
+        "prefit_table_build_390px_s": t_table_390,
+    }
+
+
+def bench_prefit_batch() -> dict[str, float]:
+    inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
+    n = 150
+    with tempfile.TemporaryDirectory() as tmp:
+        crops_dir = Path(tmp) / "crops"
+        crops, rows = [], []
+        for k, (crop, corner, centre, _) in enumerate(_frames(inst, n, 140, seed=1)):
+            crops.append(crop.astype(np.float32))
+            px = inst.pixel_size_um
+            rows.append(
+                {
+                    "frame": k,
+                    "status": "ok",
+                    "message": "",
+                    "x_px": centre[0] / px,
+                    "y_px": centre[1] / px,
+                    "corner_row": corner[0],
+                    "corner_col": corner[1],
+                }
+            )
+        write_tiff_stack(crops_dir / "crops.tif", crops)
+        write_table(
+            crops_dir / "crops.csv",
+            pd.DataFrame(rows),
+            sidecar(kind="crop table (benchmark)", config={"instrument": inst.as_dict()}),
+        )
+        t0 = time.perf_counter()
+        res = run_prefit(
+            crops_dir,
+            Path(tmp) / "out",
+            batch=BatchOptions(workers=2, progress=False),
+            plot=False,
+        )
+        wall = time.perf_counter() - t0
+        assert res.summary.statuses.get("ok") == n, res.summary.statuses
+    return {"prefit_frames_per_s_2workers": n / wall, "prefit_batch_150_frames_2workers_s": wall}
+
+
+BENCHMARKS = {"prefit_frame": bench_prefit_frame, "prefit_batch": bench_prefit_batch}

@@ -1,0 +1,227 @@
+"""Where the frames run: in this process, in a local process pool, or on a Dask cluster.
+
+All three offer the same three operations to the runner (submit a call, wait for the first
+results, shut down), so the runner's bookkeeping (journal, table, progress, failures) is one
+piece of code whatever the backend.
+
+- :class:`SerialBackend`: in the calling process, one frame at a time (debugging, and the
+  one-core benchmark).
+- :class:`ProcessPoolBackend`: ``concurrent.futures.ProcessPoolExecutor`` with freshly spawned
+  worker processes, each single-threaded (:mod:`holofit.batch.threads`).
+- :class:`DaskBackend`: ``distributed.Client`` connected to a running scheduler
+  (``tcp://host:8786``, e.g. started by dask-jobqueue on SLURM) or to a
+  ``LocalCluster`` of single-threaded worker processes on the loopback interface.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import signal
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from holofit.batch.threads import (
+    limit_threads_in_this_process,
+    single_thread_environment,
+    single_thread_variables,
+)
+
+__all__ = [
+    "Backend",
+    "DaskBackend",
+    "ProcessPoolBackend",
+    "SerialBackend",
+    "WorkerLost",
+]
+
+
+class WorkerLost(RuntimeError):
+    """A worker process died (crash, out of memory, killed) while running a frame."""
+
+
+class Backend:
+    """Interface of a backend (see the module docstring)."""
+
+    #: how many calls can run at the same time
+    slots: int = 1
+    name: str = ""
+    #: True if a dying worker takes only its own call down (Dask: the scheduler reruns the
+    #: others and reports the call that killed workers); False if it breaks every call in
+    #: flight (a process pool)
+    isolates_lost_workers: bool = True
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Any:  # pragma: no cover
+        raise NotImplementedError
+
+    def wait(self, futures: Iterable[Any], timeout: float) -> set[Any]:  # pragma: no cover
+        """The futures among ``futures`` that are done (waits up to ``timeout`` s for one)."""
+        raise NotImplementedError
+
+    def result(self, future: Any) -> Any:
+        """The value of a done future; :class:`WorkerLost` if its worker died."""
+        return future.result()
+
+    def restart(self) -> None:
+        """Replace broken workers (after :class:`WorkerLost`)."""
+
+    def close(self) -> None:
+        """Stop the workers."""
+
+    def describe(self) -> dict[str, Any]:
+        return {"backend": self.name, "workers": self.slots}
+
+    def __enter__(self) -> Backend:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class SerialBackend(Backend):
+    """Run every call at once in this process."""
+
+    name = "serial"
+    slots = 1
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> cf.Future:
+        fut: cf.Future = cf.Future()
+        try:
+            fut.set_result(fn(*args))
+        except BaseException as exc:  # the runner decides what an error means
+            fut.set_exception(exc)
+        return fut
+
+    def wait(self, futures: Iterable[Any], timeout: float) -> set[Any]:
+        return {f for f in futures if f.done()}
+
+
+def _pool_worker_init() -> None:
+    # Ctrl-C goes to the whole process group: let the parent shut the pool down cleanly.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    limit_threads_in_this_process()
+
+
+class ProcessPoolBackend(Backend):
+    """Local pool of ``workers`` spawned, single-threaded processes.
+
+    Processes are started with the ``spawn`` method (a clean interpreter: no inherited
+    threads or locks) while the single-thread environment is set, so their BLAS and numba
+    pools have one thread.
+    """
+
+    name = "processes"
+    isolates_lost_workers = False
+
+    def __init__(self, workers: int) -> None:
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self.slots = workers
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> cf.ProcessPoolExecutor:
+        return cf.ProcessPoolExecutor(
+            max_workers=self.slots,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_pool_worker_init,
+        )
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> cf.Future:
+        # workers start lazily on submit: keep the environment single-threaded meanwhile
+        with single_thread_environment():
+            return self._pool.submit(fn, *args)
+
+    def wait(self, futures: Iterable[Any], timeout: float) -> set[Any]:
+        done, _ = cf.wait(list(futures), timeout=timeout, return_when=cf.FIRST_COMPLETED)
+        return set(done)
+
+    def result(self, future: cf.Future) -> Any:
+        try:
+            return future.result()
+        except cf.process.BrokenProcessPool as exc:
+            raise WorkerLost(f"a worker process died ({exc})") from None
+
+    def restart(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        self._pool = self._new_pool()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+class DaskBackend(Backend):
+    """Frames as tasks of a Dask distributed cluster.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        Address of a running scheduler (``tcp://10.0.0.5:8786``) or a path to a scheduler
+        file. If not given, a ``LocalCluster`` of ``workers`` single-threaded worker processes
+        listening on 127.0.0.1 only is started (and stopped by :meth:`close`).
+    workers : int
+        Workers of the local cluster.
+    """
+
+    name = "dask"
+
+    def __init__(self, scheduler: str | None = None, workers: int = 2) -> None:
+        try:
+            import distributed
+        except ModuleNotFoundError:  # pragma: no cover - depends on the installation
+            raise RuntimeError(
+                "the Dask backend needs dask and distributed: pip install 'holofit[cluster]'"
+            ) from None
+        self._distributed = distributed
+        self._cluster = None
+        if scheduler is None:
+            if workers < 1:
+                raise ValueError(f"workers must be >= 1, got {workers}")
+            self._cluster = distributed.LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                host="127.0.0.1",
+                dashboard_address=None,
+                env=single_thread_variables(),
+            )
+            self.client = distributed.Client(self._cluster)
+            self.address = self._cluster.scheduler_address
+        elif scheduler.endswith(".json"):
+            self.client = distributed.Client(scheduler_file=scheduler)
+            self.address = scheduler
+        else:
+            self.client = distributed.Client(scheduler)
+            self.address = scheduler
+        self.client.run(limit_threads_in_this_process)
+        self.slots = max(sum(self.client.nthreads().values()), 1)
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Any:
+        return self.client.submit(fn, *args, pure=False)
+
+    def wait(self, futures: Iterable[Any], timeout: float) -> set[Any]:
+        futures = list(futures)
+        try:
+            done, _ = self._distributed.wait(
+                futures, timeout=timeout, return_when="FIRST_COMPLETED"
+            )
+        except TimeoutError:  # builtin since Python 3.11 (asyncio's is the same class)
+            return set()
+        return set(done)
+
+    def result(self, future: Any) -> Any:
+        try:
+            return future.result()
+        except self._distributed.KilledWorker as exc:
+            raise WorkerLost(f"Dask workers died running this frame ({exc})") from None
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "backend": "dask",
+            "workers": self.slots,
+            "scheduler": self.address if self._cluster is None else "local cluster",
+        }
+
+    def close(self) -> None:
+        self.client.close()
+        if self._cluster is not None:
+            self._cluster.close()

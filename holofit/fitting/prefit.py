@@ -1,0 +1,288 @@
+"""``holofit prefit``: Lorenz-Mie fit of every crop (step 2 of the paper's procedure).
+
+Reads a crop folder (:mod:`holofit.fitting.crops`), fits the exact Lorenz-Mie hologram of a
+sphere to each crop from an automatic start (:func:`holofit.fitting.sphere_fit.fit_sphere_crop`)
+and writes one row per frame to ``prefit.csv`` through the batch runner
+(:mod:`holofit.batch.runner`): in parallel, resumable, failures recorded and skipped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
+from holofit.config import Instrument
+from holofit.fitting.crops import FITTABLE_CROP_STATUSES, CropSet, CropSetError
+from holofit.fitting.residuals import SPHERE_PARAMETERS
+from holofit.fitting.sphere_fit import FitOptions, fit_sphere_crop
+from holofit.provenance import sidecar
+
+__all__ = [
+    "PREFIT_COLUMNS",
+    "PREFIT_UNITS",
+    "CropPayload",
+    "PrefitConfig",
+    "PrefitResult",
+    "prefit_frame",
+    "run_prefit",
+]
+
+PREFIT_UNITS: dict[str, str] = {
+    "frame": "index",
+    "status": "ok | not_converged | error | skipped",
+    "message": "text",
+    "crop_status": "status in the crop table",
+    "x_um": "um (full frame, along columns)",
+    "y_um": "um (full frame, along rows)",
+    "z_um": "um (above the focal plane, toward the source)",
+    "radius_um": "um",
+    "index": "1 (absolute real refractive index)",
+    "alpha": "1 (scattered-field scaling)",
+    **{f"sigma_{p}": "same as " + p + " (1 sigma, from the Jacobian)" for p in SPHERE_PARAMETERS},
+    "x_px": "pixel (full-frame column)",
+    "y_px": "pixel (full-frame row)",
+    "rss": "normalised intensity^2 (residual sum of squares)",
+    "noise_sd": "normalised intensity (pixel noise used for chi2)",
+    "chi2": "1 (rss / noise_sd^2)",
+    "chi2_red": "1 (chi2 per degree of freedom)",
+    "r2": "1 (coefficient of determination)",
+    "n_pixels": "pixels fitted",
+    "n_masked": "pixels left out (NaN or saturated)",
+    "n_starts": "candidate starts fitted",
+    "start_z_um": "um (automatic start)",
+    "start_radius_um": "um (automatic start)",
+    "start_index": "1 (automatic start)",
+    "start_alpha": "1 (automatic start)",
+    "n_evaluations": "model holograms computed (Jacobian columns included)",
+    "time_s": "s (wall time of the fit, automatic start included)",
+    "setup_s": "s (one-time set-up paid by this frame in its worker: the estimator's table)",
+}
+PREFIT_COLUMNS: tuple[str, ...] = tuple(PREFIT_UNITS)
+
+
+@dataclass(frozen=True)
+class PrefitConfig:
+    """Everything a worker needs to fit a frame (picklable).
+
+    Attributes
+    ----------
+    instrument : Instrument
+        Optics and pixel size.
+    fit : FitOptions
+        Fit settings.
+    """
+
+    instrument: Instrument
+    fit: FitOptions = field(default_factory=FitOptions)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain form for the sidecar and the fingerprint."""
+        return {"instrument": self.instrument.as_dict(), "fit": dataclasses.asdict(self.fit)}
+
+
+@dataclass(frozen=True)
+class CropPayload:
+    """What the driver sends a worker for one frame."""
+
+    crop: NDArray[np.float32]
+    row: dict[str, Any]
+
+
+def _finite(value: Any) -> bool:
+    try:
+        return math.isfinite(float(value))
+    except (TypeError, ValueError):
+        return False
+
+
+def prefit_frame(config: PrefitConfig, frame: int, payload: CropPayload) -> dict[str, Any]:
+    """Fit one crop; the frame function of the prefit batch.
+
+    Parameters
+    ----------
+    config : PrefitConfig
+        Settings.
+    frame : int
+        Frame number (also the seed of random pixel subsets).
+    payload : CropPayload
+        The crop and its crop-table row.
+
+    Returns
+    -------
+    dict
+        One row of :data:`PREFIT_COLUMNS` (status ``ok`` or ``not_converged``; an exception
+        becomes an ``error`` row in the batch runner).
+    """
+    row = payload.row
+    inst = config.instrument
+    px = inst.pixel_size_um
+    corner = (int(row["corner_row"]), int(row["corner_col"]))
+    centre = (float(row["x_px"]) * px, float(row["y_px"]) * px)
+    fit = fit_sphere_crop(payload.crop, corner, centre, inst.optics, px, config.fit, seed=frame)
+    v, s = fit.values, fit.sigmas
+    out: dict[str, Any] = {
+        "frame": frame,
+        "status": "ok" if fit.converged else "not_converged",
+        "message": "" if fit.converged else fit.message,
+        "crop_status": row.get("status", ""),
+    }
+    out.update(v)
+    out.update({f"sigma_{k}": s[k] for k in SPHERE_PARAMETERS})
+    out.update(
+        {
+            "x_px": v["x_um"] / px,
+            "y_px": v["y_um"] / px,
+            "rss": fit.rss,
+            "noise_sd": fit.noise_sd,
+            "chi2": fit.chi2,
+            "chi2_red": fit.chi2_red,
+            "r2": fit.r2,
+            "n_pixels": fit.n_pixels,
+            "n_masked": fit.n_masked,
+            "n_starts": fit.n_starts,
+            "start_z_um": fit.start.z_um,
+            "start_radius_um": fit.start.radius_um,
+            "start_index": fit.start.index,
+            "start_alpha": fit.start.alpha,
+            "n_evaluations": fit.n_holograms,
+            "time_s": fit.time_s,
+            "setup_s": fit.setup_s,
+        }
+    )
+    space = config.fit.search
+    lo, hi = space.radius_range_um
+    if fit.converged and not 0.5 * lo <= v["radius_um"] <= 2 * hi:
+        out["message"] = f"radius {v['radius_um']:.3g} um far outside the search range"
+    return out
+
+
+def _loader(crops: CropSet):
+    def load(frame: int) -> CropPayload | Precomputed:
+        row = crops.row(frame)
+        status = str(row.get("status", ""))
+        if status not in FITTABLE_CROP_STATUSES:
+            msg = str(row.get("message") or "")
+            return Precomputed(
+                {
+                    "status": "skipped",
+                    "message": f"crop stage: {status}" + (f": {msg}" if msg else ""),
+                    "crop_status": status,
+                }
+            )
+        needed = ("x_px", "y_px", "corner_row", "corner_col")
+        bad = [k for k in needed if not _finite(row.get(k))]
+        if bad:
+            return Precomputed(
+                {
+                    "status": "skipped",
+                    "message": f"crop table has no {', '.join(bad)} for this frame",
+                    "crop_status": status,
+                }
+            )
+        return CropPayload(crops.crop(frame), row)
+
+    return load
+
+
+@dataclass
+class PrefitResult:
+    """What :func:`run_prefit` wrote."""
+
+    table: Path
+    summary: BatchSummary
+    plot: Path | None
+
+
+def fingerprint_of(config: PrefitConfig, inputs: dict[str, Any]) -> str:
+    """Hash of the settings and inputs that determine the prefit table."""
+    doc = json.dumps({"config": config.as_dict(), "inputs": inputs}, sort_keys=True, default=str)
+    return hashlib.sha256(doc.encode()).hexdigest()[:16]
+
+
+def run_prefit(
+    crop_dir: str | Path,
+    out_dir: str | Path,
+    *,
+    instrument: Instrument | None = None,
+    fit: FitOptions | None = None,
+    frames: list[int] | None = None,
+    batch: BatchOptions | None = None,
+    plot: bool = True,
+) -> PrefitResult:
+    """Fit every crop of a crop folder; write ``OUT/prefit.csv`` (+ sidecar, + plot).
+
+    Parameters
+    ----------
+    crop_dir : str or Path
+        Output folder of ``holofit crop``.
+    out_dir : str or Path
+        Where ``prefit.csv``, ``prefit.csv.json`` and ``prefit.png`` go.
+    instrument : Instrument, optional
+        Overrides the instrument recorded by the crop stage.
+    fit : FitOptions, optional
+        Fit settings.
+    frames : list of int, optional
+        Only these frames (default: all).
+    batch : BatchOptions, optional
+        Parallel backend, resumption.
+    plot : bool
+        Write ``prefit.png`` (values against frame).
+
+    Returns
+    -------
+    PrefitResult
+
+    Raises
+    ------
+    CropSetError
+        If the crop folder is incomplete, or no instrument is known.
+    holofit.batch.runner.BatchError
+        If earlier results in ``out_dir`` came from other settings (see ``overwrite``).
+    """
+    out = Path(out_dir)
+    with CropSet(crop_dir) as crops:
+        inst = instrument or crops.instrument
+        if inst is None:
+            raise CropSetError(
+                f"{crops.table_path}: its sidecar names no instrument; give one with --instrument"
+            )
+        config = PrefitConfig(inst, fit or FitOptions())
+        todo = crops.frames if frames is None else [int(f) for f in frames]
+        unknown = sorted(set(todo) - set(crops.frames))
+        if unknown:
+            raise CropSetError(f"{crops.table_path}: no frame(s) {unknown[:5]}")
+        inputs = crops.fingerprint()
+        meta = sidecar(
+            kind="prefit table (Lorenz-Mie fit per frame)",
+            units=PREFIT_UNITS,
+            config=config.as_dict(),
+            inputs=[crops.table_path, crops.stack_path],
+            extra={"crop_shape": list(crops.crop_shape)},
+        )
+        summary = run_batch(
+            prefit_frame,
+            config,
+            todo,
+            _loader(crops),
+            out / "prefit.csv",
+            PREFIT_COLUMNS,
+            fingerprint=fingerprint_of(config, inputs),
+            meta=meta,
+            options=batch,
+            desc="prefit",
+        )
+    png = None
+    if plot:
+        from holofit.fitting.plots import plot_prefit
+
+        png = plot_prefit(out / "prefit.csv", out / "prefit.png")
+    return PrefitResult(out / "prefit.csv", summary, png)

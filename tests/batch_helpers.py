@@ -1,0 +1,60 @@
+"""Frame functions for the batch-runner tests (module level, so worker processes can import
+them)."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+COLUMNS = ("frame", "status", "message", "a", "b", "c", "threads", "time_s")
+
+
+@dataclass(frozen=True)
+class ToyConfig:
+    """What the toy frame function does for which frames."""
+
+    fail_frames: tuple[int, ...] = ()
+    nonconverged_frames: tuple[int, ...] = ()
+    crash_frames: tuple[int, ...] = ()
+    log_dir: str | None = None
+
+
+def toy_payload(frame: int) -> np.ndarray:
+    """Noisy samples of a quadratic whose coefficients depend on the frame."""
+    rng = np.random.default_rng(frame)
+    t = np.linspace(-1, 1, 50)
+    return np.stack([t, 1.0 + 0.1 * frame + 2.0 * t - 0.5 * t**2 + rng.normal(0, 0.01, t.size)])
+
+
+def toy_frame(config: ToyConfig, frame: int, payload: np.ndarray) -> dict:
+    """Fit a quadratic (nonlinear least squares, so results depend on floating point)."""
+    if config.log_dir is not None:
+        with open(Path(config.log_dir) / f"{os.getpid()}.log", "a") as fh:
+            fh.write(f"{frame}\n")
+    if frame in config.crash_frames:
+        os._exit(3)  # a worker dying without a Python exception
+    if frame in config.fail_frames:
+        raise ValueError(f"bad data in frame {frame}")
+    t, y = payload
+    sol = least_squares(lambda p: p[0] + p[1] * t + p[2] * t**2 - y, np.zeros(3), method="lm")
+    converged = frame not in config.nonconverged_frames
+    return {
+        "status": "ok" if converged else "not_converged",
+        "message": "" if converged else "toy: pretend the fit ran out of iterations",
+        "a": sol.x[0],
+        "b": sol.x[1],
+        "c": sol.x[2],
+        "threads": os.environ.get("OMP_NUM_THREADS", "unset"),
+    }
+
+
+def calls(log_dir: str | Path) -> list[int]:
+    """Frames the toy function was called for (all processes)."""
+    out: list[int] = []
+    for p in Path(log_dir).glob("*.log"):
+        out += [int(v) for v in p.read_text().split()]
+    return sorted(out)

@@ -1,0 +1,96 @@
+"""Crop -> prefit on measured holograms, with no manual guess, against published fits.
+
+Each test builds a crop folder as the crop stage would (``make_crops_from_frame``: the finder's
+centre is the published centre rounded and moved by about one pixel, never the answer itself)
+and runs the prefit stage on it. The crop stage can replace ``_crop_folder`` once it is merged.
+
+Published values (see tests/data/*/ *.json):
+- HoloPy image0001 (test_nmpfit.py gold_sphere): n 1.582, r 0.6484 um, z 14.15 um, alpha free.
+  HoloPy's x is the image row: the finder's centre below is (column, row).
+- pylorenzmie PS_silica, silica sphere (2021 TestFrame notebook): a 0.4976 um, n 1.4255,
+  z 179.284 px x 0.048 um. pylorenzmie's model has no alpha: fitted here with alpha = 1.
+- pylorenzmie image0400 (2021 TestFrame notebook): left a 1.1816 um, n 1.3923; right
+  a 1.2226 um, n 1.3936; alpha = 1 likewise. Saturated pixels (255) are masked.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+import tifffile
+
+from holofit.batch import BatchOptions
+from holofit.config import load_instrument
+from holofit.fitting.prefit import run_prefit
+from holofit.fitting.sphere_fit import FitOptions
+from tests.conftest import CONFIGS, DATA
+from tests.prefit_helpers import make_crops_from_frame
+
+SERIAL = BatchOptions(workers=0, progress=False)
+
+
+def _crop_folder(tmp_path, frame, centre_xy_px, size, instrument, saturated=None):
+    """Stand-in for ``holofit crop`` on one particle of one normalised frame."""
+    return make_crops_from_frame(
+        frame, centre_xy_px, size, instrument, tmp_path / "crops", saturated=saturated
+    )
+
+
+def _prefit(tmp_path, crops, fit=None):
+    result = run_prefit(crops, tmp_path / "prefit", fit=fit, batch=SERIAL, plot=False)
+    row = pd.read_csv(result.table).iloc[0]
+    assert row["status"] == "ok", row["message"]
+    return row
+
+
+def test_holopy_image0001(tmp_path):
+    inst = load_instrument(CONFIGS / "instruments" / "holopy_image0001.toml")
+    img = tifffile.imread(DATA / "holopy" / "image0001.tif").astype(float)
+    img /= img.mean()  # already background-divided; HoloPy's normalize()
+    px = inst.pixel_size_um
+    # published centre (HoloPy x = row 5.534 um, y = column 5.792 um), rounded, ~1 px off
+    centre = (round(5.792 / px) + 0.6, round(5.534 / px) - 0.8)
+    row = _prefit(tmp_path, _crop_folder(tmp_path, img, centre, 100, inst))
+    assert row["index"] == pytest.approx(1.582, abs=0.005)
+    assert row["radius_um"] == pytest.approx(0.6484, abs=0.005)
+    assert row["z_um"] == pytest.approx(14.15, abs=0.1)
+    # the position in HoloPy's frame: x (row) 5.534, y (column) 5.792 um
+    assert row["y_um"] == pytest.approx(5.534, abs=0.02)
+    assert row["x_um"] == pytest.approx(5.792, abs=0.02)
+    assert row["alpha"] == pytest.approx(0.6497, abs=0.01)
+    assert row["r2"] > 0.96
+
+
+def _pylorenzmie(name):
+    raw = tifffile.imread(DATA / "pylorenzmie" / f"{name}.tif")
+    return raw.astype(float) / 100.0, raw >= 255
+
+
+def test_pylorenzmie_ps_silica_silica_sphere(tmp_path):
+    inst = load_instrument(CONFIGS / "instruments" / "pylorenzmie.toml")
+    frame, saturated = _pylorenzmie("PS_silica")
+    centre = (round(907.701) + 0.6, round(484.8) - 0.8)
+    crops = _crop_folder(tmp_path, frame, centre, 200, inst, saturated)
+    row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0))
+    assert row["radius_um"] == pytest.approx(0.498, abs=0.01)
+    assert row["index"] == pytest.approx(1.4255, abs=0.005)
+    assert row["z_um"] == pytest.approx(179.284 * 0.048, abs=0.1)
+    assert row["x_px"] == pytest.approx(907.701, abs=0.3)
+    assert row["y_px"] == pytest.approx(484.8, abs=0.3)
+
+
+@pytest.mark.parametrize(
+    "label, centre, a_pub, n_pub",
+    [("left", (582.514, 686.094), 1.1816, 1.3923), ("right", (883.809, 747.796), 1.2226, 1.3936)],
+)
+def test_pylorenzmie_image0400_both_spheres(tmp_path, label, centre, a_pub, n_pub):
+    inst = load_instrument(CONFIGS / "instruments" / "pylorenzmie.toml")
+    frame, saturated = _pylorenzmie("image0400")
+    start = (round(centre[0]) + 0.6, round(centre[1]) - 0.8)
+    crops = _crop_folder(tmp_path, frame, start, 200, inst, saturated)
+    row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0))
+    assert row["n_masked"] > 0  # the saturated core is left out
+    assert row["radius_um"] == pytest.approx(a_pub, abs=0.05)
+    assert row["index"] == pytest.approx(n_pub, abs=0.01)
+    assert np.hypot(row["x_px"] - centre[0], row["y_px"] - centre[1]) < 1.0
