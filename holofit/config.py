@@ -39,6 +39,7 @@ __all__ = [
     "ConfigError",
     "Instrument",
     "ParticleConfig",
+    "instrument_from_dict",
     "load_instrument",
     "load_particle",
     "read_toml",
@@ -253,29 +254,12 @@ class Instrument:
         }
 
 
-def load_instrument(path: str | Path) -> Instrument:
-    """Load and validate an instrument TOML file.
-
-    Raises
-    ------
-    ConfigError
-        With the file, the key and what was expected.
-    """
-    path = Path(path)
-    doc = read_toml(path)
-    if "instrument" not in doc or not isinstance(doc["instrument"], dict):
-        raise ConfigError(f"{path}: expected an [instrument] table")
-    v = validate_table(doc["instrument"], INSTRUMENT_SPECS, path, "instrument")
+def _instrument(v: dict[str, Any], path: str) -> Instrument:
+    """An Instrument from validated instrument-table values."""
     extra = {
         k: v[k]
-        for k in (
-            "description",
-            "numerical_aperture",
-            "magnification",
-            "camera_pixel_um",
-            "camera",
-            "source",
-        )
+        for k in ("description", "numerical_aperture", "magnification", "camera_pixel_um",
+                  "camera", "source")
         if v.get(k) not in (None, "")
     }
     return Instrument(
@@ -288,8 +272,44 @@ def load_instrument(path: str | Path) -> Instrument:
         frame_rate_hz=v["frame_rate_hz"],
         read_noise_counts=v["read_noise_counts"],
         extra=extra,
-        path=str(path),
+        path=path,
     )
+
+
+def load_instrument(path: str | Path) -> Instrument:
+    """Load and validate an instrument TOML file.
+
+    Raises
+    ------
+    ConfigError
+        With the file, the key and what was expected.
+    """
+    path = Path(path)
+    doc = read_toml(path)
+    if "instrument" not in doc or not isinstance(doc["instrument"], dict):
+        raise ConfigError(f"{path}: expected an [instrument] table")
+    return _instrument(validate_table(doc["instrument"], INSTRUMENT_SPECS, path, "instrument"),
+                       str(path))
+
+
+def instrument_from_dict(doc: dict[str, Any], source: str = "<dict>") -> Instrument:
+    """An :class:`Instrument` from its :meth:`Instrument.as_dict` form (e.g. a sidecar JSON).
+
+    Keys as in an instrument file; ``path`` and null values are ignored; ``name``,
+    ``polarization_deg`` and ``bit_depth`` default to ``"from-sidecar"``, 0 and 8.
+
+    Raises
+    ------
+    ConfigError
+        Missing or implausible values, naming ``source`` and the key.
+    """
+    table = {k: v for k, v in doc.items() if v is not None and k != "path"}
+    table.setdefault("name", "from-sidecar")
+    table.setdefault("polarization_deg", 0.0)
+    table.setdefault("bit_depth", 8)
+    known = {k: v for k, v in table.items() if k in INSTRUMENT_SPECS}
+    values = validate_table(known, INSTRUMENT_SPECS, Path(source), "instrument")
+    return _instrument(values, str(doc.get("path", "")))
 
 
 #: plausible range of a particle length (um); outside it a unit slip is likely

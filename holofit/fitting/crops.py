@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from holofit.config import INSTRUMENT_SPECS, ConfigError, Instrument, validate_table
+from holofit.config import ConfigError, Instrument, instrument_from_dict
 from holofit.io.movie import Movie, MovieError
 from holofit.io.tables import sidecar_path
 
@@ -36,7 +36,6 @@ __all__ = [
     "FITTABLE_CROP_STATUSES",
     "CropSet",
     "CropSetError",
-    "instrument_from_dict",
     "open_crops",
 ]
 
@@ -55,47 +54,6 @@ FITTABLE_CROP_STATUSES: tuple[str, ...] = ("ok", "edge")
 
 class CropSetError(ValueError):
     """A crop folder is incomplete or inconsistent; the message names the file."""
-
-
-def instrument_from_dict(doc: Mapping[str, Any], source: str = "<dict>") -> Instrument:
-    """An :class:`~holofit.config.Instrument` from its ``as_dict()`` form (sidecar JSON).
-
-    Parameters
-    ----------
-    doc : mapping
-        Keys as in an instrument TOML file (``wavelength_um``, ``medium_index``,
-        ``pixel_size_um``, ``polarization_deg``, ...); ``path`` and null values are ignored.
-    source : str
-        Where it came from, for error messages.
-
-    Raises
-    ------
-    ConfigError
-        Missing or implausible values, naming ``source`` and the key.
-    """
-    table = {k: v for k, v in doc.items() if v is not None and k != "path"}
-    table.setdefault("name", "from-sidecar")
-    table.setdefault("polarization_deg", 0.0)
-    table.setdefault("bit_depth", 8)
-    known = {k: v for k, v in table.items() if k in INSTRUMENT_SPECS}
-    v = validate_table(known, INSTRUMENT_SPECS, Path(source), "instrument")
-    extra = {
-        k: v[k]
-        for k in ("description", "numerical_aperture", "magnification", "camera", "source")
-        if v.get(k) not in (None, "")
-    }
-    return Instrument(
-        name=v["name"],
-        wavelength_um=v["wavelength_um"],
-        medium_index=v["medium_index"],
-        pixel_size_um=v["pixel_size_um"],
-        polarization_rad=math.radians(v["polarization_deg"]),
-        bit_depth=v["bit_depth"],
-        frame_rate_hz=v["frame_rate_hz"],
-        read_noise_counts=v["read_noise_counts"],
-        extra=extra,
-        path=str(doc.get("path", "")),
-    )
 
 
 def _find_instrument(doc: Mapping[str, Any]) -> Mapping[str, Any] | None:

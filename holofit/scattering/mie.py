@@ -18,7 +18,7 @@ from holofit.conventions import DetectorGrid
 from holofit.models import ParticleModel, Sphere
 from holofit.optics import Optics
 from holofit.scattering.mie_coefficients import mie_coefficients
-from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, field_on_grid
+from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, field_on_pixels
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = [
@@ -152,30 +152,45 @@ class MieWave(ScatteredWave):
         field_at_points(p_bh, self.optics.k, *self._coefs, bool(far_field), e_bh)
         return e_bh @ self._frame
 
+    def field_on_pixels(
+        self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike, far_field: bool = False
+    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        """Transverse field ``(E_x, E_y)`` at a list of pixel centres, incident phase included.
+
+        Parameters
+        ----------
+        position_um : array_like, shape (3,)
+            Full-frame particle centre ``(x, y, z)``, um.
+        xs_um, ys_um : array_like, shape (N,)
+            Full-frame sample-plane coordinates of the pixel centres, um (x along columns).
+        far_field : bool
+            Asymptotic far-field form instead of the exact field.
+
+        Raises
+        ------
+        ValueError
+            If the detector plane cuts the sphere.
+        """
+        xp, yp, zp = (float(v) for v in position_um)
+        if abs(zp) <= self.sphere.radius_um:
+            raise ValueError(
+                f"|z| = {abs(zp):.4g} um is within the sphere radius {self.sphere.radius_um:.4g}"
+                " um: the detector plane cuts the sphere"
+            )
+        xs = np.ascontiguousarray(xs_um, dtype=float).ravel()
+        ys = np.ascontiguousarray(ys_um, dtype=float).ravel()
+        ex = np.empty(xs.shape[0], dtype=complex)
+        ey = np.empty(xs.shape[0], dtype=complex)
+        field_on_pixels(xs, ys, xp, yp, zp, self._frame, self.optics.k, *self._coefs,
+                        bool(far_field), ex, ey)
+        return ex, ey
+
     def field_on_detector(
         self, position_um: ArrayLike, grid: DetectorGrid, far_field: bool = False
     ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
-        xp, yp, zp = (float(v) for v in position_um)
-        if abs(zp) <= self.sphere.radius_um:
-            self._check_outside(np.array([abs(zp)]))
-        rows = (grid.corner[0] + np.arange(grid.shape[0])) * grid.pixel_size_um
-        cols = (grid.corner[1] + np.arange(grid.shape[1])) * grid.pixel_size_um
-        ex = np.empty(grid.shape, dtype=complex)
-        ey = np.empty(grid.shape, dtype=complex)
-        field_on_grid(
-            cols,
-            rows,
-            xp,
-            yp,
-            zp,
-            self._frame,
-            self.optics.k,
-            *self._coefs,
-            bool(far_field),
-            ex,
-            ey,
-        )
-        return ex, ey
+        x, y = grid.coordinates()
+        ex, ey = self.field_on_pixels(position_um, x, y, far_field)
+        return ex.reshape(grid.shape), ey.reshape(grid.shape)
 
 
 class LorenzMie(ScatteringTheory):

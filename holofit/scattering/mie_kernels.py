@@ -165,40 +165,32 @@ def field_at_points(pts_bh, k, c1r, c1i, c2r, c2i, far, out):  # pragma: no cove
 
 
 @numba.njit(cache=True, fastmath=FASTMATH, nogil=True)
-def field_on_grid(
+def field_on_pixels(
     xs, ys, xp, yp, zp, frame, k, c1r, c1i, c2r, c2i, far, ex, ey
 ):  # pragma: no cover - compiled
-    """Lab transverse field on the pixel grid, incident phase ``exp(-i k zp)`` included.
+    """Lab transverse field at pixel centres ``(xs[q], ys[q])`` (um), incident phase included.
 
-    ``xs`` are the column coordinates, ``ys`` the row coordinates (um); ``frame`` maps lab
-    vectors to the B&H frame; ``ex, ey`` have shape ``(len(ys), len(xs))``.
+    ``frame`` maps lab vectors to the B&H frame; ``ex, ey`` have the length of ``xs``.
     """
-    ncol = xs.shape[0]
-    n = ys.shape[0] * ncol
+    n = xs.shape[0]
     buf = np.empty((BLOCK, 3))
     res = np.empty((BLOCK, 3), dtype=np.complex128)
     phase = np.cos(k * zp) - 1j * np.sin(k * zp)
     for start in range(0, n, BLOCK):
         nb = min(BLOCK, n - start)
         for q in range(nb):
-            idx = start + q
-            i = idx // ncol
-            j = idx - i * ncol
-            lx = xs[j] - xp
-            ly = ys[i] - yp
+            lx = xs[start + q] - xp
+            ly = ys[start + q] - yp
             lz = -zp
             for c in range(3):
                 buf[q, c] = frame[c, 0] * lx + frame[c, 1] * ly + frame[c, 2] * lz
         _series_block(buf, nb, k, c1r, c1i, c2r, c2i, far, res)
         for q in range(nb):
-            idx = start + q
-            i = idx // ncol
-            j = idx - i * ncol
             # E_lab = frame.T @ E_bh
             vx = frame[0, 0] * res[q, 0] + frame[1, 0] * res[q, 1] + frame[2, 0] * res[q, 2]
             vy = frame[0, 1] * res[q, 0] + frame[1, 1] * res[q, 1] + frame[2, 1] * res[q, 2]
-            ex[i, j] = vx * phase
-            ey[i, j] = vy * phase
+            ex[start + q] = vx * phase
+            ey[start + q] = vy * phase
 
 
 @numba.njit(cache=True, nogil=True)
