@@ -52,10 +52,11 @@ def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
 @click.option("--drift/--no-drift", default=True, show_default=True,
               help="Subtract a constant drift velocity (sedimentation).")
 @click.option("--fit-lags-t", default=None, metavar="FIRST:LAST",
-              help="Translational fit range in frames [default: 1:10].")
+              help="Translational fit range in frames [default: 1:p, p = 2 + 2.5 sqrt(x) "
+              "from the reduced localisation error x = eps^2/(D dt), 3-20 lags].")
 @click.option("--fit-lags-r", default=None, metavar="FIRST:LAST",
-              help="Rotational fit range in frames [default: up to <|du|^2> = 0.5 (rod) or "
-              "<p.p'> = 0.5 (janus)].")
+              help="Rotational fit range in frames [default: rod as for translation, below "
+              "<|du|^2> = 0.5; janus: down to <p.p'> = 0.5].")
 @click.option("--max-lag", type=int, default=None,
               help="Longest lag computed for the plots, frames [default: a quarter of the run].")
 @click.option("--frame-interval-s", type=float, default=None,
