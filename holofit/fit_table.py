@@ -189,9 +189,10 @@ class FitTable:
             values = rows[c].to_numpy(dtype=float)
             values = values[np.isfinite(values)]
             if values.size:
+                spread = values.size > 1 and np.ptp(values) > 0
                 out[c] = {
                     "median": float(np.median(values)),
-                    "std": float(np.std(values, ddof=1)) if values.size > 1 else 0.0,
+                    "std": float(np.std(values, ddof=1)) if spread else 0.0,
                     "count": int(values.size),
                 }
         return out
