@@ -1,17 +1,115 @@
-"""``holofit analyze``."""
+"""``holofit analyze``: diffusion coefficients from a fit table."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
-from holofit.cli.common import not_yet
+from holofit.cli.common import out_dir_option
 
 
-@click.command(context_settings={"ignore_unknown_options": True})
-@click.argument("args", nargs=-1, type=click.UNPROCESSED)
-def analyze(args: tuple[str, ...]) -> None:
-    """Diffusion analysis of a fit table: MSDs, orientation correlations, theory.
+def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
+    if value is None:
+        return None
+    try:
+        lo, hi = (int(v) for v in value.split(":"))
+    except ValueError:
+        raise click.BadParameter(
+            f"expected FIRST:LAST lags in frames (e.g. 1:10), got {value!r}", param_hint=name
+        ) from None
+    if lo < 1 or hi < lo:
+        raise click.BadParameter(f"need 1 <= FIRST <= LAST, got {value!r}", param_hint=name)
+    return lo, hi
 
-    Not implemented yet: this stage arrives with its own issue.
+
+@click.command()
+@click.argument("fit_table", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--model", "-m", type=click.Choice(["rod", "janus", "sphere"]), required=True,
+              help="rod: any head-tail symmetric particle (rods, dimers); janus: capped "
+              "sphere (x, y and psi only); sphere: translation only.")
+@click.option("--temperature-c", type=float, default=21.0, show_default=True,
+              help="Sample temperature, C.")
+@click.option("--temperature-err-c", type=float, default=2.0, show_default=True,
+              help="Its uncertainty, C.")
+@click.option("--a-um", type=float, default=None,
+              help="Radius (sphere, Janus) or cap radius (rod), um [default: table median].")
+@click.option("--b-um", type=float, default=None,
+              help="Rod half tip-to-tip length, um [default: table median].")
+@click.option("--da-um", type=float, default=None, help="Uncertainty of a, um.")
+@click.option("--db-um", type=float, default=None, help="Uncertainty of b, um.")
+@click.option("--d-est", type=float, default=None,
+              help="D_est for the rejection of improbable jumps, 1/s [default: estimated].")
+@click.option("--eps-r-est", type=float, default=None,
+              help="Angular noise per frame for the rejection, rad [default: estimated; "
+              "0 = the paper's rule].")
+@click.option("--reject-p", type=float, default=1e-4, show_default=True,
+              help="Reject angular jumps less probable than this.")
+@click.option("--reject/--no-reject", default=None,
+              help="Reject improbable angular jumps [default: on for rods, off otherwise].")
+@click.option("--flip/--no-flip", "head_tail", default=None,
+              help="Correct head-tail flips [default: on for rods].")
+@click.option("--drift/--no-drift", default=True, show_default=True,
+              help="Subtract a constant drift velocity (sedimentation).")
+@click.option("--fit-lags-t", default=None, metavar="FIRST:LAST",
+              help="Translational fit range in frames [default: 1:p, p = 2 + 2.5 sqrt(x) "
+              "from the reduced localisation error x = eps^2/(D dt), 3-20 lags].")
+@click.option("--fit-lags-r", default=None, metavar="FIRST:LAST",
+              help="Rotational fit range in frames [default: rod as for translation, below "
+              "<|du|^2> = 0.5; janus: down to <p.p'> = 0.5].")
+@click.option("--max-lag", type=int, default=None,
+              help="Longest lag computed for the plots, frames [default: a quarter of the run].")
+@click.option("--frame-interval-s", type=float, default=None,
+              help="Override the time between frames, s.")
+@click.option("--plots/--no-plots", default=True, show_default=True, help="Write PNG plots.")
+@out_dir_option()
+def analyze(
+    fit_table: Path,
+    model: str,
+    temperature_c: float,
+    temperature_err_c: float,
+    a_um: float | None,
+    b_um: float | None,
+    da_um: float | None,
+    db_um: float | None,
+    d_est: float | None,
+    eps_r_est: float | None,
+    reject_p: float,
+    reject: bool | None,
+    head_tail: bool | None,
+    drift: bool,
+    fit_lags_t: str | None,
+    fit_lags_r: str | None,
+    max_lag: int | None,
+    frame_interval_s: float | None,
+    plots: bool,
+    out: Path,
+) -> None:
+    """Diffusion analysis of FIT_TABLE: MSDs, orientation correlations, theory.
+
+    Writes OUT/summary.csv (+ .json sidecar), OUT/summary.json, OUT/msd.csv and PNG plots
+    (msd.png, orientation.png, trajectory.png), and prints a short report.
     """
-    not_yet("analyze", "pending issue")
+    from holofit.analysis import AnalysisSettings, format_report, run_analysis
+    from holofit.fit_table import FitTableError
+
+    try:
+        settings = AnalysisSettings(
+            model=model, temperature_c=temperature_c, temperature_err_c=temperature_err_c,
+            a_um=a_um, b_um=b_um, a_err_um=da_um, b_err_um=db_um, head_tail=head_tail,
+            reject=reject, reject_probability=reject_p, d_est=d_est, eps_r_est=eps_r_est,
+            subtract_drift=drift, fit_lags_translation=_lag_range(fit_lags_t, "--fit-lags-t"),
+            fit_lags_rotation=_lag_range(fit_lags_r, "--fit-lags-r"), max_lag=max_lag,
+        )
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
+    try:
+        result, files = run_analysis(fit_table, settings, out, plots=plots,
+                                     frame_interval_s=frame_interval_s)
+    except FitTableError as exc:
+        raise click.ClickException(str(exc)) from None
+    except ValueError as exc:
+        raise click.ClickException(f"{fit_table}: {exc}") from None
+    click.echo(format_report(result))
+    click.echo("")
+    click.echo("wrote " + ", ".join(str(p) for p in files.values()))

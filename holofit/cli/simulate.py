@@ -16,6 +16,7 @@ from holofit.cli.common import (
     parse_pair,
     parse_triple,
 )
+from holofit.cli.simulate_trajectory import simulate_trajectory_cmd
 from holofit.models import Sphere
 from holofit.progress import progress_bar
 from holofit.scattering.select import ENGINE_CHOICES, theory_for
@@ -25,6 +26,9 @@ from holofit.simulate.holograms import simulate_movie
 @click.group()
 def simulate() -> None:
     """Synthetic holograms and trajectories with known ground truth."""
+
+
+simulate.add_command(simulate_trajectory_cmd)
 
 
 def _positions(position: tuple[str, ...], positions_file: Path | None) -> np.ndarray:

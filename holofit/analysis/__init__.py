@@ -1,0 +1,60 @@
+"""Diffusion analysis of fit tables: cleaning, MSDs and correlations, fits, theory.
+
+Entry points: :func:`analyze_table` (a fit-table file to a result) and
+:func:`~holofit.analysis.pipeline.analyze_trajectory`; :func:`run_analysis` also writes the
+summary files and plots (what ``holofit analyze`` does).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from holofit.analysis.pipeline import (
+    MODELS,
+    AnalysisResult,
+    AnalysisSettings,
+    Measurement,
+    analyze_trajectory,
+)
+from holofit.analysis.summary import format_report, write_summary
+from holofit.analysis.trajectory import Trajectory
+from holofit.fit_table import read_fit_table
+
+__all__ = [
+    "MODELS",
+    "AnalysisResult",
+    "AnalysisSettings",
+    "Measurement",
+    "Trajectory",
+    "analyze_table",
+    "analyze_trajectory",
+    "format_report",
+    "run_analysis",
+]
+
+
+def analyze_table(
+    path: str | Path, settings: AnalysisSettings, frame_interval_s: float | None = None
+) -> AnalysisResult:
+    """Read a fit table (validating it) and analyse it."""
+    fit = read_fit_table(path, frame_interval_s)
+    return analyze_trajectory(Trajectory.from_fit_table(fit), settings)
+
+
+def run_analysis(
+    path: str | Path,
+    settings: AnalysisSettings,
+    out_dir: str | Path,
+    *,
+    plots: bool = True,
+    frame_interval_s: float | None = None,
+) -> tuple[AnalysisResult, dict[str, Path]]:
+    """Analyse a fit table and write ``summary.csv``/``.json``, ``msd.csv`` and the PNG plots."""
+    result = analyze_table(path, settings, frame_interval_s)
+    files = write_summary(result, out_dir, inputs=[path])
+    if plots:
+        from holofit.analysis.plots import write_plots
+
+        for p in write_plots(result, out_dir):
+            files[p.stem + "_png"] = p
+    return result, files

@@ -1,0 +1,223 @@
+"""The summary table (the paper's "quantity, experiment, expected, source"), files, report."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pandas as pd
+
+from holofit.io.tables import write_json, write_table
+from holofit.provenance import sidecar
+
+if TYPE_CHECKING:
+    from holofit.analysis.pipeline import AnalysisResult
+
+__all__ = ["SUMMARY_COLUMNS", "format_report", "summary_rows", "write_summary"]
+
+SUMMARY_COLUMNS = (
+    "quantity",
+    "unit",
+    "measured",
+    "measured_err",
+    "expected",
+    "expected_err",
+    "source",
+    "measured_d_est_low",
+    "measured_d_est_high",
+)
+
+SUMMARY_UNITS = {
+    "quantity": "text",
+    "unit": "text (unit of measured, expected and their errors)",
+    "measured": "see unit",
+    "measured_err": "1-sigma statistical error (block-decorrelated), see unit",
+    "expected": "see unit",
+    "expected_err": "1-sigma, from temperature and size uncertainties, see unit",
+    "source": "text",
+    "measured_d_est_low": "measured value with the rejection's D_est x 2/3, see unit",
+    "measured_d_est_high": "measured value with the rejection's D_est x 4/3, see unit",
+}
+
+NAN = float("nan")
+
+
+def _row(quantity: str, unit: str, measured=NAN, err=NAN, expected=NAN, expected_err=NAN,
+         source: str = "", low=NAN, high=NAN) -> dict[str, Any]:
+    return dict(zip(SUMMARY_COLUMNS,
+                    (quantity, unit, measured, err, expected, expected_err, source, low, high),
+                    strict=True))
+
+
+def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
+    """Rows of the summary table for the analysed model."""
+    s = result.settings
+    meas = result.measured
+    pred = result.predictions
+    rows: list[dict[str, Any]] = []
+    static = result.trajectory.static
+    factors = list(s.sensitivity_factors)
+
+    def sens(key: str) -> tuple[float, float]:
+        m = meas.get(key)
+        if m is None or len(factors) < 2:
+            return NAN, NAN
+        lo = m.sensitivity.get(f"D_est x {factors[0]:.3g}", NAN)
+        hi = m.sensitivity.get(f"D_est x {factors[-1]:.3g}", NAN)
+        return lo, hi
+
+    for key, label in (("a_um", "a"), ("b_um", "b")):
+        if key in result.sizes:
+            v, e, src = result.sizes[key]
+            if src == "given":
+                rows.append(_row(label, "nm", 1e3 * v, 1e3 * e, source="given"))
+            else:
+                col = src.split("'")[1]
+                st = static[col]
+                rows.append(_row(label, "nm", 1e3 * st["median"], 1e3 * st["std"],
+                                 source=f"fit table '{col}': median +- s.d. over frames"))
+    for col in ("n", "index", "n_core", "n_cap"):
+        if col in static:
+            st = static[col]
+            rows.append(_row(col, "1", st["median"], st["std"],
+                             source=f"fit table '{col}': median +- s.d. over frames"))
+
+    def with_pred(key: str, label: str, pkey: str | None, unit: str) -> None:
+        m = meas.get(key)
+        if m is None:
+            return
+        lo, hi = sens(key)
+        if pkey is not None and pkey in pred:
+            p, _, src = pred[pkey]
+            rows.append(_row(label, unit, m.value, m.error, p.value, p.error, src, lo, hi))
+        else:
+            rows.append(_row(label, unit, m.value, m.error, source="", low=lo, high=hi))
+
+    if s.model == "rod":
+        with_pred("D_par", "D_par", "cyl D_par", "um^2/s")
+        with_pred("D_perp", "D_perp", "cyl D_perp", "um^2/s")
+        with_pred("D_t", "D_t = (2 D_perp + D_par)/3", "D_t", "um^2/s")
+        with_pred("D_t", "D_t = (2 D_perp + D_par)/3", "cyl D_t", "um^2/s")
+        with_pred("D_t_lab", "D_t (lab-frame MSD)", "D_t", "um^2/s")
+        with_pred("D_r", "D_r", "D_r", "1/s")
+        with_pred("D_r", "D_r", "cyl D_r", "1/s")
+        with_pred("D_par/D_perp", "D_par/D_perp", "cyl D_par/D_perp", "1")
+        for key, label in (("eps_par", "eps_par"), ("eps_perp", "eps_perp"),
+                           ("eps_r", "eps_r")):
+            m = meas[key]
+            rows.append(_row(label, m.unit, m.value, m.error, source="fit intercept"))
+    else:
+        with_pred("D_t", "D (x-y MSD)", "D_t", "um^2/s")
+        if s.model == "janus":
+            with_pred("D_r", "D_r (projection correlation)", "D_r", "1/s")
+            if "A" in meas:
+                rows.append(_row("A (projection amplitude)", "1", meas["A"].value,
+                                 meas["A"].error, 1.0, NAN, "1 without angular noise"))
+        m = meas["eps"]
+        rows.append(_row("eps (x-y)", "nm", m.value, m.error, source="fit intercept"))
+    radius = result.sizes.get("a_um")
+    for key, label, src in (
+        ("a_eff_t", "a_eff from D_t", "Stokes-Einstein radius of the measured D_t"),
+        ("a_eff_r", "a_eff from D_r", "Stokes-Einstein-Debye radius of the measured D_r"),
+    ):
+        m = meas.get(key)
+        if m is None:
+            continue
+        if s.model != "rod" and radius is not None:
+            rows.append(_row(label, "nm", m.value, m.error, 1e3 * radius[0], 1e3 * radius[1],
+                             src + " vs fitted radius"))
+        else:
+            rows.append(_row(label, "nm", m.value, m.error, source=src))
+    return rows
+
+
+def _fmt(value: float, err: float) -> str:
+    if not math.isfinite(value):
+        return "--"
+    if not math.isfinite(err) or err <= 1e-9 * abs(value):
+        return f"{value:.4g}"
+    digits = min(max(0, 1 - math.floor(math.log10(err))), 6)
+    return f"{value:.{digits}f} +- {err:.{digits}f}"
+
+
+def format_report(result: AnalysisResult) -> str:
+    """A short text report for the terminal."""
+    s = result.settings
+    traj = result.trajectory
+    lines = [
+        f"holofit analyze: {traj.source} ({s.model}, {s.temperature_c:g} +- "
+        f"{s.temperature_err_c:g} C)",
+        f"  frames {traj.first_frame}-{traj.first_frame + traj.n_frames - 1}: "
+        f"{int(traj.valid.sum())} with a fit, {int((~traj.valid).sum())} gaps, "
+        f"{int(result.valid.sum())} used; frame interval {traj.frame_interval_s:g} s",
+    ]
+    if s.subtract_drift:
+        v = result.drift_um_s
+        lines.append(f"  drift removed: ({v[0]:.3g}, {v[1]:.3g}, {v[2]:.3g}) um/s")
+    cl = result.cleaning
+    if cl is not None:
+        parts = []
+        if s.head_tail:
+            parts.append(f"{int(cl.flipped.sum())} head-tail flips corrected")
+        if s.reject and cl.estimate is not None:
+            rej = next(iter(result.stats.values()))
+            parts.append(
+                f"{int(cl.outliers.sum())} frames rejected, {int(rej.rejected[0])} pairs at lag 1"
+                f" (P < {s.reject_probability:g}, D_est = {cl.estimate.d_est:.3g} 1/s "
+                f"{cl.estimate.source}, eps_r = {cl.estimate.eps_r:.3g} rad)"
+            )
+        if parts:
+            lines.append("  cleaning: " + "; ".join(parts))
+    for key, f in result.fits.items():
+        lines.append(
+            f"  fit {key}: lags {f.lags[0]}-{f.lags[-1]} frames ({f.tau_s[0]:.3g}-"
+            f"{f.tau_s[-1]:.3g} s), reduced chi2 {f.chi2_reduced:.2f}"
+        )
+    lines.append("")
+    header = f"  {'quantity':<30} {'unit':<7} {'measured':>22} {'expected':>22}  source"
+    lines.append(header)
+    lines.append("  " + "-" * (len(header) + 10))
+    for r in result.rows:
+        lines.append(
+            f"  {r['quantity']:<30} {r['unit']:<7} {_fmt(r['measured'], r['measured_err']):>22}"
+            f" {_fmt(r['expected'], r['expected_err']):>22}  {r['source']}"
+        )
+    sens = {k: m for k, m in result.measured.items() if m.sensitivity}
+    if sens:
+        labels = list(next(iter(sens.values())).sensitivity)
+        lines.append("")
+        lines.append(f"  sensitivity to the rejection's D_est ({' / '.join(labels)}):")
+        for key, m in sens.items():
+            alt = " / ".join(f"{m.sensitivity[k]:.4g}" for k in labels)
+            lines.append(f"    {key:<14} {alt}  (nominal {m.value:.4g} +- {m.error:.2g})")
+    for note in result.notes:
+        lines.append(f"  note: {note}")
+    return "\n".join(lines)
+
+
+def write_summary(
+    result: AnalysisResult, out_dir: str | Path, inputs: list[str | Path] | None = None
+) -> dict[str, Path]:
+    """Write ``summary.csv`` (+ sidecar), ``summary.json`` and ``msd.csv`` (every lag statistic)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = result.summary()
+    meta = sidecar(kind="diffusion analysis summary", units=SUMMARY_UNITS,
+                   config=doc["settings"], inputs=inputs)
+    csv = write_table(out / "summary.csv", pd.DataFrame(result.rows, columns=SUMMARY_COLUMNS),
+                      meta)
+    write_json(out / "summary.json", {**meta, "analysis": doc})
+    frames = []
+    for name, st in result.stats.items():
+        frames.append(pd.DataFrame({
+            "observable": name, "lag_frames": st.lags, "tau_s": st.tau_s, "mean": st.mean,
+            "sem": st.sem, "pairs": st.count, "rejected_pairs": st.rejected,
+            "error_plateau": st.converged,
+        }))
+    msd_units = {"observable": "text", "lag_frames": "frames", "tau_s": "s",
+                 "mean": "um^2 (MSDs), 1 (orient, proj)", "sem": "same as mean",
+                 "pairs": "count", "rejected_pairs": "count", "error_plateau": "bool"}
+    msd = write_table(out / "msd.csv", pd.concat(frames, ignore_index=True),
+                      sidecar(kind="lag statistics", units=msd_units, inputs=inputs))
+    return {"summary_csv": csv, "summary_json": out / "summary.json", "msd_csv": msd}
