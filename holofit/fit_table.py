@@ -73,9 +73,10 @@ __all__ = [
 SCHEMA_VERSION = 1
 
 STATUS_OK = "ok"
-#: ``ok``: converged fit; ``failed``: the fit raised or diverged; ``not_converged``: it hit its
-#: iteration limit; ``skipped``: no hologram to fit (e.g. the crop stage lost the particle).
-STATUSES = ("ok", "failed", "not_converged", "skipped")
+#: ``ok``: converged fit; ``failed``: the fit diverged; ``error``: the fit raised (the batch
+#: runner's status for an exception); ``not_converged``: it hit its iteration limit;
+#: ``skipped``: no hologram to fit (e.g. the crop stage lost the particle).
+STATUSES = ("ok", "failed", "error", "not_converged", "skipped")
 
 REQUIRED_COLUMNS = ("frame", "time_s", "status")
 POSITION_COLUMNS = ("x_um", "y_um", "z_um")

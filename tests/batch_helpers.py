@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-COLUMNS = ("frame", "status", "message", "a", "b", "c", "threads", "time_s")
+COLUMNS = ("frame", "status", "message", "a", "b", "c", "threads", "fit_time_s")
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from holofit.batch.journal import Journal, JournalError, read_journal
 from tests.batch_helpers import COLUMNS, ToyConfig, calls, toy_frame, toy_payload
 
 FRAMES = list(range(12))
-TIMING = ["time_s"]
+TIMING = ["fit_time_s"]
 
 
 def _run(tmp_path, name, config=None, frames=FRAMES, load=toy_payload, **opts):

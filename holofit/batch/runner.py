@@ -184,7 +184,7 @@ def run_frame(
 ) -> dict[str, Any]:
     """Run the frame function for one frame, turning an exception into an ``error`` row.
 
-    This is what a worker executes. ``time_s`` (wall time in the worker) is added if the
+    This is what a worker executes. ``fit_time_s`` (wall time in the worker) is added if the
     frame function did not set it.
     """
     t0 = time.perf_counter()
@@ -198,7 +198,7 @@ def run_frame(
             f"(at {Path(where.filename).name}:{where.lineno})",
         }
     row["frame"] = int(frame)
-    row.setdefault("time_s", time.perf_counter() - t0)
+    row.setdefault("fit_time_s", time.perf_counter() - t0)
     return row
 
 

@@ -43,7 +43,7 @@ def plot_prefit(table_path: str | Path, png_path: str | Path) -> Path:
         ("index", "index"),
         ("alpha", "alpha"),
         ("r2", "R^2"),
-        ("time_s", "time per frame (s)"),
+        ("fit_time_s", "fit time per frame (s)"),
     ]
     fig, axes = plt.subplots(4, 2, figsize=(10, 9), sharex=True)
     for ax, (col, label) in zip(axes.ravel(), panels, strict=True):

@@ -38,6 +38,7 @@ __all__ = [
 
 PREFIT_UNITS: dict[str, str] = {
     "frame": "index",
+    "time_s": "s (time of the frame: frame / the instrument's frame rate; NaN if unknown)",
     "status": "ok | not_converged | error | skipped",
     "message": "text",
     "crop_status": "status in the crop table",
@@ -63,8 +64,8 @@ PREFIT_UNITS: dict[str, str] = {
     "start_index": "1 (automatic start)",
     "start_alpha": "1 (automatic start)",
     "n_evaluations": "model holograms computed (Jacobian columns included)",
-    "time_s": "s (wall time of the fit, automatic start included)",
-    "setup_s": "s (one-time set-up paid by this frame in its worker: the estimator's table)",
+    "fit_time_s": "s (wall time of the fit, automatic start included)",
+    "setup_time_s": "s (one-time set-up paid by this frame in its worker: the estimator's table)",
 }
 PREFIT_COLUMNS: tuple[str, ...] = tuple(PREFIT_UNITS)
 
@@ -131,6 +132,7 @@ def prefit_frame(config: PrefitConfig, frame: int, payload: CropPayload) -> dict
     v, s = fit.values, fit.sigmas
     out: dict[str, Any] = {
         "frame": frame,
+        "time_s": frame / inst.frame_rate_hz if inst.frame_rate_hz else math.nan,
         "status": "ok" if fit.converged else "not_converged",
         "message": "" if fit.converged else fit.message,
         "crop_status": row.get("status", ""),
@@ -154,8 +156,8 @@ def prefit_frame(config: PrefitConfig, frame: int, payload: CropPayload) -> dict
             "start_index": fit.start.index,
             "start_alpha": fit.start.alpha,
             "n_evaluations": fit.n_holograms,
-            "time_s": fit.time_s,
-            "setup_s": fit.setup_s,
+            "fit_time_s": fit.time_s,
+            "setup_time_s": fit.setup_s,
         }
     )
     space = config.fit.search
