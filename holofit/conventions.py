@@ -59,6 +59,7 @@ __all__ = [
     "angles_from_axis",
     "axis_from_angles",
     "euler_zyz",
+    "euler_zyz_from_matrix",
     "hologram_intensity",
     "holopy_to_holofit_xy",
     "incident_phase_at",
@@ -135,6 +136,24 @@ def euler_zyz(psi: float, theta: float, phi: float = 0.0) -> NDArray[np.float64]
         ``(alpha, beta, gamma) = (psi, theta, phi)`` in ADDA's own frame.
     """
     return rotation_z(psi) @ rotation_y(theta) @ rotation_z(phi)
+
+
+def euler_zyz_from_matrix(r: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """``(psi, theta, phi)`` with ``R = Rz(psi) Ry(theta) Rz(phi)`` (holofit's convention).
+
+    At ``theta = 0`` or ``pi`` only ``psi +- phi`` is defined; ``phi = 0`` is chosen then.
+    """
+    r = np.asarray(r, dtype=float)
+    theta = np.arccos(np.clip(r[..., 2, 2], -1.0, 1.0))
+    psi = np.arctan2(r[..., 1, 2], r[..., 0, 2])
+    phi = np.arctan2(r[..., 2, 1], -r[..., 2, 0])
+    pole = np.sin(theta) < 1e-12
+    if np.any(pole):
+        # R = Rz(psi + phi) (theta = 0) or Rz(psi - phi) Ry(pi) (theta = pi)
+        psi = np.where(pole, np.arctan2(r[..., 1, 0], r[..., 0, 0]), psi)
+        phi = np.where(pole, 0.0, phi)
+        psi = np.where(pole & (r[..., 2, 2] < 0), np.arctan2(-r[..., 0, 1], r[..., 1, 1]), psi)
+    return psi, theta, phi
 
 
 def axis_from_angles(theta: ArrayLike, psi: ArrayLike) -> NDArray[np.float64]:

@@ -8,12 +8,11 @@ import pytest
 from click.testing import CliRunner
 
 from holofit.cli import main
-from holofit.conventions import euler_zyz
+from holofit.conventions import euler_zyz, euler_zyz_from_matrix
 from holofit.fit_table import read_fit_table
 from holofit.simulate.brownian import (
     BrownianParameters,
     MeasurementNoise,
-    euler_zyz_from_matrix,
     propagate_rigid_body,
     random_rotation,
     rotation_from_vector,

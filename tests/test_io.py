@@ -119,6 +119,27 @@ def test_not_a_tiff_and_missing_and_empty(tmp_path):
         open_movie(empty)
 
 
+def test_truncated_imagej_stack_is_caught(tmp_path):
+    path = tmp_path / "ij.tif"
+    tifffile.imwrite(path, np.zeros((10, 64, 64), np.uint8), imagej=True)
+    assert len(open_movie(path)) == 10
+    raw = path.read_bytes()
+    path.write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(MovieError, match=r"ij\.tif: ImageJ header declares 10 images"):
+        open_movie(path)
+
+
+def test_outputs_get_ordinary_permissions(tmp_path):
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    write_tiff_stack(tmp_path / "s.tif", _frames(n=2))
+    write_table(tmp_path / "t.csv", pd.DataFrame({"a": [1]}), {"kind": "x"})
+    for name in ("s.tif", "t.csv", "t.csv.json"):
+        assert (tmp_path / name).stat().st_mode & 0o777 == 0o666 & ~mask
+
+
 def test_rgb_is_refused(tmp_path):
     path = tmp_path / "rgb.tif"
     tifffile.imwrite(path, np.zeros((8, 8, 3), np.uint8), photometric="rgb")

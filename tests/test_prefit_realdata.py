@@ -1,8 +1,10 @@
 """Crop -> prefit on measured holograms, with no manual guess, against published fits.
 
-Each test builds a crop folder as the crop stage would (``make_crops_from_frame``: the finder's
-centre is the published centre rounded and moved by about one pixel, never the answer itself)
-and runs the prefit stage on it. The crop stage can replace ``_crop_folder`` once it is merged.
+Each test runs the crop stage (``holofit.crop.run_crop``: normalisation, Hough-type centre
+finder, crop) on the measured frame and the prefit stage on its output, with no guess of any
+fit parameter: x, y come from the crop table, z, a, n from the automatic estimator. Where a
+frame holds several particles, the user's choice of which one to follow is given as a start
+point ~1 px from it (``--follow nearest``).
 
 Published values (see tests/data/*/ *.json):
 - HoloPy image0001 (test_nmpfit.py gold_sphere): n 1.582, r 0.6484 um, z 14.15 um, alpha free.
@@ -22,19 +24,26 @@ import tifffile
 
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument
+from holofit.crop import run_crop
 from holofit.fitting.prefit import run_prefit
 from holofit.fitting.sphere_fit import FitOptions
 from tests.conftest import CONFIGS, DATA
-from tests.prefit_helpers import make_crops_from_frame
 
 SERIAL = BatchOptions(workers=0, progress=False)
 
 
-def _crop_folder(tmp_path, frame, centre_xy_px, size, instrument, saturated=None):
-    """Stand-in for ``holofit crop`` on one particle of one normalised frame."""
-    return make_crops_from_frame(
-        frame, centre_xy_px, size, instrument, tmp_path / "crops", saturated=saturated
-    )
+def _crop_folder(tmp_path, raw, background_level, size, instrument, follow_start=None):
+    """``holofit crop`` on one raw frame with a flat background of ``background_level``."""
+    movie = tmp_path / "movie.tif"
+    background = tmp_path / "background.tif"
+    tifffile.imwrite(movie, raw)
+    tifffile.imwrite(background, np.full(raw.shape, background_level, dtype=raw.dtype))
+    follow = "strongest" if follow_start is None else "nearest"
+    result = run_crop(movie, background, instrument, tmp_path / "crops", size=size,
+                      follow=follow, start=follow_start, plot=False)
+    row = pd.read_csv(result.table).iloc[0]
+    assert row["status"] in ("ok", "edge"), row["message"]
+    return tmp_path / "crops"
 
 
 def _prefit(tmp_path, crops, fit=None):
@@ -46,12 +55,10 @@ def _prefit(tmp_path, crops, fit=None):
 
 def test_holopy_image0001(tmp_path):
     inst = load_instrument(CONFIGS / "instruments" / "holopy_image0001.toml")
-    img = tifffile.imread(DATA / "holopy" / "image0001.tif").astype(float)
-    img /= img.mean()  # already background-divided; HoloPy's normalize()
-    px = inst.pixel_size_um
-    # published centre (HoloPy x = row 5.534 um, y = column 5.792 um), rounded, ~1 px off
-    centre = (round(5.792 / px) + 0.6, round(5.534 / px) - 0.8)
-    row = _prefit(tmp_path, _crop_folder(tmp_path, img, centre, 100, inst))
+    raw = tifffile.imread(DATA / "holopy" / "image0001.tif")
+    # already background-divided: a flat background makes the crop stage's normalisation
+    # I / mean(I), HoloPy's normalize()
+    row = _prefit(tmp_path, _crop_folder(tmp_path, raw, 128, 100, inst))
     assert row["index"] == pytest.approx(1.582, abs=0.005)
     assert row["radius_um"] == pytest.approx(0.6484, abs=0.005)
     assert row["z_um"] == pytest.approx(14.15, abs=0.1)
@@ -63,15 +70,15 @@ def test_holopy_image0001(tmp_path):
 
 
 def _pylorenzmie(name):
-    raw = tifffile.imread(DATA / "pylorenzmie" / f"{name}.tif")
-    return raw.astype(float) / 100.0, raw >= 255
+    # normalised so that the background is 100 counts; 255 is saturated (the crop stage masks
+    # pixels at the camera's full scale)
+    return tifffile.imread(DATA / "pylorenzmie" / f"{name}.tif")
 
 
 def test_pylorenzmie_ps_silica_silica_sphere(tmp_path):
     inst = load_instrument(CONFIGS / "instruments" / "pylorenzmie.toml")
-    frame, saturated = _pylorenzmie("PS_silica")
-    centre = (round(907.701) + 0.6, round(484.8) - 0.8)
-    crops = _crop_folder(tmp_path, frame, centre, 200, inst, saturated)
+    raw = _pylorenzmie("PS_silica")
+    crops = _crop_folder(tmp_path, raw, 100, 200, inst, follow_start=(908.5, 484.0))
     row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0))
     assert row["radius_um"] == pytest.approx(0.498, abs=0.01)
     assert row["index"] == pytest.approx(1.4255, abs=0.005)
@@ -86,9 +93,9 @@ def test_pylorenzmie_ps_silica_silica_sphere(tmp_path):
 )
 def test_pylorenzmie_image0400_both_spheres(tmp_path, label, centre, a_pub, n_pub):
     inst = load_instrument(CONFIGS / "instruments" / "pylorenzmie.toml")
-    frame, saturated = _pylorenzmie("image0400")
+    raw = _pylorenzmie("image0400")
     start = (round(centre[0]) + 0.6, round(centre[1]) - 0.8)
-    crops = _crop_folder(tmp_path, frame, start, 200, inst, saturated)
+    crops = _crop_folder(tmp_path, raw, 100, 200, inst, follow_start=start)
     row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0))
     assert row["n_masked"] > 0  # the saturated core is left out
     assert row["radius_um"] == pytest.approx(a_pub, abs=0.05)

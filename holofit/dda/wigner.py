@@ -15,7 +15,9 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["euler_from_matrix", "rotate_coefficients", "wigner_small_d"]
+from holofit.conventions import euler_zyz_from_matrix
+
+__all__ = ["rotate_coefficients", "wigner_small_d"]
 
 
 @lru_cache(maxsize=128)
@@ -34,24 +36,11 @@ def wigner_small_d(n: int, beta: float) -> NDArray[np.float64]:
     return ((v * np.exp(-1j * beta * w)) @ v.conj().T).real
 
 
-def euler_from_matrix(rot: NDArray[np.float64]) -> tuple[float, float, float]:
-    """zyz angles ``(alpha, beta, gamma)`` with ``rot = Rz(alpha) Ry(beta) Rz(gamma)``."""
-    beta = float(np.arccos(np.clip(rot[2, 2], -1.0, 1.0)))
-    if abs(np.sin(beta)) > 1e-12:
-        alpha = float(np.arctan2(rot[1, 2], rot[0, 2]))
-        gamma = float(np.arctan2(rot[2, 1], -rot[2, 0]))
-    else:  # gimbal lock: only alpha + gamma (or alpha - gamma) is defined
-        gamma = 0.0
-        alpha = float(np.arctan2(rot[1, 0], rot[0, 0])) if rot[2, 2] > 0 else float(
-            np.arctan2(-rot[1, 0], -rot[0, 0]))
-    return alpha, beta, gamma
-
-
 def rotate_coefficients(
     coeffs: NDArray[np.complex128], rot: NDArray[np.float64]
 ) -> NDArray[np.complex128]:
     """Lab-frame coefficients ``[n, m + L]`` from particle-frame ones, ``rot``: particle -> lab."""
-    alpha, beta, gamma = euler_from_matrix(rot)
+    alpha, beta, gamma = (float(v) for v in euler_zyz_from_matrix(rot))
     L = coeffs.shape[0] - 1
     out = np.zeros_like(coeffs)
     for n in range(1, L + 1):

@@ -84,16 +84,25 @@ class Movie:
         if len(shape) < 2:
             self.close()
             raise MovieError(f"{self.path}: TIFF series has shape {shape}, expected 2-D frames")
-        if axes.endswith("S") or ("C" in axes and shape[axes.index("C")] > 1):
+        if axes.endswith("S"):
+            # every other leading axis (T, Z, C, I, Q: ImageJ and tifffile label plain stacks
+            # variously) is read as frames, page after page
             self.close()
             raise MovieError(
-                f"{self.path}: colour or multi-channel images (axes {axes!r}, shape {shape}) are "
-                "not supported; convert to one grey channel"
+                f"{self.path}: colour images (axes {axes!r}, shape {shape}) are not supported; "
+                "convert to one grey channel"
             )
         self.frame_shape = shape[-2:]
         self.dtype = np.dtype(series.dtype)
         self._pages = series.pages
         self._n = int(np.prod(shape[:-2], dtype=int)) if len(shape) > 2 else 1
+        declared = (self._tif.imagej_metadata or {}).get("images") if self._tif.is_imagej else None
+        if declared is not None and int(declared) > self._n:
+            self.close()
+            raise MovieError(
+                f"{self.path}: ImageJ header declares {declared} images but only {self._n} can "
+                "be read; the file is truncated"
+            )
         if len(self._pages) != self._n:
             self.close()
             raise MovieError(

@@ -13,6 +13,8 @@ import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
+from holofit.io.atomic import publish
+
 __all__ = ["TiffStackWriter", "write_tiff_stack"]
 
 
@@ -66,7 +68,7 @@ class TiffStackWriter:
     def close(self) -> None:
         """Finish the file and move it into place."""
         self._writer.close()
-        os.replace(self._tmp, self.path)
+        publish(self._tmp, self.path)
 
     def abort(self) -> None:
         """Discard everything written."""

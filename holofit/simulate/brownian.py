@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from holofit.conventions import euler_zyz
+from holofit.conventions import euler_zyz, euler_zyz_from_matrix
 from holofit.fit_table import FitTable, column_unit, validate_fit_table, write_fit_table
 from holofit.io.tables import write_table
 from holofit.provenance import sidecar
@@ -45,7 +45,6 @@ __all__ = [
     "BrownianParameters",
     "MeasurementNoise",
     "SimulatedTrajectory",
-    "euler_zyz_from_matrix",
     "propagate_rigid_body",
     "random_rotation",
     "rotation_from_vector",
@@ -189,24 +188,6 @@ def random_rotation(rng: np.random.Generator) -> NDArray[np.float64]:
             [2 * (b * d - a * c), 2 * (c * d + a * b), a * a - b * b - c * c + d * d],
         ]
     )
-
-
-def euler_zyz_from_matrix(r: NDArray) -> tuple[NDArray, NDArray, NDArray]:
-    """``(psi, theta, phi)`` with ``R = Rz(psi) Ry(theta) Rz(phi)`` (holofit's convention).
-
-    At ``theta = 0`` or ``pi`` only ``psi +- phi`` is defined; ``phi = 0`` is chosen then.
-    """
-    r = np.asarray(r, dtype=float)
-    theta = np.arccos(np.clip(r[..., 2, 2], -1.0, 1.0))
-    psi = np.arctan2(r[..., 1, 2], r[..., 0, 2])
-    phi = np.arctan2(r[..., 2, 1], -r[..., 2, 0])
-    pole = np.sin(theta) < 1e-12
-    if np.any(pole):
-        # R = Rz(psi + phi) (theta = 0) or Rz(psi - phi) Ry(pi) (theta = pi)
-        psi = np.where(pole, np.arctan2(r[..., 1, 0], r[..., 0, 0]), psi)
-        phi = np.where(pole, 0.0, phi)
-        psi = np.where(pole & (r[..., 2, 2] < 0), np.arctan2(-r[..., 0, 1], r[..., 1, 1]), psi)
-    return psi, theta, phi
 
 
 @numba.njit(cache=True)
