@@ -26,6 +26,7 @@ _SPECS: dict[str, Spec] = {
                       default="double"),
     "solver": Spec("str", "'qmr' or 'bicgstab'", required=False, default="qmr"),
     "engine": Spec("str", "'builtin' or 'adda'", required=False, default="builtin"),
+    "adda_path": Spec("str", "the ADDA executable (engine = 'adda')", required=False),
 }
 
 
@@ -55,6 +56,9 @@ class DDASettings:
         default) or BiCGStab (two per iteration).
     engine : {"builtin", "adda"}
         Which engine a pipeline run uses for this particle.
+    adda_path : str or None
+        The user's ADDA binary for ``engine = "adda"`` (else ``$HOLOFIT_ADDA``, then ``adda``
+        on PATH; see adda/README.md).
     """
 
     dipole_size_um: float | None = None
@@ -66,6 +70,7 @@ class DDASettings:
     precision: str = "double"
     solver: str = "qmr"
     engine: str = "builtin"
+    adda_path: str | None = None
 
     def __post_init__(self) -> None:
         choices = {"filling": ("fractional", "binary"), "polarizability": ("ldr", "cm"),
