@@ -42,6 +42,19 @@ def _first(engine: BuiltinDDA, model, orientation):
 
 
 def _peak_mb() -> float:
+    """Peak resident memory of this process image, MB.
+
+    ``VmHWM`` of /proc (the high-water mark of this process's memory map). ``getrusage``'s
+    ``ru_maxrss`` is not used: Linux carries it over from the parent through fork and exec, so
+    a child started by a big parent reports the parent's peak.
+    """
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
