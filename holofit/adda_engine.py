@@ -66,7 +66,7 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.conventions import PROPAGATION_DIRECTION, euler_zyz, rotation_z
 from holofit.dda.lattice import Lattice
 from holofit.dda.settings import DDASettings
-from holofit.dda.voxelize import dipole_size, voxelize
+from holofit.dda.voxelize import voxelize
 from holofit.models import ParticleModel
 from holofit.optics import Optics
 from holofit.scattering.registry import ENGINES
@@ -867,11 +867,8 @@ class AddaEngine(ScatteringTheory):
         self.runs = 0
 
     def dipole_size(self, model: ParticleModel, optics: Optics) -> float:
-        """Lattice spacing for ``model``, um (the built-in engine's rule)."""
-        if self.settings.dipole_size_um is not None:
-            return self.settings.dipole_size_um
-        return dipole_size(model, optics.wavelength_medium_um, optics.n_medium,
-                           self.settings.dipoles_per_wavelength)
+        """The lattice spacing this engine uses for ``model``, um."""
+        return self.settings.dipole_size_for(model, optics)
 
     def lattice(self, model: ParticleModel, optics: Optics) -> Lattice:
         """The binary discretisation of ``model`` (the built-in engine's with filling=binary)."""

@@ -36,7 +36,7 @@ from holofit.dda.multipole import (
 )
 from holofit.dda.nearfield import direct_field
 from holofit.dda.settings import DDASettings
-from holofit.dda.voxelize import dipole_size, voxelize
+from holofit.dda.voxelize import voxelize
 from holofit.dda.wigner import rotate_coefficients
 from holofit.models import ParticleModel
 from holofit.optics import Optics
@@ -205,10 +205,7 @@ class BuiltinDDA(ScatteringTheory):
 
     def dipole_size(self, model: ParticleModel, optics: Optics) -> float:
         """The lattice spacing this engine uses for ``model``, um."""
-        if self.settings.dipole_size_um is not None:
-            return self.settings.dipole_size_um
-        return dipole_size(model, optics.wavelength_medium_um, optics.n_medium,
-                           self.settings.dipoles_per_wavelength)
+        return self.settings.dipole_size_for(model, optics)
 
     def lattice(self, model: ParticleModel, optics: Optics) -> Lattice:
         """The (cached) discretisation of ``model``."""

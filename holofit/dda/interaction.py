@@ -156,33 +156,23 @@ class Interaction:
         return self.g_oct.dtype
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _fold(i, m):  # pragma: no cover - compiled
+    """Octant index of grid index ``i`` (grid size ``m``) and the sign of an odd component."""
+    if i > m // 2:
+        return m - i, -1.0
+    return i, 1.0
+
+
 @numba.njit(cache=True, nogil=True)
 def _tensor_apply(g, y, mz, my, mx):  # pragma: no cover - compiled
     """In place ``y(q) = G(q) . y(q)`` on the full grid, G unfolded from its octant."""
-    hz = mz // 2
-    hy = my // 2
-    hx = mx // 2
     for iz in range(mz):
-        if iz > hz:
-            fz = mz - iz
-            sz = -1.0
-        else:
-            fz = iz
-            sz = 1.0
+        fz, sz = _fold(iz, mz)
         for iy in range(my):
-            if iy > hy:
-                fy = my - iy
-                sy = -1.0
-            else:
-                fy = iy
-                sy = 1.0
+            fy, sy = _fold(iy, my)
             for ix in range(mx):
-                if ix > hx:
-                    fx = mx - ix
-                    sx = -1.0
-                else:
-                    fx = ix
-                    sx = 1.0
+                fx, sx = _fold(ix, mx)
                 gxx = g[0, fz, fy, fx]
                 gxy = g[1, fz, fy, fx] * (sx * sy)
                 gxz = g[2, fz, fy, fx] * (sx * sz)

@@ -7,6 +7,8 @@ from pathlib import Path
 from typing import Any
 
 from holofit.config import ConfigError, Spec, validate_table
+from holofit.models import ParticleModel
+from holofit.optics import Optics
 
 __all__ = ["DDASettings"]
 
@@ -93,6 +95,16 @@ class DDASettings:
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def dipole_size_for(self, model: ParticleModel, optics: Optics) -> float:
+        """The lattice spacing for ``model``: ``dipole_size_um`` if set, else the
+        dipoles-per-wavelength rule (:func:`holofit.dda.voxelize.dipole_size`), um."""
+        if self.dipole_size_um is not None:
+            return self.dipole_size_um
+        from holofit.dda.voxelize import dipole_size
+
+        return dipole_size(model, optics.wavelength_medium_um, optics.n_medium,
+                           self.dipoles_per_wavelength)
 
     def replace(self, **changes: Any) -> DDASettings:
         values = {f.name: getattr(self, f.name) for f in fields(self)}
