@@ -125,3 +125,31 @@ def test_far_field_amplitude_is_transverse(janus_wave):
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     f = janus_wave.far_field_amplitude(d)
     assert np.max(np.abs(np.sum(f * d, axis=1))) < 1e-12 * np.abs(f).max()
+
+
+@pytest.mark.parametrize("model", [
+    Sphere(0.3, 1.5 + 0.01j),
+    Spherocylinder(0.25, 0.5, 1.45),
+    JanusSphere(0.25, 0.05, 1.59, 2.4),
+    Dimer(0.2, 0.25, 0.05, 1.5, 1.6),
+], ids=lambda m: m.kind)
+def test_optical_theorem_for_every_model(model):
+    """Extinction from the dipoles' work equals 4 pi/k^2 Re(e* . F(forward)) (optical theorem)."""
+    eng = BuiltinDDA(dipole_size_um=0.04, tolerance=1e-9)
+    wave = eng.solve(model, OPTICS, Orientation(0.4, 1.0, 0.2))
+    k = OPTICS.k
+    sol = wave.solution
+    e_inc = incident_field_of(wave)
+    cext_dipoles = 4 * np.pi * k * np.sum(np.imag(np.sum(sol.P * np.conj(e_inc), axis=1)))
+    forward = np.array([[0.0, 0.0, -1.0]])  # the propagation direction, lab frame
+    f = wave.far_field_amplitude(forward)[0]
+    cext_forward = 4 * np.pi / k**2 * np.real(np.dot(OPTICS.polarization, f))
+    assert cext_dipoles == pytest.approx(cext_forward, rel=1e-7)
+    assert cext_dipoles > 0
+
+
+def incident_field_of(wave):
+    from holofit.dda.dipoles import incident_field
+
+    s = wave.solution
+    return incident_field(s.lattice.positions, OPTICS.k, s.propagation, s.polarization)
