@@ -89,7 +89,7 @@ def _builtin_timings(name: str, model) -> dict[str, float]:
 
 
 def bench_adda() -> dict[str, float]:
-    from holofit import adda_engine as ae
+    from holofit.dda import adda as ae
     from holofit.dda.engine import BuiltinDDA
 
     try:

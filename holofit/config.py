@@ -26,14 +26,24 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
-from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from holofit.dda.settings import DDASettings
 from holofit.models import MODEL_TYPES, ParticleModel
 from holofit.optics import Optics
+from holofit.scattering.select import select_theory
+from holofit.scattering.theory import ScatteringTheory
+from holofit.validation import (
+    INDEX_RANGE,
+    SIZE_RANGE_UM,
+    ConfigError,
+    Spec,
+    nm_hint,
+    read_toml,
+    validate_table,
+)
 
 __all__ = [
     "ConfigError",
@@ -43,142 +53,17 @@ __all__ = [
     "load_instrument",
     "load_particle",
     "read_toml",
+    "resolve_config",
 ]
-
-
-class ConfigError(ValueError):
-    """A configuration file is missing a key, has a wrong type or an implausible value."""
-
-
-@dataclass(frozen=True)
-class Spec:
-    """What one configuration key must hold."""
-
-    kind: str  # "float", "int", "str", "bool", "index"
-    expected: str  # human description, with unit
-    low: float | None = None
-    high: float | None = None
-    required: bool = True
-    default: Any = None
-    #: extra advice when the value is out of range (e.g. a unit slip)
-    hint: Callable[[float], str] | None = None
-
-
-def _nm_hint(value: float) -> str:
-    if value > 100:
-        return f" ({value} looks like nanometres: use {value / 1000:g} um)"
-    return ""
-
-
-def read_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file, turning syntax errors into a :class:`ConfigError` naming the file."""
-    path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: configuration file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
-
-
-def _check_value(path: Path, where: str, key: str, value: Any, spec: Spec) -> Any:
-    loc = f"{path}: [{where}] key '{key}'"
-    if spec.kind == "str":
-        if not isinstance(value, str):
-            raise ConfigError(f"{loc}: expected {spec.expected} (a string), got {value!r}")
-        return value
-    if spec.kind == "bool":
-        if not isinstance(value, bool):
-            raise ConfigError(f"{loc}: expected {spec.expected} (true/false), got {value!r}")
-        return value
-    if spec.kind == "index":
-        return _check_index(loc, value, spec)
-    if spec.kind == "indices":
-        if not isinstance(value, list) or not value:
-            raise ConfigError(f"{loc}: expected {spec.expected} as a list, got {value!r}")
-        sub = Spec("index", "an absolute refractive index", *INDEX_RANGE)
-        return tuple(_check_index(f"{loc}[{i}]", v, sub) for i, v in enumerate(value))
-    if spec.kind == "vector3":
-        if (not isinstance(value, list) or len(value) != 3
-                or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)):
-            raise ConfigError(f"{loc}: expected {spec.expected} as [x, y, z], got {value!r}")
-        return tuple(float(v) for v in value)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{loc}: expected {spec.expected} (a number), got {value!r}")
-    if spec.kind == "int":
-        if not isinstance(value, int):
-            raise ConfigError(f"{loc}: expected {spec.expected} (an integer), got {value!r}")
-    elif not math.isfinite(value):
-        raise ConfigError(f"{loc}: expected {spec.expected}, got {value!r}")
-    _check_range(loc, float(value), spec)
-    return int(value) if spec.kind == "int" else float(value)
-
-
-def _check_range(loc: str, value: float, spec: Spec) -> None:
-    lo, hi = spec.low, spec.high
-    if (lo is not None and value < lo) or (hi is not None and value > hi):
-        bounds = (
-            f"between {lo:g} and {hi:g}"
-            if lo is not None and hi is not None
-            else (f">= {lo:g}" if lo is not None else f"<= {hi:g}")
-        )
-        extra = spec.hint(value) if spec.hint else ""
-        raise ConfigError(f"{loc}: expected {spec.expected} {bounds}, got {value:g}{extra}")
-
-
-def _check_index(loc: str, value: Any, spec: Spec) -> complex:
-    if isinstance(value, bool):
-        raise ConfigError(f"{loc}: expected {spec.expected}, got {value!r}")
-    if isinstance(value, int | float):
-        re_, im_ = float(value), 0.0
-    elif (
-        isinstance(value, list)
-        and len(value) == 2
-        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-    ):
-        re_, im_ = float(value[0]), float(value[1])
-    else:
-        raise ConfigError(
-            f"{loc}: expected {spec.expected} as a number or a pair [n, k], got {value!r}"
-        )
-    _check_range(loc, re_, spec)
-    if im_ < 0:
-        raise ConfigError(
-            f"{loc}: the imaginary part of a refractive index must be >= 0 (absorption, "
-            f"exp(-i omega t) convention), got {im_:g}"
-        )
-    return complex(re_, im_)
-
-
-def validate_table(
-    table: Mapping[str, Any], specs: Mapping[str, Spec], path: Path, where: str
-) -> dict[str, Any]:
-    """Check a TOML table against ``specs``; unknown keys are errors too (typos)."""
-    out: dict[str, Any] = {}
-    for key, spec in specs.items():
-        if key not in table:
-            if spec.required:
-                raise ConfigError(f"{path}: [{where}] is missing key '{key}' ({spec.expected})")
-            out[key] = spec.default
-            continue
-        out[key] = _check_value(path, where, key, table[key], spec)
-    unknown = sorted(set(table) - set(specs))
-    if unknown:
-        raise ConfigError(
-            f"{path}: [{where}] has unknown key(s) {', '.join(map(repr, unknown))}; "
-            f"allowed: {', '.join(specs)}"
-        )
-    return out
 
 
 INSTRUMENT_SPECS: dict[str, Spec] = {
     "name": Spec("str", "a short name for the set-up"),
     "description": Spec("str", "free text", required=False, default=""),
-    "wavelength_um": Spec("float", "the vacuum wavelength in um", 0.2, 2.0, hint=_nm_hint),
+    "wavelength_um": Spec("float", "the vacuum wavelength in um", 0.2, 2.0, hint=nm_hint),
     "medium_index": Spec("float", "the refractive index of the medium", 1.0, 2.0),
     "pixel_size_um": Spec(
-        "float", "the pixel pitch in the sample plane in um", 0.005, 20.0, hint=_nm_hint
+        "float", "the pixel pitch in the sample plane in um", 0.005, 20.0, hint=nm_hint
     ),
     "polarization_deg": Spec(
         "float", "the polarisation angle from lab x (image columns) in degrees", -360.0, 360.0
@@ -312,9 +197,6 @@ def instrument_from_dict(doc: dict[str, Any], source: str = "<dict>") -> Instrum
     return _instrument(values, str(doc.get("path", "")))
 
 
-#: plausible range of a particle length (um); outside it a unit slip is likely
-SIZE_RANGE_UM = (0.005, 100.0)
-INDEX_RANGE = (1.0, 5.0)
 
 
 def model_specs(kind: str) -> dict[str, Spec]:
@@ -323,7 +205,7 @@ def model_specs(kind: str) -> dict[str, Spec]:
     if kind == "voxels":
         return {
             "path": Spec("str", "the ADDA shape file (relative to this config file)"),
-            "dipole_size_um": Spec("float", "the dipole size in um", 0.001, 1.0, hint=_nm_hint),
+            "dipole_size_um": Spec("float", "the dipole size in um", 0.001, 1.0, hint=nm_hint),
             "indices": Spec("indices", "the refractive index of each domain"),
             "centre_um": Spec("vector3", "the particle centre relative to the dipole box "
                               "centre, um", required=False, default=(0.0, 0.0, 0.0)),
@@ -332,10 +214,10 @@ def model_specs(kind: str) -> dict[str, Spec]:
     for name in (f.name for f in dataclasses.fields(cls)):
         if name in cls.size_fields:
             specs[name] = Spec("float", f"{name.removesuffix('_um')} in um", *SIZE_RANGE_UM,
-                               hint=_nm_hint)
+                               hint=nm_hint)
         elif name in cls.nonnegative_fields:
             specs[name] = Spec("float", f"{name.removesuffix('_um')} in um (>= 0)", 0.0,
-                               SIZE_RANGE_UM[1], hint=_nm_hint)
+                               SIZE_RANGE_UM[1], hint=nm_hint)
         elif name in cls.index_fields:
             specs[name] = Spec("index", "an absolute refractive index", *INDEX_RANGE)
         else:
@@ -368,11 +250,25 @@ class ParticleConfig:
         }
         return {"model": self.model.kind, **params, "settings": self.settings, "path": self.path}
 
-    def dda_settings(self) -> Any:
+    def dda_settings(self) -> DDASettings:
         """The ``[dda]`` table as :class:`holofit.dda.settings.DDASettings` (defaults if absent)."""
-        from holofit.dda.settings import DDASettings
-
         return DDASettings.from_dict(self.settings.get("dda", {}), self.path)
+
+    def theory(self, engine: str | None = None) -> ScatteringTheory:
+        """The scattering engine for this particle (:func:`holofit.scattering.select.select_theory`:
+        Lorenz-Mie for a sphere without a ``[dda]`` table, else the table's engine), or the one
+        ``engine`` names.
+
+        Raises
+        ------
+        ConfigError
+            Naming this file, if the engine cannot handle the particle.
+        """
+        settings = self.dda_settings() if "dda" in self.settings else None
+        try:
+            return select_theory(self.model, settings, engine)
+        except ValueError as exc:
+            raise ConfigError(f"{self.path}: {exc}") from None
 
 
 def load_particle(path: str | Path) -> ParticleConfig:
@@ -413,8 +309,6 @@ def load_particle(path: str | Path) -> ParticleConfig:
         raise ConfigError(f"{path}: [particle]: {exc}") from None
     settings = {k: v for k, v in doc.items() if k != "particle"}
     if "dda" in settings:
-        from holofit.dda.settings import DDASettings
-
         if not isinstance(settings["dda"], dict):
             raise ConfigError(f"{path}: [dda] must be a table")
         DDASettings.from_dict(settings["dda"], path)  # validate now, with the file's name

@@ -1,5 +1,5 @@
 """Holograms on a detector: the scattered field of a solved particle, interfered with the
-incident plane wave (DESIGN.md section 2; formula in :mod:`holofit.conventions`)."""
+incident plane wave (the formula is in :mod:`holofit.conventions`)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,10 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.conventions import DetectorGrid, hologram_intensity
 from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
-__all__ = ["calc_hologram", "default_theory", "hologram"]
+__all__ = ["calc_hologram", "hologram"]
 
 
 def calc_hologram(
@@ -46,18 +47,6 @@ def calc_hologram(
     return hologram_intensity(ex, ey, wave.optics.polarization_rad, alpha)
 
 
-def default_theory(model: ParticleModel) -> ScatteringTheory:
-    """Lorenz-Mie for spheres; the built-in DDA for every other model."""
-    from holofit.models import Sphere
-    from holofit.scattering.mie import LorenzMie
-
-    if isinstance(model, Sphere):
-        return LorenzMie()
-    from holofit.scattering.registry import get_theory
-
-    return get_theory("builtin")
-
-
 def hologram(
     model: ParticleModel,
     position_um: ArrayLike,
@@ -69,6 +58,6 @@ def hologram(
     far_field: bool = False,
 ) -> NDArray[np.float64]:
     """Solve ``model`` and compute its hologram in one call (convenience for one-off use)."""
-    theory = theory or default_theory(model)
+    theory = theory or select_theory(model)
     wave = theory.solve(model, optics, orientation)
     return calc_hologram(wave, position_um, grid, alpha, far_field)

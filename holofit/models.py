@@ -7,10 +7,13 @@ they change from frame to frame while the model stays fixed.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields
 from typing import ClassVar
 
 import numpy as np
+
+from holofit.io.shapefile import read_shape_file
 
 __all__ = [
     "MODEL_TYPES",
@@ -313,11 +316,10 @@ class VoxelShape(ParticleModel):
             if value.real <= 0 or value.imag < 0:
                 raise ValueError(f"voxels: indices[{i}] must have Re > 0 and Im >= 0, got {value}")
 
-    @property
-    def bounding_radius_um(self) -> float:
-        from holofit.dda.voxelize import read_adda_shape
-
-        ijk, _ = read_adda_shape(self.path)
+    @functools.cached_property
+    def bounding_radius_um(self) -> float:  # type: ignore[override]
+        """Radius about the particle centre of the sphere holding every voxel (read once)."""
+        ijk, _ = read_shape_file(self.path)
         centre = (ijk.max(axis=0) + ijk.min(axis=0)) / 2
         pos = (ijk - centre) * self.dipole_size_um - np.asarray(self.centre_um)
         return float(np.sqrt((pos**2).sum(axis=1)).max() + self.dipole_size_um * np.sqrt(3) / 2)

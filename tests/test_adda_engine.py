@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from holofit import adda_engine as ae
-from holofit.conventions import euler_zyz, rotation_y, rotation_z
+from holofit.conventions import euler_zyz, euler_zyz_from_matrix, rotation_y, rotation_z
+from holofit.dda import adda as ae
 from holofit.dda.engine import BuiltinDDA
 from holofit.dda.farfield import adda_amplitude_matrix
-from holofit.dda.voxelize import read_adda_shape, voxelize
+from holofit.dda.voxelize import voxelize
+from holofit.io.shapefile import read_shape_file
 from holofit.models import JanusSphere, Spherocylinder, VoxelShape
 from holofit.optics import Optics
 from holofit.scattering.theory import Orientation
@@ -58,7 +59,7 @@ def recorded_problem(name: str) -> tuple[VoxelShape, Orientation, np.ndarray]:
                        tuple(m * N_MEDIUM for m in case["m_rel"]), centre)
     r_adda = euler_zyz(*np.radians(case["orient_deg"]))
     # ADDA lab = T holofit lab; the file's frame is the ADDA particle frame, so R = T R_A
-    orientation = Orientation(*ae.zyz_angles(ae.T_LAB @ r_adda))
+    orientation = Orientation(*(float(v) for v in euler_zyz_from_matrix(ae.T_LAB @ r_adda)))
     return model, orientation, r_adda
 
 
@@ -74,13 +75,13 @@ def rel_err(a: np.ndarray, b: np.ndarray) -> float:
 # -- angles and frames -----------------------------------------------------------------------
 
 
-def test_zyz_angles_round_trip_including_gimbal_lock() -> None:
+def test_euler_angles_of_adda_rotations_round_trip_including_gimbal_lock() -> None:
     rng = np.random.default_rng(1)
     angles = [tuple(rng.uniform(-np.pi, np.pi, 3)) for _ in range(50)]
     angles += [(0.3, 0.0, 0.5), (0.3, np.pi, 0.5), (-2.0, np.pi, 1.0), (0.0, 0.0, 0.0)]
     for psi, theta, phi in angles:
         rot = euler_zyz(psi, theta, phi)
-        a, b, g = ae.zyz_angles(rot)
+        a, b, g = (float(v) for v in euler_zyz_from_matrix(rot))
         assert 0.0 <= b <= np.pi
         np.testing.assert_allclose(euler_zyz(a, b, g), rot, atol=1e-12)
 
@@ -214,8 +215,8 @@ def test_shape_file_round_trip_in_flipped_frame(tmp_path) -> None:
     model = JanusSphere(0.3, 0.06, 1.59, 2.7)
     lat = voxelize(model, 0.05, "binary")
     geom = ae.adda_geometry(lat)
-    path = ae.write_shape_file(tmp_path / "shape.dat", geom)
-    ijk, dom = read_adda_shape(path)
+    path = ae.write_geometry(tmp_path / "shape.dat", geom)
+    ijk, dom = read_shape_file(path)
     np.testing.assert_array_equal(ijk, geom.ijk)
     np.testing.assert_array_equal(dom + 1, geom.domain)
     assert "Nmat=2" in path.read_text()
@@ -226,7 +227,7 @@ def test_shape_file_round_trip_in_flipped_frame(tmp_path) -> None:
     core = lat.positions[np.argmax(lat.fractions, axis=1) == 0].mean(axis=0)
     np.testing.assert_allclose(core[:2], 0.0, atol=1e-12)
     single = ae.adda_geometry(voxelize(Spherocylinder(0.2, 0.4, 1.5), 0.05, "binary"))
-    text = ae.write_shape_file(tmp_path / "rod.dat", single).read_text()
+    text = ae.write_geometry(tmp_path / "rod.dat", single).read_text()
     assert "Nmat" not in text and len(text.splitlines()[3].split()) == 3
 
 
@@ -287,7 +288,7 @@ def test_adapter_input_is_equivalent_to_the_recorded_run(name: str) -> None:
     model, orientation, r_adda = recorded_problem(name)
     geom = ae.adda_geometry(voxelize(model, model.dipole_size_um))
     ours = geom.positions_adda() @ euler_zyz(*np.radians(ae.adda_orientation_deg(orientation))).T
-    ijk, _ = read_adda_shape(model.path)
+    ijk, _ = read_shape_file(model.path)
     box = ijk.max(axis=0) - ijk.min(axis=0) + 1
     rec = ((ijk - ijk.min(axis=0)) - (box - 1) / 2) * model.dipole_size_um @ r_adda.T
 

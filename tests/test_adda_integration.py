@@ -13,8 +13,8 @@ import warnings
 import numpy as np
 import pytest
 
-from holofit import adda_engine as ae
 from holofit.conventions import DetectorGrid, r_squared
+from holofit.dda import adda as ae
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
 from holofit.models import JanusSphere, Spherocylinder

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from holofit import adda_engine as ae
 from holofit.conventions import DetectorGrid, euler_zyz, hologram_intensity
+from holofit.dda import adda as ae
 from holofit.hologram import calc_hologram
 from holofit.models import JanusSphere, Spherocylinder
 from holofit.optics import Optics

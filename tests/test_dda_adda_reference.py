@@ -15,7 +15,8 @@ from holofit.conventions import euler_zyz
 from holofit.dda.dipoles import DipoleSystem, incident_field
 from holofit.dda.farfield import adda_amplitude_matrix, far_field
 from holofit.dda.polarizability import polarizability
-from holofit.dda.voxelize import read_adda_shape, voxelize
+from holofit.dda.voxelize import voxelize
+from holofit.io.shapefile import read_shape_file
 from holofit.models import VoxelShape
 from tests.conftest import DATA
 
@@ -72,7 +73,7 @@ def test_amplitude_matrix_matches_adda(name):
 
 def test_janus_mirrored_frame_would_fail(tmp_path):
     """A z-mirrored particle frame puts the cap on the wrong side: the agreement is lost."""
-    ijk, domain = read_adda_shape(REF / GEOM["d_janus_o0_0_0"])
+    ijk, domain = read_shape_file(REF / GEOM["d_janus_o0_0_0"])
     ijk[:, 2] = -ijk[:, 2]
     mirrored = tmp_path / "mirrored.geom"
     mirrored.write_text("Nmat=2\n" + "\n".join(

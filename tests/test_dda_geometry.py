@@ -5,13 +5,8 @@ import pytest
 
 from holofit.config import ConfigError, load_particle
 from holofit.dda.settings import DDASettings
-from holofit.dda.voxelize import (
-    dipole_size,
-    ramp,
-    read_adda_shape,
-    voxelize,
-    write_adda_shape,
-)
+from holofit.dda.voxelize import dipole_size, ramp, voxelize
+from holofit.io.shapefile import read_shape_file, write_shape_file
 from holofit.models import (
     Cylinder,
     Dimer,
@@ -92,16 +87,17 @@ def test_binary_sphere_matches_adda_dipole_count():
 def test_adda_shape_roundtrip(tmp_path):
     lat = voxelize(JanusSphere(0.3, 0.06, 1.59, 2.7), D, filling="binary")
     path = tmp_path / "j.geom"
-    n = write_adda_shape(path, lat)
-    ijk, domain = read_adda_shape(path)
-    assert n == lat.n_dipoles == ijk.shape[0]
+    written, written_domain = lat.binary_dipoles()
+    write_shape_file(path, written, written_domain)
+    ijk, domain = read_shape_file(path)
+    assert written.shape[0] == lat.n_dipoles == ijk.shape[0]
     assert set(domain) == {0, 1}
     back = voxelize(VoxelShape(str(path), D, (1.59, 2.7)), D)
     np.testing.assert_allclose(back.occupied_volume_um3(), lat.occupied_volume_um3())
 
 
 def test_read_reference_janus_geometry():
-    ijk, domain = read_adda_shape(DATA / "adda" / "d_janus_o0_0_0" / "janus_d0.024.geom")
+    ijk, domain = read_shape_file(DATA / "adda" / "d_janus_o0_0_0" / "janus_d0.024.geom")
     assert ijk.shape == (30488, 3)
     assert np.sum(domain == 0) == 25576 and np.sum(domain == 1) == 4912
 
@@ -110,7 +106,7 @@ def test_bad_shape_file(tmp_path):
     p = tmp_path / "bad.geom"
     p.write_text("1 2\n")
     with pytest.raises(ValueError, match=r"bad\.geom:1"):
-        read_adda_shape(p)
+        read_shape_file(p)
 
 
 def test_dipoles_per_wavelength_rule():

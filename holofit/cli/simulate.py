@@ -19,7 +19,7 @@ from holofit.cli.common import (
 from holofit.cli.simulate_trajectory import simulate_trajectory_cmd
 from holofit.models import Sphere
 from holofit.progress import progress_bar
-from holofit.scattering.select import ENGINE_CHOICES, theory_for
+from holofit.scattering.select import ENGINE_CHOICES
 from holofit.simulate.holograms import simulate_movie
 
 
@@ -201,7 +201,7 @@ def simulate_hologram(
     inst = load_instrument_arg(instrument or "paper_100x_oil")
     cfg = load_particle_arg(particle)
     try:
-        theory = theory_for(cfg, engine)
+        theory = cfg.theory(engine)
     except (ValueError, RuntimeError) as exc:
         raise click.BadParameter(str(exc), param_hint="--engine") from None
     table = pd.read_csv(trajectory_file) if trajectory_file is not None else None

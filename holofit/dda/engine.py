@@ -15,12 +15,12 @@ Solving a particle (``BuiltinDDA.solve``):
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from holofit.cache import LRUCache
 from holofit.conventions import PROPAGATION_DIRECTION, DetectorGrid, euler_zyz, incident_phase_at
 from holofit.dda.dipoles import DipoleSolution, DipoleSystem, incident_field
 from holofit.dda.farfield import far_field, far_field_on_grid
@@ -40,7 +40,6 @@ from holofit.dda.voxelize import voxelize
 from holofit.dda.wigner import rotate_coefficients
 from holofit.models import ParticleModel
 from holofit.optics import Optics
-from holofit.scattering.registry import ENGINES
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["BuiltinDDA", "DDAWave"]
@@ -92,7 +91,7 @@ class DDAWave(ScatteredWave):
         self.radius_um = float(np.sqrt((lat.positions**2).sum(axis=1)).max()
                                + lat.d * np.sqrt(3) / 2)
         self._expansion: MultipoleExpansion | None = None
-        self._grids: OrderedDict[tuple, PlaneGrid] = OrderedDict()
+        self._grids: LRUCache[tuple, PlaneGrid] = LRUCache(4)
 
     # -- far field ----------------------------------------------------------------------
     @property
@@ -150,12 +149,7 @@ class DDAWave(ScatteredWave):
         if grid is None or grid.delta_max < delta_max:
             # a little margin so that small lateral moves reuse the grid
             margin = min(0.03 * delta_max + 0.01, 0.5 * (np.pi / 2 - delta_max))
-            grid = plane_grid(self.expansion, z_p, delta_max + margin, far)
-            self._grids[key] = grid
-            while len(self._grids) > 4:
-                self._grids.popitem(last=False)
-        else:
-            self._grids.move_to_end(key)
+            grid = self._grids.put(key, plane_grid(self.expansion, z_p, delta_max + margin, far))
         return grid
 
     def field_on_detector(
@@ -198,9 +192,10 @@ class BuiltinDDA(ScatteringTheory):
     def __init__(self, settings: DDASettings | None = None, **options: Any) -> None:
         self.settings = (settings or DDASettings()).replace(**options) if options else (
             settings or DDASettings())
-        self._lattices: OrderedDict[tuple, Lattice] = OrderedDict()
-        self._systems: OrderedDict[tuple, DipoleSystem] = OrderedDict()
+        self._lattices: LRUCache[tuple, Lattice] = LRUCache(16)
         self._solutions: dict[tuple, list[DipoleSolution]] = {}
+        self._systems: LRUCache[tuple, DipoleSystem] = LRUCache(
+            8, on_evict=lambda key, _: self._solutions.pop(key, None))
         self.last_iterations = 0
 
     def dipole_size(self, model: ParticleModel, optics: Optics) -> float:
@@ -211,25 +206,14 @@ class BuiltinDDA(ScatteringTheory):
         """The (cached) discretisation of ``model``."""
         d = self.dipole_size(model, optics)
         key = (model, d, self.settings.filling)
-        lat = self._lattices.get(key)
-        if lat is None:
-            lat = voxelize(model, d, self.settings.filling)
-            self._lattices[key] = lat
-            while len(self._lattices) > 16:
-                self._lattices.popitem(last=False)
-        return lat
+        return self._lattices.get_or_create(key, lambda: voxelize(model, d, self.settings.filling))
 
     def _system(self, lat: Lattice, optics: Optics) -> tuple[tuple, DipoleSystem]:
         dtype = np.complex64 if self.settings.precision == "single" else np.complex128
         key = (lat.cache_key(), optics.k, optics.n_medium, self.settings.polarizability, dtype)
-        system = self._systems.get(key)
-        if system is None:
-            system = DipoleSystem(lat, optics.k, optics.n_medium, self.settings.polarizability,
-                                  dtype)
-            self._systems[key] = system
-            while len(self._systems) > 8:
-                old, _ = self._systems.popitem(last=False)
-                self._solutions.pop(old, None)
+        system = self._systems.get_or_create(
+            key, lambda: DipoleSystem(lat, optics.k, optics.n_medium,
+                                      self.settings.polarizability, dtype))
         return key, system
 
     def solve(self, model: ParticleModel, optics: Optics,
@@ -291,5 +275,3 @@ def _rotation_between(old: tuple[NDArray, NDArray], new: tuple[NDArray, NDArray]
 
     return frame(*new) @ frame(*old).T
 
-
-ENGINES["builtin"] = BuiltinDDA

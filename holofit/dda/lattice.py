@@ -80,6 +80,19 @@ class Lattice:
         s = self.fractions @ ((m2 - 1.0) / (m2 + 2.0))
         return (1.0 + 2.0 * s) / (1.0 - s)
 
+    def binary_dipoles(self, threshold: float = 0.5) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """The voxels whose total material fraction is at least ``threshold``, as binary dipoles.
+
+        Returns
+        -------
+        ijk : ndarray of int, shape (M, 3)
+            Box indices of the kept voxels.
+        domain : ndarray of int, shape (M,)
+            0-based dominant material of each.
+        """
+        keep = self.fractions.sum(axis=1) >= threshold
+        return self.ijk[keep], np.argmax(self.fractions[keep], axis=1)
+
     def occupied_volume_um3(self) -> NDArray[np.float64]:
         """Volume of each material, um^3 (sum of fractions times d^3)."""
         return self.fractions.sum(axis=0) * self.d**3

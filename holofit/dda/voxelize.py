@@ -26,12 +26,11 @@ for built-in shapes, without ADDA's volume correction).
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 from numpy.typing import NDArray
 
 from holofit.dda.lattice import Lattice
+from holofit.io.shapefile import read_shape_file
 from holofit.models import (
     Cylinder,
     Dimer,
@@ -48,9 +47,7 @@ __all__ = [
     "RAMP_HALF_WIDTH",
     "dipole_size",
     "ramp",
-    "read_adda_shape",
     "voxelize",
-    "write_adda_shape",
 ]
 
 RAMP_HALF_WIDTH = 15.0 / 16.0
@@ -223,62 +220,8 @@ def voxelize(model: ParticleModel, d: float, filling: str = "fractional") -> Lat
     )
 
 
-# -- ADDA shape files ----------------------------------------------------------------------
-
-
-def read_adda_shape(path: str | Path) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Read an ADDA text shape file.
-
-    Returns
-    -------
-    ijk : ndarray of int, shape (N, 3)
-        Dipole indices as in the file.
-    domain : ndarray of int, shape (N,)
-        0-based domain (material) of each dipole.
-    """
-    path = Path(path)
-    rows = []
-    try:
-        with path.open() as fh:
-            for lineno, line in enumerate(fh, 1):
-                text = line.split("#", 1)[0].strip()
-                if not text or text.lower().startswith("nmat"):
-                    continue
-                parts = text.split()
-                if len(parts) not in (3, 4):
-                    raise ValueError(f"{path}:{lineno}: expected 'ix iy iz [domain]', got {text!r}")
-                rows.append([int(v) for v in parts] + ([1] if len(parts) == 3 else []))
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: shape file not found") from None
-    if not rows:
-        raise ValueError(f"{path}: no dipoles in shape file")
-    arr = np.array(rows, dtype=np.int64)
-    if arr[:, 3].min() < 1:
-        raise ValueError(f"{path}: domain numbers start at 1")
-    return arr[:, :3], arr[:, 3] - 1
-
-
-def write_adda_shape(path: str | Path, lattice: Lattice, threshold: float = 0.5) -> int:
-    """Write a lattice as an ADDA text shape file (binary voxels: fraction >= threshold).
-
-    The dominant material of each kept voxel becomes its domain. Returns the number of
-    dipoles written.
-    """
-    total = lattice.fractions.sum(axis=1)
-    keep = total >= threshold
-    domain = np.argmax(lattice.fractions, axis=1) + 1
-    n_mat = lattice.fractions.shape[1]
-    lines = ["# holofit lattice", f"# d = {lattice.d!r} um"]
-    if n_mat > 1:
-        lines.append(f"Nmat={n_mat}")
-    for (i, j, k), dom in zip(lattice.ijk[keep], domain[keep], strict=True):
-        lines.append(f"{i} {j} {k} {dom}" if n_mat > 1 else f"{i} {j} {k}")
-    Path(path).write_text("\n".join(lines) + "\n")
-    return int(keep.sum())
-
-
 def _voxel_file_lattice(model: VoxelShape) -> Lattice:
-    ijk, domain = read_adda_shape(model.path)
+    ijk, domain = read_shape_file(model.path)
     n_mat = int(domain.max()) + 1
     if n_mat > len(model.indices):
         raise ValueError(

@@ -1,27 +1,60 @@
-"""Scattering engines by name (``--engine`` on the command line, ``engine`` in configs)."""
+"""Scattering engines by name (``--engine`` on the command line, ``engine`` in configs).
+
+The table below is the whole registry: adding an engine means adding a line here. Engines are
+imported when first asked for, so that choosing Lorenz-Mie never compiles the DDA kernels.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 from holofit.scattering.theory import ScatteringTheory
 
 __all__ = ["ENGINES", "get_theory"]
 
 
-def _mie() -> ScatteringTheory:
+def _mie(**options: Any) -> ScatteringTheory:
     from holofit.scattering.mie import LorenzMie
 
-    return LorenzMie()
+    return LorenzMie(**options)
 
 
-#: name -> factory; the DDA engines register themselves in their own modules' import
-ENGINES: dict[str, Callable[..., ScatteringTheory]] = {"mie": _mie}
+def _builtin(**options: Any) -> ScatteringTheory:
+    from holofit.dda.engine import BuiltinDDA
+
+    return BuiltinDDA(**options)
 
 
-def get_theory(name: str, **options: object) -> ScatteringTheory:
-    """The scattering engine called ``name`` (``mie``, ``builtin``, ``adda``)."""
-    _load_optional_engines()
+def _adda(**options: Any) -> ScatteringTheory:
+    from holofit.dda.adda.engine import AddaEngine
+
+    return AddaEngine(**options)
+
+
+#: engine name -> factory taking the engine's keyword options
+ENGINES: dict[str, Callable[..., ScatteringTheory]] = {
+    "mie": _mie,
+    "builtin": _builtin,
+    "adda": _adda,
+}
+
+
+def get_theory(name: str, **options: Any) -> ScatteringTheory:
+    """The scattering engine called ``name`` (``mie``, ``builtin``, ``adda``).
+
+    Parameters
+    ----------
+    name : str
+        Engine name.
+    **options
+        Passed to the engine (e.g. ``settings=DDASettings(...)``, ``dipole_size_um=...``).
+
+    Raises
+    ------
+    ValueError
+        For an unknown name (the message lists the known ones).
+    """
     try:
         factory = ENGINES[name]
     except KeyError:
@@ -29,15 +62,3 @@ def get_theory(name: str, **options: object) -> ScatteringTheory:
             f"unknown scattering engine {name!r}; available: {', '.join(sorted(ENGINES))}"
         ) from None
     return factory(**options)
-
-
-def _load_optional_engines() -> None:
-    """Import the engine modules so that they register (kept lazy: numba compiles)."""
-    import importlib
-
-    for module in ("holofit.dda.engine", "holofit.adda_engine"):
-        try:
-            importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name != module:
-                raise

@@ -1,41 +1,51 @@
-"""Choosing the scattering engine for a particle (``--engine`` and the ``[dda]`` table)."""
+"""Choosing the scattering engine for a particle: the one rule, used by every stage.
+
+``auto`` means exact Lorenz-Mie for a sphere without DDA settings, and otherwise the engine the
+DDA settings name (the built-in DDA unless they say ``adda``). A sphere with a ``[dda]`` table
+in its config is computed by the DDA (that is how the paper's DDA-vs-Mie validation is run).
+"""
 
 from __future__ import annotations
 
-from holofit.config import ParticleConfig
-from holofit.models import Sphere
+from holofit.dda.settings import DDASettings
+from holofit.models import ParticleModel, Sphere
 from holofit.scattering.registry import get_theory
 from holofit.scattering.theory import ScatteringTheory
 
-__all__ = ["ENGINE_CHOICES", "theory_for"]
+__all__ = ["ENGINE_CHOICES", "select_theory"]
 
 ENGINE_CHOICES = ("auto", "mie", "builtin", "adda")
 
 
-def theory_for(config: ParticleConfig, engine: str | None = None) -> ScatteringTheory:
-    """The engine for a particle-model config.
+def select_theory(
+    model: ParticleModel, settings: DDASettings | None = None, engine: str | None = None
+) -> ScatteringTheory:
+    """The engine for ``model``.
 
     Parameters
     ----------
-    config : ParticleConfig
-        The particle, with its optional ``[dda]`` settings.
+    model : ParticleModel
+        The particle.
+    settings : DDASettings, optional
+        The particle's DDA settings (its config's ``[dda]`` table); None if it has none.
     engine : {"auto", "mie", "builtin", "adda"}, optional
-        Overrides the config. ``auto`` (default): exact Lorenz-Mie for spheres, otherwise the
-        ``[dda] engine`` of the config (the built-in DDA unless it says ``adda``).
+        Overrides the choice; ``auto`` (default) as in the module docstring.
+
+    Raises
+    ------
+    ValueError
+        An unknown engine, or Lorenz-Mie asked for a particle that is not a sphere.
     """
     engine = engine or "auto"
     if engine not in ENGINE_CHOICES:
-        raise ValueError(f"engine must be one of {ENGINE_CHOICES}, got {engine!r}")
-    settings = config.dda_settings()
+        raise ValueError(f"engine must be one of {', '.join(ENGINE_CHOICES)}, got {engine!r}")
     if engine == "auto":
-        if isinstance(config.model, Sphere) and "dda" not in config.settings:
+        if isinstance(model, Sphere) and settings is None:
             engine = "mie"
         else:
-            engine = settings.engine
+            engine = (settings or DDASettings()).engine
     if engine == "mie":
-        if not isinstance(config.model, Sphere):
-            raise ValueError(
-                f"{config.path}: Lorenz-Mie theory handles spheres only, not {config.model.kind!r}"
-            )
+        if not isinstance(model, Sphere):
+            raise ValueError(f"Lorenz-Mie theory handles spheres only, not {model.kind!r}")
         return get_theory("mie")
-    return get_theory(engine, settings=settings)
+    return get_theory(engine, settings=settings or DDASettings())

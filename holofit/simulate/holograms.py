@@ -19,11 +19,12 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.camera import Camera
 from holofit.config import Instrument
 from holofit.conventions import DetectorGrid
-from holofit.hologram import calc_hologram, default_theory
+from holofit.hologram import calc_hologram
 from holofit.io.tables import write_table
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.models import ParticleModel
 from holofit.provenance import sidecar
+from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteringTheory
 
 __all__ = ["SimulatedMovie", "simulate_movie", "smooth_illumination"]
@@ -133,7 +134,7 @@ def simulate_movie(
         orient = np.atleast_2d(np.asarray(orientations, dtype=float))
         if orient.shape != (n, 3):
             raise ValueError(f"orientations must have shape ({n}, 3), got {orient.shape}")
-    theory = theory or default_theory(model)
+    theory = theory or select_theory(model)
     camera = camera or Camera(
         bit_depth=instrument.bit_depth,
         background_counts=0.47 * (2**instrument.bit_depth - 1),

@@ -1,0 +1,189 @@
+"""The validation library of configuration files: typed, range-checked keys with messages
+that name the file, the table and the key.
+
+Schemas (which keys an instrument or a particle file has) live with the code that owns them
+(:mod:`holofit.config`, :mod:`holofit.dda.settings`); this module only knows how to check a
+table against one, so that a unit slip (a wavelength of 660 meant in nm, a radius of 500 meant
+in nm, a negative size) or a misspelled key is caught when the file is read.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "INDEX_RANGE",
+    "SIZE_RANGE_UM",
+    "ConfigError",
+    "Spec",
+    "nm_hint",
+    "read_toml",
+    "validate_table",
+]
+
+#: plausible range of a particle length (um); outside it a unit slip is likely
+SIZE_RANGE_UM = (0.005, 100.0)
+#: plausible range of the real part of an absolute refractive index
+INDEX_RANGE = (1.0, 5.0)
+
+
+class ConfigError(ValueError):
+    """A configuration file is missing a key, has a wrong type or an implausible value."""
+
+
+@dataclass(frozen=True)
+class Spec:
+    """What one configuration key must hold."""
+
+    kind: str  # "float", "int", "str", "bool", "index"
+    expected: str  # human description, with unit
+    low: float | None = None
+    high: float | None = None
+    required: bool = True
+    default: Any = None
+    #: extra advice when the value is out of range (e.g. a unit slip)
+    hint: Callable[[float], str] | None = None
+
+
+def nm_hint(value: float) -> str:
+    if value > 100:
+        return f" ({value} looks like nanometres: use {value / 1000:g} um)"
+    return ""
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file, turning syntax errors into a :class:`ConfigError` naming the file."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: configuration file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+
+
+def _check_value(path: Path, where: str, key: str, value: Any, spec: Spec) -> Any:
+    loc = f"{path}: [{where}] key '{key}'"
+    if spec.kind == "str":
+        if not isinstance(value, str):
+            raise ConfigError(f"{loc}: expected {spec.expected} (a string), got {value!r}")
+        return value
+    if spec.kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{loc}: expected {spec.expected} (true/false), got {value!r}")
+        return value
+    if spec.kind == "index":
+        return _check_index(loc, value, spec)
+    if spec.kind == "indices":
+        if not isinstance(value, list) or not value:
+            raise ConfigError(f"{loc}: expected {spec.expected} as a list, got {value!r}")
+        sub = Spec("index", "an absolute refractive index", *INDEX_RANGE)
+        return tuple(_check_index(f"{loc}[{i}]", v, sub) for i, v in enumerate(value))
+    if spec.kind == "vector3":
+        if (not isinstance(value, list) or len(value) != 3
+                or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)):
+            raise ConfigError(f"{loc}: expected {spec.expected} as [x, y, z], got {value!r}")
+        return tuple(float(v) for v in value)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{loc}: expected {spec.expected} (a number), got {value!r}")
+    if spec.kind == "int":
+        if not isinstance(value, int):
+            raise ConfigError(f"{loc}: expected {spec.expected} (an integer), got {value!r}")
+    elif not math.isfinite(value):
+        raise ConfigError(f"{loc}: expected {spec.expected}, got {value!r}")
+    _check_range(loc, float(value), spec)
+    return int(value) if spec.kind == "int" else float(value)
+
+
+def _check_range(loc: str, value: float, spec: Spec) -> None:
+    lo, hi = spec.low, spec.high
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        bounds = (
+            f"between {lo:g} and {hi:g}"
+            if lo is not None and hi is not None
+            else (f">= {lo:g}" if lo is not None else f"<= {hi:g}")
+        )
+        extra = spec.hint(value) if spec.hint else ""
+        raise ConfigError(f"{loc}: expected {spec.expected} {bounds}, got {value:g}{extra}")
+
+
+def _check_index(loc: str, value: Any, spec: Spec) -> complex:
+    if isinstance(value, bool):
+        raise ConfigError(f"{loc}: expected {spec.expected}, got {value!r}")
+    if isinstance(value, int | float):
+        re_, im_ = float(value), 0.0
+    elif (
+        isinstance(value, list)
+        and len(value) == 2
+        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+    ):
+        re_, im_ = float(value[0]), float(value[1])
+    else:
+        raise ConfigError(
+            f"{loc}: expected {spec.expected} as a number or a pair [n, k], got {value!r}"
+        )
+    _check_range(loc, re_, spec)
+    if im_ < 0:
+        raise ConfigError(
+            f"{loc}: the imaginary part of a refractive index must be >= 0 (absorption, "
+            f"exp(-i omega t) convention), got {im_:g}"
+        )
+    return complex(re_, im_)
+
+
+def validate_table(
+    table: Mapping[str, Any], specs: Mapping[str, Spec], path: Path, where: str
+) -> dict[str, Any]:
+    """Check a TOML table against ``specs``.
+
+    Parameters
+    ----------
+    table : mapping
+        The table as read.
+    specs : mapping
+        Key -> :class:`Spec`, in the order keys are checked.
+    path : Path
+        The file, for messages.
+    where : str
+        The table's name, for messages (``instrument``, ``particle``, ``dda``).
+
+    Returns
+    -------
+    dict
+        Every key of ``specs``: the checked value or the spec's default.
+
+    Raises
+    ------
+    ConfigError
+        A missing required key, a wrong type, a value out of range (with a unit hint where one
+        applies), or an unknown key (a typo: the closest valid key is suggested).
+    """
+    out: dict[str, Any] = {}
+    for key, spec in specs.items():
+        if key not in table:
+            if spec.required:
+                raise ConfigError(f"{path}: [{where}] is missing key '{key}' ({spec.expected})")
+            out[key] = spec.default
+            continue
+        out[key] = _check_value(path, where, key, table[key], spec)
+    unknown = sorted(set(table) - set(specs))
+    if unknown:
+        hints = []
+        for key in unknown:
+            close = difflib.get_close_matches(key, list(specs), n=1, cutoff=0.6)
+            if close:
+                hints.append(f"did you mean '{close[0]}' for '{key}'?")
+        raise ConfigError(
+            f"{path}: [{where}] has unknown key(s) {', '.join(map(repr, unknown))}"
+            + (f" ({'; '.join(hints)})" if hints else "")
+            + f"; allowed: {', '.join(specs)}"
+        )
+    return out
+
