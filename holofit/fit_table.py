@@ -53,6 +53,7 @@ import pandas as pd
 from holofit.conventions import angles_from_axis, axis_from_angles
 from holofit.io.tables import sidecar_path, write_table
 from holofit.provenance import sidecar
+from holofit.status import FIT_STATUSES, OK
 
 __all__ = [
     "AXIS_COLUMNS",
@@ -72,11 +73,9 @@ __all__ = [
 
 SCHEMA_VERSION = 1
 
-STATUS_OK = "ok"
-#: ``ok``: converged fit; ``failed``: the fit diverged; ``error``: the fit raised (the batch
-#: runner's status for an exception); ``not_converged``: it hit its iteration limit;
-#: ``skipped``: no hologram to fit (e.g. the crop stage lost the particle).
-STATUSES = ("ok", "failed", "error", "not_converged", "skipped")
+#: the status words (:mod:`holofit.status`)
+STATUSES = FIT_STATUSES
+STATUS_OK = OK
 
 REQUIRED_COLUMNS = ("frame", "time_s", "status")
 POSITION_COLUMNS = ("x_um", "y_um", "z_um")

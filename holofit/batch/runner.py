@@ -52,6 +52,7 @@ from holofit.batch.backends import (
 from holofit.batch.journal import Journal, JournalError, read_journal
 from holofit.io.tables import read_table, sidecar_path, write_table
 from holofit.progress import progress_bar
+from holofit.status import ERROR, FAILED_STATUSES
 
 __all__ = [
     "FAILED_STATUSES",
@@ -67,8 +68,6 @@ __all__ = [
     "run_frame",
 ]
 
-#: statuses a rerun with ``retry_failed`` runs again
-FAILED_STATUSES: tuple[str, ...] = ("error", "not_converged")
 
 
 class BatchError(RuntimeError):
@@ -193,7 +192,7 @@ def run_frame(
     except Exception as exc:
         where = traceback.extract_tb(exc.__traceback__)[-1]
         row = {
-            "status": "error",
+            "status": ERROR,
             "message": f"{type(exc).__name__}: {exc} "
             f"(at {Path(where.filename).name}:{where.lineno})",
         }
@@ -205,7 +204,7 @@ def run_frame(
 def _complete_row(row: dict[str, Any], columns: Sequence[str]) -> dict[str, Any]:
     out = {c: row.get(c, math.nan) for c in columns}
     out["frame"] = int(row["frame"])
-    out["status"] = str(row.get("status") or "error")
+    out["status"] = str(row.get("status") or ERROR)
     msg = row.get("message")
     out["message"] = "" if msg is None or (isinstance(msg, float) and math.isnan(msg)) else msg
     return out
@@ -415,7 +414,7 @@ def run_batch(
                 try:
                     payload = load(frame)
                 except Exception as exc:
-                    record({"frame": frame, "status": "error", "message": f"loading: {exc}"})
+                    record({"frame": frame, "status": ERROR, "message": f"loading: {exc}"})
                     continue
                 if isinstance(payload, Precomputed):
                     record({**payload.row, "frame": frame})
@@ -429,19 +428,19 @@ def run_batch(
                     record(be.result(fut))
                 except WorkerLost as exc:
                     if be.isolates_lost_workers:
-                        record({"frame": frame, "status": "error", "message": str(exc)})
+                        record({"frame": frame, "status": ERROR, "message": str(exc)})
                         continue
                     lost = [(frame, payload, attempts), *list(in_flight.values())]
                     in_flight.clear()
                     be.restart()
                     for f, p, a in lost:
                         if a >= 1 and len(lost) == 1:  # it ran alone: it killed the worker
-                            record({"frame": f, "status": "error", "message": str(exc)})
+                            record({"frame": f, "status": ERROR, "message": str(exc)})
                         else:
                             retry.append((f, p, a + 1))
                     break
                 except Exception as exc:  # infrastructure error for this one future
-                    record({"frame": frame, "status": "error", "message": f"{exc}"})
+                    record({"frame": frame, "status": ERROR, "message": f"{exc}"})
             if time.monotonic() - last_flush >= opts.flush_interval_s:
                 _write(partial_path(output), rows, columns, meta, info)
                 last_flush = time.monotonic()

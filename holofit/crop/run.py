@@ -11,8 +11,8 @@ whatever the movie's length. Outputs (in ``out_dir``):
 ``crops.png``
     an overview plot (first frame with a particle, its crop, the track, the scores).
 ``crops.csv`` (+ ``crops.csv.json``)
-    one row per frame (columns in :data:`CROP_UNITS`); written last, so its presence means the
-    stage completed.
+    one row per frame (columns in :data:`holofit.crop.table.CROP_UNITS`); written last, so
+    its presence means the stage completed.
 
 A frame that cannot be read or normalised gets status ``error`` and the run goes on; input that
 makes the whole run meaningless (unreadable movie, background of another shape, a background
@@ -40,45 +40,15 @@ from holofit.crop.errors import CropError, FrameError
 from holofit.crop.follow import Follower
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
+from holofit.crop.table import CANDIDATE_UNITS, CROP_COLUMNS, CROP_UNITS
 from holofit.io.movie import Movie, MovieError, open_movie
 from holofit.io.tables import sidecar_path, write_json, write_table
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.provenance import sidecar
+from holofit.status import CROP_EDGE, CROP_ERROR, CROP_NO_PARTICLE, CROP_OK, CROP_STATUSES
 
-__all__ = ["CANDIDATE_UNITS", "CROP_UNITS", "STATUSES", "CropResult", "run_crop"]
+__all__ = ["CropResult", "run_crop"]
 
-#: Frame statuses in ``crops.csv``.
-STATUSES = ("ok", "edge", "no_particle", "error")
-
-CROP_UNITS = {
-    "frame": "index (0-based, movie order)",
-    "status": "ok | edge (crop shifted to stay inside the frame) | no_particle | error",
-    "message": "text (why a frame is edge, no_particle or error)",
-    "x_px": "pixel, full frame (column; pixel centres are integers)",
-    "y_px": "pixel, full frame (row)",
-    "x_um": "um (x_px * pixel_size_um)",
-    "y_um": "um (y_px * pixel_size_um)",
-    "corner_row": "pixel index, full frame, of crop pixel [0, 0] (empty: no crop)",
-    "corner_col": "pixel index, full frame, of crop pixel [0, 0] (empty: no crop)",
-    "score": "1 (transform peak / rms transform of pure noise at the frame's noise level)",
-    "alignment": "1 (0-1: fraction of nearby gradient energy pointing at the centre)",
-    "symmetry": "1 (-1..1: point symmetry about the centre; 1 = perfect)",
-    "refinement": "symmetry | radial (near an edge) | none (coarse centre)",
-    "n_candidates": "count (accepted candidate centres in the frame)",
-    "n_masked": "pixels (masked, NaN, in the crop)",
-}
-
-CANDIDATE_UNITS = {
-    "frame": "index",
-    "rank": "0 = strongest",
-    "x_px": CROP_UNITS["x_px"],
-    "y_px": CROP_UNITS["y_px"],
-    "score": CROP_UNITS["score"],
-    "alignment": CROP_UNITS["alignment"],
-    "symmetry": CROP_UNITS["symmetry"],
-    "refinement": CROP_UNITS["refinement"],
-    "selected": "bool (the candidate cropped in this frame)",
-}
 
 
 @dataclass
@@ -275,10 +245,10 @@ def run_crop(
             rows, candidates, preview = _crop_frames(
                 movie, normalizer, finder, follower, size, inst.pixel_size_um, writer, progress
             )
-            frames = pd.DataFrame(rows)
+            frames = pd.DataFrame(rows, columns=list(CROP_COLUMNS))
             for column in ("corner_row", "corner_col"):
                 frames[column] = frames[column].astype("Int64")
-            n_error = int((frames["status"] == "error").sum())
+            n_error = int((frames["status"] == CROP_ERROR).sum())
             if n_error == len(frames):
                 raise CropError(
                     f"{movie_path}: every frame failed; first error: {frames['message'].iat[0]}"
@@ -286,7 +256,7 @@ def run_crop(
             # a rerun must not leave an old table beside the new stack
             stale = (table_path, cand_path, crops_path)
             _remove_stale([*stale[:2], *map(sidecar_path, stale), plot_path])
-        counts = {s: int((frames["status"] == s).sum()) for s in STATUSES}
+        counts = {s: int((frames["status"] == s).sum()) for s in CROP_STATUSES}
         settings = {
             "size_px": size,
             "follow": follow,
@@ -374,7 +344,7 @@ def _crop_frames(
     for k in range(len(movie)):
         row: dict[str, Any] = {
             "frame": k,
-            "status": "error",
+            "status": CROP_ERROR,
             "message": "",
             "x_px": math.nan,
             "y_px": math.nan,
@@ -403,14 +373,14 @@ def _crop_frames(
                      cand.symmetry, cand.refinement, rank == choice.index)
                 )  # fmt: skip
             if choice.index is None:
-                row["status"], row["message"] = "no_particle", choice.message
+                row["status"], row["message"] = CROP_NO_PARTICLE, choice.message
             else:
                 best = found.iloc[choice.index]
                 x, y = float(best["x_px"]), float(best["y_px"])
                 corner_row, corner_col, shifted = crop_corner(x, y, size, image.shape)
                 page = extract_crop(image, (corner_row, corner_col), size)
                 row.update(
-                    status="edge" if shifted else "ok",
+                    status=CROP_EDGE if shifted else CROP_OK,
                     message="particle near the frame edge: crop shifted inside the frame"
                     if shifted
                     else "",

@@ -28,28 +28,15 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.config import ConfigError, Instrument, instrument_from_dict
+from holofit.crop.table import REQUIRED_CROP_COLUMNS
 from holofit.io.movie import Movie, MovieError
 from holofit.io.tables import sidecar_path
 
 __all__ = [
-    "CROP_TABLE_COLUMNS",
-    "FITTABLE_CROP_STATUSES",
     "CropSet",
     "CropSetError",
     "open_crops",
 ]
-
-#: columns the crop table must have
-CROP_TABLE_COLUMNS: tuple[str, ...] = (
-    "frame",
-    "status",
-    "x_px",
-    "y_px",
-    "corner_row",
-    "corner_col",
-)
-#: crop statuses whose crops are fitted (the others are recorded as skipped)
-FITTABLE_CROP_STATUSES: tuple[str, ...] = ("ok", "edge")
 
 
 class CropSetError(ValueError):
@@ -97,7 +84,7 @@ class CropSet:
             self.table = pd.read_csv(self.table_path)
         except (ValueError, pd.errors.ParserError) as exc:
             raise CropSetError(f"{self.table_path}: not a readable CSV table ({exc})") from None
-        missing = [c for c in CROP_TABLE_COLUMNS if c not in self.table.columns]
+        missing = [c for c in REQUIRED_CROP_COLUMNS if c not in self.table.columns]
         if missing:
             raise CropSetError(f"{self.table_path}: missing column(s) {', '.join(missing)}")
         frames = self.table["frame"].to_numpy()

@@ -21,10 +21,11 @@ from numpy.typing import NDArray
 
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
 from holofit.config import Instrument
-from holofit.fitting.crops import FITTABLE_CROP_STATUSES, CropSet, CropSetError
+from holofit.fitting.crops import CropSet, CropSetError
 from holofit.fitting.residuals import SPHERE_PARAMETERS
 from holofit.fitting.sphere_fit import FitOptions, fit_sphere_crop
 from holofit.provenance import sidecar
+from holofit.status import FITTABLE_CROP_STATUSES
 
 __all__ = [
     "PREFIT_COLUMNS",
