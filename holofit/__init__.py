@@ -1,3 +1,89 @@
-"""holofit: fast, exact holographic tracking of non-spherical colloids."""
+"""holofit: fast, exact holographic tracking of non-spherical colloids.
+
+The public API, by job (the command line is a thin layer over these functions)::
+
+    stages         run_crop, run_prefit, run_library, run_fit, run_analysis
+    simulation     simulate_movie, simulate_trajectory, BrownianParameters
+    configuration  Instrument, load_instrument, ParticleConfig, load_particle, DDASettings
+    particles      Sphere, Spherocylinder, JanusSphere, Dimer, Spheroid, Ellipsoid, Cylinder,
+                   VoxelShape
+    geometry       Orientation, DetectorGrid, Optics
+    engines        LorenzMie, BuiltinDDA, AddaEngine, select_theory, get_theory
+    holograms      hologram, calc_hologram
+    tables         read_fit_table, write_fit_table
+
+Names are imported on first use (``holofit.run_crop`` loads the crop stage only), so that
+``import holofit`` stays cheap and a Lorenz-Mie user never compiles the DDA kernels.
+
+Example::
+
+    import holofit
+    inst = holofit.load_instrument("configs/instruments/paper_60x_water.toml")
+    holofit.run_crop("movie.tif", "background.tif", inst, "crop/")
+    holofit.run_prefit("crop/", "prefit/")
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 __version__ = "0.1.0"
+
+#: public name -> module that defines it
+_API: dict[str, str] = {
+    # stages
+    "run_crop": "holofit.crop.run",
+    "run_prefit": "holofit.fitting.prefit",
+    "run_analysis": "holofit.analysis",
+    # simulation
+    "simulate_movie": "holofit.simulate.holograms",
+    "simulate_trajectory": "holofit.simulate.brownian",
+    "BrownianParameters": "holofit.simulate.brownian",
+    # configuration
+    "Instrument": "holofit.config",
+    "load_instrument": "holofit.config",
+    "ParticleConfig": "holofit.config",
+    "load_particle": "holofit.config",
+    "DDASettings": "holofit.dda.settings",
+    # particle models
+    "Sphere": "holofit.models",
+    "Spherocylinder": "holofit.models",
+    "JanusSphere": "holofit.models",
+    "Dimer": "holofit.models",
+    "Spheroid": "holofit.models",
+    "Ellipsoid": "holofit.models",
+    "Cylinder": "holofit.models",
+    "VoxelShape": "holofit.models",
+    # geometry and light
+    "Orientation": "holofit.scattering.theory",
+    "DetectorGrid": "holofit.conventions",
+    "Optics": "holofit.optics",
+    # engines
+    "LorenzMie": "holofit.scattering.mie",
+    "BuiltinDDA": "holofit.dda.engine",
+    "AddaEngine": "holofit.dda.adda.engine",
+    "select_theory": "holofit.scattering.select",
+    "get_theory": "holofit.scattering.registry",
+    # holograms
+    "hologram": "holofit.hologram",
+    "calc_hologram": "holofit.hologram",
+    # tables
+    "read_fit_table": "holofit.fit_table",
+    "write_fit_table": "holofit.fit_table",
+}
+
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str) -> Any:
+    module = _API.get(name)
+    if module is None:
+        raise AttributeError(f"module 'holofit' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

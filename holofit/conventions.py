@@ -1,7 +1,7 @@
 """The one place where holofit's conventions live.
 
 Every other module imports its geometry, units and hologram formula from here, so that a
-sign or an axis is defined exactly once (DESIGN.md section 2).
+sign or an axis is defined exactly once (the paper's frame and hologram, section 2).
 
 Units
 -----

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from holofit.conventions import DetectorGrid
+from holofit.conventions import DetectorGrid, rotation_z
 from holofit.models import ParticleModel, Sphere
 from holofit.optics import Optics
 from holofit.scattering.mie_coefficients import mie_coefficients
@@ -100,9 +100,7 @@ def bh_frame(polarization_rad: float) -> NDArray[np.float64]:
     In the B&H frame the light travels along +z and is polarised along x. ``p_bh = M @ p_lab``
     and ``E_lab = M.T @ E_bh``.
     """
-    c, s = np.cos(polarization_rad), np.sin(polarization_rad)
-    rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return rz @ np.diag([1.0, -1.0, -1.0])
+    return rotation_z(polarization_rad) @ np.diag([1.0, -1.0, -1.0])
 
 
 class MieWave(ScatteredWave):
