@@ -43,6 +43,8 @@ class ParticleModel:
     index_fields: ClassVar[tuple[str, ...]] = ()
     #: True if the scattering depends on orientation
     anisotropic: ClassVar[bool] = True
+    #: True if the shape is symmetric about its particle z axis (a spin phi changes nothing)
+    axisymmetric: ClassVar[bool] = True
 
     def parameters(self) -> dict[str, float | complex]:
         """Model parameters by name."""
@@ -77,6 +79,12 @@ class ParticleModel:
     def bounding_radius_um(self) -> float:
         """Radius of the smallest sphere about the model centre that contains the particle."""
         raise NotImplementedError
+
+    @property
+    def head_tail_symmetric(self) -> bool:
+        """True if the particle is its own mirror image through the x-y plane (u and -u are
+        the same orientation: rods, spheroids; not a Janus particle)."""
+        return True
 
 
 @dataclass(frozen=True)
@@ -168,6 +176,10 @@ class JanusSphere(ParticleModel):
     def bounding_radius_um(self) -> float:
         return self.radius_um + self.cap_thickness_um
 
+    @property
+    def head_tail_symmetric(self) -> bool:
+        return False
+
 
 @dataclass(frozen=True)
 class Spheroid(ParticleModel):
@@ -206,6 +218,7 @@ class Ellipsoid(ParticleModel):
     index: complex
 
     kind: ClassVar[str] = "ellipsoid"
+    axisymmetric: ClassVar[bool] = False
     size_fields: ClassVar[tuple[str, ...]] = ("ax_um", "ay_um", "az_um")
     index_fields: ClassVar[tuple[str, ...]] = ("index",)
 
@@ -282,6 +295,11 @@ class Dimer(ParticleModel):
         z1, z2 = self.sphere_centres_z()
         return max(-z1 + self.radius1_um, z2 + self.radius2_um)
 
+    @property
+    def head_tail_symmetric(self) -> bool:
+        return self.radius1_um == self.radius2_um and complex(self.index1) == complex(
+            self.index2)
+
 
 @dataclass(frozen=True)
 class VoxelShape(ParticleModel):
@@ -307,6 +325,11 @@ class VoxelShape(ParticleModel):
 
     kind: ClassVar[str] = "voxels"
     size_fields: ClassVar[tuple[str, ...]] = ("dipole_size_um",)
+    axisymmetric: ClassVar[bool] = False
+
+    @property
+    def head_tail_symmetric(self) -> bool:
+        return False
 
     def __post_init__(self) -> None:
         super().__post_init__()

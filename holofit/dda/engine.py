@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.cache import LRUCache
-from holofit.conventions import PROPAGATION_DIRECTION, DetectorGrid, euler_zyz, incident_phase_at
+from holofit.conventions import PROPAGATION_DIRECTION, euler_zyz, incident_phase_at
 from holofit.dda.dipoles import DipoleSolution, DipoleSystem, incident_field
 from holofit.dda.farfield import far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
@@ -29,7 +29,7 @@ from holofit.dda.multipole import (
     MultipoleExpansion,
     PlaneGrid,
     default_order,
-    evaluate_plane,
+    evaluate_plane_at,
     plane_grid,
     project_far_field,
     quadrature,
@@ -152,29 +152,30 @@ class DDAWave(ScatteredWave):
             grid = self._grids.put(key, plane_grid(self.expansion, z_p, delta_max + margin, far))
         return grid
 
-    def field_on_detector(
-        self, position_um: ArrayLike, grid: DetectorGrid, far_field: bool = False
+    def field_on_pixels(
+        self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike, far_field: bool = False
     ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        """Transverse field at pixel centres: the interpolated multipole grid of the camera
+        plane, direct dipole sums for pixels within the near zone (see the module docstring)."""
         xp, yp, zp = (float(v) for v in position_um)
-        rows = (grid.corner[0] + np.arange(grid.shape[0])) * grid.pixel_size_um
-        cols = (grid.corner[1] + np.arange(grid.shape[1])) * grid.pixel_size_um
-        dx = np.array([cols[0] - xp, cols[-1] - xp])
-        dy = np.array([rows[0] - yp, rows[-1] - yp])
-        rho_max = float(np.sqrt(np.max(dx**2) + np.max(dy**2)))
+        dx = np.asarray(xs_um, dtype=float).ravel() - xp
+        dy = np.asarray(ys_um, dtype=float).ravel() - yp
+        if dx.size == 0:
+            return np.zeros(0, dtype=complex), np.zeros(0, dtype=complex)
+        rho_max = float(np.sqrt(np.max(dx * dx + dy * dy)))
         delta_max = float(np.arctan2(rho_max, abs(zp)))
         phase = complex(incident_phase_at(zp, self.optics.k))
         skip = None
         if not far_field and abs(zp) < NEAR_ZONE * self.radius_um:
-            rr2 = (cols[None, :] - xp) ** 2 + (rows[:, None] - yp) ** 2 + zp**2
-            skip = rr2 < (NEAR_ZONE * self.radius_um) ** 2
+            skip = dx * dx + dy * dy + zp * zp < (NEAR_ZONE * self.radius_um) ** 2
         pg = self._plane_grid(zp, delta_max, far_field)
-        ex, ey = evaluate_plane(pg, cols, rows, xp, yp, phase, skip)
+        ex, ey = evaluate_plane_at(pg, dx, dy, phase, skip)
         if skip is not None and np.any(skip):
-            ii, jj = np.nonzero(skip)
-            pts = np.column_stack([cols[jj] - xp, rows[ii] - yp, np.full(ii.size, -zp)])
+            idx = np.flatnonzero(skip)
+            pts = np.column_stack([dx[idx], dy[idx], np.full(idx.size, -zp)])
             e = self._direct_lab(pts) * phase
-            ex[ii, jj] = e[:, 0]
-            ey[ii, jj] = e[:, 1]
+            ex[idx] = e[:, 0]
+            ey[idx] = e[:, 1]
         return ex, ey
 
 

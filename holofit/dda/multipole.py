@@ -477,3 +477,30 @@ def evaluate_plane(
     _interp_plane(grid.ux, grid.uy, grid.step, grid.n_phi, grid.n_ext, delta, phi, fac, ex, ey,
                   np.ascontiguousarray(skip), grid.stencil)
     return ex, ey
+
+
+def evaluate_plane_at(
+    grid: PlaneGrid, dx: NDArray, dy: NDArray, phase: complex = 1.0,
+    skip: NDArray | None = None,
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """Transverse field ``(E_x, E_y)`` at arbitrary points of the plane.
+
+    ``dx, dy`` (any equal shapes) are the lateral offsets of the points from the expansion
+    centre, um; ``phase`` multiplies the result; points where ``skip`` is True are left 0.
+    """
+    shape = np.shape(dx)
+    dx2 = np.asarray(dx, dtype=float).reshape(-1, 1)
+    dy2 = np.asarray(dy, dtype=float).reshape(-1, 1)
+    ex = np.zeros(dx2.shape, dtype=complex)
+    ey = np.zeros_like(ex)
+    skip2 = (np.zeros(dx2.shape, dtype=np.bool_) if skip is None
+             else np.ascontiguousarray(np.asarray(skip, dtype=np.bool_).reshape(-1, 1)))
+    az = abs(grid.z_p)
+    rho = np.hypot(dx2, dy2)
+    delta = np.arctan2(rho, az)
+    phi = np.arctan2(dy2, dx2) % (2.0 * np.pi)
+    kr = grid.k * np.sqrt(rho * rho + az * az)
+    fac = np.exp(1j * kr) * (complex(phase) / kr)
+    _interp_plane(grid.ux, grid.uy, grid.step, grid.n_phi, grid.n_ext, delta, phi, fac, ex, ey,
+                  skip2, grid.stencil)
+    return ex.reshape(shape), ey.reshape(shape)

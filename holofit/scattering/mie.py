@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from holofit.conventions import DetectorGrid, rotation_z
+from holofit.conventions import rotation_z
 from holofit.models import ParticleModel, Sphere
 from holofit.optics import Optics
 from holofit.scattering.mie_coefficients import mie_coefficients
@@ -182,13 +182,6 @@ class MieWave(ScatteredWave):
         field_on_pixels(xs, ys, xp, yp, zp, self._frame, self.optics.k, *self._coefs,
                         bool(far_field), ex, ey)
         return ex, ey
-
-    def field_on_detector(
-        self, position_um: ArrayLike, grid: DetectorGrid, far_field: bool = False
-    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
-        x, y = grid.coordinates()
-        ex, ey = self.field_on_pixels(position_um, x, y, far_field)
-        return ex.reshape(grid.shape), ey.reshape(grid.shape)
 
 
 class LorenzMie(ScatteringTheory):

@@ -72,6 +72,38 @@ class ScatteredWave(ABC):
             centre.
         """
 
+    def field_on_pixels(
+        self,
+        position_um: ArrayLike,
+        xs_um: ArrayLike,
+        ys_um: ArrayLike,
+        far_field: bool = False,
+    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        """Transverse scattered field at a list of pixel centres, incident phase included.
+
+        Every hologram (a full detector, a masked crop, a random subset of pixels) is computed
+        through this method; engines override it with a fast path.
+
+        Parameters
+        ----------
+        position_um : array_like, shape (3,)
+            Full-frame particle position ``(x, y, z)``, um.
+        xs_um, ys_um : array_like, shape (N,)
+            Full-frame sample-plane coordinates of the pixel centres, um (x along columns).
+        far_field : bool
+            Asymptotic far-field form instead of the exact field.
+
+        Returns
+        -------
+        e_x, e_y : ndarray of complex, shape (N,)
+        """
+        xp, yp, zp = (float(v) for v in position_um)
+        xs = np.asarray(xs_um, dtype=float).ravel()
+        ys = np.asarray(ys_um, dtype=float).ravel()
+        pts = np.stack([xs - xp, ys - yp, np.full(xs.size, -zp)], axis=1)
+        e = self.field_at(pts, far_field=far_field) * incident_phase_at(zp, self.optics.k)
+        return e[:, 0], e[:, 1]
+
     def field_on_detector(
         self,
         position_um: ArrayLike,
@@ -93,11 +125,9 @@ class ScatteredWave(ABC):
         -------
         e_x, e_y : ndarray of complex, shape ``grid.shape``
         """
-        xp, yp, zp = (float(v) for v in position_um)
         x, y = grid.coordinates()
-        pts = np.stack([x.ravel() - xp, y.ravel() - yp, np.full(x.size, -zp)], axis=1)
-        e = self.field_at(pts, far_field=far_field) * incident_phase_at(zp, self.optics.k)
-        return e[:, 0].reshape(grid.shape), e[:, 1].reshape(grid.shape)
+        ex, ey = self.field_on_pixels(position_um, x.ravel(), y.ravel(), far_field)
+        return ex.reshape(grid.shape), ey.reshape(grid.shape)
 
 
 class ScatteringTheory(ABC):
