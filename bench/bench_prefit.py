@@ -22,13 +22,13 @@ from holofit.batch import BatchOptions
 from holofit.camera import Camera
 from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid
-from holofit.fitting.estimate import profile_table
-from holofit.fitting.prefit import run_prefit
-from holofit.fitting.sphere_fit import FitOptions, fit_sphere_crop
 from holofit.hologram import calc_hologram
 from holofit.io import write_table
 from holofit.io.tiffstack import write_tiff_stack
 from holofit.models import Sphere
+from holofit.prefit.estimate import profile_table
+from holofit.prefit.sphere import FitOptions, fit_sphere_crop
+from holofit.prefit.stage import run_prefit
 from holofit.provenance import sidecar
 from holofit.scattering.mie import MieWave
 
@@ -62,7 +62,7 @@ def _one_core(inst, size, n):
         t0 = time.perf_counter()
         fit = fit_sphere_crop(crop, corner, centre, inst.optics, inst.pixel_size_um, opts)
         times.append(time.perf_counter() - t0)
-        evals.append(fit.n_holograms)
+        evals.append(fit.n_eval)
     return t_table, statistics.median(times), statistics.median(evals)
 
 
@@ -95,6 +95,8 @@ def bench_prefit_batch() -> dict[str, float]:
                     "status": "ok",
                     "message": "",
                     "x_px": centre[0] / px,
+                    "x_um": centre[0],
+                    "y_um": centre[1],
                     "y_px": centre[1] / px,
                     "corner_row": corner[0],
                     "corner_col": corner[1],

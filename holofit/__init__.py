@@ -34,7 +34,7 @@ __version__ = "0.1.0"
 _API: dict[str, str] = {
     # stages
     "run_crop": "holofit.crop.run",
-    "run_prefit": "holofit.fitting.prefit",
+    "run_prefit": "holofit.prefit.stage",
     "run_analysis": "holofit.analysis",
     # simulation
     "simulate_movie": "holofit.simulate.holograms",

@@ -20,8 +20,8 @@ from holofit.analysis.hydrodynamics import sphere_diffusion
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument, resolve_config
 from holofit.crop import run_crop
-from holofit.fitting import run_prefit
 from holofit.models import Sphere
+from holofit.prefit import run_prefit
 from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
 from holofit.simulate.holograms import simulate_movie
 
@@ -81,7 +81,7 @@ def run_demo(out: Path, echo: Callable[[str], None] = print, workers: int = 2,
         "y_nm": 1e3 * np.sqrt(np.mean((fit["y_um"][ok] - pos[ok, 1]) ** 2)),
         "z_nm": 1e3 * np.sqrt(np.mean((fit["z_um"][ok] - pos[ok, 2]) ** 2)),
         "a_nm": 1e3 * np.sqrt(np.mean((fit["radius_um"][ok] - sphere.radius_um) ** 2)),
-        "n": float(np.sqrt(np.mean((fit["index"][ok] - sphere.index.real) ** 2))),
+        "n": float(np.sqrt(np.mean((fit["n"][ok] - sphere.index.real) ** 2))),
     }
     echo(f"3. prefit: {int(ok.sum())}/{n_frames} frames converged from the automatic start; "
          f"rms error x {rms['x_nm']:.1f} nm, y {rms['y_nm']:.1f} nm, z {rms['z_nm']:.1f} nm, "

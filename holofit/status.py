@@ -21,6 +21,7 @@ __all__ = [
     "FIT_STATUS_MEANINGS",
     "NOT_CONVERGED",
     "OK",
+    "POOR_FIT",
     "SKIPPED",
     "describe",
 ]
@@ -42,12 +43,14 @@ FITTABLE_CROP_STATUSES: tuple[str, ...] = (CROP_OK, CROP_EDGE)
 
 # -- fit tables ---------------------------------------------------------------------------
 OK = "ok"
+POOR_FIT = "poor_fit"
 FAILED = "failed"
 ERROR = "error"
 NOT_CONVERGED = "not_converged"
 SKIPPED = "skipped"
 FIT_STATUS_MEANINGS: dict[str, str] = {
-    OK: "converged fit",
+    OK: "converged fit, close to the data and physical",
+    POOR_FIT: "converged, but far from the data or outside the physical range (message says)",
     FAILED: "the fit diverged or is unusable",
     ERROR: "the fit raised an exception (message says which)",
     NOT_CONVERGED: "the fit hit its iteration limit",

@@ -72,7 +72,7 @@ def test_cli_fits_every_frame_and_writes_table_sidecar_and_plot(tmp_path, crops6
     truth = sim.truth
     assert np.abs(table.loc[ok, "z_um"] - truth.loc[ok, "z_um"]).max() < 0.05
     assert np.abs(table.loc[ok, "x_um"] - truth.loc[ok, "x_um"]).max() < 0.01
-    assert (table.loc[ok, "n_evaluations"] > 0).all() and (table.loc[ok, "r2"] > 0.9).all()
+    assert (table.loc[ok, "n_eval"] > 0).all() and (table.loc[ok, "r2"] > 0.9).all()
     meta = json.loads((out / "prefit.csv.json").read_text())
     assert meta["units"]["z_um"].startswith("um")
     assert meta["config"]["instrument"]["name"] == INST.name
@@ -94,7 +94,7 @@ def test_cli_options_reach_the_fit(tmp_path, crops6):
     assert res.exit_code == 0, res.output
     table = pd.read_csv(out / "prefit.csv")
     assert table["frame"].tolist() == [0, 1]
-    assert (table["alpha"] == 1.0).all() and table["sigma_alpha"].isna().all()
+    assert (table["alpha"] == 1.0).all() and table["d_alpha"].isna().all()
     assert (table["n_pixels"] == round(0.5 * 90 * 90)).all()
     assert not (out / "prefit.png").exists()
     # other settings in the same output folder are refused, with advice

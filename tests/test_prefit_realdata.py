@@ -25,8 +25,8 @@ import tifffile
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument
 from holofit.crop import run_crop
-from holofit.fitting.prefit import run_prefit
-from holofit.fitting.sphere_fit import FitOptions
+from holofit.prefit.sphere import FitOptions
+from holofit.prefit.stage import run_prefit
 from tests.conftest import CONFIGS, DATA
 
 SERIAL = BatchOptions(workers=0, progress=False)
@@ -59,7 +59,7 @@ def test_holopy_image0001(tmp_path):
     # already background-divided: a flat background makes the crop stage's normalisation
     # I / mean(I), HoloPy's normalize()
     row = _prefit(tmp_path, _crop_folder(tmp_path, raw, 128, 100, inst))
-    assert row["index"] == pytest.approx(1.582, abs=0.005)
+    assert row["n"] == pytest.approx(1.582, abs=0.005)
     assert row["radius_um"] == pytest.approx(0.6484, abs=0.005)
     assert row["z_um"] == pytest.approx(14.15, abs=0.1)
     # the position in HoloPy's frame: x (row) 5.534, y (column) 5.792 um
@@ -81,10 +81,11 @@ def test_pylorenzmie_ps_silica_silica_sphere(tmp_path):
     crops = _crop_folder(tmp_path, raw, 100, 200, inst, follow_start=(908.5, 484.0))
     row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0))
     assert row["radius_um"] == pytest.approx(0.498, abs=0.01)
-    assert row["index"] == pytest.approx(1.4255, abs=0.005)
+    assert row["n"] == pytest.approx(1.4255, abs=0.005)
     assert row["z_um"] == pytest.approx(179.284 * 0.048, abs=0.1)
-    assert row["x_px"] == pytest.approx(907.701, abs=0.3)
-    assert row["y_px"] == pytest.approx(484.8, abs=0.3)
+    px = inst.pixel_size_um
+    assert row["x_um"] / px == pytest.approx(907.701, abs=0.3)
+    assert row["y_um"] / px == pytest.approx(484.8, abs=0.3)
 
 
 @pytest.mark.parametrize(
@@ -99,5 +100,6 @@ def test_pylorenzmie_image0400_both_spheres(tmp_path, label, centre, a_pub, n_pu
     row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0))
     assert row["n_masked"] > 0  # the saturated core is left out
     assert row["radius_um"] == pytest.approx(a_pub, abs=0.05)
-    assert row["index"] == pytest.approx(n_pub, abs=0.01)
-    assert np.hypot(row["x_px"] - centre[0], row["y_px"] - centre[1]) < 1.0
+    assert row["n"] == pytest.approx(n_pub, abs=0.01)
+    px = inst.pixel_size_um
+    assert np.hypot(row["x_um"] / px - centre[0], row["y_um"] / px - centre[1]) < 1.0

@@ -14,14 +14,14 @@ import pytest
 
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument
-from holofit.fitting.prefit import run_prefit
 from holofit.models import Sphere
+from holofit.prefit.stage import run_prefit
 from holofit.simulate.holograms import simulate_movie
 from tests.conftest import CONFIGS
 from tests.prefit_helpers import make_crops_from_movies
 
 INST = load_instrument(CONFIGS / "instruments" / "paper_60x_water.toml")
-LIMITS = {"x_um": 0.005, "y_um": 0.005, "z_um": 0.020, "radius_um": 0.005, "index": 0.003}
+LIMITS = {"x_um": 0.005, "y_um": 0.005, "z_um": 0.020, "radius_um": 0.005, "n": 0.003}
 
 
 def _movie_errors(tmp_path, particles, frames_each, seed, workers):
@@ -39,7 +39,7 @@ def _movie_errors(tmp_path, particles, frames_each, seed, workers):
         movies.append((sim.movie, sim.background))
         centres += [(x / px + rng.uniform(-0.5, 0.5), y / px + rng.uniform(-0.5, 0.5))
                     for x, y, _ in pos]  # fmt: skip
-        truths.append(sim.truth.assign(radius_um=a, index=n))
+        truths.append(sim.truth.assign(radius_um=a, n=n))
     crops = make_crops_from_movies(movies, centres, 140, INST, tmp_path / "crops")
     res = run_prefit(
         crops, tmp_path / "prefit", batch=BatchOptions(workers=workers, progress=False), plot=False

@@ -9,9 +9,9 @@ import click
 from holofit.batch.runner import BatchError, BatchOptions
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
 from holofit.fitting.crops import CropSetError
-from holofit.fitting.estimate import SearchSpace
-from holofit.fitting.prefit import run_prefit
-from holofit.fitting.sphere_fit import FitOptions
+from holofit.prefit.estimate import SearchSpace
+from holofit.prefit.sphere import FitOptions
+from holofit.prefit.stage import run_prefit
 
 
 def _range(value: str | None, name: str) -> tuple[float, float] | None:

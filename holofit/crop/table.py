@@ -42,5 +42,5 @@ CANDIDATE_UNITS = {
 CROP_COLUMNS: tuple[str, ...] = tuple(CROP_UNITS)
 #: columns a reader of a crop folder needs
 REQUIRED_CROP_COLUMNS: tuple[str, ...] = (
-    "frame", "status", "x_px", "y_px", "corner_row", "corner_col",
+    "frame", "status", "x_um", "y_um", "corner_row", "corner_col",
 )

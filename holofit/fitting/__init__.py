@@ -1,40 +1,41 @@
-"""Fitting holograms: the Lorenz-Mie prefit of every crop, its automatic initial guesses, and
-the residual / Jacobian / statistics helpers that the DDA fit reuses.
+"""The fitting kit shared by the prefit and the DDA fit: one forward model, one least-squares
+entry point, one result type.
 
-- :mod:`~holofit.fitting.crops`: read a crop folder (crops, table, instrument).
-- :mod:`~holofit.fitting.profile`, :mod:`~holofit.fitting.estimate`: z, radius, index and alpha
-  from the radial profile, with no manual guess.
+- :mod:`~holofit.fitting.crops`: read a crop folder (crops, table, instrument);
 - :mod:`~holofit.fitting.pixels`: which pixels a fit uses (NaN / saturation mask, random
-  subset) and where they are.
-- :mod:`~holofit.fitting.mie_pixels`, :mod:`~holofit.fitting.residuals`: the exact hologram on
-  any set of pixels, residuals and Jacobian.
-- :mod:`~holofit.fitting.sphere_fit`: one crop, start to finish.
-- :mod:`~holofit.fitting.statistics`: uncertainties, noise estimate.
-- :mod:`~holofit.fitting.prefit`: the ``holofit prefit`` stage over a whole crop folder.
+  subset) and where they are;
+- :mod:`~holofit.fitting.parameters`: named parameters (units, finite-difference steps,
+  physical ranges) and the map from the optimiser's vector to a particle state;
+- :mod:`~holofit.fitting.forward`: :class:`HologramModel`, parameters -> hologram on the pixels
+  and its Jacobian, for any scattering engine, with a cache of solved waves;
+- :mod:`~holofit.fitting.leastsq`: :func:`solve_least_squares` (Levenberg-Marquardt);
+- :mod:`~holofit.fitting.result`: :class:`FitResult`, its status and its table row;
+- :mod:`~holofit.fitting.statistics`: uncertainties, pixel-noise estimate;
+- :mod:`~holofit.fitting.plots`: parameter plots and data / model / residual images.
 """
 
 from holofit.fitting.crops import CropSet, CropSetError, open_crops
-from holofit.fitting.estimate import ProfileStart, SearchSpace, estimate_starts
+from holofit.fitting.forward import HologramModel, InvalidParameters
+from holofit.fitting.leastsq import Solution, solve_least_squares
+from holofit.fitting.parameters import Parameter, ParameterSpace, State
 from holofit.fitting.pixels import PixelSelection, select_pixels
-from holofit.fitting.prefit import PrefitConfig, prefit_frame, run_prefit
-from holofit.fitting.residuals import SPHERE_PARAMETERS, SphereResiduals
-from holofit.fitting.sphere_fit import FitOptions, SphereFit, fit_sphere_crop
+from holofit.fitting.result import FitResult, QualityLimits, fit_result, result_row
 
 __all__ = [
-    "SPHERE_PARAMETERS",
     "CropSet",
     "CropSetError",
-    "FitOptions",
+    "FitResult",
+    "HologramModel",
+    "InvalidParameters",
+    "Parameter",
+    "ParameterSpace",
     "PixelSelection",
-    "PrefitConfig",
-    "ProfileStart",
-    "SearchSpace",
-    "SphereFit",
-    "SphereResiduals",
-    "estimate_starts",
-    "fit_sphere_crop",
+    "QualityLimits",
+    "Solution",
+    "State",
+    "fit_result",
     "open_crops",
-    "prefit_frame",
-    "run_prefit",
+    "result_row",
     "select_pixels",
+    "solve_least_squares",
 ]

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -194,12 +194,17 @@ class ParameterSpace:
     fit_spin : bool, optional
         Vary the spin about the particle axis (default: for particles that are not
         axisymmetric).
+    step_overrides : dict, optional
+        Finite-difference steps by parameter name, replacing the defaults (which suit a DDA
+        discretisation: 2 nm for sizes, 1e-3 for indices; an exact engine such as Lorenz-Mie
+        can use much smaller ones).
     """
 
     model: ParticleModel
     free: Iterable[str]
     start: State
     fit_spin: bool | None = None
+    step_overrides: dict[str, float] | None = None
     parameters: tuple[Parameter, ...] = field(init=False)
     _basis: NDArray[np.float64] = field(init=False, repr=False)
 
@@ -220,9 +225,11 @@ class ParameterSpace:
         params: list[Parameter] = [p for p in POSITION if p.name in free]
         if "orientation" in free:
             params += list(ROTATIONS[: 3 if self.fit_spin else 2])
+        params += [p for p in statics if p.name in free]
         if "alpha" in free:
             params.append(ALPHA)
-        params += [p for p in statics if p.name in free]
+        if self.step_overrides:
+            params = [replace(p, step=self.step_overrides.get(p.name, p.step)) for p in params]
         self.parameters = tuple(params)
         self.free = tuple(p.name for p in params)
         if self.start.rotation is not None:
@@ -243,9 +250,10 @@ class ParameterSpace:
         """Names of the optimiser's vector components."""
         return tuple(p.name for p in self.parameters)
 
-    @property
-    def steps(self) -> NDArray[np.float64]:
-        return np.array([p.step for p in self.parameters])
+    def rotation_axes(self) -> list[NDArray[np.float64]]:
+        """Lab axes of the rotation components ``rot_a, rot_b[, rot_c]`` (unit vectors)."""
+        n = sum(1 for p in self.parameters if p.kind == "orientation")
+        return [self._basis[:, k].copy() for k in range(n)]
 
     def initial_vector(self) -> NDArray[np.float64]:
         """The optimiser's start vector (rotation components start at 0)."""

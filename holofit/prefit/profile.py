@@ -27,7 +27,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from holofit.fitting.mie_pixels import mie_field_on_pixels
 from holofit.scattering.mie import MieWave
 
 __all__ = [
@@ -126,7 +125,7 @@ def profile_terms(
     p = np.empty((z.size, n), dtype=complex)
     b = np.empty((z.size, n), dtype=complex)
     for i, zi in enumerate(z):
-        ex, ey = mie_field_on_pixels(wave, (0.0, 0.0, zi), xs, ys)
+        ex, ey = wave.field_on_pixels((0.0, 0.0, zi), xs, ys)
         e_par = ex * cb + ey * sb
         p[i] = e_par[:n]
         b[i] = e_par[n:]

@@ -1,9 +1,10 @@
 """``holofit prefit``: Lorenz-Mie fit of every crop (step 2 of the paper's procedure).
 
 Reads a crop folder (:mod:`holofit.fitting.crops`), fits the exact Lorenz-Mie hologram of a
-sphere to each crop from an automatic start (:func:`holofit.fitting.sphere_fit.fit_sphere_crop`)
-and writes one row per frame to ``prefit.csv`` through the batch runner
-(:mod:`holofit.batch.runner`): in parallel, resumable, failures recorded and skipped.
+sphere to each crop from an automatic start (:func:`holofit.prefit.sphere.fit_sphere_crop`)
+and writes one row per frame to ``prefit.csv`` (the fit-table schema, :mod:`holofit.fit_table`)
+through the batch runner (:mod:`holofit.batch.runner`): in parallel, resumable, failures
+recorded and skipped.
 """
 
 from __future__ import annotations
@@ -21,11 +22,12 @@ from numpy.typing import NDArray
 
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
 from holofit.config import Instrument
+from holofit.fit_table import column_unit
 from holofit.fitting.crops import CropSet, CropSetError
-from holofit.fitting.residuals import SPHERE_PARAMETERS
-from holofit.fitting.sphere_fit import FitOptions, fit_sphere_crop
+from holofit.fitting.result import result_columns, result_row
+from holofit.prefit.sphere import SPHERE_COLUMNS, START_COLUMNS, FitOptions, fit_sphere_crop
 from holofit.provenance import sidecar
-from holofit.status import FITTABLE_CROP_STATUSES
+from holofit.status import FIT_STATUS_MEANINGS, FITTABLE_CROP_STATUSES, SKIPPED, describe
 
 __all__ = [
     "PREFIT_COLUMNS",
@@ -37,38 +39,25 @@ __all__ = [
     "run_prefit",
 ]
 
-PREFIT_UNITS: dict[str, str] = {
-    "frame": "index",
+#: columns of ``prefit.csv``, in order
+PREFIT_COLUMNS: tuple[str, ...] = result_columns(
+    SPHERE_COLUMNS, SPHERE_COLUMNS,
+    ("crop_status", "n_masked", *START_COLUMNS, "setup_time_s"),
+)
+_EXTRA_UNITS = {
     "time_s": "s (time of the frame: frame / the instrument's frame rate; NaN if unknown)",
-    "status": "ok | not_converged | error | skipped",
-    "message": "text",
+    "status": describe(FIT_STATUS_MEANINGS),
     "crop_status": "status in the crop table",
-    "x_um": "um (full frame, along columns)",
-    "y_um": "um (full frame, along rows)",
-    "z_um": "um (above the focal plane, toward the source)",
-    "radius_um": "um",
-    "index": "1 (absolute real refractive index)",
-    "alpha": "1 (scattered-field scaling)",
-    **{f"sigma_{p}": "same as " + p + " (1 sigma, from the Jacobian)" for p in SPHERE_PARAMETERS},
-    "x_px": "pixel (full-frame column)",
-    "y_px": "pixel (full-frame row)",
-    "rss": "normalised intensity^2 (residual sum of squares)",
-    "noise_sd": "normalised intensity (pixel noise used for chi2)",
-    "chi2": "1 (rss / noise_sd^2)",
-    "chi2_red": "1 (chi2 per degree of freedom)",
-    "r2": "1 (coefficient of determination)",
-    "n_pixels": "pixels fitted",
-    "n_masked": "pixels left out (NaN or saturated)",
-    "n_starts": "candidate starts fitted",
+    "n_masked": "count (pixels left out: NaN or saturated)",
+    "n_starts": "count (candidate starts fitted)",
     "start_z_um": "um (automatic start)",
     "start_radius_um": "um (automatic start)",
-    "start_index": "1 (automatic start)",
+    "start_n": "1 (automatic start)",
     "start_alpha": "1 (automatic start)",
-    "n_evaluations": "model holograms computed (Jacobian columns included)",
-    "fit_time_s": "s (wall time of the fit, automatic start included)",
     "setup_time_s": "s (one-time set-up paid by this frame in its worker: the estimator's table)",
 }
-PREFIT_COLUMNS: tuple[str, ...] = tuple(PREFIT_UNITS)
+#: unit of every column of ``prefit.csv``
+PREFIT_UNITS: dict[str, str] = {c: _EXTRA_UNITS.get(c, column_unit(c)) for c in PREFIT_COLUMNS}
 
 
 @dataclass(frozen=True)
@@ -121,50 +110,17 @@ def prefit_frame(config: PrefitConfig, frame: int, payload: CropPayload) -> dict
     Returns
     -------
     dict
-        One row of :data:`PREFIT_COLUMNS` (status ``ok`` or ``not_converged``; an exception
-        becomes an ``error`` row in the batch runner).
+        One row of :data:`PREFIT_COLUMNS` (status ``ok``, ``poor_fit``, ``not_converged`` or
+        ``failed``; an exception becomes an ``error`` row in the batch runner).
     """
     row = payload.row
     inst = config.instrument
-    px = inst.pixel_size_um
     corner = (int(row["corner_row"]), int(row["corner_col"]))
-    centre = (float(row["x_px"]) * px, float(row["y_px"]) * px)
-    fit = fit_sphere_crop(payload.crop, corner, centre, inst.optics, px, config.fit, seed=frame)
-    v, s = fit.values, fit.sigmas
-    out: dict[str, Any] = {
-        "frame": frame,
-        "time_s": frame / inst.frame_rate_hz if inst.frame_rate_hz else math.nan,
-        "status": "ok" if fit.converged else "not_converged",
-        "message": "" if fit.converged else fit.message,
-        "crop_status": row.get("status", ""),
-    }
-    out.update(v)
-    out.update({f"sigma_{k}": s[k] for k in SPHERE_PARAMETERS})
-    out.update(
-        {
-            "x_px": v["x_um"] / px,
-            "y_px": v["y_um"] / px,
-            "rss": fit.rss,
-            "noise_sd": fit.noise_sd,
-            "chi2": fit.chi2,
-            "chi2_red": fit.chi2_red,
-            "r2": fit.r2,
-            "n_pixels": fit.n_pixels,
-            "n_masked": fit.n_masked,
-            "n_starts": fit.n_starts,
-            "start_z_um": fit.start.z_um,
-            "start_radius_um": fit.start.radius_um,
-            "start_index": fit.start.index,
-            "start_alpha": fit.start.alpha,
-            "n_evaluations": fit.n_holograms,
-            "fit_time_s": fit.time_s,
-            "setup_time_s": fit.setup_s,
-        }
-    )
-    space = config.fit.search
-    lo, hi = space.radius_range_um
-    if fit.converged and not 0.5 * lo <= v["radius_um"] <= 2 * hi:
-        out["message"] = f"radius {v['radius_um']:.3g} um far outside the search range"
+    centre = (float(row["x_um"]), float(row["y_um"]))
+    fit = fit_sphere_crop(payload.crop, corner, centre, inst.optics, inst.pixel_size_um,
+                          config.fit, seed=frame)
+    out = result_row(frame, frame / inst.frame_rate_hz if inst.frame_rate_hz else math.nan, fit)
+    out["crop_status"] = row.get("status", "")
     return out
 
 
@@ -176,17 +132,17 @@ def _loader(crops: CropSet):
             msg = str(row.get("message") or "")
             return Precomputed(
                 {
-                    "status": "skipped",
+                    "status": SKIPPED,
                     "message": f"crop stage: {status}" + (f": {msg}" if msg else ""),
                     "crop_status": status,
                 }
             )
-        needed = ("x_px", "y_px", "corner_row", "corner_col")
+        needed = ("x_um", "y_um", "corner_row", "corner_col")
         bad = [k for k in needed if not _finite(row.get(k))]
         if bad:
             return Precomputed(
                 {
-                    "status": "skipped",
+                    "status": SKIPPED,
                     "message": f"crop table has no {', '.join(bad)} for this frame",
                     "crop_status": status,
                 }
@@ -285,7 +241,7 @@ def run_prefit(
         )
     png = None
     if plot:
-        from holofit.fitting.plots import plot_prefit
+        from holofit.prefit.plots import plot_prefit
 
         png = plot_prefit(out / "prefit.csv", out / "prefit.png")
     return PrefitResult(out / "prefit.csv", summary, png)

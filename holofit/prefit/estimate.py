@@ -3,7 +3,7 @@ profile, with no manual input.
 
 The crop's azimuthal average about the centre found by the crop stage is compared with a
 precomputed table of exact azimuthally averaged Lorenz-Mie holograms
-(:mod:`holofit.fitting.profile`) over a grid of heights z (uniform in 1/z, fine enough that the
+(:mod:`holofit.prefit.profile`) over a grid of heights z (uniform in 1/z, fine enough that the
 fringe phase at the crop's edge moves by at most ``phase_step_rad`` between neighbours), radii
 (geometric) and indices. For every table entry the best alpha is found in closed form, so the
 whole search is a handful of matrix-vector products per frame. The distinct minima along z
@@ -25,9 +25,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from holofit.fitting.profile import RadialProfile, annulus_mean_radius, profile_terms
 from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.prefit.profile import RadialProfile, annulus_mean_radius, profile_terms
 from holofit.scattering.mie import MieWave
 
 __all__ = [

@@ -1,0 +1,238 @@
+"""The forward model of every fit: parameters -> hologram on a set of pixels, and its Jacobian.
+
+One object serves the Lorenz-Mie prefit and the DDA fits alike: it works for any
+:class:`~holofit.scattering.theory.ScatteringTheory` through ``theory.solve`` and the solved
+wave's ``field_on_pixels``, and keeps a small cache of solved waves keyed by what a solve
+depends on (the static parameters and the orientation), so that
+
+- a position change reuses the solved wave (a new field evaluation, no new solve);
+- the alpha column of the Jacobian is exact, ``dI/dalpha = 2 Re[(e_pol + alpha E) . E*]``;
+- orientation and static columns are one-sided finite differences on the smooth
+  discretisation, each one new solve, warm-started by the engine from its previous solutions
+  (the built-in DDA keeps them per lattice); a wave that can differentiate itself with respect
+  to a rotation about a lab axis (``wave.rotation_derivative(axis)`` returning a wave-like
+  object with ``field_on_pixels``, e.g. served from a T-matrix) gives the orientation columns
+  analytically instead. (For an axisymmetric particle the fit keeps the spin at zero; the
+  analytic column then includes the spin-about-the-axis part of the lab rotation, which changes
+  such a particle's hologram only through lattice artefacts: it steers the optimiser, while
+  the residuals it minimises stay exact.)
+
+Parameters that describe no physical particle (a negative size, a detector plane inside the
+particle) raise :class:`InvalidParameters`; the optimiser wrapper turns that into a rejected
+step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from holofit.cache import LRUCache
+from holofit.fitting.parameters import ParameterSpace, State
+from holofit.optics import Optics
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+
+__all__ = ["Evaluation", "HologramModel", "InvalidParameters"]
+
+
+class InvalidParameters(ValueError):
+    """The parameters describe no valid hologram (negative size, detector inside particle)."""
+
+
+@dataclass
+class Evaluation:
+    """Fields and hologram at one parameter vector."""
+
+    key: bytes
+    state: State
+    ex: NDArray[np.complex128]
+    ey: NDArray[np.complex128]
+    hologram: NDArray[np.float64]
+
+
+class HologramModel:
+    """The hologram of a particle on chosen pixels as a function of a parameter vector.
+
+    Parameters
+    ----------
+    theory : ScatteringTheory
+        Any engine (Lorenz-Mie, the built-in DDA, ADDA).
+    space : ParameterSpace
+        Which parameters vary and how the optimiser's vector maps to a particle state.
+    optics : Optics
+        Illumination.
+    xs_um, ys_um : array_like, shape (N,)
+        Full-frame sample-plane coordinates of the pixels, um (x along columns).
+    far_field : bool
+        Use the asymptotic far-field form of the scattered field (as ADDA and the paper did).
+    wave_cache : int
+        Solved waves kept.
+    """
+
+    def __init__(
+        self,
+        theory: ScatteringTheory,
+        space: ParameterSpace,
+        optics: Optics,
+        xs_um: ArrayLike,
+        ys_um: ArrayLike,
+        *,
+        far_field: bool = False,
+        wave_cache: int = 8,
+    ) -> None:
+        self.theory = theory
+        self.space = space
+        self.optics = optics
+        self.xs = np.ascontiguousarray(xs_um, dtype=float).ravel()
+        self.ys = np.ascontiguousarray(ys_um, dtype=float).ravel()
+        if self.xs.shape != self.ys.shape:
+            raise ValueError("xs_um and ys_um must have the same length")
+        self.far_field = far_field
+        self.n_holograms = 0
+        self.n_solves = 0
+        self._waves: LRUCache[tuple, ScatteredWave] = LRUCache(wave_cache)
+        self._last: Evaluation | None = None
+        self._pol = (float(np.cos(optics.polarization_rad)),
+                     float(np.sin(optics.polarization_rad)))
+        self._radius_um = space.model.bounding_radius_um
+
+    @property
+    def n_pixels(self) -> int:
+        return int(self.xs.size)
+
+    def restricted(self, index: NDArray[np.intp]) -> HologramModel:
+        """The same model on a subset of its pixels, sharing the solved waves."""
+        sub = HologramModel(self.theory, self.space, self.optics, self.xs[index],
+                            self.ys[index], far_field=self.far_field)
+        sub._waves = self._waves
+        return sub
+
+    # -- solves -------------------------------------------------------------------------
+    def wave(self, state: State) -> ScatteredWave:
+        """The solved particle of ``state`` (cached by static parameters and orientation)."""
+        rot = state.rotation
+        key = (state.statics, None if rot is None else np.round(rot, 13).tobytes())
+        wave = self._waves.get(key)
+        if wave is None:
+            try:
+                particle = self.space.particle(state)
+            except (TypeError, ValueError) as exc:
+                raise InvalidParameters(str(exc)) from None
+            psi, theta, phi = state.angles()
+            wave = self.theory.solve(particle, self.optics, Orientation(psi, theta, phi))
+            self.n_solves += 1
+            self._waves.put(key, wave)
+        return wave
+
+    def fields(self, state: State) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        """Transverse scattered field at the pixels."""
+        z = state.position[2]
+        if not abs(z) > 1.0001 * self._radius_for(state):
+            raise InvalidParameters(
+                f"|z| = {abs(z):.4g} um: the detector plane cuts the particle "
+                f"({self._radius_for(state):.4g} um)")
+        wave = self.wave(state)
+        try:
+            ex, ey = wave.field_on_pixels(state.position, self.xs, self.ys, self.far_field)
+        except ValueError as exc:  # e.g. pixels too close to grazing for the plane grid
+            raise InvalidParameters(str(exc)) from None
+        self.n_holograms += 1
+        return ex, ey
+
+    def _radius_for(self, state: State) -> float:
+        if not self.space.parameters or all(p.kind != "static" for p in self.space.parameters):
+            return self._radius_um
+        try:
+            return self.space.particle(state).bounding_radius_um
+        except (TypeError, ValueError) as exc:
+            raise InvalidParameters(str(exc)) from None
+
+    # -- holograms ----------------------------------------------------------------------
+    def intensity(self, ex: NDArray, ey: NDArray, alpha: float) -> NDArray[np.float64]:
+        """``|e_pol + alpha E_perp|^2`` (the formula of :mod:`holofit.conventions`)."""
+        cp, sp = self._pol
+        a_r = cp + alpha * ex.real
+        a_i = alpha * ex.imag
+        b_r = sp + alpha * ey.real
+        b_i = alpha * ey.imag
+        return a_r * a_r + a_i * a_i + b_r * b_r + b_i * b_i
+
+    def evaluate(self, vector: ArrayLike) -> Evaluation:
+        """Fields and hologram at an optimiser vector (the last one is cached)."""
+        v = np.asarray(vector, dtype=float)
+        key = v.tobytes()
+        if self._last is not None and self._last.key == key:
+            return self._last
+        state = self.space.state(v)
+        ex, ey = self.fields(state)
+        ev = Evaluation(key, state, ex, ey, self.intensity(ex, ey, state.alpha))
+        self._last = ev
+        return ev
+
+    def hologram(self, vector: ArrayLike) -> NDArray[np.float64]:
+        """Normalised hologram at the pixels for an optimiser vector."""
+        return self.evaluate(vector).hologram
+
+    def hologram_of(self, state: State) -> NDArray[np.float64]:
+        """Normalised hologram at the pixels for a state."""
+        ex, ey = self.fields(state)
+        return self.intensity(ex, ey, state.alpha)
+
+    # -- Jacobian -----------------------------------------------------------------------
+    def jacobian(self, vector: ArrayLike) -> NDArray[np.float64]:
+        """``d(hologram)/d(vector)``, shape (N, n_parameters); see the module docstring."""
+        v = np.asarray(vector, dtype=float)
+        base = self.evaluate(v)
+        params = self.space.parameters
+        cols = np.empty((self.n_pixels, len(params)))
+        cp, sp = self._pol
+        a = base.state.alpha
+        analytic = self._rotation_columns(base)
+        for i, p in enumerate(params):
+            if p.kind == "scale":
+                ex, ey = base.ex, base.ey
+                cols[:, i] = 2.0 * ((cp + a * ex.real) * ex.real + a * ex.imag * ex.imag
+                                    + (sp + a * ey.real) * ey.real + a * ey.imag * ey.imag)
+                continue
+            if p.kind == "orientation" and analytic is not None:
+                cols[:, i] = analytic[p.name]
+                continue
+            cols[:, i] = self._difference(v, i, p.step, base)
+        return cols
+
+    def _difference(self, v: NDArray, i: int, step: float, base: Evaluation) -> NDArray:
+        """One-sided difference along component ``i``, stepping away from invalid values."""
+        h = step if v[i] >= 0 else -step
+        for attempt in (h, -h):
+            q = v.copy()
+            q[i] += attempt
+            try:
+                state = self.space.state(q)
+                return (self.hologram_of(state) - base.hologram) / attempt
+            except InvalidParameters:
+                continue
+        return np.zeros(self.n_pixels)
+
+    def _rotation_columns(self, base: Evaluation) -> dict[str, NDArray] | None:
+        """Analytic orientation columns, if the solved wave can differentiate itself."""
+        names = [p.name for p in self.space.parameters if p.kind == "orientation"]
+        if not names:
+            return None
+        wave = self.wave(base.state)
+        derivative = getattr(wave, "rotation_derivative", None)
+        if derivative is None:
+            return None
+        cp, sp = self._pol
+        a = base.state.alpha
+        out = {}
+        for name, axis in zip(names, self.space.rotation_axes(), strict=False):
+            dwave = derivative(axis)
+            dx, dy = dwave.field_on_pixels(base.state.position, self.xs, self.ys,
+                                           self.far_field)
+            ex, ey = base.ex, base.ey
+            out[name] = 2.0 * a * (((cp + a * ex.real) * dx.real + a * ex.imag * dx.imag)
+                                   + ((sp + a * ey.real) * dy.real + a * ey.imag * dy.imag))
+        return out
+

@@ -1,0 +1,190 @@
+"""One result type for every hologram fit (prefit and DDA fit), how good it is, and the table row
+it becomes.
+
+Goodness of fit, the same words everywhere:
+
+- ``chi2``: mean squared residual per pixel (normalised intensity^2), the paper's "per-pixel
+  chi^2";
+- ``chi2_red``: residual sum of squares over ``noise_sd^2 (N - p)``, with ``noise_sd`` the
+  pixel noise (given, or estimated from the crop itself): about 1 for a model that explains
+  the data down to the camera noise;
+- ``r2``: the coefficient of determination (the paper's R^2).
+
+Status (:mod:`holofit.status`): a converged fit is ``ok`` only if it is also close to the data
+and physical; otherwise it is ``poor_fit``, with the reason in ``message`` (a reduced chi^2
+far above the noise, an R^2 below the threshold, or a parameter outside its physical or
+search range). ``holofit analyze`` uses ``ok`` rows only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from holofit.conventions import r_squared
+from holofit.fitting.leastsq import Solution
+from holofit.fitting.parameters import ParameterSpace
+from holofit.fitting.statistics import covariance_from_jacobian
+from holofit.status import FAILED, NOT_CONVERGED, OK, POOR_FIT
+
+__all__ = [
+    "GOODNESS_COLUMNS",
+    "FitResult",
+    "QualityLimits",
+    "fit_result",
+    "result_columns",
+    "result_row",
+]
+
+#: columns every fit table has after the parameters (their units: holofit.fit_table)
+GOODNESS_COLUMNS = ("chi2", "chi2_red", "noise_sd", "r2", "n_pixels", "n_eval", "fit_time_s")
+
+
+@dataclass(frozen=True)
+class QualityLimits:
+    """When a converged fit is still not ``ok``.
+
+    Attributes
+    ----------
+    max_chi2_red : float
+        Largest reduced chi^2 (residual over the camera noise) of an ``ok`` fit.
+    min_r2 : float
+        Smallest R^2 of an ``ok`` fit.
+    ranges : dict
+        Parameter name -> (low, high): an ``ok`` fit ends inside (besides each parameter's
+        physical range).
+    """
+
+    max_chi2_red: float = 25.0
+    min_r2: float = 0.5
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.max_chi2_red > 0:
+            raise ValueError(f"max_chi2_red must be > 0, got {self.max_chi2_red}")
+        if not self.min_r2 < 1:
+            raise ValueError(f"min_r2 must be < 1, got {self.min_r2}")
+
+
+@dataclass
+class FitResult:
+    """A fitted hologram.
+
+    Attributes
+    ----------
+    values, errors : dict
+        Every reported quantity (position, orientation ``theta_rad, psi_rad[, phi_rad]`` and
+        axis ``ux, uy, uz``, alpha, static parameters) and its 1-sigma error (NaN if held
+        fixed).
+    free : tuple of str
+        The optimiser's parameters.
+    rss, chi2, chi2_red, noise_sd, r2 : float
+        Goodness of fit (module docstring).
+    n_pixels, n_eval, n_solves : int
+        Pixels fitted; holograms computed (Jacobian columns included); scattering solves.
+    status, message : str
+        ``ok``, ``poor_fit`` or ``not_converged``/``failed``, and why.
+    time_s : float
+        Wall time of the fit.
+    extra : dict
+        Stage-specific columns (start values, runner-up, ...).
+    model : ndarray or None
+        The model hologram on the fitted pixels (for pictures; not written to tables).
+    """
+
+    values: dict[str, float]
+    errors: dict[str, float]
+    free: tuple[str, ...]
+    rss: float
+    chi2: float
+    chi2_red: float
+    noise_sd: float
+    r2: float
+    n_pixels: int
+    n_eval: int
+    n_solves: int
+    status: str
+    message: str
+    time_s: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+    model: NDArray[np.float64] | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.status == OK
+
+
+def fit_result(
+    space: ParameterSpace,
+    solution: Solution,
+    data: NDArray[np.float64],
+    noise_sd: float,
+    limits: QualityLimits | None = None,
+    n_solves: int = 0,
+) -> FitResult:
+    """Turn an optimiser solution into a :class:`FitResult` with its status.
+
+    Uncertainties are ``s^2 (J^T J)^-1`` with ``s^2 = rss / (N - p)`` (as in the paper and
+    ``scipy.optimize.curve_fit``), propagated to the reported angles.
+    """
+    limits = limits or QualityLimits()
+    n = int(data.size)
+    p = int(solution.vector.size)
+    cov = covariance_from_jacobian(solution.jacobian, solution.rss, n)
+    values, errors = space.report(solution.vector, cov)
+    dof = max(n - p, 1)
+    model = data + solution.residuals
+    chi2_red = solution.rss / (noise_sd**2 * dof) if noise_sd > 0 else math.nan
+    r2 = float(r_squared(data, model))
+    status, message = _assess(space, solution, values, chi2_red, r2, limits)
+    return FitResult(
+        values=values, errors=errors, free=space.names, rss=solution.rss,
+        chi2=solution.rss / n, chi2_red=float(chi2_red), noise_sd=float(noise_sd), r2=r2,
+        n_pixels=n, n_eval=solution.n_eval, n_solves=n_solves, status=status, message=message,
+        model=model,
+    )
+
+
+def _assess(space: ParameterSpace, solution: Solution, values: dict[str, float],
+            chi2_red: float, r2: float, limits: QualityLimits) -> tuple[str, str]:
+    if not np.all(np.isfinite(solution.vector)) or not math.isfinite(solution.rss):
+        return FAILED, "the fit diverged (non-finite parameters or residuals)"
+    if not solution.converged:
+        return NOT_CONVERGED, solution.message
+    reasons = space.out_of_range(space.state(solution.vector))
+    for name, (lo, hi) in limits.ranges.items():
+        v = values.get(name, math.nan)
+        if name in space.names and not lo <= v <= hi:
+            reasons.append(f"{name} = {v:.4g} outside [{lo:.4g}, {hi:.4g}]")
+    if math.isfinite(chi2_red) and chi2_red > limits.max_chi2_red:
+        reasons.append(f"reduced chi2 {chi2_red:.3g} > {limits.max_chi2_red:g} (residual far "
+                       "above the pixel noise)")
+    if not r2 >= limits.min_r2:
+        reasons.append(f"R^2 {r2:.3g} < {limits.min_r2:g}")
+    if reasons:
+        return POOR_FIT, "; ".join(reasons)
+    return OK, ""
+
+
+def result_columns(value_columns: Iterable[str], error_columns: Iterable[str],
+                   extra_columns: Iterable[str] = ()) -> tuple[str, ...]:
+    """Column order of a fit table: frame, time, values, errors, goodness, extras, status."""
+    return ("frame", "time_s", *value_columns, *(f"d_{c}" for c in error_columns),
+            *GOODNESS_COLUMNS, *extra_columns, "status", "message")
+
+
+def result_row(frame: int, time_s: float, result: FitResult) -> dict[str, Any]:
+    """The table row of a fit (fit-table schema, :mod:`holofit.fit_table`)."""
+    row: dict[str, Any] = {"frame": int(frame), "time_s": float(time_s)}
+    row.update(result.values)
+    row.update({f"d_{k}": v for k, v in result.errors.items()})
+    row.update(chi2=result.chi2, chi2_red=result.chi2_red, noise_sd=result.noise_sd,
+               r2=result.r2, n_pixels=result.n_pixels, n_eval=result.n_eval,
+               fit_time_s=result.time_s, status=result.status, message=result.message)
+    row.update(result.extra)
+    return row

@@ -1,0 +1,242 @@
+"""Lorenz-Mie fit of one crop: (x, y, z, radius, n, alpha) from an automatic start.
+
+The start needs no manual guess: x, y come from the crop stage's centre, z, radius, index and
+alpha from the radial-profile estimator (:mod:`holofit.prefit.estimate`). Where that estimate
+is ambiguous (several heights explain the profile about equally well), each candidate is fitted
+briefly on a random subset of the pixels and the best one is fitted on all of them.
+
+The fit is holofit's one least-squares fit (:func:`holofit.fitting.leastsq.solve_least_squares`)
+of the forward model (:class:`holofit.fitting.forward.HologramModel` with the exact Lorenz-Mie
+engine) to the unmasked pixels: NaN pixels (masked or saturated by the crop stage) and pixels at
+or above an optional saturation level are left out, and an optional random subset keeps only a
+fraction of the rest (seeded, so a fit is reproducible). The result is a
+:class:`~holofit.fitting.result.FitResult`, the same type the DDA fit returns; a converged fit
+whose parameters leave the search range, or that is far from the data, is ``poor_fit``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from holofit.fitting.forward import HologramModel
+from holofit.fitting.leastsq import solve_least_squares
+from holofit.fitting.parameters import ParameterSpace, State
+from holofit.fitting.pixels import select_pixels
+from holofit.fitting.result import FitResult, QualityLimits, fit_result
+from holofit.fitting.statistics import estimate_noise_sd
+from holofit.models import Sphere
+from holofit.optics import Optics
+from holofit.prefit.estimate import ProfileStart, SearchSpace, estimate_starts, profile_table
+from holofit.prefit.profile import radial_profile
+from holofit.scattering.mie import LorenzMie
+
+__all__ = ["SPHERE_COLUMNS", "FitOptions", "fit_sphere_crop"]
+
+#: the fitted quantities of a sphere, in table order
+SPHERE_COLUMNS = ("x_um", "y_um", "z_um", "radius_um", "n", "alpha")
+#: finite-difference steps: Lorenz-Mie is exact, so they can be tiny
+EXACT_STEPS = {"radius_um": 1e-5, "n": 1e-5}
+#: the automatic start, recorded with every fit
+START_COLUMNS = ("n_starts", "start_z_um", "start_radius_um", "start_n", "start_alpha")
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Settings of a sphere fit.
+
+    Attributes
+    ----------
+    fix_alpha : float, optional
+        Hold alpha at this value (e.g. 1 for pylorenzmie's model); fitted by default.
+    index_imag : float
+        Imaginary part of the particle index, held fixed (>= 0).
+    saturation : float, optional
+        Leave out pixels whose normalised value is at or above this level (NaN pixels are
+        always left out).
+    pixel_fraction : float
+        Fit a random subset with this fraction of the unmasked pixels (1: all).
+    noise_sd : float, optional
+        Pixel noise (normalised units) for chi^2; estimated from each crop if not given.
+    search : SearchSpace
+        Where the automatic start looks.
+    max_starts : int
+        Most candidate starts fitted when the estimate is ambiguous.
+    ambiguity_ratio : float
+        A secondary profile minimum is a candidate if its misfit is within this factor of the
+        best.
+    screen_pixels : int
+        Pixels used to screen several candidates before the full fit.
+    max_nfev : int
+        Most residual evaluations of the final fit.
+    ftol, xtol : float
+        Convergence tolerances of the final fit (``scipy.optimize.least_squares``).
+    quality : QualityLimits
+        When a converged fit is still not ``ok`` (reduced chi^2, R^2); radius and index must
+        also end inside the search space (with 5 % margin).
+    """
+
+    fix_alpha: float | None = None
+    index_imag: float = 0.0
+    saturation: float | None = None
+    pixel_fraction: float = 1.0
+    noise_sd: float | None = None
+    search: SearchSpace = field(default_factory=SearchSpace)
+    max_starts: int = 3
+    ambiguity_ratio: float = 3.0
+    screen_pixels: int = 3000
+    max_nfev: int = 200
+    ftol: float = 1e-8
+    xtol: float = 1e-8
+    quality: QualityLimits = field(default_factory=QualityLimits)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.pixel_fraction <= 1:
+            raise ValueError(f"pixel_fraction must be in (0, 1], got {self.pixel_fraction}")
+        if self.index_imag < 0:
+            raise ValueError(f"index_imag must be >= 0 (absorption), got {self.index_imag}")
+        if self.fix_alpha is not None and not self.fix_alpha > 0:
+            raise ValueError(f"fix_alpha must be positive, got {self.fix_alpha}")
+        if self.noise_sd is not None and not self.noise_sd > 0:
+            raise ValueError(f"noise_sd must be positive, got {self.noise_sd}")
+        if self.max_starts < 1 or self.max_nfev < 1 or self.screen_pixels < 10:
+            raise ValueError("max_starts, max_nfev and screen_pixels must be positive")
+
+
+def _limits(opts: FitOptions, n_medium: float) -> QualityLimits:
+    """The quality limits with the search space's radius and index range (5 % margin)."""
+    space = opts.search
+    a0, a1 = space.radius_range_um
+    if space.index_range is not None:
+        n0, n1 = space.index_range
+    else:
+        n0, n1 = (m * n_medium for m in space.relative_index_range)
+    ranges = {"radius_um": (0.95 * a0, 1.05 * a1), "n": (n0 - 0.05 * (n1 - n0) - 1e-3,
+                                                        n1 + 0.05 * (n1 - n0) + 1e-3)}
+    ranges.update(opts.quality.ranges)
+    return QualityLimits(opts.quality.max_chi2_red, opts.quality.min_r2, ranges)
+
+
+def fit_sphere_crop(
+    crop: NDArray,
+    corner_rc: tuple[int, int],
+    centre_xy_um: tuple[float, float],
+    optics: Optics,
+    pixel_size_um: float,
+    options: FitOptions | None = None,
+    seed: int = 0,
+) -> FitResult:
+    """Fit the exact Lorenz-Mie hologram to one normalised crop, from an automatic start.
+
+    Parameters
+    ----------
+    crop : ndarray, shape (rows, cols)
+        Normalised hologram (background 1); NaN marks pixels to leave out.
+    corner_rc : tuple of int
+        Full-frame ``(row, column)`` of the crop's pixel ``[0, 0]``.
+    centre_xy_um : tuple of float
+        Full-frame ``(x, y)`` of the hologram centre from the crop stage, um: the x, y start.
+    optics : Optics
+        Illumination and medium.
+    pixel_size_um : float
+        Pixel pitch in the sample plane, um.
+    options : FitOptions, optional
+        Fit settings.
+    seed : int
+        Seed of the random pixel subsets (use the frame number for reproducible batches).
+
+    Returns
+    -------
+    FitResult
+        Values ``x_um, y_um, z_um, radius_um, n, alpha`` with errors; ``extra`` holds the
+        automatic start (``n_starts, start_z_um, start_radius_um, start_n, start_alpha``),
+        ``n_masked`` and the one-time set-up this fit paid (``setup_time_s``).
+
+    Raises
+    ------
+    ValueError
+        If too few pixels are left or no start can be found.
+    """
+    t0 = time.perf_counter()
+    opts = options or FitOptions()
+    data = np.asarray(crop, dtype=float)
+    n_free = 6 - (opts.fix_alpha is not None)
+    rng = np.random.default_rng(seed)
+    pix = select_pixels(
+        data,
+        corner_rc,
+        pixel_size_um,
+        saturation=opts.saturation,
+        fraction=opts.pixel_fraction,
+        rng=rng,
+        min_pixels=max(100, 10 * n_free),
+    )
+    d = pix.data
+
+    # automatic start: radial profile about the crop stage's centre
+    xc, yc = (float(v) for v in centre_xy_um)
+    centre_rc = (yc / pixel_size_um - corner_rc[0], xc / pixel_size_um - corner_rc[1])
+    n_bins = min(data.shape) // 2 - 1
+    t_setup = time.perf_counter()
+    table = profile_table(optics, float(pixel_size_um), n_bins, opts.search)
+    setup_s = time.perf_counter() - t_setup
+    prof = radial_profile(data, pix.valid, centre_rc, n_bins)
+    starts = estimate_starts(
+        table,
+        prof,
+        fix_alpha=opts.fix_alpha,
+        index_imag=opts.index_imag,
+        max_starts=opts.max_starts,
+        ambiguity_ratio=opts.ambiguity_ratio,
+    )
+    if not starts:
+        raise ValueError("no automatic start found (the radial profile has no minimum)")
+
+    free = ["x_um", "y_um", "z_um", "radius_um", "n"] + (["alpha"] if opts.fix_alpha is None
+                                                         else [])
+    theory = LorenzMie()
+
+    def space_from(s: ProfileStart) -> ParameterSpace:
+        alpha = s.alpha if opts.fix_alpha is None else opts.fix_alpha
+        sphere = Sphere(s.radius_um, complex(s.index, opts.index_imag))
+        state = State((xc, yc, s.z_um), None, alpha,
+                      (("radius_um", s.radius_um), ("n", s.index)))
+        return ParameterSpace(sphere, free, state, step_overrides=EXACT_STEPS)
+
+    n_eval = 0
+    chosen = starts[0]
+    space = space_from(chosen)
+    vector = space.initial_vector()
+    if len(starts) > 1:
+        # screen the candidates on a random subset, keep the best
+        m = min(opts.screen_pixels, d.size)
+        sub = np.sort(rng.choice(d.size, size=m, replace=False))
+        best_cost = np.inf
+        for s in starts:
+            cand = space_from(s)
+            model = HologramModel(theory, cand, optics, pix.xs_um[sub], pix.ys_um[sub])
+            sol = solve_least_squares(model, d[sub], cand.initial_vector(), max_nfev=40,
+                                      ftol=1e-6, xtol=1e-6)
+            n_eval += sol.n_eval
+            if np.isfinite(sol.rss) and sol.rss < best_cost:
+                best_cost, chosen, space, vector = sol.rss, s, cand, sol.vector
+    model = HologramModel(theory, space, optics, pix.xs_um, pix.ys_um)
+    sol = solve_least_squares(model, d, vector, max_nfev=opts.max_nfev, ftol=opts.ftol,
+                              xtol=opts.xtol)
+    sol.n_eval += n_eval
+    noise = opts.noise_sd if opts.noise_sd is not None else estimate_noise_sd(data, pix.valid)
+    result = fit_result(space, sol, d, noise, _limits(opts, optics.n_medium))
+    result.extra = {
+        "n_starts": len(starts),
+        "start_z_um": chosen.z_um,
+        "start_radius_um": chosen.radius_um,
+        "start_n": chosen.index,
+        "start_alpha": chosen.alpha,
+        "n_masked": pix.n_masked,
+        "setup_time_s": setup_s,
+    }
+    result.time_s = time.perf_counter() - t0 - setup_s
+    return result
