@@ -55,7 +55,9 @@ def _frames(inst, n, size, seed=0):
 def _one_core(inst, size, n):
     opts = FitOptions()
     t0 = time.perf_counter()
-    profile_table(inst.optics, inst.pixel_size_um, size // 2 - 1, opts.search)
+    n_bins = size // 2 - 1
+    search = opts.search.for_crop(n_bins * inst.pixel_size_um, inst.optics.wavelength_medium_um)
+    profile_table(inst.optics, inst.pixel_size_um, n_bins, search)
     t_table = time.perf_counter() - t0
     times, evals = [], []
     for crop, corner, centre, _ in _frames(inst, n, size):

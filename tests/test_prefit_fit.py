@@ -110,7 +110,8 @@ def test_several_starts_are_screened_and_the_best_wins():
 def test_profile_estimate_is_close_for_a_range_of_spheres():
     rng = np.random.default_rng(6)
     n_bins = N // 2 - 1
-    table = profile_table(INST.optics, PX, n_bins, FitOptions().search)
+    search = FitOptions().search.for_crop(n_bins * PX, INST.optics.wavelength_medium_um)
+    table = profile_table(INST.optics, PX, n_bins, search)
     for _ in range(6):
         truth = dict(TRUTH, z_um=rng.uniform(5, 30), radius_um=rng.uniform(0.4, 1.0),
                      index=rng.uniform(1.42, 1.62), alpha=1.0)  # fmt: skip

@@ -167,6 +167,44 @@ class CropSet:
         self.close()
 
 
+#: instrument values that must agree between the crops and a replacement instrument
+_INSTRUMENT_KEYS = ("wavelength_um", "medium_index", "pixel_size_um", "polarization_rad")
+
+
+def resolve_instrument(crops: CropSet, given: Instrument | None, override: bool = False
+                       ) -> Instrument:
+    """The instrument a stage uses for a crop folder.
+
+    The crops' own (recorded by the crop stage) unless ``given``; a ``given`` one that differs
+    from the recorded one in wavelength, medium index, pixel size or polarisation is refused
+    unless ``override`` (a wrong instrument silently gives wrong sizes and heights).
+
+    Raises
+    ------
+    CropSetError
+        No instrument at all, or a contradicting one without ``override``.
+    """
+    if given is None:
+        if crops.instrument is None:
+            raise CropSetError(
+                f"{crops.table_path}: its sidecar names no instrument; give one with --instrument"
+            )
+        return crops.instrument
+    rec = crops.instrument
+    if rec is not None and not override:
+        diff = [k for k in _INSTRUMENT_KEYS
+                if not math.isclose(getattr(rec, k), getattr(given, k), rel_tol=1e-6,
+                                    abs_tol=1e-9)]
+        if diff:
+            detail = ", ".join(f"{k} {getattr(given, k):g} vs {getattr(rec, k):g}" for k in diff)
+            raise CropSetError(
+                f"instrument {given.name!r} ({given.path or 'given'}) contradicts the one the "
+                f"crops in {crops.directory} were made with, {rec.name!r} ({detail}); use "
+                "--override-instrument if that is really intended"
+            )
+    return given
+
+
 def open_crops(directory: str | Path) -> CropSet:
     """Open a crop folder (see the module docstring)."""
     return CropSet(directory)

@@ -69,6 +69,9 @@ class HologramModel:
         Use the asymptotic far-field form of the scattered field (as ADDA and the paper did).
     wave_cache : int
         Solved waves kept.
+    waves : LRUCache, optional
+        Share another model's cache of solved waves (e.g. a model on a subset of the same
+        crop's pixels).
     """
 
     def __init__(
@@ -81,6 +84,7 @@ class HologramModel:
         *,
         far_field: bool = False,
         wave_cache: int = 8,
+        waves: LRUCache[tuple, ScatteredWave] | None = None,
     ) -> None:
         self.theory = theory
         self.space = space
@@ -92,7 +96,7 @@ class HologramModel:
         self.far_field = far_field
         self.n_holograms = 0
         self.n_solves = 0
-        self._waves: LRUCache[tuple, ScatteredWave] = LRUCache(wave_cache)
+        self.waves: LRUCache[tuple, ScatteredWave] = waves or LRUCache(wave_cache)
         self._last: Evaluation | None = None
         self._pol = (float(np.cos(optics.polarization_rad)),
                      float(np.sin(optics.polarization_rad)))
@@ -106,7 +110,7 @@ class HologramModel:
         """The same model on a subset of its pixels, sharing the solved waves."""
         sub = HologramModel(self.theory, self.space, self.optics, self.xs[index],
                             self.ys[index], far_field=self.far_field)
-        sub._waves = self._waves
+        sub._waves = self.waves
         return sub
 
     # -- solves -------------------------------------------------------------------------
@@ -114,7 +118,7 @@ class HologramModel:
         """The solved particle of ``state`` (cached by static parameters and orientation)."""
         rot = state.rotation
         key = (state.statics, None if rot is None else np.round(rot, 13).tobytes())
-        wave = self._waves.get(key)
+        wave = self.waves.get(key)
         if wave is None:
             try:
                 particle = self.space.particle(state)
@@ -123,7 +127,7 @@ class HologramModel:
             psi, theta, phi = state.angles()
             wave = self.theory.solve(particle, self.optics, Orientation(psi, theta, phi))
             self.n_solves += 1
-            self._waves.put(key, wave)
+            self.waves.put(key, wave)
         return wave
 
     def fields(self, state: State) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:

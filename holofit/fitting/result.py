@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.conventions import r_squared
@@ -37,6 +38,7 @@ __all__ = [
     "FitResult",
     "QualityLimits",
     "fit_result",
+    "flag_outliers",
     "result_columns",
     "result_row",
 ]
@@ -188,3 +190,44 @@ def result_row(frame: int, time_s: float, result: FitResult) -> dict[str, Any]:
                fit_time_s=result.time_s, status=result.status, message=result.message)
     row.update(result.extra)
     return row
+
+
+def flag_outliers(table: pd.DataFrame, factor: float = 4.0, min_rows: int = 10) -> int:
+    """Mark ``ok`` rows whose reduced chi^2 is far above the movie's typical one.
+
+    Real holograms never match a model down to the camera noise (the lens, dust, an imperfect
+    background), so an absolute threshold on the reduced chi^2 is either loose or flags every
+    frame. Within one movie, though, a frame whose reduced chi^2 is ``factor`` times the median
+    of all converged frames (``ok`` and ``poor_fit``) is an outlier: it becomes ``poor_fit``.
+    The median is taken over a set that flagging does not change, so applying this twice
+    changes nothing more.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        A fit table (modified in place).
+    factor : float
+        How many times the median an outlier's reduced chi^2 is.
+    min_rows : int
+        Fewer converged rows than this: nothing is flagged (no meaningful median).
+
+    Returns
+    -------
+    int
+        Rows newly flagged.
+    """
+    converged = table["status"].isin([OK, POOR_FIT]).to_numpy()
+    chi = table["chi2_red"].to_numpy(dtype=float)
+    good = converged & np.isfinite(chi)
+    if good.sum() < min_rows:
+        return 0
+    median = float(np.median(chi[good]))
+    bad = (table["status"] == OK).to_numpy() & (chi > factor * median)
+    if not bad.any():
+        return 0
+    table.loc[bad, "status"] = POOR_FIT
+    note = (f"reduced chi2 more than {factor:g} times the movie's median ({median:.3g}): an "
+            "outlier frame")
+    table.loc[bad, "message"] = [f"{m}; {note}" if isinstance(m, str) and m else note
+                                 for m in table.loc[bad, "message"]]
+    return int(bad.sum())

@@ -18,6 +18,7 @@ space, so it is built once per worker process and reused for every frame
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -39,15 +40,22 @@ __all__ = [
 ]
 
 
+#: lowest height searched by default, um
+Z_MIN_UM = 2.0
+#: the default upper end of the search is at least this, um
+Z_MAX_MIN_UM = 50.0
+
+
 @dataclass(frozen=True)
 class SearchSpace:
     """Where the automatic start looks for a sphere.
 
     Attributes
     ----------
-    z_range_um : tuple of float
+    z_range_um : tuple of float, optional
         Lowest and highest height above the focal plane, um; both of the same sign (a
-        particle below the focus has z < 0).
+        particle below the focus has z < 0). Default (None): from :data:`Z_MIN_UM` up to what
+        the crop can show (:meth:`for_crop`).
     radius_range_um : tuple of float
         Smallest and largest radius, um.
     relative_index_range : tuple of float
@@ -60,7 +68,7 @@ class SearchSpace:
         Largest change of the fringe phase at the crop's edge between neighbouring z values.
     """
 
-    z_range_um: tuple[float, float] = (2.0, 50.0)
+    z_range_um: tuple[float, float] | None = None
     radius_range_um: tuple[float, float] = (0.2, 1.6)
     relative_index_range: tuple[float, float] = (1.02, 1.30)
     index_range: tuple[float, float] | None = None
@@ -69,19 +77,11 @@ class SearchSpace:
     phase_step_rad: float = 1.0
 
     def __post_init__(self) -> None:
-        z0, z1 = self.z_range_um
-        if not (z0 < z1 and (z0 > 0 or z1 < 0)):
-            raise ValueError(
-                f"z range must be increasing and not cross the focal plane, got {self.z_range_um}"
-                " um"
-            )
         a0, a1 = self.radius_range_um
         if not 0 < a0 <= a1:
             raise ValueError(f"radius range must be positive and increasing, got {a0}, {a1} um")
-        if min(abs(z0), abs(z1)) <= 1.05 * a1:
-            raise ValueError(
-                f"z range {self.z_range_um} um reaches into the largest sphere (radius {a1} um)"
-            )
+        if self.z_range_um is not None:
+            self._check_z(*self.z_range_um)
         m0, m1 = self.relative_index_range
         if not 0 < m0 <= m1:
             raise ValueError(f"relative index range must be positive, got {m0}, {m1}")
@@ -89,6 +89,33 @@ class SearchSpace:
             raise ValueError(f"index range must be positive and increasing, got {self.index_range}")
         if self.n_radii < 1 or self.n_indices < 1 or self.phase_step_rad <= 0:
             raise ValueError("n_radii, n_indices and phase_step_rad must be positive")
+
+    def _check_z(self, z0: float, z1: float) -> None:
+        a1 = self.radius_range_um[1]
+        if not (z0 < z1 and (z0 > 0 or z1 < 0)):
+            raise ValueError(
+                f"z range must be increasing and not cross the focal plane, got ({z0}, {z1}) um"
+            )
+        if min(abs(z0), abs(z1)) <= 1.05 * a1:
+            raise ValueError(
+                f"z range ({z0}, {z1}) um reaches into the largest sphere (radius {a1} um)"
+            )
+
+    def for_crop(self, rho_max_um: float, wavelength_medium_um: float) -> SearchSpace:
+        """This space with the z range filled in for a crop reaching ``rho_max_um`` from the
+        hologram's centre, if none was given.
+
+        A hologram shows at least its first fringe inside the crop while the first Fresnel
+        zone, radius ``sqrt(lambda z)``, fits in it: ``z <= rho_max^2 / lambda`` (lambda in
+        the medium). That is the default upper end (at least 50 um), so particles far from
+        focus (Grier-lab set-ups put them 50-85 um away) are searched when the crop can show
+        them; the lower end is :data:`Z_MIN_UM` (or just above the largest sphere).
+        """
+        if self.z_range_um is not None:
+            return self
+        z0 = max(Z_MIN_UM, 1.1 * self.radius_range_um[1])
+        z1 = max(Z_MAX_MIN_UM, rho_max_um**2 / wavelength_medium_um)
+        return dataclasses.replace(self, z_range_um=(z0, z1))
 
 
 @dataclass(frozen=True)
@@ -218,6 +245,8 @@ class ProfileTable:
 def z_grid(space: SearchSpace, k: float, rho_max_um: float) -> NDArray[np.float64]:
     """Heights uniform in 1/z: the fringe phase ``k rho^2 / (2 z)`` at ``rho_max_um`` changes
     by at most ``space.phase_step_rad`` between neighbours."""
+    if space.z_range_um is None:
+        raise ValueError("the search space has no z range yet (SearchSpace.for_crop)")
     z0, z1 = space.z_range_um
     u0, u1 = 1.0 / z1, 1.0 / z0  # same sign, u0 < u1
     step = space.phase_step_rad / (0.5 * k * rho_max_um**2)

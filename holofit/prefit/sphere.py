@@ -180,8 +180,9 @@ def fit_sphere_crop(
     xc, yc = (float(v) for v in centre_xy_um)
     centre_rc = (yc / pixel_size_um - corner_rc[0], xc / pixel_size_um - corner_rc[1])
     n_bins = min(data.shape) // 2 - 1
+    search = opts.search.for_crop(n_bins * pixel_size_um, optics.wavelength_medium_um)
     t_setup = time.perf_counter()
-    table = profile_table(optics, float(pixel_size_um), n_bins, opts.search)
+    table = profile_table(optics, float(pixel_size_um), n_bins, search)
     setup_s = time.perf_counter() - t_setup
     prof = radial_profile(data, pix.valid, centre_rc, n_bins)
     starts = estimate_starts(

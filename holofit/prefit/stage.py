@@ -23,10 +23,15 @@ from numpy.typing import NDArray
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
 from holofit.config import Instrument
 from holofit.fit_table import column_unit
-from holofit.fitting.crops import CropSet, CropSetError
+from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
+from holofit.fitting.finish import finish_fit_table
+from holofit.fitting.pictures import write_frame_pictures
 from holofit.fitting.result import result_columns, result_row
+from holofit.io.tables import read_table
+from holofit.models import Sphere
 from holofit.prefit.sphere import SPHERE_COLUMNS, START_COLUMNS, FitOptions, fit_sphere_crop
 from holofit.provenance import sidecar
+from holofit.scattering.mie import LorenzMie
 from holofit.status import FIT_STATUS_MEANINGS, FITTABLE_CROP_STATUSES, SKIPPED, describe
 
 __all__ = [
@@ -176,6 +181,9 @@ def run_prefit(
     frames: list[int] | None = None,
     batch: BatchOptions | None = None,
     plot: bool = True,
+    plot_frames: list[int] | None = None,
+    override_instrument: bool = False,
+    outlier_factor: float = 4.0,
 ) -> PrefitResult:
     """Fit every crop of a crop folder; write ``OUT/prefit.csv`` (+ sidecar, + plot).
 
@@ -186,7 +194,8 @@ def run_prefit(
     out_dir : str or Path
         Where ``prefit.csv``, ``prefit.csv.json`` and ``prefit.png`` go.
     instrument : Instrument, optional
-        Overrides the instrument recorded by the crop stage.
+        The instrument, if the crop stage recorded none; replacing a recorded one that differs
+        in wavelength, medium, pixel size or polarisation needs ``override_instrument``.
     fit : FitOptions, optional
         Fit settings.
     frames : list of int, optional
@@ -194,7 +203,16 @@ def run_prefit(
     batch : BatchOptions, optional
         Parallel backend, resumption.
     plot : bool
-        Write ``prefit.png`` (values against frame).
+        Write ``prefit.png`` (values against frame) and data / model / residual pictures of a
+        few frames (``frames/frame_<n>.png``).
+    plot_frames : list of int, optional
+        The frames to draw (default: the first ok frame, the ok frame with the lowest R^2 and
+        the first poor fit).
+    override_instrument : bool
+        Allow ``instrument`` to differ from the one the crops were made with.
+    outlier_factor : float
+        An ok frame whose reduced chi^2 exceeds this times the movie's median becomes
+        ``poor_fit`` (:func:`holofit.fitting.result.flag_outliers`).
 
     Returns
     -------
@@ -203,17 +221,14 @@ def run_prefit(
     Raises
     ------
     CropSetError
-        If the crop folder is incomplete, or no instrument is known.
+        If the crop folder is incomplete, no instrument is known, or ``instrument``
+        contradicts the crops' own without ``override_instrument``.
     holofit.batch.runner.BatchError
         If earlier results in ``out_dir`` came from other settings (see ``overwrite``).
     """
     out = Path(out_dir)
     with CropSet(crop_dir) as crops:
-        inst = instrument or crops.instrument
-        if inst is None:
-            raise CropSetError(
-                f"{crops.table_path}: its sidecar names no instrument; give one with --instrument"
-            )
+        inst = resolve_instrument(crops, instrument, override_instrument)
         config = PrefitConfig(inst, fit or FitOptions())
         todo = crops.frames if frames is None else [int(f) for f in frames]
         unknown = sorted(set(todo) - set(crops.frames))
@@ -225,7 +240,9 @@ def run_prefit(
             units=PREFIT_UNITS,
             config=config.as_dict(),
             inputs=[crops.table_path, crops.stack_path],
-            extra={"crop_shape": list(crops.crop_shape)},
+            extra={"crop_shape": list(crops.crop_shape), "crops": inputs,
+                   **({"frame_interval_s": 1.0 / inst.frame_rate_hz}
+                      if inst.frame_rate_hz else {})},
         )
         summary = run_batch(
             prefit_frame,
@@ -239,9 +256,14 @@ def run_prefit(
             options=batch,
             desc="prefit",
         )
-    png = None
-    if plot:
-        from holofit.prefit.plots import plot_prefit
+        finish_fit_table(out / "prefit.csv", outlier_factor)
+        png = None
+        if plot:
+            from holofit.prefit.plots import plot_prefit
 
-        png = plot_prefit(out / "prefit.csv", out / "prefit.png")
+            png = plot_prefit(out / "prefit.csv", out / "prefit.png")
+            table = read_table(out / "prefit.csv")
+            write_frame_pictures(
+                table, crops, Sphere(1.0, complex(1.5, config.fit.index_imag)), LorenzMie(),
+                inst.optics, inst.pixel_size_um, out / "frames", "prefit", plot_frames)
     return PrefitResult(out / "prefit.csv", summary, png)
