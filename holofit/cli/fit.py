@@ -1,17 +1,134 @@
-"""``holofit fit``."""
+"""``holofit fit``: DDA fit of every frame, initial and final pass."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
-from holofit.cli.common import not_yet
+from holofit.cli.common import (
+    instrument_option,
+    load_instrument_arg,
+    load_particle_arg,
+    out_dir_option,
+    particle_option,
+)
+from holofit.cli.stage_options import (
+    batch_options,
+    clean_errors,
+    frame_list,
+    make_batch_options,
+    parse_int_list,
+    quality_options,
+)
+from holofit.fit.frame import FrameFitOptions
+from holofit.fit.stage import PASSES, run_fit
+from holofit.fitting.result import QualityLimits
+from holofit.scattering.select import ENGINE_CHOICES
 
 
-@click.command(context_settings={"ignore_unknown_options": True})
-@click.argument("args", nargs=-1, type=click.UNPROCESSED)
-def fit(args: tuple[str, ...]) -> None:
-    """DDA fit of every frame: initial pass (all parameters) then final pass (static ones fixed).
+@click.command()
+@click.argument("crop_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--prefit", "prefit_dir", required=True,
+              type=click.Path(exists=True, path_type=Path),
+              help="Output of `holofit prefit` for these crops (start positions, alpha).")
+@click.option("--library", "library_dir", default=None,
+              type=click.Path(exists=True, path_type=Path),
+              help="Output of `holofit library` for these crops and particle (start "
+                   "orientations; not needed for spheres).")
+@particle_option()
+@out_dir_option()
+@instrument_option(required=False)
+@click.option("--pass", "pass_name", type=click.Choice(PASSES), default="both",
+              show_default=True,
+              help="initial: everything free on the first frames, writes static.json; final: "
+                   "static parameters fixed, every frame; both: one then the other.")
+@click.option("--initial-frames", type=click.IntRange(min=3), default=500, show_default=True,
+              help="Frames of the initial pass.")
+@click.option("--static", "static_file", default=None,
+              type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="static.json with the static parameters of the final pass [default: "
+                   "OUT/static.json from the initial pass].")
+@click.option("--engine", type=click.Choice(ENGINE_CHOICES), default=None,
+              help="Scattering engine [default: the particle config's].")
+@click.option("--starts", "n_starts", type=click.IntRange(min=1), default=2, show_default=True,
+              help="Library candidates used as starts (plus the mirrored best).")
+@click.option("--no-mirror", is_flag=True,
+              help="Do not also start from the best candidate mirrored through the x-y plane.")
+@click.option("--ambiguity-chi2", type=click.FloatRange(min=0), default=9.0,
+              show_default=True,
+              help="A runner-up within this chi^2 (in pixel-noise units) flags the frame "
+                   "ambiguous.")
+@click.option("--pixel-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
+              default=1.0, show_default=True,
+              help="Fit a random subset with this fraction of the pixels (seeded by frame).")
+@click.option("--saturation", type=float, default=None, metavar="LEVEL",
+              help="Leave out pixels whose normalised value is >= LEVEL.")
+@click.option("--noise-sd", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Pixel noise for chi^2 (default: estimated per crop).")
+@click.option("--far-field", is_flag=True,
+              help="Asymptotic far-field scattered field (as ADDA and the paper), not the exact.")
+@quality_options
+@batch_options
+@clean_errors
+def fit(
+    crop_dir: Path,
+    prefit_dir: Path,
+    library_dir: Path | None,
+    particle: str,
+    out: Path,
+    instrument: str | None,
+    pass_name: str,
+    initial_frames: int,
+    static_file: Path | None,
+    engine: str | None,
+    n_starts: int,
+    no_mirror: bool,
+    ambiguity_chi2: float,
+    pixel_fraction: float,
+    saturation: float | None,
+    noise_sd: float | None,
+    far_field: bool,
+    max_chi2_red: float,
+    min_r2: float,
+    outlier_factor: float,
+    plot: bool,
+    plot_frames: str | None,
+    override_instrument: bool,
+    workers: int | None,
+    scheduler: str | None,
+    dask_local: bool,
+    frame_range: str | None,
+    retry_failed: bool,
+    overwrite: bool,
+    progress: bool | None,
+) -> None:
+    """DDA fit of every frame: an initial pass (all parameters free on the first frames), the
+    static parameters' robust average (OUT/static.json), then a final pass (static ones fixed).
 
-    Not implemented yet: this stage arrives with its own issue.
+    Writes OUT/initial.csv and OUT/fit.csv (the fit-table schema: `holofit analyze` reads
+    fit.csv as it is; each row with values, 1-sigma errors d_*, chi2, chi2_red, R^2, the
+    runner-up's delta_chi2 and an `ambiguous` flag, evaluations, time, status), their sidecars,
+    plots, and data/model/residual pictures of a few frames. Parallel and resumable.
     """
-    not_yet("fit", "pending issue")
+    cfg = load_particle_arg(particle)
+    inst = load_instrument_arg(instrument) if instrument else None
+    opts = FrameFitOptions(n_starts=n_starts, mirror=not no_mirror,
+                           ambiguity_chi2=ambiguity_chi2, pixel_fraction=pixel_fraction,
+                           saturation=saturation, noise_sd=noise_sd, far_field=far_field,
+                           quality=QualityLimits(max_chi2_red, min_r2))
+    batch = make_batch_options(workers, scheduler, dask_local, retry_failed, overwrite, progress)
+    run = run_fit(crop_dir, prefit_dir, library_dir, cfg, out, pass_name=pass_name,
+                  initial_frames=initial_frames, static=static_file, instrument=inst,
+                  override_instrument=override_instrument, options=opts, engine=engine,
+                  frames=frame_list(crop_dir, frame_range), batch=batch, plot=plot,
+                  plot_frames=parse_int_list(plot_frames, "--plot-frames"),
+                  outlier_factor=outlier_factor)
+    for name, s in run.summaries.items():
+        counts = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
+        click.echo(f"fit ({name}): {s.n_frames} frame(s) [{counts}]; {s.n_run} fitted now, "
+                   f"{s.n_done_before} done before; {s.elapsed_s:.1f} s")
+    if run.static is not None:
+        click.echo(f"static parameters -> {run.static}")
+    if run.final is not None:
+        click.echo(f"final fit table -> {run.final}")

@@ -39,7 +39,7 @@ __all__ = ["RUNNER_UP_COLUMNS", "FrameFitOptions", "fit_frame"]
 
 #: what every DDA fit row records about its starts and its runner-up
 RUNNER_UP_COLUMNS = (
-    "n_starts", "start_theta_rad", "start_psi_rad", "library_r2", "chi2_runner_up",
+    "n_solves", "n_starts", "start_theta_rad", "start_psi_rad", "library_r2", "chi2_runner_up",
     "delta_chi2", "ambiguous", "runner_up_theta_rad", "runner_up_psi_rad", "runner_up_z_um",
 )
 #: two fitted orientations closer than this (rad) are the same basin
@@ -276,7 +276,8 @@ def fit_frame(
                         n_solves=sum(m.n_solves for m in models))
     result.n_eval = n_eval
     extra: dict[str, float | int] = {c: math.nan for c in RUNNER_UP_COLUMNS}
-    extra.update(n_starts=len(starts), n_masked=pix.n_masked, ambiguous=0)
+    extra.update(n_starts=len(starts), n_masked=pix.n_masked, ambiguous=0,
+                 n_solves=result.n_solves)
     if best.start is not None:
         extra.update(start_theta_rad=best.start.theta, start_psi_rad=best.start.psi,
                      library_r2=best.start.r2)

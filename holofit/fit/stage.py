@@ -1,0 +1,424 @@
+"""``holofit fit``: the DDA fit of every frame (the paper's steps 5-6).
+
+- **Initial pass** (``initial.csv``): every parameter free (position, orientation, alpha and
+  the particle's static parameters: a rod's a, b, n; a Janus particle's core radius, cap
+  thickness and both indices; a dimer's radii, gap and indices) on the first
+  ``initial_frames`` frames, from the library's candidates and the prefit's position. The
+  static parameters' robust average over the ``ok`` frames (median, with the spread as 1.4826
+  times the median absolute deviation) goes to ``static.json``.
+- **Final pass** (``fit.csv``): the static parameters fixed to those values (or to a
+  ``static.json`` given), position, orientation and alpha fitted on every frame.
+
+Both passes run through the batch runner (parallel, resumable, failures recorded, a worker
+keeps its engine and its caches across frames), write the fit-table schema
+(:mod:`holofit.fit_table`: ``holofit analyze`` reads ``fit.csv`` as it is), flag the movie's
+outlier frames, and draw data / model / residual pictures of a few frames.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
+from holofit.cache import LRUCache
+from holofit.config import ConfigError, Instrument, ParticleConfig
+from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitOptions, fit_frame
+from holofit.fit_table import column_unit
+from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
+from holofit.fitting.finish import finish_fit_table
+from holofit.fitting.inputs import StageInputError, read_stage_table, usable_start
+from holofit.fitting.parameters import particle_with, static_parameters, static_values
+from holofit.fitting.pictures import write_frame_pictures
+from holofit.fitting.result import result_columns, result_row
+from holofit.io.tables import read_table, write_json
+from holofit.library.search import Candidate
+from holofit.models import ParticleModel
+from holofit.provenance import sidecar
+from holofit.scattering.theory import ScatteringTheory
+from holofit.status import FIT_STATUS_MEANINGS, FITTABLE_CROP_STATUSES, OK, SKIPPED, describe
+
+__all__ = [
+    "FitConfig",
+    "FitPayload",
+    "FitRun",
+    "fit_columns",
+    "fit_frame_task",
+    "read_static",
+    "run_fit",
+    "static_average",
+]
+
+PASSES = ("initial", "final", "both")
+#: spread of a normal sample from its median absolute deviation
+MAD_TO_SIGMA = 1.4826
+
+
+def _free(model: ParticleModel, pass_name: str) -> tuple[str, ...]:
+    names = ["x_um", "y_um", "z_um", "orientation", "alpha"]
+    if pass_name == "initial":
+        names += [p.name for p in static_parameters(model)]
+    return tuple(names)
+
+
+def fit_columns(model: ParticleModel, free: tuple[str, ...]) -> tuple[str, ...]:
+    """Columns of a DDA fit table for ``model`` with parameters ``free``."""
+    orient = ()
+    if model.anisotropic:
+        orient = ("theta_rad", "psi_rad", *(() if model.axisymmetric else ("phi_rad",)),
+                  "ux", "uy", "uz")
+    statics = tuple(p.name for p in static_parameters(model))
+    values = ("x_um", "y_um", "z_um", *orient, "alpha", *statics)
+    errors = ("x_um", "y_um", "z_um", *orient, "alpha", *(s for s in statics if s in free))
+    return result_columns(values, errors, (*RUNNER_UP_COLUMNS, "n_masked"))
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Everything a worker needs for one pass (picklable).
+
+    Attributes
+    ----------
+    particle : ParticleConfig
+        The particle; its static parameters are the fit's start (initial pass) or fixed values
+        (final pass).
+    instrument : Instrument
+        Optics and pixel size.
+    pass_name : {"initial", "final"}
+        Which pass.
+    options : FrameFitOptions
+        How each frame is fitted.
+    engine : str, optional
+        Scattering engine (default: the particle config's).
+    """
+
+    particle: ParticleConfig
+    instrument: Instrument
+    pass_name: str
+    options: FrameFitOptions = field(default_factory=FrameFitOptions)
+    engine: str | None = None
+
+    @property
+    def free(self) -> tuple[str, ...]:
+        return _free(self.particle.model, self.pass_name)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"particle": self.particle.as_dict(), "instrument": self.instrument.as_dict(),
+                "pass": self.pass_name, "free": list(self.free),
+                "options": asdict(self.options), "engine": self.engine}
+
+    def key(self) -> str:
+        doc = json.dumps({k: v for k, v in self.as_dict().items() if k != "pass"},
+                         sort_keys=True, default=str)
+        return hashlib.sha256(doc.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class FitPayload:
+    """What the driver sends a worker for one frame."""
+
+    crop: NDArray[np.float32]
+    corner: tuple[int, int]
+    start: dict[str, float]
+    candidates: tuple[Candidate, ...]
+
+
+#: per worker process: one engine per particle configuration, with its caches
+_THEORIES: LRUCache[str, ScatteringTheory] = LRUCache(2)
+
+
+def fit_frame_task(config: FitConfig, frame: int, payload: FitPayload) -> dict[str, Any]:
+    """Fit one frame; the frame function of both passes."""
+    inst = config.instrument
+    key = json.dumps({"particle": config.particle.as_dict(), "engine": config.engine},
+                     sort_keys=True, default=str)
+    theory = _THEORIES.get_or_create(key, lambda: config.particle.theory(config.engine))
+    start = payload.start
+    result = fit_frame(payload.crop, payload.corner, inst.pixel_size_um, theory,
+                       config.particle.model, inst.optics,
+                       (start["x_um"], start["y_um"], start["z_um"]), start["alpha"],
+                       payload.candidates, config.free, config.options, seed=frame)
+    time_s = frame / inst.frame_rate_hz if inst.frame_rate_hz else math.nan
+    return result_row(frame, time_s, result)
+
+
+def static_average(table: pd.DataFrame, model: ParticleModel) -> dict[str, Any]:
+    """Robust average of the static parameters over a table's ``ok`` rows.
+
+    Returns
+    -------
+    dict
+        ``{"values": {name: median}, "spread": {name: 1.4826 MAD}, "mean": ..., "std": ...,
+        "n_frames": n}``.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 3 ``ok`` rows.
+    """
+    ok = table[table["status"] == OK]
+    if len(ok) < 3:
+        raise ValueError(f"the initial pass has only {len(ok)} ok frame(s); the static "
+                         "parameters need at least 3 (see initial.csv's status and message)")
+    out: dict[str, Any] = {"values": {}, "spread": {}, "mean": {}, "std": {},
+                           "n_frames": len(ok)}
+    for p in static_parameters(model):
+        v = ok[p.name].to_numpy(dtype=float)
+        v = v[np.isfinite(v)]
+        med = float(np.median(v))
+        out["values"][p.name] = med
+        out["spread"][p.name] = float(MAD_TO_SIGMA * np.median(np.abs(v - med)))
+        out["mean"][p.name] = float(np.mean(v))
+        out["std"][p.name] = float(np.std(v, ddof=1)) if v.size > 1 else 0.0
+    return out
+
+
+def read_static(path: str | Path, model: ParticleModel) -> dict[str, float]:
+    """The static parameters of a ``static.json`` (checked against ``model``).
+
+    Raises
+    ------
+    ConfigError
+        Missing file, not JSON, another particle model, or a missing parameter.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: static-parameter file not found") from None
+    except ValueError as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+    if doc.get("particle_model") not in (None, model.kind):
+        raise ConfigError(f"{path}: static parameters of a {doc.get('particle_model')!r}, "
+                          f"not of this {model.kind!r}")
+    values = doc.get("values", {})
+    missing = [p.name for p in static_parameters(model) if p.name not in values]
+    if missing:
+        raise ConfigError(f"{path}: missing static parameter(s) {', '.join(missing)}")
+    return {k: float(values[k]) for k in (p.name for p in static_parameters(model))}
+
+
+@dataclass
+class FitRun:
+    """What :func:`run_fit` wrote."""
+
+    initial: Path | None = None
+    static: Path | None = None
+    final: Path | None = None
+    summaries: dict[str, BatchSummary] = field(default_factory=dict)
+
+
+def _check_library(meta: dict[str, Any], particle: ParticleConfig, path: Path) -> None:
+    lib = meta.get("config", {}).get("particle")
+    if not isinstance(lib, dict):
+        return
+    mine = particle.as_dict()
+    if lib.get("model") != mine["model"]:
+        raise StageInputError(f"{path}: library made for a {lib.get('model')!r}, but "
+                              f"{particle.path or 'the particle'} is a {mine['model']!r}")
+    diff = [k for k, v in mine.items() if k not in ("settings", "path") and lib.get(k) != v
+            and k in lib]
+    if diff:
+        detail = ", ".join(f"{k} {lib[k]} vs {mine[k]}" for k in diff)
+        raise StageInputError(
+            f"{path}: library made for another {mine['model']} ({detail}): rerun "
+            "`holofit library` with this particle config")
+
+
+def _candidates(row: dict[str, Any] | None, n_max: int) -> tuple[Candidate, ...]:
+    if row is None:
+        return ()
+    out = []
+    for i in range(1, n_max + 1):
+        vals = [row.get(f"c{i}_{q}") for q in ("psi_rad", "theta_rad", "phi_rad", "r2")]
+        if all(isinstance(v, int | float) and math.isfinite(float(v)) for v in vals[:3]):
+            out.append(Candidate(*(float(v) for v in vals)))  # type: ignore[arg-type]
+    return tuple(out)
+
+
+def run_fit(
+    crop_dir: str | Path,
+    prefit: str | Path,
+    library: str | Path | None,
+    particle: ParticleConfig,
+    out_dir: str | Path,
+    *,
+    pass_name: str = "both",
+    initial_frames: int = 500,
+    static: str | Path | None = None,
+    instrument: Instrument | None = None,
+    override_instrument: bool = False,
+    options: FrameFitOptions | None = None,
+    engine: str | None = None,
+    frames: list[int] | None = None,
+    batch: BatchOptions | None = None,
+    plot: bool = True,
+    plot_frames: list[int] | None = None,
+    outlier_factor: float = 4.0,
+) -> FitRun:
+    """The DDA fit of a crop folder (see the module docstring).
+
+    Parameters
+    ----------
+    crop_dir : str or Path
+        Output of ``holofit crop``.
+    prefit : str or Path
+        Output of ``holofit prefit`` for these crops (start positions and alpha).
+    library : str or Path, optional
+        Output of ``holofit library`` for these crops and this particle (start orientations);
+        not needed for an isotropic particle.
+    particle : ParticleConfig
+        The particle model and its ``[dda]`` settings.
+    out_dir : str or Path
+        Where ``initial.csv``, ``static.json``, ``fit.csv`` (each with a sidecar), the plots
+        and ``frames/`` go.
+    pass_name : {"both", "initial", "final"}
+        Which passes to run.
+    initial_frames : int
+        Frames of the initial pass (the first ones that can be fitted).
+    static : str or Path, optional
+        ``static.json`` for the final pass (default: ``OUT/static.json`` from the initial
+        pass).
+    instrument, override_instrument
+        As for :func:`holofit.prefit.run_prefit`.
+    options : FrameFitOptions, optional
+        How frames are fitted.
+    engine : str, optional
+        Scattering engine (default: the particle config's).
+    frames : list of int, optional
+        Only these frames (both passes).
+    batch : BatchOptions, optional
+        Parallel backend, resumption.
+    plot, plot_frames, outlier_factor
+        As for :func:`holofit.prefit.run_prefit`.
+
+    Returns
+    -------
+    FitRun
+
+    Raises
+    ------
+    CropSetError, StageInputError, ConfigError, ValueError
+        With the file, frame or parameter at fault.
+    """
+    if pass_name not in PASSES:
+        raise ValueError(f"pass must be one of {', '.join(PASSES)}, got {pass_name!r}")
+    if initial_frames < 3:
+        raise ValueError(f"initial_frames must be >= 3, got {initial_frames}")
+    opts = options or FrameFitOptions()
+    out = Path(out_dir)
+    run = FitRun()
+    model = particle.model
+    with CropSet(crop_dir) as crops:
+        inst = resolve_instrument(crops, instrument, override_instrument)
+        pre, _ = read_stage_table(prefit, crops, "prefit")
+        lib_table: pd.DataFrame | None = None
+        n_cand = 0
+        if model.anisotropic:
+            if library is None:
+                raise StageInputError(f"a {model.kind} needs starting orientations: give the "
+                                      "output of `holofit library` (--library)")
+            lib_table, lib_meta = read_stage_table(library, crops, "library")
+            _check_library(lib_meta, particle, Path(library))
+            n_cand = sum(1 for c in lib_table.columns if c.endswith("_theta_rad"))
+        todo = crops.frames if frames is None else [int(f) for f in frames]
+        unknown = sorted(set(todo) - set(crops.frames))
+        if unknown:
+            raise CropSetError(f"{crops.table_path}: no frame(s) {unknown[:5]}")
+
+        def load(frame: int) -> FitPayload | Precomputed:
+            crow = crops.row(frame)
+            if crow.get("status") not in FITTABLE_CROP_STATUSES:
+                return Precomputed({"status": SKIPPED,
+                                    "message": f"crop stage: {crow.get('status')}"})
+            prow = pre.loc[frame].to_dict() if frame in pre.index else None
+            why = usable_start(prow)
+            if why:
+                return Precomputed({"status": SKIPPED, "message": f"prefit: {why}"})
+            assert prow is not None
+            cands: tuple[Candidate, ...] = ()
+            if lib_table is not None:
+                lrow = lib_table.loc[frame].to_dict() if frame in lib_table.index else None
+                cands = _candidates(lrow, n_cand)
+                if not cands:
+                    status = lrow.get("status") if lrow else "missing"
+                    return Precomputed({"status": SKIPPED,
+                                        "message": f"library: no candidate (status {status})"})
+            return FitPayload(crops.crop(frame),
+                              (int(crow["corner_row"]), int(crow["corner_col"])),
+                              {k: float(prow[k]) for k in ("x_um", "y_um", "z_um", "alpha")},
+                              cands)
+
+        def one_pass(name: str, cfg_particle: ParticleConfig, pass_frames: list[int],
+                     table_name: str) -> Path:
+            cfg = FitConfig(cfg_particle, inst, name, opts, engine)
+            columns = fit_columns(model, cfg.free)
+            units = {c: column_unit(c) for c in columns}
+            units["status"] = describe(FIT_STATUS_MEANINGS)
+            meta = sidecar(
+                kind=f"DDA fit table ({name} pass)", units=units, config=cfg.as_dict(),
+                inputs=[crops.table_path, Path(prefit), *([Path(library)] if library else [])],
+                extra={"crops": crops.fingerprint(), "particle_model": model.kind,
+                       **({"frame_interval_s": 1.0 / inst.frame_rate_hz}
+                          if inst.frame_rate_hz else {})},
+            )
+            fingerprint = hashlib.sha256(json.dumps(
+                {"config": cfg.as_dict(), "crops": crops.fingerprint()}, sort_keys=True,
+                default=str).encode()).hexdigest()[:16]
+            path = out / table_name
+            run.summaries[name] = run_batch(fit_frame_task, cfg, pass_frames, load, path,
+                                            columns, fingerprint=fingerprint, meta=meta,
+                                            options=batch, desc=f"fit ({name})")
+            finish_fit_table(path, outlier_factor)
+            if plot:
+                _plots(path, crops, cfg_particle.model, cfg_particle.theory(engine), inst,
+                       out, name, plot_frames, opts.far_field)
+            return path
+
+        static_path = Path(static) if static is not None else out / "static.json"
+        if pass_name in ("initial", "both"):
+            fittable = [f for f in todo if crops.row(f).get("status") in FITTABLE_CROP_STATUSES]
+            run.initial = one_pass("initial", particle, fittable[:initial_frames],
+                                   "initial.csv")
+            avg = static_average(read_table(run.initial), model)
+            write_json(out / "static.json", {
+                **sidecar(kind="static parameters (robust average of the initial pass)",
+                          units={p.name: p.unit for p in static_parameters(model)},
+                          inputs=[run.initial]),
+                "particle_model": model.kind, **avg,
+                "start": dict(static_values(model)),
+            })
+            run.static = out / "static.json"
+            static_path = run.static if static is None else static_path
+        if pass_name in ("final", "both"):
+            values = read_static(static_path, model)
+            fixed = ParticleConfig(particle_with(model, values), particle.settings, particle.path)
+            run.final = one_pass("final", fixed, todo, "fit.csv")
+    return run
+
+
+def _plots(path: Path, crops: CropSet, model: ParticleModel, theory: ScatteringTheory,
+           inst: Instrument, out: Path, name: str, frames: list[int] | None,
+           far_field: bool) -> None:
+    from holofit.fitting.plots import plot_table
+
+    panels = [("x_um", "x (um)"), ("y_um", "y (um)"), ("z_um", "z (um)")]
+    if model.anisotropic:
+        panels += [("theta_rad", "theta (rad)"), ("psi_rad", "psi (rad)")]
+    panels += [("alpha", "alpha")]
+    panels += [(p.name, f"{p.name} ({p.unit})") for p in static_parameters(model)]
+    panels += [("r2", "R^2"), ("delta_chi2", "runner-up delta chi^2"),
+               ("fit_time_s", "fit time (s)")]
+    plot_table(path, out / f"{path.stem}.png", panels, f"holofit fit ({name} pass)")
+    write_frame_pictures(read_table(path), crops, model, theory, inst.optics,
+                         inst.pixel_size_um, out / f"frames_{name}", f"fit ({name} pass)",
+                         frames, far_field)
+
