@@ -197,3 +197,15 @@ def test_missing_codec_library_is_named(tmp_path, monkeypatch):
     with pytest.raises(MovieError, match=r"lzw\.tif: frames are compressed with LZW .*needs the "
                                          r"imagecodecs package"):
         Movie(path)
+
+
+def test_a_second_series_is_not_a_lost_frame(tmp_path):
+    """A thumbnail after the frames (another series) is neither a frame nor a loss."""
+    frames = _frames(n=6)
+    path = tmp_path / "thumb.tif"
+    with tifffile.TiffWriter(path) as tif:
+        tif.write(frames, contiguous=False, compression="zlib")
+        tif.write(frames[0, ::4, ::4], compression="zlib")
+    with open_movie(path) as movie:
+        assert len(movie) == 6 and movie.problems == []
+        np.testing.assert_array_equal(np.array(list(movie)), frames)

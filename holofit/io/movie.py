@@ -272,6 +272,12 @@ class Movie:
             return
         if following == 0:
             return
+        if following < self._size:
+            # a directory tifffile can read (another series: a thumbnail, say) is no loss
+            with capture_log("tifffile"):
+                every, _ = _readable_pages(tif.pages, [])
+            if any(int(page.offset) == following for page in every):
+                return
         what = (
             f"lies past the end of the file ({self._size} bytes)"
             if following >= self._size
