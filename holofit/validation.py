@@ -165,25 +165,39 @@ def validate_table(
         A missing required key, a wrong type, a value out of range (with a unit hint where one
         applies), or an unknown key (a typo: the closest valid key is suggested).
     """
+    _check_keys(table, specs, path, where)
     out: dict[str, Any] = {}
     for key, spec in specs.items():
-        if key not in table:
-            if spec.required:
-                raise ConfigError(f"{path}: [{where}] is missing key '{key}' ({spec.expected})")
-            out[key] = spec.default
-            continue
-        out[key] = _check_value(path, where, key, table[key], spec)
-    unknown = sorted(set(table) - set(specs))
-    if unknown:
-        hints = []
-        for key in unknown:
-            close = difflib.get_close_matches(key, list(specs), n=1, cutoff=0.6)
-            if close:
-                hints.append(f"did you mean '{close[0]}' for '{key}'?")
-        raise ConfigError(
-            f"{path}: [{where}] has unknown key(s) {', '.join(map(repr, unknown))}"
-            + (f" ({'; '.join(hints)})" if hints else "")
-            + f"; allowed: {', '.join(specs)}"
+        out[key] = (
+            _check_value(path, where, key, table[key], spec) if key in table else spec.default
         )
     return out
 
+
+def _check_keys(table: Mapping[str, Any], specs: Mapping[str, Spec], path: Path,
+                where: str) -> None:
+    """Every unknown and every missing key at once, a typo named with the key it stands for."""
+    unknown = sorted(set(table) - set(specs))
+    missing = [key for key, spec in specs.items() if spec.required and key not in table]
+    if not unknown and not missing:
+        return
+    parts = []
+    explained: set[str] = set()
+    if unknown:
+        named = []
+        for key in unknown:
+            close = difflib.get_close_matches(
+                key, [k for k in specs if k not in table], n=1, cutoff=0.6
+            )
+            if close:
+                explained.add(close[0])
+                named.append(f"'{key}' (did you mean '{close[0]}', {specs[close[0]].expected}?)")
+            else:
+                named.append(f"'{key}'")
+        parts.append(f"has unknown key{'s' if len(unknown) > 1 else ''} {', '.join(named)}")
+    rest = [key for key in missing if key not in explained]
+    if rest:
+        listed = ", ".join(f"'{key}' ({specs[key].expected})" for key in rest)
+        parts.append(f"is missing key{'s' if len(rest) > 1 else ''} {listed}")
+    allowed = f"; allowed keys: {', '.join(specs)}" if unknown else ""
+    raise ConfigError(f"{path}: [{where}] " + "; ".join(parts) + allowed)

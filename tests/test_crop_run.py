@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import tracemalloc
 from dataclasses import replace
 from pathlib import Path
@@ -239,20 +240,29 @@ def test_unreadable_movie(small_movie):
     assert _outputs(folder / "out") == set()
 
 
-def test_truncated_movie_at_open_and_in_a_frame(small_movie):
+def test_truncated_movie_gives_a_row_for_every_frame(small_movie):
     folder, _ = small_movie
     data = (folder / "movie.tif").read_bytes()
-    (folder / "cut.tif").write_bytes(data[: len(data) // 2])
-    with pytest.raises(CropError, match=r"cut\.tif.*truncated"):
-        _crop(folder, movie="cut.tif")
-    assert _outputs(folder / "out") == set()
-    (folder / "cut.tif").write_bytes(data[:-40])  # last frame's directory damaged
+    (folder / "cut.tif").write_bytes(data[: len(data) // 2])  # 2 of 5 frames survive whole
     result = _crop(folder, movie="cut.tif")
-    last = result.frames.iloc[-1]
-    assert last["status"] == "error" and "cut.tif" in last["message"]
-    assert "frame 4" in last["message"]
-    assert (result.frames["status"][:4] == "ok").all()
-    assert np.isnan(tifffile.imread(folder / "out" / "crops.tif")[4]).all()
+    t = result.frames
+    assert t["frame"].tolist() == [0, 1, 2, 3, 4]
+    assert t["status"].tolist() == ["ok", "ok", "error", "error", "error"]
+    for k in (2, 3, 4):
+        assert re.match(rf".*cut\.tif: frame {k} cannot be read: the file is truncated",
+                        t["message"][k])
+    assert result.problems and "frames 2-4 of the 5" in result.problems[0]
+    side = json.loads((folder / "out" / "crops.csv.json").read_text())
+    assert side["movie"]["problems"] == result.problems
+    assert np.isnan(tifffile.imread(folder / "out" / "crops.tif")[2:]).all()
+    # the last directory damaged (the stack's directories follow its pixels): every pixel is
+    # still there, so every frame is read, as from the intact file
+    intact = _crop(folder).frames
+    crops = tifffile.imread(folder / "out" / "crops.tif")
+    (folder / "cut.tif").write_bytes(data[:-40])
+    result = _crop(folder, movie="cut.tif")
+    pd.testing.assert_frame_equal(result.frames, intact)
+    np.testing.assert_array_equal(tifffile.imread(folder / "out" / "crops.tif"), crops)
 
 
 def test_background_of_another_shape(small_movie):

@@ -119,14 +119,25 @@ def test_not_a_tiff_and_missing_and_empty(tmp_path):
         open_movie(empty)
 
 
-def test_truncated_imagej_stack_is_caught(tmp_path):
+def test_truncated_imagej_stack_keeps_its_declared_length(tmp_path):
     path = tmp_path / "ij.tif"
-    tifffile.imwrite(path, np.zeros((10, 64, 64), np.uint8), imagej=True)
+    frames = np.arange(10, dtype=np.uint8)[:, None, None] * np.ones((64, 64), np.uint8)
+    tifffile.imwrite(path, frames, imagej=True)
     assert len(open_movie(path)) == 10
     raw = path.read_bytes()
     path.write_bytes(raw[: len(raw) // 2])
-    with pytest.raises(MovieError, match=r"ij\.tif: ImageJ header declares 10 images"):
-        open_movie(path)
+    with open_movie(path) as movie:
+        assert len(movie) == 10  # the header's count, not the pages that survived
+        for k in range(5):
+            np.testing.assert_array_equal(movie[k], frames[k])
+        for k in range(5, 10):
+            with pytest.raises(MovieError, match=rf"ij\.tif: frame {k} cannot be read: the file "
+                                                 "is truncated"):
+                movie[k]
+        assert movie.problems == [
+            f"{path}: the file is truncated ({len(raw) // 2} bytes): frames 5-9 of the 10 in "
+            "the file cannot be read"
+        ]
 
 
 def test_outputs_get_ordinary_permissions(tmp_path):

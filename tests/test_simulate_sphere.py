@@ -66,7 +66,9 @@ def test_cli_rejects_bad_input(tmp_path):
     r = CliRunner().invoke(
         main, ["simulate", "sphere", "--radius", "-1", "--position", "1,2,3", "-o", str(tmp_path)]
     )
-    assert r.exit_code != 0 and "radius_um must be a positive length" in r.output
+    assert r.exit_code == 2 and "Invalid value for '--radius': -1.0 is not in the range x>0" in (
+        r.output
+    )
     r = CliRunner().invoke(main, ["simulate", "sphere", "--position", "1,2", "-o", str(tmp_path)])
     assert r.exit_code != 0 and "three comma-separated numbers" in r.output
 

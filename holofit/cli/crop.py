@@ -7,9 +7,11 @@ from pathlib import Path
 import click
 
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
-from holofit.crop import CenterFinder, CropError, run_crop
+from holofit.crop import CenterFinder, run_crop
+from holofit.crop.centerfind import MIN_RADIUS_PX
 from holofit.crop.follow import FOLLOW_MODES
-from holofit.io.movie import open_movie
+from holofit.crop.run import MIN_CROP_SIZE
+from holofit.io.movie import MovieError, open_movie
 from holofit.progress import progress_bar
 
 
@@ -32,25 +34,41 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 @click.option(
     "--background",
     "-b",
-    required=True,
+    "backgrounds",
+    multiple=True,
     type=click.Path(path_type=Path),
-    help="Background: one frame, or a stack / folder (its per-pixel median is used).",
+    help="Background: one frame, or a stack / folder; repeat for several files. The "
+    "per-pixel median of all their frames is used.",
+)
+@click.option(
+    "--normalized",
+    is_flag=True,
+    help="MOVIE is background-divided already (as many public data sets are, also as scaled "
+    "integers): no background; each frame is divided by its mean.",
 )
 @click.option(
     "--dark",
+    "darks",
+    multiple=True,
     type=click.Path(path_type=Path),
-    default=None,
-    help="Dark frame (or stack) to subtract from movie and background.",
+    help="Dark frame (or stack) to subtract from movie and background; repeat for several "
+    "files (per-pixel median).",
 )
 @click.option(
     "--dark-count",
-    type=float,
+    type=click.FloatRange(min=0),
     default=None,
     help="Dark level in counts, the same for every pixel (instead of --dark).",
 )
 @instrument_option()
 @out_dir_option()
-@click.option("--size", type=int, default=140, show_default=True, help="Crop side N, pixels.")
+@click.option(
+    "--size",
+    type=click.IntRange(min=MIN_CROP_SIZE),
+    default=140,
+    show_default=True,
+    help="Crop side N, pixels.",
+)
 @click.option(
     "--follow",
     type=click.Choice(FOLLOW_MODES),
@@ -68,19 +86,19 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 )
 @click.option(
     "--max-jump",
-    type=float,
+    type=click.FloatRange(min=0, min_open=True),
     default=None,
     help="Largest move between frames with --follow nearest, pixels [default: size/4].",
 )
 @click.option(
     "--radius",
-    type=float,
+    type=click.FloatRange(min=MIN_RADIUS_PX),
     default=None,
     help="Vote radius of the centre finder, pixels [default: size/2].",
 )
 @click.option(
     "--min-score",
-    type=float,
+    type=click.FloatRange(min=0),
     default=CenterFinder.min_score,
     show_default=True,
     help="Smallest accepted detection score (transform peak over its rms for pure noise; "
@@ -88,7 +106,7 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 )
 @click.option(
     "--min-symmetry",
-    type=float,
+    type=click.FloatRange(-1, 1),
     default=CenterFinder.min_symmetry,
     show_default=True,
     help="Smallest accepted point symmetry (1 = perfect); lower it for strongly asymmetric "
@@ -96,7 +114,7 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 )
 @click.option(
     "--max-particles",
-    type=int,
+    type=click.IntRange(min=1),
     default=CenterFinder.max_centers,
     show_default=True,
     help="Most candidates kept per frame.",
@@ -110,8 +128,9 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 @click.option("--plot/--no-plot", default=True, show_default=True, help="Write crops.png.")
 def crop(
     movie: Path,
-    background: Path,
-    dark: Path | None,
+    backgrounds: tuple[Path, ...],
+    normalized: bool,
+    darks: tuple[Path, ...],
     dark_count: float | None,
     instrument: str,
     out: Path,
@@ -128,13 +147,25 @@ def crop(
 ) -> None:
     """Normalise a raw MOVIE by its background, find hologram centres, crop N x N around them.
 
-    MOVIE is a multi-page (or OME-) TIFF or a folder of TIFF frames, 8 or 16 bit. Writes
-    OUT/crops.tif (float32 normalised crops, one page per frame; NaN = masked or no particle),
-    OUT/crops.csv (+ crops.csv.json: per-frame centre in pixels and um, crop corner, score,
-    status), OUT/candidates.csv and OUT/crops.png.
+    MOVIE is a multi-page (or OME-) TIFF or a folder of TIFF frames, 8 or 16 bit (or float);
+    LZW- and deflate-compressed TIFFs are read too. Writes OUT/crops.tif (float32 normalised
+    crops, one page per frame; NaN = masked or no particle), OUT/crops.csv (+ crops.csv.json:
+    per-frame centre in pixels and um, crop corner, score, status), OUT/candidates.csv and
+    OUT/crops.png. Every frame the movie file claims gets a row: one that cannot be read (a
+    truncated file) has status error.
     """
-    if dark is not None and dark_count is not None:
+    if darks and dark_count is not None:
         raise click.UsageError("give either --dark or --dark-count, not both")
+    if normalized and (backgrounds or darks or dark_count is not None):
+        raise click.UsageError(
+            "--normalized takes no --background, --dark or --dark-count: the movie is "
+            "normalised already"
+        )
+    if not normalized and not backgrounds:
+        raise click.UsageError(
+            "give the background of the raw movie (--background, repeat for several files), "
+            "or --normalized for a movie that is normalised already"
+        )
     start_xy = _parse_start(start)
     if start_xy is not None and follow != "nearest":
         raise click.UsageError("--start needs --follow nearest")
@@ -151,29 +182,29 @@ def crop(
     try:
         with open_movie(movie) as m:
             total = len(m)
-    except Exception:
+    except MovieError:
         total = 0  # run_crop reports the problem with the file
-    try:
-        with progress_bar(total, "crop", unit="frame") as bar:
-            result = run_crop(
-                movie,
-                background,
-                inst,
-                out,
-                dark=dark if dark is not None else dark_count,
-                size=size,
-                follow=follow,
-                start=start_xy,
-                max_jump_px=max_jump,
-                finder=finder,
-                mask_saturated=mask_saturated,
-                plot=plot,
-                progress=bar.update,
-            )
-    except CropError as exc:
-        raise click.ClickException(str(exc)) from None
+    with progress_bar(total, "crop", unit="frame") as bar:
+        result = run_crop(
+            movie,
+            list(backgrounds) or None,
+            inst,
+            out,
+            normalized=normalized,
+            dark=list(darks) or dark_count,
+            size=size,
+            follow=follow,
+            start=start_xy,
+            max_jump_px=max_jump,
+            finder=finder,
+            mask_saturated=mask_saturated,
+            plot=plot,
+            progress=bar.update,
+        )
     counts = ", ".join(f"{v} {k}" for k, v in result.counts.items() if v)
     click.echo(f"wrote {result.crops} and {result.table} ({len(result.frames)} frames: {counts})")
+    for problem in result.problems:
+        click.echo(f"holofit crop: warning: {problem}", err=True)
     errors = result.frames[result.frames["status"] == "error"]
     for message in errors["message"].head(5):
         click.echo(f"  error: {message}", err=True)

@@ -16,14 +16,19 @@ from holofit.cli.common import (
     parse_pair,
     parse_triple,
 )
+from holofit.cli.errors import HolofitGroup
 from holofit.cli.simulate_trajectory import simulate_trajectory_cmd
-from holofit.models import Sphere
+from holofit.models import ParticleModel, Sphere
 from holofit.progress import progress_bar
 from holofit.scattering.select import ENGINE_CHOICES
-from holofit.simulate.holograms import simulate_movie
+from holofit.simulate.holograms import SimulationError, check_positions, simulate_movie
+
+POSITIVE = click.FloatRange(min=0, min_open=True)
+NONNEGATIVE = click.FloatRange(min=0)
+SEED = click.IntRange(min=0)
 
 
-@click.group()
+@click.group(cls=HolofitGroup)
 def simulate() -> None:
     """Synthetic holograms and trajectories with known ground truth."""
 
@@ -31,19 +36,48 @@ def simulate() -> None:
 simulate.add_command(simulate_trajectory_cmd)
 
 
-def _positions(position: tuple[str, ...], positions_file: Path | None) -> np.ndarray:
+def _read_csv(path: Path, option: str) -> pd.DataFrame:
+    try:
+        return pd.read_csv(path)
+    except (ValueError, OSError) as exc:
+        raise click.BadParameter(f"{path}: not a readable CSV table ({exc})",
+                                 param_hint=option) from None
+
+
+def _positions(
+    model: ParticleModel,
+    position: tuple[str, ...],
+    positions_file: Path | None,
+    file_option: str,
+    table: pd.DataFrame | None = None,
+) -> np.ndarray:
+    """Positions from ``--position`` or a table file, checked against ``model``."""
     if positions_file is not None:
-        table = pd.read_csv(positions_file)
+        if position:
+            raise click.UsageError(f"give --position or {file_option}, not both")
+        if table is None:
+            table = _read_csv(positions_file, file_option)
         missing = {"x_um", "y_um", "z_um"} - set(table.columns)
         if missing:
             raise click.BadParameter(
                 f"{positions_file}: missing column(s) {', '.join(sorted(missing))}",
-                param_hint="--positions",
+                param_hint=file_option,
             )
-        return table[["x_um", "y_um", "z_um"]].to_numpy(float)
-    if not position:
-        raise click.BadParameter("give --position X,Y,Z (um) or --positions FILE")
-    return np.array([parse_triple(p, "--position") for p in position])
+        pos = table[["x_um", "y_um", "z_um"]].to_numpy(float)
+    elif not position:
+        raise click.UsageError(f"give --position X,Y,Z (um) or {file_option} FILE")
+    else:
+        pos = np.array([parse_triple(p, "--position") for p in position])
+    try:
+        return check_positions(model, pos)
+    except SimulationError as exc:
+        if positions_file is not None:
+            where = f"{positions_file}" + (
+                f", row {exc.frame + 1} of the table" if exc.frame is not None else ""
+            )
+            raise click.BadParameter(f"{where}: {exc}", param_hint=file_option) from None
+        given = f" (--position {position[exc.frame]})" if exc.frame is not None else ""
+        raise click.BadParameter(f"{exc}{given}", param_hint="--position") from None
 
 
 @simulate.command("sphere")
@@ -51,18 +85,18 @@ def _positions(position: tuple[str, ...], positions_file: Path | None) -> np.nda
 @click.option(
     "--particle", "-p", default=None, help="Sphere model TOML (overrides --radius/--index)."
 )
-@click.option("--radius", type=float, default=0.5, show_default=True, help="Radius, um.")
+@click.option("--radius", type=POSITIVE, default=0.5, show_default=True, help="Radius, um.")
 @click.option(
     "--index",
     "index_re",
-    type=float,
+    type=POSITIVE,
     default=1.59,
     show_default=True,
     help="Refractive index (real part).",
 )
 @click.option(
     "--index-imag",
-    type=float,
+    type=NONNEGATIVE,
     default=0.0,
     show_default=True,
     help="Imaginary part of the index (>= 0 absorbs).",
@@ -71,7 +105,8 @@ def _positions(position: tuple[str, ...], positions_file: Path | None) -> np.nda
     "--position",
     multiple=True,
     metavar="X,Y,Z",
-    help="Full-frame particle centre in um; repeat for a movie.",
+    help="Full-frame particle centre in um (z: height above the focal plane, larger than the "
+    "radius); repeat for a movie.",
 )
 @click.option(
     "--positions",
@@ -95,7 +130,7 @@ def _positions(position: tuple[str, ...], positions_file: Path | None) -> np.nda
     show_default=True,
     help="Poisson shot noise and read noise (quantisation always applies).",
 )
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @out_dir_option()
 def simulate_sphere(
     instrument: str | None,
@@ -126,7 +161,7 @@ def simulate_sphere(
             model = Sphere(radius, complex(index_re, index_imag))
         except ValueError as exc:
             raise click.BadParameter(str(exc)) from None
-    pos = _positions(position, positions_file)
+    pos = _positions(model, position, positions_file, "--positions")
     frame_shape = parse_pair(shape, "--shape")
     with progress_bar(len(pos), "simulate", unit="frame") as bar:
         result = simulate_movie(
@@ -170,7 +205,8 @@ def _orientations(orientation: tuple[str, ...], table: pd.DataFrame | None, n: i
 @click.option("--engine", type=click.Choice(ENGINE_CHOICES), default="auto", show_default=True,
               help="Scattering engine (auto: Lorenz-Mie for spheres, else the config's [dda]).")
 @click.option("--position", multiple=True, metavar="X,Y,Z",
-              help="Full-frame particle centre in um; repeat for a movie.")
+              help="Full-frame particle centre in um (z: height above the focal plane, larger "
+                   "than the particle's bounding radius); repeat for a movie.")
 @click.option("--orientation", multiple=True, metavar="PSI,THETA,PHI",
               help="zyz Euler angles in degrees: one for all frames or one per --position.")
 @click.option("--trajectory", "trajectory_file", type=click.Path(exists=True, path_type=Path),
@@ -179,7 +215,7 @@ def _orientations(orientation: tuple[str, ...], table: pd.DataFrame | None, n: i
 @click.option("--shape", default="256,256", show_default=True, metavar="ROWS,COLS")
 @click.option("--alpha", type=float, default=1.0, show_default=True)
 @click.option("--noise/--no-noise", default=True, show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @out_dir_option()
 def simulate_hologram(
     particle: str,
@@ -204,8 +240,8 @@ def simulate_hologram(
         theory = cfg.theory(engine)
     except (ValueError, RuntimeError) as exc:
         raise click.BadParameter(str(exc), param_hint="--engine") from None
-    table = pd.read_csv(trajectory_file) if trajectory_file is not None else None
-    pos = _positions(position, trajectory_file)
+    table = _read_csv(trajectory_file, "--trajectory") if trajectory_file is not None else None
+    pos = _positions(cfg.model, position, trajectory_file, "--trajectory", table)
     orient = _orientations(orientation, table, len(pos))
     frame_shape = parse_pair(shape, "--shape")
     with progress_bar(len(pos), "simulate", unit="frame") as bar:

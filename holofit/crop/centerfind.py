@@ -35,10 +35,12 @@ from holofit.crop.transform import (
     orientation_alignment,
 )
 
-__all__ = ["CENTER_COLUMNS", "CenterFinder", "auto_downsample", "find_centers"]
+__all__ = ["CENTER_COLUMNS", "MIN_RADIUS_PX", "CenterFinder", "auto_downsample", "find_centers"]
 
 #: Columns of the table returned by :func:`find_centers`, ranked best first.
 CENTER_COLUMNS = ("x_px", "y_px", "score", "alignment", "symmetry", "refinement")
+#: smallest vote radius, pixels
+MIN_RADIUS_PX = 4.0
 
 #: Below this valid pair fraction (centre within ~10 px of an edge) the radial refinement
 #: takes over from the point-symmetry one.
@@ -92,8 +94,10 @@ class CenterFinder:
     search_px: float | None = None
 
     def __post_init__(self) -> None:
-        if not self.radius_px >= 4:
-            raise ValueError(f"radius_px must be >= 4 pixels, got {self.radius_px}")
+        if not self.radius_px >= MIN_RADIUS_PX:
+            raise ValueError(
+                f"radius_px must be >= {MIN_RADIUS_PX:g} pixels, got {self.radius_px}"
+            )
         if self.downsample is not None and not 1 <= self.downsample <= 16:
             raise ValueError(f"downsample must lie in 1..16, got {self.downsample}")
         if self.max_centers < 1:

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from holofit.crop.errors import CropError
-from holofit.io.movie import MovieError, open_movie
+from holofit.io.movie import Movie, MovieError, open_movie
 
 __all__ = ["MAX_REFERENCE_FRAMES", "read_dark", "read_reference_frame"]
 
@@ -17,55 +18,89 @@ __all__ = ["MAX_REFERENCE_FRAMES", "read_dark", "read_reference_frame"]
 MAX_REFERENCE_FRAMES = 201
 
 
-def read_reference_frame(path: str | Path, what: str = "background") -> NDArray[np.float64]:
-    """One reference frame from a TIFF file, stack or folder of frames.
+def read_reference_frame(
+    path: str | Path | Sequence[str | Path], what: str = "background"
+) -> NDArray[np.float64]:
+    """One reference frame from TIFF files, stacks or folders of frames.
 
     Parameters
     ----------
-    path : str or Path
-        A single frame, a multi-page TIFF, or a folder of TIFF frames.
+    path : str, Path, or a sequence of them
+        A single frame, a multi-page TIFF, or a folder of TIFF frames; or several of these,
+        whose frames are pooled (the per-pixel median of all of them is taken, as for one
+        stack).
     what : str
         What it is, for error messages ("background", "dark frame").
 
     Returns
     -------
     ndarray of float64, shape (rows, cols)
-        The frame, or the per-pixel median of the stack (at most
+        The frame, or the per-pixel median of all frames (at most
         :data:`MAX_REFERENCE_FRAMES` evenly spaced frames).
 
     Raises
     ------
     CropError
-        Unreadable file, a frame that cannot be read (naming the frame), non-finite values.
+        Unreadable file, a frame that cannot be read (naming file and frame), files whose frames
+        differ in shape, non-finite values.
     """
+    paths = [Path(path)] if isinstance(path, str | Path) else [Path(p) for p in path]
+    if not paths:
+        raise CropError(f"no {what} given")
+    movies: list[Movie] = []
     try:
-        with open_movie(path) as movie:
-            n = len(movie)
-            picks = (
-                np.arange(n)
-                if n <= MAX_REFERENCE_FRAMES
-                else np.unique(np.linspace(0, n - 1, MAX_REFERENCE_FRAMES).round().astype(int))
-            )
-            stack = np.empty((len(picks), *movie.frame_shape), dtype=movie.dtype)
-            for slot, index in enumerate(picks):
-                stack[slot] = movie[int(index)]
-    except MovieError as exc:
-        raise CropError(f"{what}: {exc}") from None
+        for p in paths:
+            try:
+                movies.append(open_movie(p))
+            except MovieError as exc:
+                raise CropError(f"{what}: {exc}") from None
+            first, last = movies[0], movies[-1]
+            if last.frame_shape != first.frame_shape:
+                raise CropError(
+                    f"{what}: {last.path} has frames of shape {tuple(last.frame_shape)}, "
+                    f"{first.path} of shape {tuple(first.frame_shape)}"
+                )
+        return _median(movies, what)
+    finally:
+        for movie in movies:
+            movie.close()
+
+
+def _median(movies: list[Movie], what: str) -> NDArray[np.float64]:
+    """Per-pixel median of the frames of ``movies`` taken together (subsampled evenly)."""
+    index = [(m, k) for m in movies for k in range(len(m))]
+    n = len(index)
+    picks = (
+        np.arange(n)
+        if n <= MAX_REFERENCE_FRAMES
+        else np.unique(np.linspace(0, n - 1, MAX_REFERENCE_FRAMES).round().astype(int))
+    )
+    dtype = np.result_type(*(m.dtype for m in movies))
+    stack = np.empty((len(picks), *movies[0].frame_shape), dtype=dtype)
+    for slot, i in enumerate(picks):
+        movie, k = index[int(i)]
+        try:
+            stack[slot] = movie[k]
+        except MovieError as exc:
+            raise CropError(f"{what}: {exc}") from None
     if stack.dtype.kind == "f":
         bad = ~np.isfinite(stack)
         if bad.any():
-            k, row, col = np.unravel_index(int(np.argmax(bad)), bad.shape)
+            slot, row, col = np.unravel_index(int(np.argmax(bad)), bad.shape)
+            movie, k = index[int(picks[slot])]
             raise CropError(
-                f"{path}: {what} has {int(bad.sum())} non-finite (NaN/inf) value(s), first in "
-                f"frame {picks[k]} at row {row}, column {col}"
+                f"{movie.path}: {what} has {int(bad.sum())} non-finite (NaN/inf) value(s), "
+                f"first in frame {k} at row {row}, column {col}"
             )
     if stack.shape[0] == 1:
         return stack[0].astype(np.float64)
     return np.median(stack, axis=0).astype(np.float64)
 
 
-def read_dark(dark: str | Path | float | None) -> float | NDArray[np.float64] | None:
-    """A dark level given as a number of counts, or as a dark frame / stack file."""
+def read_dark(
+    dark: str | Path | Sequence[str | Path] | float | None,
+) -> float | NDArray[np.float64] | None:
+    """A dark level given as a number of counts, or as dark frame / stack files."""
     if dark is None:
         return None
     if isinstance(dark, int | float | np.integer | np.floating):

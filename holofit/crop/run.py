@@ -14,8 +14,10 @@ whatever the movie's length. Outputs (in ``out_dir``):
     one row per frame (columns in :data:`holofit.crop.table.CROP_UNITS`); written last, so
     its presence means the stage completed.
 
-A frame that cannot be read or normalised gets status ``error`` and the run goes on; input that
-makes the whole run meaningless (unreadable movie, background of another shape, a background
+A frame that cannot be read or normalised gets status ``error`` and the run goes on: every
+frame the movie file claims has a row, so a truncated movie's lost frames are ``error`` rows
+naming the frame (and the sidecar's ``movie.problems`` says what is wrong with the file). Input
+that makes the whole run meaningless (unreadable movie, background of another shape, a background
 that is zero everywhere, an empty movie, every frame failing) raises :class:`CropError` and
 leaves no output behind.
 """
@@ -24,7 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,8 +49,10 @@ from holofit.io.tiffstack import TiffStackWriter
 from holofit.provenance import sidecar
 from holofit.status import CROP_EDGE, CROP_ERROR, CROP_NO_PARTICLE, CROP_OK, CROP_STATUSES
 
-__all__ = ["CropResult", "run_crop"]
+__all__ = ["MIN_CROP_SIZE", "CropResult", "run_crop"]
 
+#: smallest crop side, pixels
+MIN_CROP_SIZE = 8
 
 
 @dataclass
@@ -71,6 +75,8 @@ class CropResult:
         The per-frame table.
     counts : dict
         Frames per status.
+    problems : list of str
+        What is wrong with the movie file as a whole (e.g. truncation), also in the sidecars.
     """
 
     out_dir: Path
@@ -80,6 +86,7 @@ class CropResult:
     plot: Path | None
     frames: pd.DataFrame
     counts: dict[str, int] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
 
 
 def _resolve_instrument(instrument: Instrument | str | Path) -> Instrument:
@@ -99,42 +106,60 @@ def _saturation(movie: Movie, instrument: Instrument) -> float | None:
     return float(min(2**instrument.bit_depth - 1, type_max))
 
 
+References = str | Path | Sequence[str | Path]
+
+
+def _paths(refs: References | None) -> list[Path]:
+    if refs is None:
+        return []
+    return [Path(refs)] if isinstance(refs, str | Path) else [Path(r) for r in refs]
+
+
 def _prepare(
     movie: Movie,
-    background_path: str | Path,
-    dark: str | Path | float | None,
+    backgrounds: list[Path],
+    dark: References | float | None,
     min_background: float,
     saturation: float | None,
     instrument_label: str,
 ) -> tuple[Normalizer, dict[str, Any]]:
-    background = read_reference_frame(background_path, "background")
+    background = read_reference_frame(backgrounds, "background")
+    named = ", ".join(map(str, backgrounds))
     if background.shape != tuple(movie.frame_shape):
         raise CropError(
-            f"{background_path}: background has shape {background.shape}, but the frames of "
+            f"{named}: background has shape {background.shape}, but the frames of "
             f"{movie.path} have shape {tuple(movie.frame_shape)}"
         )
     if saturation is not None and float(background.max()) > saturation:
         raise CropError(
-            f"{background_path}: background counts up to {background.max():g} exceed the full "
+            f"{named}: background counts up to {background.max():g} exceed the full "
             f"scale {saturation:g} of the bit depth of instrument {instrument_label}: correct "
             "bit_depth in the instrument config, or do not mask saturated pixels "
             "(--keep-saturated)"
         )
     dark_value = read_dark(dark)
+    dark_files = [] if isinstance(dark, int | float) else _paths(dark)
     if isinstance(dark_value, np.ndarray) and dark_value.shape != background.shape:
         raise CropError(
-            f"{dark}: dark frame has shape {dark_value.shape}, the background {background.shape}"
+            f"{', '.join(map(str, dark_files))}: dark frame has shape {dark_value.shape}, the "
+            f"background {background.shape}"
         )
     try:
         normalizer = Normalizer(
             background, dark_value, min_background=min_background, saturation=saturation
         )
     except ValueError as exc:
-        where = dark if "dark" in str(exc) and isinstance(dark, str | Path) else background_path
+        where = ", ".join(map(str, dark_files)) if "dark" in str(exc) and dark_files else named
         raise CropError(f"{where}: {exc}") from None
     info = {
-        "background": str(background_path),
-        "dark": None if dark is None else (dark if isinstance(dark, int | float) else str(dark)),
+        "formula": "(I - dark) / (I_bg - dark) * mean(I_bg - dark) / mean(I - dark)",
+        "background": [str(p) for p in backgrounds],
+        "background_combined": "per-pixel median of all frames of all background files"
+        if len(backgrounds) > 1
+        else "the frame, or the per-pixel median of the stack",
+        "dark": None
+        if dark is None
+        else (float(dark) if isinstance(dark, int | float) else [str(p) for p in dark_files]),
         "min_background_fraction": min_background,
         "background_mean_counts": normalizer.background_mean,
         "n_masked_background_pixels": normalizer.n_masked_background,
@@ -151,11 +176,12 @@ def _remove_stale(paths: list[Path]) -> None:
 
 def run_crop(
     movie_path: str | Path,
-    background_path: str | Path,
+    background_path: References | None,
     instrument: Instrument | str | Path,
     out_dir: str | Path,
     *,
-    dark: str | Path | float | None = None,
+    normalized: bool = False,
+    dark: References | float | None = None,
     size: int = 140,
     follow: str = "strongest",
     start: tuple[float, float] | None = None,
@@ -172,15 +198,22 @@ def run_crop(
     ----------
     movie_path : str or Path
         Raw movie: multi-page (or OME-) TIFF, or a folder of TIFF frames; 8 or 16 bit.
-    background_path : str or Path
-        Background: one frame, or a stack / folder reduced by its per-pixel median.
+    background_path : str, Path, a sequence of them, or None
+        Background: one frame, or a stack / folder, or several of these; all their frames are
+        reduced by the per-pixel median. None with ``normalized``.
     instrument : Instrument, str or Path
         Instrument config (object, file, or name in ``configs/instruments``); its pixel size
         converts centres to um, its bit depth gives the saturation level.
     out_dir : str or Path
         Output folder (created).
-    dark : str, Path or float, optional
-        Dark level: a number of counts (``--dark-count``) or a dark frame / stack file.
+    normalized : bool
+        The movie is background-divided already (as many public data sets are, often stored as
+        scaled integers: background at 100 counts, or scaled to 255): the background is taken
+        to be flat, so each frame is only divided by its mean (the paper's normalisation with a
+        flat background); saturated pixels are still masked.
+    dark : str, Path, sequence of them, or float, optional
+        Dark level: a number of counts (``--dark-count``) or dark frame / stack files (their
+        per-pixel median).
     size : int
         Crop side N, pixels (default 140, the paper's).
     follow : {"strongest", "nearest"}
@@ -212,8 +245,19 @@ def run_crop(
     out = Path(out_dir)
     inst = _resolve_instrument(instrument)
     size = int(size)
-    if size < 8:
-        raise CropError(f"crop size must be at least 8 pixels, got {size}")
+    if size < MIN_CROP_SIZE:
+        raise CropError(f"crop size must be at least {MIN_CROP_SIZE} pixels, got {size}")
+    backgrounds = _paths(background_path)
+    if normalized and (backgrounds or dark is not None):
+        raise CropError(
+            "a normalised movie takes no background and no dark level: give either a "
+            "background or normalized=True (--normalized)"
+        )
+    if not normalized and not backgrounds:
+        raise CropError(
+            "no background given: crop needs the background of the raw movie, or "
+            "normalized=True (--normalized) for a movie that is normalised already"
+        )
     finder = finder or CenterFinder(radius_px=size / 2.0)
     follower = Follower(follow, start, max_jump_px if max_jump_px is not None else size / 4.0)
     try:
@@ -227,9 +271,19 @@ def run_crop(
                 f"{movie.frame_shape[0]} x {movie.frame_shape[1]} pixels; use a smaller --size"
             )
         saturation = _saturation(movie, inst) if mask_saturated else None
-        normalizer, norm_info = _prepare(
-            movie, background_path, dark, min_background, saturation, inst.path or inst.name
-        )
+        if normalized:
+            normalizer = Normalizer(np.ones(movie.frame_shape), saturation=saturation)
+            norm_info: dict[str, Any] = {
+                "formula": "I / mean(I): the movie is background-divided already "
+                "(--normalized; the paper's normalisation with a flat background)",
+                "background": None,
+                "dark": None,
+                "saturation_counts": saturation,
+            }
+        else:
+            normalizer, norm_info = _prepare(
+                movie, backgrounds, dark, min_background, saturation, inst.path or inst.name
+            )
         crops_path = out / "crops.tif"
         table_path = out / "crops.csv"
         cand_path = out / "candidates.csv"
@@ -263,15 +317,11 @@ def run_crop(
             "start_px": list(start) if start is not None else None,
             "max_jump_px": follower.max_jump_px,
             "finder": finder.as_dict(),
-            "normalization": {
-                "formula": "(I - dark) / (I_bg - dark) * mean(I_bg - dark) / mean(I - dark)",
-                **norm_info,
-                "mask_saturated": mask_saturated,
-            },
+            "normalization": {**norm_info, "mask_saturated": mask_saturated},
         }
-        inputs: list[str | Path] = [movie_path, background_path]
-        if isinstance(dark, str | Path):
-            inputs.append(dark)
+        inputs: list[str | Path] = [movie_path, *backgrounds]
+        if not isinstance(dark, int | float):
+            inputs += _paths(dark)
         cand_table = pd.DataFrame(candidates, columns=list(CANDIDATE_UNITS))
         write_table(
             cand_path,
@@ -295,6 +345,8 @@ def run_crop(
                 "frames": len(movie),
                 "frame_shape": list(movie.frame_shape),
                 "dtype": str(movie.dtype),
+                "problems": list(movie.problems),
+                "reader_notes": list(movie.notes),
             },
             "crops": {
                 "file": crops_path.name,
@@ -323,7 +375,8 @@ def run_crop(
             sidecar(kind="crop table", units=CROP_UNITS, config=config, inputs=inputs,
                     extra=extra),
         )  # fmt: skip
-    return CropResult(out, crops_path, table_path, cand_path, made_plot, frames, counts)
+    return CropResult(out, crops_path, table_path, cand_path, made_plot, frames, counts,
+                      list(movie.problems))
 
 
 def _crop_frames(

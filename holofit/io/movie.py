@@ -1,19 +1,32 @@
 """Lazy, frame-by-frame reading of hologram movies.
 
-A movie is a multi-page TIFF (plain, ImageJ or OME-TIFF stack) or a folder of single-frame
-TIFF files. Frames are read one at a time, so a 2000-frame megapixel movie never sits in memory
-whole. 8- and 16-bit (and float) pixels are returned unchanged in their own dtype.
+A movie is a multi-page TIFF (plain, ImageJ, OME-TIFF, or one header per page as Pillow and
+many cameras write it) or a folder of single-frame TIFF files. Frames are read one at a time,
+so a 2000-frame megapixel movie never sits in memory whole. 8- and 16-bit (and float) pixels
+are returned unchanged in their own dtype; compressed pages (LZW, deflate, ...) are decoded by
+tifffile, with the ``imagecodecs`` package for the codecs Python does not ship.
+
+Nothing a file claims is dropped silently: a movie is as long as the file says it is (its
+header's frame count, or the pages its directory chain points to), and a frame that cannot be
+read (a truncated file, a page whose pixel data lie past the end of the file) raises
+:class:`MovieError` naming the file and the frame when it is read, so that a stage can record it
+and go on. What is wrong with the file as a whole is in :attr:`Movie.problems`.
 """
 
 from __future__ import annotations
 
 import re
+import struct
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import tifffile
 from numpy.typing import NDArray
+
+from holofit.io.logcapture import capture_log
 
 __all__ = ["Movie", "MovieError", "open_movie"]
 
@@ -26,6 +39,58 @@ class MovieError(ValueError):
 
 def _natural_key(path: Path) -> list[object]:
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name)]
+
+
+def _compression_name(code: int) -> str:
+    try:
+        return f"{tifffile.COMPRESSION(code).name} (TIFF compression {code})"
+    except ValueError:
+        return f"TIFF compression {code} (unknown to tifffile)"
+
+
+def _codec_problem(path: Path, page: Any) -> str | None:
+    """Why the pages of ``path`` cannot be decoded here (None if they can)."""
+    code = int(page.compression)
+    if code == 1:
+        return None
+    try:
+        tifffile.TIFF.DECOMPRESSORS[code]
+    except KeyError as exc:
+        reason = str(exc).strip("'\"")
+        if "imagecodecs" in reason:
+            return (
+                f"{path}: frames are compressed with {_compression_name(code)}, which needs the "
+                "imagecodecs package (pip install imagecodecs), a dependency of holofit; "
+                "reinstall holofit or save the movie uncompressed"
+            )
+        return (
+            f"{path}: frames are compressed with {_compression_name(code)}, which holofit "
+            "cannot decode; save the movie uncompressed (or with LZW or deflate)"
+        )
+    return None
+
+
+@dataclass(frozen=True)
+class _Page:
+    """A frame that is one TIFF page (directory) tifffile parsed."""
+
+    page: Any  # tifffile.TiffPage | tifffile.TiffFrame
+
+
+@dataclass(frozen=True)
+class _Block:
+    """A frame of an uncompressed contiguous stack, read by its byte offset."""
+
+    offset: int
+
+
+@dataclass(frozen=True)
+class _Lost:
+    """A frame the file claims but that cannot be read."""
+
+    reason: str
+    #: the file's directory chain ends here: how many frames followed is unknown
+    open_ended: bool = False
 
 
 class Movie:
@@ -45,6 +110,11 @@ class Movie:
         ``(rows, columns)`` of every frame.
     dtype : numpy.dtype
         Pixel type.
+    problems : list of str
+        What is wrong with the file as a whole (e.g. truncation: which frames are lost); empty
+        for a sound file. Reading a lost frame raises :class:`MovieError`.
+    notes : list of str
+        What the TIFF library reported while reading (kept here instead of printed).
 
     Examples
     --------
@@ -57,6 +127,9 @@ class Movie:
         self.path = Path(path)
         self._tif: tifffile.TiffFile | None = None
         self._files: list[Path] = []
+        self._sources: list[_Page | _Block | _Lost] = []
+        self.problems: list[str] = []
+        self.notes: list[str] = []
         if not self.path.exists():
             raise MovieError(f"{self.path}: no such file or folder")
         if self.path.is_dir():
@@ -70,56 +143,213 @@ class Movie:
             self.dtype = first.dtype
             self._n = len(self._files)
         else:
-            self._open_stack()
+            try:
+                self._open_stack()
+            except BaseException:
+                self.close()
+                raise
 
     # -- stacks --------------------------------------------------------------------------
     def _open_stack(self) -> None:
+        with capture_log("tifffile") as log:
+            try:
+                self._tif = tif = tifffile.TiffFile(self.path)
+                s0 = tif.series[0]
+                shape, axes = tuple(s0.shape), s0.axes
+                first = s0.pages[0] if len(s0.pages) else tif.pages[0]
+            except Exception as exc:  # tifffile raises many types for corrupt input
+                raise MovieError(f"{self.path}: not a readable TIFF file ({exc})") from None
+            self._size = self.path.stat().st_size
+            if len(shape) < 2 or first is None:
+                raise MovieError(
+                    f"{self.path}: TIFF series has shape {shape}, expected 2-D frames"
+                )
+            if axes.endswith("S"):
+                # every other leading axis (T, Z, C, I, Q: ImageJ and tifffile label plain
+                # stacks variously) is read as frames, page after page
+                raise MovieError(
+                    f"{self.path}: colour images (axes {axes!r}, shape {shape}) are not "
+                    "supported; convert to one grey channel"
+                )
+            self.frame_shape = shape[-2:]
+            self.dtype = np.dtype(s0.dtype)
+            self._frame_bytes = int(np.prod(self.frame_shape)) * self.dtype.itemsize
+            codec = _codec_problem(self.path, first)
+            if codec is not None:
+                raise MovieError(codec)
+            n_series = int(np.prod(shape[:-2], dtype=int)) if len(shape) > 2 else 1
+            declared = max(n_series, self._declared_frames())
+            offset = s0.dataoffset if _plain(first) else None
+            if offset is not None and declared > 1:
+                # one uncompressed block of frames (tifffile's own contiguous layout, ImageJ):
+                # frame k lies at a known offset, whatever became of the directories
+                self._sources = [
+                    _Block(int(offset) + k * self._frame_bytes) for k in range(declared)
+                ]
+            else:
+                self._pages_as_frames(tif, s0, n_series, declared, log)
+        self._note(log)
+        self._n = len(self._sources)
+        lost = [k for k, src in enumerate(self._sources) if isinstance(src, _Lost)]
+        lost += [k for k, src in enumerate(self._sources) if self._beyond_end(src)]
+        if lost:
+            last = self._sources[-1]
+            which = _frame_list(sorted(set(lost)))
+            if isinstance(last, _Lost) and last.open_ended:
+                which += " and any frames after it (the file does not say how many it had)"
+            else:
+                which += f" of the {self._n} in the file"
+            self.problems.append(
+                f"{self.path}: the file is truncated ({self._size} bytes): {which} cannot be "
+                "read"
+            )
+
+    def _pages_as_frames(self, tif: Any, s0: Any, n_series: int, declared: int,
+                         log: list[str]) -> None:
+        """Frames that are pages of their own (compressed, or one header per page)."""
+        pages, broken = _readable_pages(s0.pages, log)
+        if len(pages) == n_series > 1 and not broken:
+            chain = pages  # the series is whole: its pages are the file's directories
+        else:
+            chain, broken = _readable_pages(tif.pages, log)  # every directory reached
+        if not chain:
+            raise MovieError(f"{self.path}: not a readable TIFF file (no readable directory)")
+
+        def is_frame(page: Any) -> bool:
+            return (
+                page.shape is not None
+                and tuple(s for s in page.shape if s != 1) == tuple(self.frame_shape)
+                and np.dtype(page.dtype) == self.dtype
+            )
+
+        if len(pages) < n_series <= len(chain) and all(map(is_frame, chain)):
+            pages = chain  # tifffile parsed fewer pages than the series has
+        elif n_series == 1 and len(chain) > 1 and all(map(is_frame, chain)):
+            # one series per page (tifffile's separately written pages, or a header that
+            # tifffile could not apply): every page of the file is a frame
+            pages = chain
+        self._sources = [_Page(p) for p in pages]
+        found = len(self._sources)
+        if declared > found:
+            self._sources += [
+                _Lost(f"its header declares {declared} frames, the file holds the directories "
+                      f"of {found}")
+            ] * (declared - found)
+        elif found == len(chain):
+            if broken:
+                self._sources.append(_Lost("its directory is corrupted", open_ended=True))
+            else:
+                self._check_chain_end(chain[-1])
+
+    def _declared_frames(self) -> int:
+        """Frames the file's own header declares (0 if it declares none)."""
+        tif = self._tif
+        assert tif is not None
+        found = 0
+        if tif.is_imagej:
+            images = (tif.imagej_metadata or {}).get("images")
+            if images is not None:
+                found = max(found, int(images))
+        for meta in (tif.shaped_metadata or ())[:1]:  # the first series'
+            shape = meta.get("shape") if isinstance(meta, dict) else None
+            if shape and len(shape) > 2:
+                lead = shape[:-3] if shape[-1] in (3, 4) and len(shape) > 3 else shape[:-2]
+                found = max(found, int(np.prod(lead, dtype=int)))
+        return found
+
+    def _check_chain_end(self, last: Any) -> None:
+        """A last directory that points to another one that cannot be read: a lost frame."""
+        tif = self._tif
+        assert tif is not None
+        fmt = tif.tiff
         try:
-            self._tif = tifffile.TiffFile(self.path)
-            series = self._tif.series[0]
-            shape, axes = tuple(series.shape), series.axes
-        except Exception as exc:  # tifffile raises many types for corrupt input
-            self.close()
-            raise MovieError(f"{self.path}: not a readable TIFF file ({exc})") from None
-        if len(shape) < 2:
-            self.close()
-            raise MovieError(f"{self.path}: TIFF series has shape {shape}, expected 2-D frames")
-        if axes.endswith("S"):
-            # every other leading axis (T, Z, C, I, Q: ImageJ and tifffile label plain stacks
-            # variously) is read as frames, page after page
-            self.close()
-            raise MovieError(
-                f"{self.path}: colour images (axes {axes!r}, shape {shape}) are not supported; "
-                "convert to one grey channel"
-            )
-        self.frame_shape = shape[-2:]
-        self.dtype = np.dtype(series.dtype)
-        self._pages = series.pages
-        self._n = int(np.prod(shape[:-2], dtype=int)) if len(shape) > 2 else 1
-        declared = (self._tif.imagej_metadata or {}).get("images") if self._tif.is_imagej else None
-        if declared is not None and int(declared) > self._n:
-            self.close()
-            raise MovieError(
-                f"{self.path}: ImageJ header declares {declared} images but only {self._n} can "
-                "be read; the file is truncated"
-            )
-        if len(self._pages) != self._n:
-            self.close()
-            raise MovieError(
-                f"{self.path}: series of shape {shape} has {len(self._pages)} pages, expected "
-                f"{self._n}; the file may be truncated"
-            )
+            fh = tif.filehandle
+            fh.seek(last.offset)
+            (n_tags,) = struct.unpack(fmt.tagnoformat, fh.read(fmt.tagnosize))
+            fh.seek(last.offset + fmt.tagnosize + n_tags * fmt.tagsize)
+            (following,) = struct.unpack(fmt.offsetformat, fh.read(fmt.offsetsize))
+        except (OSError, struct.error):
+            return
+        if following == 0:
+            return
+        if following < self._size:
+            # a directory tifffile can read (another series: a thumbnail, say) is no loss
+            with capture_log("tifffile"):
+                every, _ = _readable_pages(tif.pages, [])
+            if any(int(page.offset) == following for page in every):
+                return
+        what = (
+            f"lies past the end of the file ({self._size} bytes)"
+            if following >= self._size
+            else "is corrupted"
+        )
+        self._sources.append(_Lost(f"its directory, at byte {following}, {what}", open_ended=True))
+
+    def _beyond_end(self, source: _Page | _Block | _Lost) -> bool:
+        return self._data_end(source) > self._size
+
+    def _data_end(self, source: _Page | _Block | _Lost) -> int:
+        if isinstance(source, _Block):
+            return source.offset + self._frame_bytes
+        if isinstance(source, _Page):
+            page = source.page
+            ends = [o + c for o, c in zip(page.dataoffsets, page.databytecounts, strict=False)]
+            return max(ends, default=0)
+        return 0
+
+    def _note(self, messages: list[str]) -> None:
+        for message in messages:
+            text = f"tifffile: {message}"
+            if text not in self.notes:
+                self.notes.append(text)
 
     def _read_file(self, index: int) -> NDArray:
         file = self._files[index]
-        try:
-            img = tifffile.imread(file)
-        except Exception as exc:
-            raise MovieError(f"{file}: frame {index} is not a readable TIFF ({exc})") from None
+        with capture_log("tifffile") as log:
+            try:
+                img = tifffile.imread(file)
+            except Exception as exc:
+                raise MovieError(
+                    f"{file}: frame {index} is not a readable TIFF ({exc})"
+                    + "".join(f"; tifffile: {m}" for m in log)
+                ) from None
+        self._note(log)
         img = np.squeeze(img)
         if img.ndim != 2:
             raise MovieError(f"{file}: frame {index} has shape {img.shape}, expected 2-D")
         return img
+
+    def _read_page(self, index: int) -> NDArray:
+        source = self._sources[index]
+        prefix = f"{self.path}: frame {index}"
+        if isinstance(source, _Lost):
+            later = "; any later frames are lost with it" if source.open_ended else ""
+            raise MovieError(
+                f"{prefix} cannot be read: the file is truncated: {source.reason}{later}"
+            )
+        end = self._data_end(source)
+        if end > self._size:
+            raise MovieError(
+                f"{prefix} cannot be read: the file is truncated: its pixel data end at byte "
+                f"{end}, the file at byte {self._size}"
+            )
+        if self._tif is None:
+            raise MovieError(f"{self.path}: movie is closed")
+        with capture_log("tifffile") as log:
+            try:
+                if isinstance(source, _Block):
+                    dtype = self.dtype.newbyteorder(self._tif.byteorder)
+                    img = self._tif.filehandle.read_array(
+                        dtype, int(np.prod(self.frame_shape)), source.offset
+                    ).astype(self.dtype, copy=False)
+                else:
+                    img = source.page.asarray()
+            except Exception as exc:
+                raise MovieError(
+                    f"{prefix} cannot be read ({exc})" + "".join(f"; tifffile: {m}" for m in log)
+                ) from None
+        self._note(log)
+        return np.squeeze(img).reshape(self.frame_shape)
 
     # -- public API ----------------------------------------------------------------------
     def __len__(self) -> int:
@@ -139,15 +369,7 @@ class Movie:
                     f"frame has {self.frame_shape}"
                 )
             return img
-        if self._tif is None:
-            raise MovieError(f"{self.path}: movie is closed")
-        try:
-            img = self._pages[index].asarray()
-        except Exception as exc:
-            raise MovieError(
-                f"{self.path}: frame {index} cannot be read ({exc}); the file may be truncated"
-            ) from None
-        return np.squeeze(img).reshape(self.frame_shape)
+        return self._read_page(index)
 
     def __iter__(self) -> Iterator[NDArray]:
         for i in range(len(self)):
@@ -175,6 +397,50 @@ class Movie:
             f"Movie({str(self.path)!r}, frames={len(self)}, shape={self.frame_shape}, "
             f"dtype={self.dtype})"
         )
+
+
+def _plain(page: Any) -> bool:
+    """Uncompressed pixels in one piece, readable by offset."""
+    return (
+        int(page.compression) == 1
+        and len(page.dataoffsets) == 1
+        and bool(page.is_contiguous)
+        and page.fillorder == 1
+        and page.predictor == 1
+    )
+
+
+def _readable_pages(pages: Any, log: list[str]) -> tuple[list[Any], bool]:
+    """The pages of a tifffile page sequence up to the first that cannot be parsed.
+
+    Returns the pages and whether one could not be parsed (a corrupted directory).
+    """
+    found: list[Any] = []
+    try:
+        for page in pages:
+            if page is not None:
+                found.append(page)
+    except Exception as exc:  # tifffile raises many types for a corrupted directory
+        message = f"directory {len(found)}: {exc}"
+        if message not in log:
+            log.append(message)
+        return found, True
+    return found, False
+
+
+def _frame_list(frames: list[int]) -> str:
+    """``[5, 6, 7, 9]`` -> ``"frames 5-7, 9"``."""
+    runs: list[str] = []
+    start = prev = frames[0]
+    for f in [*frames[1:], None]:
+        if f is not None and f == prev + 1:
+            prev = f
+            continue
+        runs.append(str(start) if start == prev else f"{start}-{prev}")
+        if f is not None:
+            start = prev = f
+    word = "frame" if len(frames) == 1 else "frames"
+    return f"{word} {', '.join(runs)}"
 
 
 def open_movie(path: str | Path) -> Movie:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -13,7 +12,7 @@ import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
-from holofit.io.atomic import publish
+from holofit.io.atomic import create_temporary, publish
 
 __all__ = ["TiffStackWriter", "write_tiff_stack"]
 
@@ -22,7 +21,9 @@ class TiffStackWriter:
     """Stream frames into a multi-page TIFF that appears under its name only when complete.
 
     Frames go to a temporary file beside the target; :meth:`close` renames it, and leaving the
-    ``with`` block through an exception deletes it. Memory use is one frame.
+    ``with`` block through an exception deletes it; a temporary left by a killed writer is
+    removed by the next writer of the same file (:func:`holofit.io.atomic.create_temporary`).
+    Memory use is one frame.
 
     Parameters
     ----------
@@ -34,13 +35,12 @@ class TiffStackWriter:
 
     def __init__(self, path: str | Path, metadata: dict[str, Any] | None = None) -> None:
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{self.path.name}.", suffix=".part", dir=self.path.parent
-        )
-        os.close(fd)
-        self._tmp = Path(tmp)
-        self._writer = tifffile.TiffWriter(self._tmp, bigtiff=True)
+        self._tmp, self._lock_fd = create_temporary(self.path)
+        try:
+            self._writer = tifffile.TiffWriter(self._tmp, bigtiff=True)
+        except BaseException:
+            self._release()
+            raise
         self._metadata = metadata or {}
         self._shape: tuple[int, ...] | None = None
         self._dtype: np.dtype | None = None
@@ -67,15 +67,29 @@ class TiffStackWriter:
 
     def close(self) -> None:
         """Finish the file and move it into place."""
-        self._writer.close()
-        publish(self._tmp, self.path)
+        try:
+            self._writer.close()
+            publish(self._tmp, self.path)
+        except BaseException:
+            self._release()
+            raise
+        self._close_lock()
 
     def abort(self) -> None:
         """Discard everything written."""
         with contextlib.suppress(Exception):
             self._writer.close()
+        self._release()
+
+    def _release(self) -> None:
         with contextlib.suppress(FileNotFoundError):
             self._tmp.unlink()
+        self._close_lock()
+
+    def _close_lock(self) -> None:
+        if self._lock_fd >= 0:
+            os.close(self._lock_fd)
+            self._lock_fd = -1
 
     def __enter__(self) -> TiffStackWriter:
         return self

@@ -27,7 +27,13 @@ from holofit.provenance import sidecar
 from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteringTheory
 
-__all__ = ["SimulatedMovie", "simulate_movie", "smooth_illumination"]
+__all__ = [
+    "SimulatedMovie",
+    "SimulationError",
+    "check_positions",
+    "simulate_movie",
+    "smooth_illumination",
+]
 
 TRUTH_UNITS = {
     "frame": "index",
@@ -42,6 +48,65 @@ TRUTH_UNITS = {
     "phi_rad": "rad",
     "alpha": "1",
 }
+
+
+class SimulationError(ValueError):
+    """A simulation that cannot be made as asked; ``frame`` is the frame at fault, if any."""
+
+    def __init__(self, message: str, frame: int | None = None) -> None:
+        super().__init__(message)
+        self.frame = frame
+
+
+def check_positions(model: ParticleModel, positions_um: ArrayLike) -> NDArray[np.float64]:
+    """Check that every frame's particle lies wholly above the focal plane.
+
+    holofit's holograms are the field in the focal plane (``z = 0``) of a particle above it
+    (``z`` is the height of the centre, toward the light source): a plane that cuts the particle
+    has no exterior field to record, and a particle below the plane would need the field of a
+    virtual image. The test uses the model's bounding radius (the smallest sphere about its
+    centre that holds it), so it holds for every orientation.
+
+    Parameters
+    ----------
+    model : ParticleModel
+        The particle.
+    positions_um : array_like, shape (N, 3)
+        ``(x, y, z)`` of the centre per frame, um.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        The positions as floats.
+
+    Raises
+    ------
+    SimulationError
+        Wrong shape, a non-finite coordinate, or ``z`` not above the bounding radius; the
+        message and ``frame`` name the first frame at fault.
+    """
+    pos = np.atleast_2d(np.asarray(positions_um, dtype=float))
+    if pos.ndim != 2 or pos.shape[1] != 3:
+        raise SimulationError(f"positions must have shape (N, 3), got {pos.shape}")
+    if len(pos) == 0:
+        raise SimulationError("no positions: nothing to simulate")
+    bad = ~np.isfinite(pos).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise SimulationError(f"frame {k}: position {tuple(pos[k])} is not finite", k)
+    radius = float(model.bounding_radius_um)
+    low = pos[:, 2] <= radius
+    if low.any():
+        k = int(np.argmax(low))
+        x, y, z = (float(v) for v in pos[k])
+        where = "lies below the focal plane" if z < -radius else "is cut by the focal plane"
+        raise SimulationError(
+            f"frame {k}: the particle centred at ({x:g}, {y:g}, {z:g}) um {where}: z, the "
+            "height of the centre above the focal plane (toward the light source), must "
+            f"exceed the particle's bounding radius, {radius:.4g} um",
+            k,
+        )
+    return pos
 
 
 @dataclass
@@ -123,17 +188,23 @@ def simulate_movie(
     Returns
     -------
     SimulatedMovie
+
+    Raises
+    ------
+    SimulationError
+        Positions that are not wholly above the focal plane (:func:`check_positions`), or
+        orientations of the wrong shape; nothing is written.
     """
-    pos = np.atleast_2d(np.asarray(positions_um, dtype=float))
-    if pos.shape[1] != 3:
-        raise ValueError(f"positions must have shape (N, 3), got {pos.shape}")
+    pos = check_positions(model, positions_um)
     n = pos.shape[0]
     if orientations is None:
         orient = np.zeros((n, 3))
     else:
         orient = np.atleast_2d(np.asarray(orientations, dtype=float))
         if orient.shape != (n, 3):
-            raise ValueError(f"orientations must have shape ({n}, 3), got {orient.shape}")
+            raise SimulationError(
+                f"orientations must have shape ({n}, 3), got {orient.shape}"
+            )
     theory = theory or select_theory(model)
     camera = camera or Camera(
         bit_depth=instrument.bit_depth,

@@ -63,6 +63,12 @@ from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheo
 __all__ = ["AddaEngine", "AddaWave"]
 
 
+def _tail(text: str, lines: int = 5) -> str:
+    """The last lines ADDA printed, quoted, or ``nothing``."""
+    kept = [line.strip() for line in text.strip().splitlines() if line.strip()][-lines:]
+    return " | ".join(kept).join("''") if kept else "nothing"
+
+
 class AddaWave(ScatteredWave):
     """A particle, orientation and illumination for ADDA; ADDA runs when fields are asked for.
 
@@ -228,7 +234,13 @@ class AddaEngine(ScatteringTheory):
             try:
                 result.ampl = read_ampl_scatgrid(out / "ampl_scatgrid", theta_deg, phi_deg)
             except AddaError as exc:
-                raise AddaError(f"{exc}\ncommand: {shlex.join(result.command)}") from None
+                # the work folder is deleted: name the file as ADDA's -dir names it
+                text = str(exc).replace(f"{tmp}{os.sep}", "")
+                raise AddaError(
+                    f"ADDA ran (exit status 0) but its output is unusable: {text}; ADDA printed "
+                    f"{_tail(result.stdout + result.stderr)}\n"
+                    f"command: {shlex.join(result.command)}"
+                ) from None
             result.cross_sections = {pol: read_cross_sections(out / f"CrossSec-{pol}")
                                      for pol in ("X", "Y")}
             log = out / "log"
