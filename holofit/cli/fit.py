@@ -15,7 +15,6 @@ from holofit.cli.common import (
 )
 from holofit.cli.stage_options import (
     batch_options,
-    clean_errors,
     frame_list,
     make_batch_options,
     parse_int_list,
@@ -70,7 +69,6 @@ from holofit.scattering.select import ENGINE_CHOICES
               help="Asymptotic far-field scattered field (as ADDA and the paper), not the exact.")
 @quality_options
 @batch_options
-@clean_errors
 def fit(
     crop_dir: Path,
     prefit_dir: Path,

@@ -13,7 +13,7 @@ from holofit.cli.common import (
     out_dir_option,
     particle_option,
 )
-from holofit.cli.stage_options import batch_options, clean_errors, frame_list, make_batch_options
+from holofit.cli.stage_options import batch_options, frame_list, make_batch_options
 from holofit.library.stage import LibrarySettings, run_library
 from holofit.scattering.select import ENGINE_CHOICES
 
@@ -38,7 +38,6 @@ from holofit.scattering.select import ENGINE_CHOICES
               help="Allow --instrument to contradict the crops' instrument.")
 @click.option("--plot/--no-plot", default=True, show_default=True, help="Write library.png.")
 @batch_options
-@clean_errors
 def library(
     crop_dir: Path,
     prefit_dir: Path,

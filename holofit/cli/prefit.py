@@ -9,7 +9,6 @@ import click
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
 from holofit.cli.stage_options import (
     batch_options,
-    clean_errors,
     frame_list,
     make_batch_options,
     parse_int_list,
@@ -57,7 +56,6 @@ def _range(value: str | None, name: str) -> tuple[float, float] | None:
               help="Absolute indices searched [default: 1.02 to 1.30 times the medium's].")
 @quality_options
 @batch_options
-@clean_errors
 def prefit(
     crop_dir: Path,
     out: Path,

@@ -13,7 +13,6 @@ from holofit.batch.runner import BatchOptions
 
 __all__ = [
     "batch_options",
-    "clean_errors",
     "frame_list",
     "make_batch_options",
     "parse_frames",
@@ -125,21 +124,3 @@ def parse_int_list(value: str | None, name: str) -> list[int] | None:
         raise click.BadParameter(f"expected comma-separated frame numbers, got {value!r}",
                                  param_hint=name) from None
 
-
-def clean_errors(func: F) -> F:
-    """Turn holofit's foreseeable errors (bad input files, conflicting earlier results) into a
-    one-line message and exit status 1 instead of a traceback."""
-    import functools
-
-    from holofit.batch.runner import BatchError
-    from holofit.fitting.crops import CropSetError
-    from holofit.validation import ConfigError
-
-    @functools.wraps(func)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return func(*args, **kwargs)
-        except (CropSetError, BatchError, ConfigError) as exc:
-            raise click.ClickException(str(exc)) from None
-
-    return wrapper  # type: ignore[return-value]

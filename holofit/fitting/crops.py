@@ -142,7 +142,7 @@ class CropSet:
         try:
             return np.asarray(self._movie[self._index(frame)], dtype=np.float32)
         except MovieError as exc:
-            raise CropSetError(f"{exc} (frame {frame})") from None
+            raise CropSetError(f"{exc} (the crop of movie frame {frame})") from None
 
     def _index(self, frame: int) -> int:
         try:
