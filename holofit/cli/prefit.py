@@ -6,12 +6,14 @@ from pathlib import Path
 
 import click
 
-from holofit.batch.runner import BatchError, BatchOptions
+from holofit.batch.errors import BatchError
+from holofit.batch.runner import BatchOptions
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
 from holofit.fitting.crops import CropSetError
 from holofit.fitting.estimate import SearchSpace
 from holofit.fitting.prefit import run_prefit
 from holofit.fitting.sphere_fit import FitOptions
+from holofit.io.lock import OutputLocked
 
 
 def _range(value: str | None, name: str) -> tuple[float, float] | None:
@@ -208,9 +210,11 @@ def prefit(
         result = run_prefit(
             crop_dir, out, instrument=inst, fit=fit, frames=frame_list, batch=batch, plot=plot
         )
-    except (CropSetError, BatchError) as exc:
+    except (CropSetError, BatchError, OutputLocked) as exc:
         raise click.ClickException(str(exc)) from None
     s = result.summary
+    for note in s.notes:
+        click.echo(f"note: {note}", err=True)
     counts = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
     click.echo(
         f"prefit: {s.n_frames} frame(s) [{counts}]; {s.n_run} fitted now, "
