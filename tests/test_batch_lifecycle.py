@@ -205,3 +205,28 @@ def test_prefit_cli_names_the_scheduler_problem_without_traceback(tmp_path):
         assert res.exit_code == 1 and words in res.output, res.output
         assert res.exception is None or isinstance(res.exception, SystemExit)
         assert time.monotonic() - t0 < 10
+
+
+@pytest.mark.slow
+def test_killed_prefit_leaves_no_workers(tmp_path):
+    # the same with the real command line (the default suite uses the toy batch above)
+    from tests.test_prefit_cli import _crop_folder as simulated_crops
+    from tests.test_prefit_cli import _holofit_command
+
+    crops, _ = simulated_crops(tmp_path / "data", 40, size=80, seed=3)
+    out = tmp_path / "out"
+    proc = subprocess.Popen([*_holofit_command(), "prefit", str(crops), "-o", str(out), "-j", "2",
+                             "--no-plot", "--no-progress"])
+    driver = psutil.Process(proc.pid)
+    try:
+        _wait_for(lambda: _journal_rows(out / "prefit.csv") >= 2 and len(driver.children()) >= 3,
+                  timeout_s=120)
+        children = driver.children(recursive=True)
+        assert sum("spawn_main" in " ".join(c.cmdline()) for c in children) == 2
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        _, alive = psutil.wait_procs(children, timeout=5)
+        assert alive == [], [" ".join(p.cmdline()) for p in alive]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
