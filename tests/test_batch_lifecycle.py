@@ -18,8 +18,8 @@ import psutil
 import pytest
 from click.testing import CliRunner
 
-from holofit.batch import BatchOptions, SchedulerError, journal_path, run_batch
-from holofit.batch.backends import DaskBackend
+from holofit.batch import BatchOptions, SchedulerError, WorkerLost, journal_path, run_batch
+from holofit.batch.backends import DaskBackend, SerialBackend
 from holofit.cli import main
 from holofit.io.lock import LOCK_NAME, OutputLocked
 from tests.batch_helpers import COLUMNS, ToyConfig, toy_frame, toy_payload
@@ -135,6 +135,39 @@ def test_the_lock_of_a_killed_run_is_taken_over_and_the_run_resumes(tmp_path):
     assert any("took over the lock" in n and f"pid {first.pid}" in n for n in summary.notes)
     assert pd.read_csv(out)["frame"].tolist() == [0, 1, 2, 3]
     assert not (out.parent / LOCK_NAME).exists()
+
+
+class _ClusterLike(SerialBackend):
+    """A backend where a dying worker takes down only the calls it held (as on Dask), and
+    frame 5 kills every worker that runs it while frame 2, beside it, is lost once too."""
+
+    isolates_lost_workers = True
+
+    def __init__(self) -> None:
+        self.runs: list[int] = []
+
+    def submit(self, fn, func, config, frame, payload):
+        self.runs.append(frame)
+        if frame == 5 or (frame == 2 and self.runs.count(2) == 1):
+            return super().submit(_raise, WorkerLost(f"worker died running {frame}"))
+        return super().submit(fn, func, config, frame, payload)
+
+
+def _raise(exc: BaseException) -> None:
+    raise exc
+
+
+def test_a_frame_lost_beside_the_culprit_is_retried_alone_and_succeeds(tmp_path):
+    backend = _ClusterLike()
+    summary = run_batch(
+        toy_frame, ToyConfig(), range(8), toy_payload, tmp_path / "t.csv", COLUMNS,
+        fingerprint="toy", options=BatchOptions(progress=False), backend=backend,
+    )
+    table = pd.read_csv(tmp_path / "t.csv")
+    assert summary.statuses == {"ok": 7, "error": 1}
+    assert table.loc[5, "status"] == "error" and "worker died" in table.loc[5, "message"]
+    assert table.loc[2, "status"] == "ok"
+    assert backend.runs.count(5) == 2 and backend.runs.count(2) == 2  # each retried once
 
 
 def _crop_folder(path: Path) -> Path:

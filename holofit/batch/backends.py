@@ -54,9 +54,9 @@ class Backend:
     #: how many calls can run at the same time
     slots: int = 1
     name: str = ""
-    #: True if a dying worker takes only its own call down (Dask: the scheduler reruns the
-    #: others and reports the call that killed workers); False if it breaks every call in
-    #: flight (a process pool)
+    #: True if a dying worker takes only the calls it held down (Dask: the scheduler reruns
+    #: or fails just those; the worker is replaced by its nanny); False if it breaks every
+    #: call in flight and the backend must be restarted (a process pool)
     isolates_lost_workers: bool = True
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Any:  # pragma: no cover

@@ -440,8 +440,8 @@ class _BatchRun:
             try:
                 self.record(self.backend.result(fut))
             except WorkerLost as exc:
-                if self.backend.isolates_lost_workers:
-                    self.record({"frame": task.frame, "status": ERROR, "message": str(exc)})
+                if self.backend.isolates_lost_workers:  # only this frame was lost
+                    self._requeue([task], exc)
                     continue
                 self._worker_lost(task, exc)
                 break
@@ -449,11 +449,16 @@ class _BatchRun:
                 self.record({"frame": task.frame, "status": ERROR, "message": f"{exc}"})
 
     def _worker_lost(self, task: _Task, exc: WorkerLost) -> None:
-        """A pool worker died: every frame in flight is lost. Restart the pool and retry them
-        one at a time; a frame that ran alone and killed a worker is an ``error``."""
+        """A pool worker died: every frame in flight is lost. Restart the pool, requeue them."""
         lost = [task, *self.in_flight.values()]
         self.in_flight.clear()
         self.backend.restart()
+        self._requeue(lost, exc)
+
+    def _requeue(self, lost: list[_Task], exc: WorkerLost) -> None:
+        """Frames lost with a worker are retried one at a time, alone (a frame that was only
+        beside the culprit then succeeds); a frame that ran alone and lost its worker again
+        killed it: ``error``."""
         for t in lost:
             if t.attempts >= 1 and len(lost) == 1:
                 self.record({"frame": t.frame, "status": ERROR, "message": str(exc)})
