@@ -268,8 +268,9 @@ def scheduler_address(scheduler: str) -> str:
         return scheduler
     path = Path(scheduler)
     advice = (
-        "give the file a running scheduler writes (dask scheduler --scheduler-file PATH) or "
-        "the scheduler's address (tcp://HOST:8786)"
+        "give the file a running scheduler writes (dask scheduler --scheduler-file PATH; a "
+        "queued scheduler job writes it when it starts) or the scheduler's address "
+        "(tcp://HOST:8786)"
     )
     try:
         doc = json.loads(path.read_text())
