@@ -22,7 +22,9 @@ __all__ = [
     "SIZE_RANGE_UM",
     "ConfigError",
     "Spec",
+    "celsius_hint",
     "nm_hint",
+    "number_problem",
     "read_toml",
     "validate_table",
 ]
@@ -54,6 +56,13 @@ class Spec:
 def nm_hint(value: float) -> str:
     if value > 100:
         return f" ({value} looks like nanometres: use {value / 1000:g} um)"
+    return ""
+
+
+def celsius_hint(value: float) -> str:
+    """Advice for a temperature in C that is out of range: one given in kelvin."""
+    if 173.15 <= value <= 473.15:
+        return f" ({value:g} looks like kelvin: use {value - 273.15:.4g} C)"
     return ""
 
 
@@ -91,18 +100,31 @@ def _check_value(path: Path, where: str, key: str, value: Any, spec: Spec) -> An
                 or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)):
             raise ConfigError(f"{loc}: expected {spec.expected} as [x, y, z], got {value!r}")
         return tuple(float(v) for v in value)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{loc}: expected {spec.expected} (a number), got {value!r}")
-    if spec.kind == "int":
-        if not isinstance(value, int):
-            raise ConfigError(f"{loc}: expected {spec.expected} (an integer), got {value!r}")
-    elif not math.isfinite(value):
-        raise ConfigError(f"{loc}: expected {spec.expected}, got {value!r}")
-    _check_range(loc, float(value), spec)
+    problem = number_problem(value, spec)
+    if problem:
+        raise ConfigError(f"{loc}: {problem}")
     return int(value) if spec.kind == "int" else float(value)
 
 
-def _check_range(loc: str, value: float, spec: Spec) -> None:
+def number_problem(value: Any, spec: Spec) -> str | None:
+    """What is wrong with ``value`` as the number ``spec`` describes, or None.
+
+    The check of every numeric key (kind ``float`` or ``int``): type, finiteness, range, with
+    the spec's hint for a likely unit slip. Values that do not come from a file (keyword
+    arguments, command-line options) are checked with it too, so that a setting is held to
+    the same rule wherever it is given; the caller says where the value came from.
+    """
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return f"expected {spec.expected} (a number), got {value!r}"
+    if spec.kind == "int":
+        if not isinstance(value, int):
+            return f"expected {spec.expected} (an integer), got {value!r}"
+    elif not math.isfinite(value):
+        return f"expected {spec.expected}, got {value!r}"
+    return _range_problem(float(value), spec)
+
+
+def _range_problem(value: float, spec: Spec) -> str | None:
     lo, hi = spec.low, spec.high
     if (lo is not None and value < lo) or (hi is not None and value > hi):
         bounds = (
@@ -111,7 +133,14 @@ def _check_range(loc: str, value: float, spec: Spec) -> None:
             else (f">= {lo:g}" if lo is not None else f"<= {hi:g}")
         )
         extra = spec.hint(value) if spec.hint else ""
-        raise ConfigError(f"{loc}: expected {spec.expected} {bounds}, got {value:g}{extra}")
+        return f"expected {spec.expected} {bounds}, got {value:g}{extra}"
+    return None
+
+
+def _check_range(loc: str, value: float, spec: Spec) -> None:
+    problem = _range_problem(value, spec)
+    if problem:
+        raise ConfigError(f"{loc}: {problem}")
 
 
 def _check_index(loc: str, value: Any, spec: Spec) -> complex:

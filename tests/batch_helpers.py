@@ -4,6 +4,7 @@ them)."""
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +22,7 @@ class ToyConfig:
     nonconverged_frames: tuple[int, ...] = ()
     crash_frames: tuple[int, ...] = ()
     log_dir: str | None = None
+    sleep_s: float = 0.0
 
 
 def toy_payload(frame: int) -> np.ndarray:
@@ -35,6 +37,8 @@ def toy_frame(config: ToyConfig, frame: int, payload: np.ndarray) -> dict:
     if config.log_dir is not None:
         with open(Path(config.log_dir) / f"{os.getpid()}.log", "a") as fh:
             fh.write(f"{frame}\n")
+    if config.sleep_s:
+        time.sleep(config.sleep_s)
     if frame in config.crash_frames:
         os._exit(3)  # a worker dying without a Python exception
     if frame in config.fail_frames:
@@ -58,3 +62,15 @@ def calls(log_dir: str | Path) -> list[int]:
     for p in Path(log_dir).glob("*.log"):
         out += [int(v) for v in p.read_text().split()]
     return sorted(out)
+
+
+def run_toy_batch(out: str, workers: int, n_frames: int, sleep_s: float) -> None:
+    """A toy batch of slow frames (what the kill and lock tests run in a child process)."""
+    from holofit.batch import BatchOptions, run_batch
+
+    summary = run_batch(
+        toy_frame, ToyConfig(sleep_s=sleep_s), range(n_frames), toy_payload, out, COLUMNS,
+        fingerprint="toy", options=BatchOptions(workers=workers, progress=False), desc="toy",
+    )
+    for note in summary.notes:
+        print("note:", note, flush=True)

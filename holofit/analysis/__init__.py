@@ -2,29 +2,31 @@
 
 Entry points: :func:`analyze_table` (a fit-table file to a result) and
 :func:`~holofit.analysis.pipeline.analyze_trajectory`; :func:`run_analysis` also writes the
-summary files and plots (what ``holofit analyze`` does).
+summary files and plots (what ``holofit analyze`` does). What differs between particle models
+is in one recipe per model (:mod:`holofit.analysis.recipes`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from holofit.analysis.pipeline import (
-    MODELS,
-    AnalysisResult,
-    AnalysisSettings,
-    Measurement,
-    analyze_trajectory,
-)
+from holofit.analysis.errors import AnalysisError
+from holofit.analysis.measurement import Measurement
+from holofit.analysis.pipeline import analyze_trajectory
+from holofit.analysis.recipes import MODELS
+from holofit.analysis.results import AnalysisResult
+from holofit.analysis.settings import AnalysisSettings, SettingError
 from holofit.analysis.summary import format_report, write_summary
 from holofit.analysis.trajectory import Trajectory
 from holofit.fit_table import read_fit_table
 
 __all__ = [
     "MODELS",
+    "AnalysisError",
     "AnalysisResult",
     "AnalysisSettings",
     "Measurement",
+    "SettingError",
     "Trajectory",
     "analyze_table",
     "analyze_trajectory",

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.analysis.errors import AnalysisError
 from holofit.analysis.rotational_diffusion import angle_threshold
 
 __all__ = [
@@ -76,7 +77,7 @@ def estimate_rotational_diffusion(
 
     Raises
     ------
-    ValueError
+    AnalysisError
         Fewer than 10 valid pairs at some of the lags used.
     """
     lags, msd = [], []
@@ -88,12 +89,12 @@ def estimate_rotational_diffusion(
         lags.append(lag)
         msd.append(np.median(th**2) / math.log(2.0))
     if len(lags) < 2:
-        raise ValueError("too few valid frame pairs to estimate the rotational diffusion")
+        raise AnalysisError("too few valid frame pairs to estimate the rotational diffusion")
     tau = np.array(lags) * frame_interval_s
     slope, intercept = np.polyfit(tau, np.array(msd), 1)
     d_est = slope / 4.0
     if not d_est > 0:
-        raise ValueError(
+        raise AnalysisError(
             "could not estimate D_est from the data (the turning angle does not grow with lag);"
             " give it explicitly"
         )

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from holofit.analysis.blocking import block_standard_errors
+from holofit.analysis.errors import AnalysisError
 from holofit.analysis.msd import LagStatistics, Observables, PairFilter, influence_series
 from holofit.analysis.projection import (
     projection_correlation,
@@ -196,7 +197,7 @@ def fit_lag_statistics(
 
     Raises
     ------
-    ValueError
+    AnalysisError
         Fewer usable lags than parameters.
     """
     good = np.isfinite(stats.mean) & np.isfinite(stats.sem) & (stats.count >= 2)
@@ -206,7 +207,7 @@ def fit_lag_statistics(
     )
     n_par = len(model.params)
     if st.lags.size < n_par:
-        raise ValueError(
+        raise AnalysisError(
             f"fit of {stats.name}: {st.lags.size} usable lag(s) for {n_par} parameters"
         )
     tau, m = st.tau_s, st.mean

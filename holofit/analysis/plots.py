@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -11,13 +11,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from holofit.analysis.fitting import FitResult
+from holofit.analysis.msd import LagStatistics
 from holofit.analysis.projection import projection_correlation
+from holofit.analysis.recipes import MsdPanel, recipe_for
+from holofit.analysis.results import AnalysisResult
 from holofit.io.atomic import atomic_path
-
-if TYPE_CHECKING:
-    from holofit.analysis.fitting import FitResult
-    from holofit.analysis.msd import LagStatistics
-    from holofit.analysis.pipeline import AnalysisResult
 
 __all__ = ["plot_msd", "plot_orientation", "plot_trajectory", "write_plots"]
 
@@ -54,82 +53,88 @@ def _fit_line(ax, f: FitResult, tau_max: float, color: str, label: str) -> None:
     ax.plot(beyond, f.curve(beyond), "--", color=color, lw=1.0, alpha=0.6)
 
 
-def plot_msd(result: AnalysisResult, path: str | Path) -> Path:
-    """Translational MSDs with block-decorrelated error bars and the weighted fits."""
+def _msd_panel(ax, panel: MsdPanel, result: AnalysisResult, tau_max: float) -> None:
     st, fits, meas = result.stats, result.fits, result.measured
-    rod = result.settings.model == "rod"
-    fig, axes = plt.subplots(1, 2 if rod else 1, figsize=(11 if rod else 6, 4.5), squeeze=False)
-    ax = axes[0, 0]
-    tau_max = max(s.tau_s[-1] for s in st.values())
-    if rod:
-        for name, color, key in (("par", "C0", "D_par"), ("perp", "C3", "D_perp")):
-            _errorbars(ax, st[name], LABELS[name], color)
-            m = meas[key]
-            _fit_line(ax, fits[name], tau_max, color,
-                      f"fit: {key} = {m.value:.4g} $\\pm$ {m.error:.2g} $\\mu$m$^2$/s")
-        ax.set_title("particle frame")
-        ax2 = axes[0, 1]
-        for name, color in (("lab_x", "C0"), ("lab_y", "C1"), ("lab_z", "C2"),
-                            ("lab_3d", "k")):
-            _errorbars(ax2, st[name], LABELS[name], color)
-        m = meas["D_t_lab"]
-        _fit_line(ax2, fits["lab_3d"], tau_max, "k",
-                  f"fit: D_t = {m.value:.4g} $\\pm$ {m.error:.2g} $\\mu$m$^2$/s")
-        ax2.set_title("lab frame")
-        ax2.set_xscale("log")
-        ax2.set_yscale("log")
-        ax2.set_xlabel(r"lag $\tau$ (s)")
-        ax2.set_ylabel(r"MSD ($\mu$m$^2$)")
-        ax2.legend(fontsize=8)
-    else:
-        _errorbars(ax, st["xy"], LABELS["xy"], "C0")
-        m = meas["D_t"]
-        _fit_line(ax, fits["xy"], tau_max, "C0",
-                  f"fit: D = {m.value:.4g} $\\pm$ {m.error:.2g} $\\mu$m$^2$/s")
+    for curve in panel.curves:
+        _errorbars(ax, st[curve.observable], LABELS[curve.observable], curve.colour)
+        if curve.measured is not None:
+            m = meas[curve.measured]
+            symbol = curve.symbol or curve.measured
+            _fit_line(ax, fits[curve.observable], tau_max, curve.colour,
+                      f"fit: {symbol} = {m.value:.4g} $\\pm$ {m.error:.2g} $\\mu$m$^2$/s")
+    if panel.title is not None:
+        ax.set_title(panel.title)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel(r"lag $\tau$ (s)")
     ax.set_ylabel(r"MSD ($\mu$m$^2$)")
     ax.legend(fontsize=8)
+
+
+def plot_msd(result: AnalysisResult, path: str | Path) -> Path:
+    """Translational MSDs with block-decorrelated error bars and the weighted fits (the
+    panels of the model's recipe)."""
+    panels = recipe_for(result.settings.model).msd_panels
+    n = len(panels)
+    fig, axes = plt.subplots(1, n, figsize=(6.0 if n == 1 else 5.5 * n, 4.5), squeeze=False)
+    tau_max = max(s.tau_s[-1] for s in result.stats.values())
+    for ax, panel in zip(axes[0], panels, strict=True):
+        _msd_panel(ax, panel, result, tau_max)
     fig.suptitle("mean-square displacements (solid: fit range; dashed: extrapolation)",
                  fontsize=10)
     fig.tight_layout()
     return _save(fig, Path(path))
 
 
-def plot_orientation(result: AnalysisResult, path: str | Path) -> Path | None:
-    """Orientation MSD (rods) or projection autocorrelation (Janus) with fits."""
-    model = result.settings.model
-    if model == "sphere":
-        return None
+def _orientation_msd(ax, result: AnalysisResult, tau_max: float) -> None:
+    """Rods: <|du|^2> with its fit."""
     st, fits, meas = result.stats, result.fits, result.measured
+    _errorbars(ax, st["orient"], LABELS["orient"], "C2")
+    m = meas["D_r"]
+    _fit_line(ax, fits["orient"], tau_max, "C2",
+              f"fit: D_r = {m.value:.4g} $\\pm$ {m.error:.2g} s$^{{-1}}$")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_ylabel(r"$\langle |\mathbf{u}(t+\tau) - \mathbf{u}(t)|^2 \rangle$")
+
+
+def _projection(ax, result: AnalysisResult, tau_max: float) -> None:
+    """Janus particles: <p . p'> with the full series, the single exponential and the l = 1
+    term."""
+    st, fits, meas = result.stats, result.fits, result.measured
+    _errorbars(ax, st["proj"], LABELS["proj"], "C2")
+    m = meas["D_r"]
+    _fit_line(ax, fits["proj"], tau_max, "C2",
+              f"full series: D_r = {m.value:.4g} $\\pm$ {m.error:.2g} s$^{{-1}}$")
+    if "proj_single_exp" in fits:
+        f1 = fits["proj_single_exp"]
+        _fit_line(ax, f1, tau_max, "C7",
+                  f"single exponential: D_r = {f1.value('D'):.4g} s$^{{-1}}$")
+    tau = np.geomspace(st["proj"].tau_s[0], tau_max, 200)
+    fp = fits["proj"]
+    amp = fp.value("A") if "A" in fp.model.params else 1.0
+    ax.plot(tau, amp * projection_correlation(m.value, tau, n_odd=1), ":", color="C1",
+            lw=1, label=r"$\ell=1$ term alone (same $D_r$, A)")
+    ax.set_xscale("log")
+    ax.set_ylabel(r"$\langle \mathbf{p}(t) \cdot \mathbf{p}(t+\tau) \rangle$")
+    ax.axhline(0, color="0.7", lw=0.5)
+
+
+#: how each rotational observable is drawn
+ORIENTATION_PLOTS: dict[str, Callable[..., None]] = {
+    "orient": _orientation_msd,
+    "proj": _projection,
+}
+
+
+def plot_orientation(result: AnalysisResult, path: str | Path) -> Path | None:
+    """The rotational observable of the model with its fits (None for translation only)."""
+    rotation = recipe_for(result.settings.model).rotation
+    if rotation is None:
+        return None
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    tau_max = max(s.tau_s[-1] for s in st.values())
-    if model == "rod":
-        _errorbars(ax, st["orient"], LABELS["orient"], "C2")
-        m = meas["D_r"]
-        _fit_line(ax, fits["orient"], tau_max, "C2",
-                  f"fit: D_r = {m.value:.4g} $\\pm$ {m.error:.2g} s$^{{-1}}$")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_ylabel(r"$\langle |\mathbf{u}(t+\tau) - \mathbf{u}(t)|^2 \rangle$")
-    else:
-        _errorbars(ax, st["proj"], LABELS["proj"], "C2")
-        m = meas["D_r"]
-        _fit_line(ax, fits["proj"], tau_max, "C2",
-                  f"full series: D_r = {m.value:.4g} $\\pm$ {m.error:.2g} s$^{{-1}}$")
-        if "proj_single_exp" in fits:
-            f1 = fits["proj_single_exp"]
-            _fit_line(ax, f1, tau_max, "C7",
-                      f"single exponential: D_r = {f1.value('D'):.4g} s$^{{-1}}$")
-        tau = np.geomspace(st["proj"].tau_s[0], tau_max, 200)
-        fp = fits["proj"]
-        amp = fp.value("A") if "A" in fp.model.params else 1.0
-        ax.plot(tau, amp * projection_correlation(m.value, tau, n_odd=1), ":", color="C1",
-                lw=1, label=r"$\ell=1$ term alone (same $D_r$, A)")
-        ax.set_xscale("log")
-        ax.set_ylabel(r"$\langle \mathbf{p}(t) \cdot \mathbf{p}(t+\tau) \rangle$")
-        ax.axhline(0, color="0.7", lw=0.5)
+    tau_max = max(s.tau_s[-1] for s in result.stats.values())
+    ORIENTATION_PLOTS[rotation.observable](ax, result, tau_max)
     ax.set_xlabel(r"lag $\tau$ (s)")
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -140,7 +145,7 @@ def plot_trajectory(result: AnalysisResult, path: str | Path) -> Path:
     """Position and axis versus time; rejected frames and flips marked."""
     traj = result.trajectory
     t = traj.time_s
-    has_axis = traj.axis is not None and result.settings.model != "sphere"
+    has_axis = traj.axis is not None and recipe_for(result.settings.model).orientation
     fig, axes = plt.subplots(2 if has_axis else 1, 1, figsize=(11, 6 if has_axis else 3.5),
                              sharex=True, squeeze=False)
     ax = axes[0, 0]

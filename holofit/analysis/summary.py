@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import pandas as pd
 
+from holofit.analysis.recipes import Compared, recipe_for
+from holofit.analysis.results import AnalysisResult
 from holofit.io.tables import write_json, write_table
 from holofit.provenance import sidecar
-
-if TYPE_CHECKING:
-    from holofit.analysis.pipeline import AnalysisResult
 
 __all__ = ["SUMMARY_COLUMNS", "format_report", "summary_rows", "write_summary"]
 
@@ -94,28 +93,14 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
         else:
             rows.append(_row(label, unit, m.value, m.error, source="", low=lo, high=hi))
 
-    if s.model == "rod":
-        with_pred("D_par", "D_par", "cyl D_par", "um^2/s")
-        with_pred("D_perp", "D_perp", "cyl D_perp", "um^2/s")
-        with_pred("D_t", "D_t = (2 D_perp + D_par)/3", "D_t", "um^2/s")
-        with_pred("D_t", "D_t = (2 D_perp + D_par)/3", "cyl D_t", "um^2/s")
-        with_pred("D_t_lab", "D_t (lab-frame MSD)", "D_t", "um^2/s")
-        with_pred("D_r", "D_r", "D_r", "1/s")
-        with_pred("D_r", "D_r", "cyl D_r", "1/s")
-        with_pred("D_par/D_perp", "D_par/D_perp", "cyl D_par/D_perp", "1")
-        for key, label in (("eps_par", "eps_par"), ("eps_perp", "eps_perp"),
-                           ("eps_r", "eps_r")):
-            m = meas[key]
-            rows.append(_row(label, m.unit, m.value, m.error, source="fit intercept"))
-    else:
-        with_pred("D_t", "D (x-y MSD)", "D_t", "um^2/s")
-        if s.model == "janus":
-            with_pred("D_r", "D_r (projection correlation)", "D_r", "1/s")
-            if "A" in meas:
-                rows.append(_row("A (projection amplitude)", "1", meas["A"].value,
-                                 meas["A"].error, 1.0, NAN, "1 without angular noise"))
-        m = meas["eps"]
-        rows.append(_row("eps (x-y)", "nm", m.value, m.error, source="fit intercept"))
+    recipe = recipe_for(s.model)
+    for line in recipe.summary:
+        if isinstance(line, Compared):
+            with_pred(line.measured, line.label, line.prediction, line.unit)
+        elif line.measured in meas:
+            m = meas[line.measured]
+            rows.append(_row(line.label, m.unit, m.value, m.error, line.expected,
+                             source=line.source))
     radius = result.sizes.get("a_um")
     for key, label, src in (
         ("a_eff_t", "a_eff from D_t", "Stokes-Einstein radius of the measured D_t"),
@@ -124,7 +109,7 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
         m = meas.get(key)
         if m is None:
             continue
-        if s.model != "rod" and radius is not None:
+        if recipe.radius_is_hydrodynamic and radius is not None:
             rows.append(_row(label, "nm", m.value, m.error, 1e3 * radius[0], 1e3 * radius[1],
                              src + " vs fitted radius"))
         else:

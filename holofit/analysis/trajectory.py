@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.analysis.errors import AnalysisError
 from holofit.fit_table import AXIS_COLUMNS, POSITION_COLUMNS, FitTable
 
 __all__ = ["Trajectory"]
@@ -88,14 +89,14 @@ class Trajectory:
         ok = fit.ok
         frames = df["frame"].to_numpy()
         if not ok.any():
-            raise ValueError(f"{fit.source}: no frame has status 'ok'")
+            raise AnalysisError(f"{fit.source}: no frame has status 'ok'")
         first, last = int(frames[ok].min()), int(frames[ok].max())
         n = last - first + 1
         pos = np.full((n, 3), np.nan)
         valid = np.zeros(n, bool)
         slots = frames[ok] - first
         if not all(c in df.columns for c in POSITION_COLUMNS):
-            raise ValueError(f"{fit.source}: the analysis needs columns x_um, y_um, z_um")
+            raise AnalysisError(f"{fit.source}: the analysis needs columns x_um, y_um, z_um")
         pos[slots] = df.loc[ok, list(POSITION_COLUMNS)].to_numpy(dtype=float)
         axis = None
         if fit.has_orientation:

@@ -19,8 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from holofit.analysis.pipeline import AnalysisSettings, analyze_trajectory
+from holofit.analysis.pipeline import analyze_trajectory
 from holofit.analysis.projection import projection_correlation
+from holofit.analysis.settings import AnalysisSettings
 from holofit.analysis.trajectory import Trajectory
 from holofit.fit_table import validate_fit_table
 from holofit.simulate.brownian import (

@@ -2,10 +2,10 @@
 (local processes or Dask), failure-isolating, resumable, writing results as they come.
 See :mod:`holofit.batch.runner`."""
 
-from holofit.batch.backends import DaskBackend, ProcessPoolBackend, SerialBackend, WorkerLost
+from holofit.batch.backends import DaskBackend, ProcessPoolBackend, SerialBackend
+from holofit.batch.errors import BatchError, SchedulerError, WorkerLost
 from holofit.batch.runner import (
     FAILED_STATUSES,
-    BatchError,
     BatchOptions,
     BatchSummary,
     Precomputed,
@@ -24,6 +24,7 @@ __all__ = [
     "DaskBackend",
     "Precomputed",
     "ProcessPoolBackend",
+    "SchedulerError",
     "SerialBackend",
     "WorkerLost",
     "journal_path",

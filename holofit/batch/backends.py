@@ -16,11 +16,18 @@ piece of code whatever the backend.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import json
 import multiprocessing
+import os
 import signal
+import socket
+import threading
 from collections.abc import Callable, Iterable
+from pathlib import Path
 from typing import Any
 
+from holofit.batch.errors import BatchError, SchedulerError, WorkerLost
+from holofit.batch.lifeline import die_with_parent
 from holofit.batch.threads import (
     limit_threads_in_this_process,
     single_thread_environment,
@@ -35,9 +42,10 @@ __all__ = [
     "WorkerLost",
 ]
 
-
-class WorkerLost(RuntimeError):
-    """A worker process died (crash, out of memory, killed) while running a frame."""
+#: seconds allowed to reach a Dask scheduler before giving up with a message
+CONNECT_TIMEOUT_S = 10.0
+#: further seconds allowed for the scheduler's handshake once connected
+HANDSHAKE_GRACE_S = 2.0
 
 
 class Backend:
@@ -46,9 +54,9 @@ class Backend:
     #: how many calls can run at the same time
     slots: int = 1
     name: str = ""
-    #: True if a dying worker takes only its own call down (Dask: the scheduler reruns the
-    #: others and reports the call that killed workers); False if it breaks every call in
-    #: flight (a process pool)
+    #: True if a dying worker takes only the calls it held down (Dask: the scheduler reruns
+    #: or fails just those; the worker is replaced by its nanny); False if it breaks every
+    #: call in flight and the backend must be restarted (a process pool)
     isolates_lost_workers: bool = True
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> Any:  # pragma: no cover
@@ -96,7 +104,9 @@ class SerialBackend(Backend):
         return {f for f in futures if f.done()}
 
 
-def _pool_worker_init() -> None:
+def _pool_worker_init(parent_pid: int) -> None:
+    # a worker whose driver is killed must not live on (holofit.batch.lifeline)
+    die_with_parent(parent_pid)
     # Ctrl-C goes to the whole process group: let the parent shut the pool down cleanly.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     limit_threads_in_this_process()
@@ -107,7 +117,8 @@ class ProcessPoolBackend(Backend):
 
     Processes are started with the ``spawn`` method (a clean interpreter: no inherited
     threads or locks) while the single-thread environment is set, so their BLAS and numba
-    pools have one thread.
+    pools have one thread. They end when this process ends, even by SIGKILL
+    (:mod:`holofit.batch.lifeline`).
     """
 
     name = "processes"
@@ -124,6 +135,7 @@ class ProcessPoolBackend(Backend):
             max_workers=self.slots,
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_pool_worker_init,
+            initargs=(os.getpid(),),
         )
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> cf.Future:
@@ -160,15 +172,28 @@ class DaskBackend(Backend):
         listening on 127.0.0.1 only is started (and stopped by :meth:`close`).
     workers : int
         Workers of the local cluster.
+    connect_timeout_s : float
+        Seconds allowed to reach a running scheduler.
+
+    Raises
+    ------
+    SchedulerError
+        If the scheduler file does not exist or names no address, or no scheduler answers at
+        the address within ``connect_timeout_s`` (a refused connection fails at once).
     """
 
     name = "dask"
 
-    def __init__(self, scheduler: str | None = None, workers: int = 2) -> None:
+    def __init__(
+        self,
+        scheduler: str | None = None,
+        workers: int = 2,
+        connect_timeout_s: float = CONNECT_TIMEOUT_S,
+    ) -> None:
         try:
             import distributed
         except ModuleNotFoundError:  # pragma: no cover - depends on the installation
-            raise RuntimeError(
+            raise BatchError(
                 "the Dask backend needs dask and distributed: pip install 'holofit[cluster]'"
             ) from None
         self._distributed = distributed
@@ -186,12 +211,9 @@ class DaskBackend(Backend):
             )
             self.client = distributed.Client(self._cluster)
             self.address = self._cluster.scheduler_address
-        elif scheduler.endswith(".json"):
-            self.client = distributed.Client(scheduler_file=scheduler)
-            self.address = scheduler
         else:
-            self.client = distributed.Client(scheduler)
             self.address = scheduler
+            self.client = _connect(distributed, scheduler, connect_timeout_s)
         self.client.run(limit_threads_in_this_process)
         self.slots = max(sum(self.client.nthreads().values()), 1)
 
@@ -225,3 +247,98 @@ class DaskBackend(Backend):
         self.client.close()
         if self._cluster is not None:
             self._cluster.close()
+
+
+def _is_scheduler_file(scheduler: str) -> bool:
+    return scheduler.endswith(".json") or Path(scheduler).is_file()
+
+
+def scheduler_address(scheduler: str) -> str:
+    """The address of a scheduler given as an address or as a scheduler file.
+
+    ``distributed.Client(scheduler_file=...)`` waits for a missing file to appear, without a
+    time limit or a word; a scheduler file is read here instead.
+
+    Raises
+    ------
+    SchedulerError
+        If the file does not exist, is not JSON, or has no ``address`` entry.
+    """
+    if not _is_scheduler_file(scheduler):
+        return scheduler
+    path = Path(scheduler)
+    advice = (
+        "give the file a running scheduler writes (dask scheduler --scheduler-file PATH; a "
+        "queued scheduler job writes it when it starts) or the scheduler's address "
+        "(tcp://HOST:8786)"
+    )
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise SchedulerError(f"{path}: Dask scheduler file not found; {advice}") from None
+    except (OSError, ValueError) as exc:
+        raise SchedulerError(f"{path}: not a readable Dask scheduler file ({exc})") from None
+    address = doc.get("address") if isinstance(doc, dict) else None
+    if not isinstance(address, str) or not address:
+        raise SchedulerError(f"{path}: not a Dask scheduler file (it has no 'address' entry)")
+    return address
+
+
+def _unreachable(scheduler: str, address: str, why: str) -> SchedulerError:
+    where = address if address == scheduler else f"{address} (from {scheduler})"
+    return SchedulerError(
+        f"cannot reach the Dask scheduler at {where}: {why}; is the scheduler running, and is "
+        "the address right?"
+    )
+
+
+def _probe(scheduler: str, address: str, timeout_s: float) -> None:
+    """Fail at once on a refused connection (``Client`` would retry until its timeout)."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(address)
+    except ValueError as exc:
+        raise _unreachable(scheduler, address, f"not an address ({exc})") from None
+    if scheme not in ("tcp", "tls"):
+        return
+    try:
+        host, port = parse_host_port(location, 8786)
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            pass
+    except TimeoutError:
+        raise _unreachable(scheduler, address, f"no answer within {timeout_s:g} s") from None
+    except (OSError, ValueError) as exc:
+        raise _unreachable(scheduler, address, exc.strerror or str(exc)) from None
+
+
+def _connect(distributed: Any, scheduler: str, timeout_s: float) -> Any:
+    """A ``Client`` of the scheduler, or :class:`SchedulerError` within about ``timeout_s``.
+
+    ``Client(timeout=...)`` bounds the TCP connection but not the handshake that follows, so
+    a peer that accepts and then says nothing would hold it forever: the client is made in a
+    helper thread that is abandoned (daemon) if it has not finished in time.
+    """
+    address = scheduler_address(scheduler)
+    _probe(scheduler, address, timeout_s)
+    outcome: dict[str, Any] = {}
+
+    def make() -> None:
+        try:
+            outcome["client"] = distributed.Client(address, timeout=timeout_s)
+        except Exception as exc:
+            outcome["error"] = exc
+
+    helper = threading.Thread(target=make, name="holofit-dask-connect", daemon=True)
+    helper.start()
+    helper.join(timeout_s + HANDSHAKE_GRACE_S)
+    if "client" in outcome:
+        return outcome["client"]
+    exc = outcome.get("error")
+    if exc is None:
+        why = f"no Dask handshake within {timeout_s + HANDSHAKE_GRACE_S:g} s"
+    elif isinstance(exc, OSError | TimeoutError):
+        why = str(exc)
+    else:  # something answers, but not as a Dask scheduler does
+        why = f"what answers is not a Dask scheduler ({type(exc).__name__}: {exc})"
+    raise _unreachable(scheduler, address, why)

@@ -1,17 +1,20 @@
 """The per-frame batch runner shared by ``holofit prefit`` and ``holofit fit``.
 
-A batch applies one *frame function* to many frames independently (DESIGN.md: frame k never
-waits for frame k-1). The frame function is a module-level function
-``func(config, frame, payload) -> dict`` (picklable, so it can run in another process or on
-another machine); ``config`` is a dataclass of settings, ``payload`` what the driver loaded for
-that frame (a crop and its crop-table row). It returns one table row.
+A batch applies one *frame function* to many frames independently (frame k never waits for
+frame k-1). The frame function is a module-level function ``func(config, frame, payload) ->
+dict`` (picklable, so it can run in another process or on another machine); ``config`` is a
+dataclass of settings, ``payload`` what the driver loaded for that frame (a crop and its
+crop-table row). It returns one table row.
 
 What the runner guarantees:
 
+- **One writer**: the output folder is locked for the run (:mod:`holofit.io.lock`); a second
+  run into the same folder is refused with a message naming the holder.
 - **Lazy input, bounded memory**: frames are loaded by the driver one at a time, just before
   they are submitted, with a bounded number in flight.
 - **Parallel**: a local pool of single-threaded processes by default, in-process on request,
-  or a Dask cluster (:mod:`holofit.batch.backends`); all give identical rows.
+  or a Dask cluster (:mod:`holofit.batch.backends`); all give identical rows. Local workers
+  end with the driver, even when it is killed.
 - **Failure isolation**: an exception in a frame becomes a row with status ``error`` and the
   message; a frame function reports a fit that did not converge as ``not_converged``; a worker
   that dies is replaced, the frames it may have been running are retried one at a time, and a
@@ -25,17 +28,25 @@ What the runner guarantees:
   finished table) and runs only the frames that are missing, so a run killed at any point
   (even by SIGKILL) finishes with the same table as an uninterrupted run. A rerun with other
   settings refuses to mix results unless told to overwrite.
+
+The pieces: :func:`run_batch` checks its arguments, takes the folder lock and finds the rows of
+earlier runs (:func:`_earlier_rows`); :class:`_OutputFiles` knows the files of one output
+(table, partial table, journal); :class:`_BatchRun` owns the state of one run (rows, journal,
+progress, frames in flight) and moves frames through it: :meth:`~_BatchRun.feed` loads and
+submits, :meth:`~_BatchRun.collect` takes finished frames (and handles dead workers),
+:meth:`~_BatchRun.record` files one row, :meth:`~_BatchRun.flush` rewrites the partial table.
 """
 
 from __future__ import annotations
 
 import collections
 import contextlib
+import json
 import math
 import os
 import time
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,9 +58,10 @@ from holofit.batch.backends import (
     DaskBackend,
     ProcessPoolBackend,
     SerialBackend,
-    WorkerLost,
 )
+from holofit.batch.errors import BatchError, WorkerLost
 from holofit.batch.journal import Journal, JournalError, read_journal
+from holofit.io.lock import output_lock
 from holofit.io.tables import read_table, sidecar_path, write_table
 from holofit.progress import progress_bar
 from holofit.status import ERROR, FAILED_STATUSES
@@ -68,10 +80,8 @@ __all__ = [
     "run_frame",
 ]
 
-
-
-class BatchError(RuntimeError):
-    """A batch cannot start (conflicting earlier results, bad options)."""
+#: seconds the driver waits for a finished frame before it looks at the clock again
+WAIT_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -124,7 +134,11 @@ class BatchOptions:
 
 @dataclass
 class BatchSummary:
-    """What a batch did."""
+    """What a batch did.
+
+    ``notes`` holds what the user should know that is not an error (e.g. that the lock of a
+    killed earlier run was taken over).
+    """
 
     output: Path
     n_frames: int
@@ -133,6 +147,7 @@ class BatchSummary:
     statuses: dict[str, int] = field(default_factory=dict)
     elapsed_s: float = 0.0
     backend: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def n_failed(self) -> int:
@@ -157,13 +172,6 @@ def partial_path(output: str | Path) -> Path:
     """``prefit.csv`` -> ``prefit.partial.csv``: the table of the frames done so far."""
     output = Path(output)
     return output.with_name(output.stem + ".partial" + output.suffix)
-
-
-def _remove_partial(output: Path) -> None:
-    part = partial_path(output)
-    for p in (part, sidecar_path(part)):
-        with contextlib.suppress(FileNotFoundError):
-            p.unlink()
 
 
 def make_backend(options: BatchOptions) -> Backend:
@@ -210,6 +218,55 @@ def _complete_row(row: dict[str, Any], columns: Sequence[str]) -> dict[str, Any]
     return out
 
 
+class _OutputFiles:
+    """The files of one batch output: the table, the partial table and the journal.
+
+    Parameters
+    ----------
+    output : Path
+        The table (CSV; sidecar JSON beside it).
+    columns : list of str
+        Its columns, in order.
+    meta : dict
+        The sidecar document; a ``batch`` entry is added on every write.
+    """
+
+    def __init__(self, output: Path, columns: list[str], meta: dict[str, Any]) -> None:
+        self.output = output
+        self.columns = columns
+        self.meta = meta
+        self.journal = journal_path(output)
+        self.partial = partial_path(output)
+
+    def write(self, rows: dict[int, dict[str, Any]], info: dict[str, Any], *, final: bool) -> None:
+        """Write the rows (sorted by frame) as the final or the partial table, atomically."""
+        frames = sorted(rows)
+        table = pd.DataFrame([rows[f] for f in frames], columns=self.columns)
+        doc = dict(self.meta)
+        doc["batch"] = info | {"frames_done": len(frames)}
+        write_table(self.output if final else self.partial, table, doc)
+
+    def finish(self, rows: dict[int, dict[str, Any]], info: dict[str, Any]) -> None:
+        """Write the final table, then remove the journal and the partial table."""
+        self.write(rows, info | {"complete": True}, final=True)
+        self.remove(self.journal)
+        self.remove_partial()
+
+    def remove_partial(self) -> None:
+        self.remove(self.partial, sidecar_path(self.partial))
+
+    def discard_all(self) -> None:
+        """Remove every file of earlier runs (``overwrite``)."""
+        self.remove(self.journal, self.output, sidecar_path(self.output))
+        self.remove_partial()
+
+    @staticmethod
+    def remove(*paths: Path) -> None:
+        for p in paths:
+            with contextlib.suppress(FileNotFoundError):
+                p.unlink()
+
+
 def _rows_from_table(path: Path, columns: Sequence[str]) -> dict[int, dict[str, Any]]:
     table = read_table(path)
     missing = set(columns) - set(table.columns)
@@ -225,8 +282,6 @@ def _rows_from_table(path: Path, columns: Sequence[str]) -> dict[int, dict[str, 
 
 
 def _read_fingerprint(path: Path) -> str | None:
-    import json
-
     side = sidecar_path(path)
     if not side.exists():
         return None
@@ -237,46 +292,231 @@ def _read_fingerprint(path: Path) -> str | None:
 
 
 def _earlier_rows(
-    output: Path, columns: Sequence[str], fingerprint: str, overwrite: bool
+    files: _OutputFiles, fingerprint: str, overwrite: bool
 ) -> dict[int, dict[str, Any]]:
     """Rows of an earlier run of the same batch (journal first, else the finished table)."""
-    jpath = journal_path(output)
     if overwrite:
-        for p in (jpath, output, sidecar_path(output)):
-            with contextlib.suppress(FileNotFoundError):
-                p.unlink()
-        _remove_partial(output)
+        files.discard_all()
         return {}
     hint = "rerun with --overwrite to discard them, or choose another output"
-    if jpath.exists():
+    if files.journal.exists():
         try:
-            header, rows, _ = read_journal(jpath)
+            header, rows, _ = read_journal(files.journal)
         except JournalError as exc:
             raise BatchError(f"{exc}; {hint}") from None
         if header.get("fingerprint") != fingerprint:
             raise BatchError(
-                f"{jpath}: holds results of a batch with other settings or inputs; {hint}"
+                f"{files.journal}: holds results of a batch with other settings or inputs; "
+                f"{hint}"
             )
-        return {k: _complete_row(r, columns) for k, r in rows.items()}
-    if output.exists():
-        if _read_fingerprint(output) != fingerprint:
-            raise BatchError(f"{output}: exists and was made with other settings or inputs; {hint}")
-        return _rows_from_table(output, columns)
+        return {k: _complete_row(r, files.columns) for k, r in rows.items()}
+    if files.output.exists():
+        if _read_fingerprint(files.output) != fingerprint:
+            raise BatchError(
+                f"{files.output}: exists and was made with other settings or inputs; {hint}"
+            )
+        return _rows_from_table(files.output, files.columns)
     return {}
 
 
-def _write(
-    output: Path,
-    rows: dict[int, dict[str, Any]],
-    columns: Sequence[str],
-    meta: dict[str, Any],
-    batch_info: dict[str, Any],
-) -> None:
-    frames = sorted(rows)
-    table = pd.DataFrame([rows[f] for f in frames], columns=list(columns))
-    doc = dict(meta)
-    doc["batch"] = batch_info | {"frames_done": len(frames)}
-    write_table(output, table, doc)
+@dataclass(frozen=True)
+class _Task:
+    """A frame on its way to a worker; ``attempts`` counts the workers it was lost with."""
+
+    frame: int
+    payload: Any
+    attempts: int = 0
+
+
+class _BatchRun:
+    """The state of one run: rows so far, journal, progress bar, frames in flight.
+
+    Parameters
+    ----------
+    func, config
+        The frame function and its settings.
+    backend : Backend
+        Where frames run.
+    files : _OutputFiles
+        The output's files; the journal is continued or started here.
+    rows : dict
+        Frame -> complete row of the frames done (earlier runs included); updated in place.
+    progress : tqdm
+        The progress bar.
+    summary : BatchSummary
+        ``n_run`` is counted up.
+    info : dict
+        The sidecar's ``batch`` entry.
+    options : BatchOptions
+        In-flight bound and flush interval.
+    n_failed : int
+        Failed frames among those done before (shown beside the progress bar).
+    """
+
+    def __init__(
+        self,
+        func: Callable[[Any, int, Any], dict[str, Any]],
+        config: Any,
+        backend: Backend,
+        files: _OutputFiles,
+        rows: dict[int, dict[str, Any]],
+        progress: Any,
+        summary: BatchSummary,
+        info: dict[str, Any],
+        options: BatchOptions,
+        n_failed: int,
+    ) -> None:
+        self.func = func
+        self.config = config
+        self.backend = backend
+        self.files = files
+        self.rows = rows
+        self.progress = progress
+        self.summary = summary
+        self.info = info
+        self.max_in_flight = options.max_in_flight or 2 * backend.slots + 2
+        self.flush_interval_s = options.flush_interval_s
+        self.n_failed = n_failed
+        self.in_flight: dict[Any, _Task] = {}
+        self.retry: collections.deque[_Task] = collections.deque()
+        self.journal = _open_journal(files, info["fingerprint"], rows)
+        self._last_flush = time.monotonic()
+
+    def run(self, todo: collections.deque[int], load: Callable[[int], Any]) -> None:
+        """Run every frame of ``todo``; on success write the final table; on any
+        interruption keep what is done (journal, partial table) and re-raise."""
+        try:
+            while todo or self.in_flight or self.retry:
+                self.feed(todo, load)
+                if not self.in_flight:
+                    continue
+                self.collect(WAIT_S)
+                self.flush()
+            self.journal.close()
+            self.files.finish(self.rows, self.info)
+        except BaseException:
+            self.salvage()
+            raise
+
+    def record(self, row: dict[str, Any]) -> None:
+        """File one finished frame: rows, journal, progress."""
+        full = _complete_row(row, self.files.columns)
+        self.rows[full["frame"]] = full
+        self.journal.append(full)
+        self.summary.n_run += 1
+        if full["status"] in FAILED_STATUSES:
+            self.n_failed += 1
+            self.progress.set_postfix(failed=self.n_failed, refresh=False)
+        self.progress.update(1)
+
+    def submit(self, task: _Task) -> None:
+        fut = self.backend.submit(run_frame, self.func, self.config, task.frame, task.payload)
+        self.in_flight[fut] = task
+
+    def feed(self, todo: collections.deque[int], load: Callable[[int], Any]) -> None:
+        """Load and submit frames while the in-flight bound allows; frames that were running
+        when a worker died go one at a time, alone (quarantine)."""
+        quarantine = any(t.attempts >= 1 for t in self.in_flight.values())
+        if self.retry and not self.in_flight:
+            self.submit(self.retry.popleft())
+            quarantine = True
+        while (todo and not self.retry and not quarantine
+               and len(self.in_flight) < self.max_in_flight):
+            frame = todo.popleft()
+            try:
+                payload = load(frame)
+            except Exception as exc:
+                self.record({"frame": frame, "status": ERROR, "message": f"loading: {exc}"})
+                continue
+            if isinstance(payload, Precomputed):
+                self.record({**payload.row, "frame": frame})
+                continue
+            self.submit(_Task(frame, payload))
+
+    def collect(self, timeout: float) -> None:
+        """Record the frames that finish within ``timeout`` s."""
+        for fut in self.backend.wait(self.in_flight, timeout=timeout):
+            task = self.in_flight.pop(fut)
+            try:
+                self.record(self.backend.result(fut))
+            except WorkerLost as exc:
+                if self.backend.isolates_lost_workers:  # only this frame was lost
+                    self._requeue([task], exc)
+                    continue
+                self._worker_lost(task, exc)
+                break
+            except Exception as exc:  # infrastructure error for this one future
+                self.record({"frame": task.frame, "status": ERROR, "message": f"{exc}"})
+
+    def _worker_lost(self, task: _Task, exc: WorkerLost) -> None:
+        """A pool worker died: every frame in flight is lost. Restart the pool, requeue them."""
+        lost = [task, *self.in_flight.values()]
+        self.in_flight.clear()
+        self.backend.restart()
+        self._requeue(lost, exc)
+
+    def _requeue(self, lost: list[_Task], exc: WorkerLost) -> None:
+        """Frames lost with a worker are retried one at a time, alone (a frame that was only
+        beside the culprit then succeeds); a frame that ran alone and lost its worker again
+        killed it: ``error``."""
+        for t in lost:
+            if t.attempts >= 1 and len(lost) == 1:
+                self.record({"frame": t.frame, "status": ERROR, "message": str(exc)})
+            else:
+                self.retry.append(_Task(t.frame, t.payload, t.attempts + 1))
+
+    def flush(self) -> None:
+        """Rewrite the partial table if the last rewrite is ``flush_interval_s`` old."""
+        if time.monotonic() - self._last_flush >= self.flush_interval_s:
+            self.files.write(self.rows, self.info, final=False)
+            self._last_flush = time.monotonic()
+
+    def salvage(self) -> None:
+        """After an interruption: record results already back, close the journal, write the
+        partial table of everything recorded."""
+        for fut in list(self.in_flight):
+            if fut.done():
+                with contextlib.suppress(BaseException):
+                    self.record(self.backend.result(fut))
+        self.journal.close()
+        with contextlib.suppress(Exception):
+            self.files.write(self.rows, self.info, final=False)
+
+
+def _open_journal(
+    files: _OutputFiles, fingerprint: str, rows: dict[int, dict[str, Any]]
+) -> Journal:
+    """Continue the journal, or start one holding the rows of a finished table (so that
+    they survive if this run is killed)."""
+    fresh = not files.journal.exists()
+    journal = Journal(files.journal, {"fingerprint": fingerprint, "columns": files.columns})
+    if fresh:
+        for f in sorted(rows):
+            journal.append(rows[f])
+    return journal
+
+
+@contextlib.contextmanager
+def _backend_for(options: BatchOptions, given: Backend | None) -> Iterator[Backend]:
+    """The backend given (left open), or one made from ``options`` (closed afterwards)."""
+    if given is not None:
+        yield given
+        return
+    backend = make_backend(options)
+    try:
+        yield backend
+    finally:
+        backend.close()
+
+
+def _checked_frames(frames: Sequence[int], columns: Sequence[str]) -> list[int]:
+    for required in ("frame", "status", "message"):
+        if required not in columns:
+            raise ValueError(f"columns must include {required!r}")
+    out = [int(f) for f in frames]
+    if len(set(out)) != len(out):
+        raise ValueError("frames must be unique")
+    return out
 
 
 def run_batch(
@@ -309,7 +549,8 @@ def run_batch(
         :class:`Precomputed` row. An exception is recorded as that frame's ``error``.
     output : str or Path
         The CSV table (sidecar JSON beside it; while running, the journal
-        ``<output>.journal`` and the table so far, ``<name>.partial.csv``).
+        ``<output>.journal`` and the table so far, ``<name>.partial.csv``). Its folder is
+        locked for the run (:func:`holofit.io.lock.output_lock`, stage ``desc``).
     columns : sequence of str
         Columns of the table, in order; must include ``frame``, ``status``, ``message``.
     fingerprint : str
@@ -321,148 +562,49 @@ def run_batch(
     backend : Backend, optional
         Use this backend instead of making one from ``options`` (it is not closed).
     desc : str
-        Label of the progress bar.
+        Label of the progress bar, and the stage named in the folder's lock.
 
     Returns
     -------
     BatchSummary
+
+    Raises
+    ------
+    holofit.io.lock.OutputLocked
+        If another run is writing into the output folder.
+    BatchError
+        If earlier results came from other settings, or the backend cannot start.
     """
     t0 = time.perf_counter()
     opts = options or BatchOptions()
     output = Path(output)
     columns = list(columns)
-    for required in ("frame", "status", "message"):
-        if required not in columns:
-            raise ValueError(f"columns must include {required!r}")
-    frames = [int(f) for f in frames]
-    if len(set(frames)) != len(frames):
-        raise ValueError("frames must be unique")
-    meta = dict(meta or {})
-
-    rows = _earlier_rows(output, columns, fingerprint, opts.overwrite)
-    if opts.retry_failed:
-        rows = {k: r for k, r in rows.items() if r["status"] not in FAILED_STATUSES}
-    wanted = set(frames)
-    todo = collections.deque(f for f in frames if f not in rows)
-    n_before = len(wanted) - len(todo)
-    summary = BatchSummary(output, len(frames), n_before, 0)
-
-    def statuses() -> dict[str, int]:
-        return dict(collections.Counter(rows[f]["status"] for f in frames if f in rows))
-
-    jpath = journal_path(output)
-    if not todo:
-        if not output.exists() or jpath.exists():
+    frames = _checked_frames(frames, columns)
+    files = _OutputFiles(output, columns, dict(meta or {}))
+    with output_lock(output.parent, stage=desc) as lock:
+        rows = _earlier_rows(files, fingerprint, opts.overwrite)
+        if opts.retry_failed:
+            rows = {k: r for k, r in rows.items() if r["status"] not in FAILED_STATUSES}
+        todo = collections.deque(f for f in frames if f not in rows)
+        summary = BatchSummary(output, len(frames), len(frames) - len(todo), 0)
+        if lock.note:
+            summary.notes.append(lock.note)
+        info = {"fingerprint": fingerprint, "complete": False, "frames_total": len(frames)}
+        if todo:
+            n_failed = sum(1 for f in frames if f in rows and rows[f]["status"] in FAILED_STATUSES)
+            disable = None if opts.progress is None else not opts.progress
+            with (
+                _backend_for(opts, backend) as be,
+                progress_bar(len(frames), desc, disable=disable) as bar,
+            ):
+                summary.backend = be.describe()
+                info.update(summary.backend)
+                bar.update(summary.n_done_before)
+                run = _BatchRun(func, config, be, files, rows, bar, summary, info, opts, n_failed)
+                run.run(todo, load)
+        elif not output.exists() or files.journal.exists():
             # finished in the journal but never consolidated: write the table now
-            info = {"fingerprint": fingerprint, "complete": True, "frames_total": len(frames)}
-            _write(output, rows, columns, meta, info)
-            with contextlib.suppress(FileNotFoundError):
-                jpath.unlink()
-            _remove_partial(output)
-        summary.statuses = statuses()
-        summary.elapsed_s = time.perf_counter() - t0
-        return summary
-
-    own_backend = backend is None
-    be = backend or make_backend(opts)
-    summary.backend = be.describe()
-    info = {
-        "fingerprint": fingerprint,
-        "complete": False,
-        "frames_total": len(frames),
-        **summary.backend,
-    }
-    max_in_flight = opts.max_in_flight or 2 * be.slots + 2
-    fresh_journal = not jpath.exists()
-    journal = Journal(jpath, {"fingerprint": fingerprint, "columns": columns})
-    if fresh_journal:
-        for f in sorted(rows):  # rows of a finished table: keep them if this run is killed
-            journal.append(rows[f])
-    bar = progress_bar(
-        len(frames), desc, disable=None if opts.progress is None else not opts.progress
-    )
-    bar.update(n_before)
-    in_flight: dict[Any, tuple[int, Any, int]] = {}
-    retry: collections.deque[tuple[int, Any, int]] = collections.deque()
-    last_flush = time.monotonic()
-    n_failed = sum(1 for f in frames if f in rows and rows[f]["status"] in FAILED_STATUSES)
-
-    def record(row: dict[str, Any]) -> None:
-        nonlocal n_failed
-        full = _complete_row(row, columns)
-        rows[full["frame"]] = full
-        journal.append(full)
-        summary.n_run += 1
-        if full["status"] in FAILED_STATUSES:
-            n_failed += 1
-            bar.set_postfix(failed=n_failed, refresh=False)
-        bar.update(1)
-
-    def submit(frame: int, payload: Any, attempts: int) -> None:
-        fut = be.submit(run_frame, func, config, frame, payload)
-        in_flight[fut] = (frame, payload, attempts)
-
-    try:
-        while todo or in_flight or retry:
-            # frames that were running when a worker died go one at a time, alone
-            quarantine = any(a >= 1 for _, _, a in in_flight.values())
-            if retry and not in_flight:
-                submit(*retry.popleft())
-                quarantine = True
-            while todo and not retry and not quarantine and len(in_flight) < max_in_flight:
-                frame = todo.popleft()
-                try:
-                    payload = load(frame)
-                except Exception as exc:
-                    record({"frame": frame, "status": ERROR, "message": f"loading: {exc}"})
-                    continue
-                if isinstance(payload, Precomputed):
-                    record({**payload.row, "frame": frame})
-                    continue
-                submit(frame, payload, 0)
-            if not in_flight:
-                continue
-            for fut in be.wait(in_flight, timeout=0.5):
-                frame, payload, attempts = in_flight.pop(fut)
-                try:
-                    record(be.result(fut))
-                except WorkerLost as exc:
-                    if be.isolates_lost_workers:
-                        record({"frame": frame, "status": ERROR, "message": str(exc)})
-                        continue
-                    lost = [(frame, payload, attempts), *list(in_flight.values())]
-                    in_flight.clear()
-                    be.restart()
-                    for f, p, a in lost:
-                        if a >= 1 and len(lost) == 1:  # it ran alone: it killed the worker
-                            record({"frame": f, "status": ERROR, "message": str(exc)})
-                        else:
-                            retry.append((f, p, a + 1))
-                    break
-                except Exception as exc:  # infrastructure error for this one future
-                    record({"frame": frame, "status": ERROR, "message": f"{exc}"})
-            if time.monotonic() - last_flush >= opts.flush_interval_s:
-                _write(partial_path(output), rows, columns, meta, info)
-                last_flush = time.monotonic()
-        info["complete"] = True
-        _write(output, rows, columns, meta, info)
-        journal.close()
-        jpath.unlink()
-        _remove_partial(output)
-    except BaseException:
-        # keep what is done: results already back, then the table of everything recorded
-        for fut in list(in_flight):
-            if fut.done():
-                with contextlib.suppress(BaseException):
-                    record(be.result(fut))
-        journal.close()
-        with contextlib.suppress(Exception):
-            _write(partial_path(output), rows, columns, meta, info)
-        raise
-    finally:
-        bar.close()
-        if own_backend:
-            be.close()
-    summary.statuses = statuses()
+            files.finish(rows, info)
+    summary.statuses = dict(collections.Counter(rows[f]["status"] for f in frames if f in rows))
     summary.elapsed_s = time.perf_counter() - t0
     return summary

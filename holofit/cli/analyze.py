@@ -6,7 +6,25 @@ from pathlib import Path
 
 import click
 
+from holofit.analysis.recipes import MODELS
 from holofit.cli.common import out_dir_option
+
+#: the option that sets each field of AnalysisSettings (to name it in messages)
+OPTION_OF_SETTING = {
+    "model": "--model",
+    "temperature_c": "--temperature-c",
+    "temperature_err_c": "--temperature-err-c",
+    "a_um": "--a-um",
+    "b_um": "--b-um",
+    "a_err_um": "--da-um",
+    "b_err_um": "--db-um",
+    "d_est": "--d-est",
+    "eps_r_est": "--eps-r-est",
+    "reject_probability": "--reject-p",
+    "fit_lags_translation": "--fit-lags-t",
+    "fit_lags_rotation": "--fit-lags-r",
+    "max_lag": "--max-lag",
+}
 
 
 def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
@@ -25,7 +43,7 @@ def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
 
 @click.command()
 @click.argument("fit_table", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--model", "-m", type=click.Choice(["rod", "janus", "sphere"]), required=True,
+@click.option("--model", "-m", type=click.Choice(MODELS), required=True,
               help="rod: any head-tail symmetric particle (rods, dimers); janus: capped "
               "sphere (x, y and psi only); sphere: translation only.")
 @click.option("--temperature-c", type=float, default=21.0, show_default=True,
@@ -90,7 +108,13 @@ def analyze(
     Writes OUT/summary.csv (+ .json sidecar), OUT/summary.json, OUT/msd.csv and PNG plots
     (msd.png, orientation.png, trajectory.png), and prints a short report.
     """
-    from holofit.analysis import AnalysisSettings, format_report, run_analysis
+    from holofit.analysis import (
+        AnalysisError,
+        AnalysisSettings,
+        SettingError,
+        format_report,
+        run_analysis,
+    )
     from holofit.fit_table import FitTableError
 
     try:
@@ -101,15 +125,13 @@ def analyze(
             subtract_drift=drift, fit_lags_translation=_lag_range(fit_lags_t, "--fit-lags-t"),
             fit_lags_rotation=_lag_range(fit_lags_r, "--fit-lags-r"), max_lag=max_lag,
         )
-    except ValueError as exc:
-        raise click.BadParameter(str(exc)) from None
+    except SettingError as exc:
+        raise click.BadParameter(exc.problem, param_hint=OPTION_OF_SETTING[exc.setting]) from None
     try:
         result, files = run_analysis(fit_table, settings, out, plots=plots,
                                      frame_interval_s=frame_interval_s)
-    except FitTableError as exc:
+    except (FitTableError, AnalysisError) as exc:  # their messages name the file
         raise click.ClickException(str(exc)) from None
-    except ValueError as exc:
-        raise click.ClickException(f"{fit_table}: {exc}") from None
     click.echo(format_report(result))
     click.echo("")
     click.echo("wrote " + ", ".join(str(p) for p in files.values()))

@@ -123,6 +123,8 @@ def fit(
                   plot_frames=parse_int_list(plot_frames, "--plot-frames"),
                   outlier_factor=outlier_factor)
     for name, s in run.summaries.items():
+        for note in s.notes:
+            click.echo(f"note: {note}", err=True)
         counts = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
         click.echo(f"fit ({name}): {s.n_frames} frame(s) [{counts}]; {s.n_run} fitted now, "
                    f"{s.n_done_before} done before; {s.elapsed_s:.1f} s")

@@ -77,6 +77,8 @@ def library(
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--particle") from None
     s = result.summary
+    for note in s.notes:
+        click.echo(f"note: {note}", err=True)
     counts = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
     click.echo(f"library: {s.n_frames} frame(s) [{counts}]; {s.n_run} searched now, "
                f"{s.n_done_before} done before; {s.elapsed_s:.1f} s -> {result.table}")

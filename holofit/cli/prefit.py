@@ -119,6 +119,8 @@ def prefit(
         override_instrument=override_instrument, outlier_factor=outlier_factor,
     )
     s = result.summary
+    for note in s.notes:
+        click.echo(f"note: {note}", err=True)
     counts = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
     click.echo(
         f"prefit: {s.n_frames} frame(s) [{counts}]; {s.n_run} fitted now, "

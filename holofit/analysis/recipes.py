@@ -1,0 +1,419 @@
+"""One recipe per particle model: what the diffusion analysis measures for it, and how.
+
+The analysis (:mod:`holofit.analysis.pipeline`), the summary table
+(:mod:`holofit.analysis.summary`) and the figures (:mod:`holofit.analysis.plots`) are the
+same code for every model; a :class:`Recipe` holds everything that differs:
+
+- the observables whose lag statistics are computed (:mod:`holofit.analysis.msd`);
+- the preliminary fit that sets the default translational fit range (the *probe*), and the
+  rotational observable with the rule that ends its automatic fit range;
+- whether the model has an orientation to clean, and the cleaning defaults;
+- the measurement: which curves are fitted over which range and what is derived from them;
+- the hydrodynamic predictions and the sizes they need;
+- the lines of the summary table and the panels of the MSD figure.
+
+Adding a model is adding a recipe to :data:`RECIPES`.
+
+Models (paper sections 4.2-4.3):
+
+``rod``
+    Any head-tail symmetric particle (rods, dimers): MSDs along and across the axis and in the
+    lab frame, the orientation MSD ``<|du|^2>``; spherocylinder and cylinder predictions.
+``janus``
+    A capped sphere: the x-y MSD, and the projected-orientation correlation ``<p . p'>``
+    (only x, y and the azimuth psi are used, as in the paper); sphere predictions.
+``sphere``
+    Translation only: the x-y MSD; the Stokes-Einstein prediction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+import holofit.analysis.hydrodynamics as hd
+from holofit.analysis.fitting import (
+    CurveModel,
+    FitResult,
+    combine,
+    linear_msd_model,
+    orientation_msd_model,
+    projection_model,
+    single_exponential_model,
+)
+from holofit.analysis.measurement import Measurement
+
+__all__ = [
+    "MODELS",
+    "ORIENT_MSD_LIMIT",
+    "PROJECTION_LIMIT",
+    "RECIPES",
+    "Compared",
+    "Curve",
+    "MsdPanel",
+    "Probe",
+    "Recipe",
+    "Reported",
+    "Rotation",
+    "recipe_for",
+]
+
+#: the automatic rotational fit range ends where <|du|^2> reaches this (rods) ...
+ORIENT_MSD_LIMIT = 0.5
+#: ... or where <p . p'> falls to this (Janus)
+PROJECTION_LIMIT = 0.5
+
+NAN = float("nan")
+
+#: ``fit(key, observable, model, lags)``: fit the observable's lag statistics at ``lags``
+#: with ``model`` and keep the result under ``key`` (supplied by the pipeline)
+FitFunction = Callable[[str, str, CurveModel, NDArray[np.int64]], FitResult]
+#: sizes: name -> (value um, error um, where it came from)
+Sizes = dict[str, tuple[float, float, str]]
+#: predictions: key -> (prediction, unit, source)
+Predictions = dict[str, tuple[hd.Prediction, str, str]]
+
+
+class MeasureOptions(Protocol):
+    """The settings a measurement reads (:class:`holofit.analysis.settings.AnalysisSettings`)."""
+
+    projection_amplitude: bool
+
+
+@dataclass(frozen=True)
+class Probe:
+    """A preliminary fit at short lags that sets where a default fit range ends.
+
+    Its reduced localisation error ``x = noise_factor * eps2 / (D dt)`` gives the last lag
+    (``holofit.analysis.pipeline``'s adaptive rule).
+    """
+
+    observable: str
+    model: Callable[[], CurveModel]
+    noise_factor: float = 1.0
+
+
+@dataclass(frozen=True)
+class Rotation:
+    """The rotational observable of a model and the end of its automatic fit range.
+
+    Attributes
+    ----------
+    observable : str
+        ``orient`` (``<|du|^2>``) or ``proj`` (``<p . p'>``).
+    usable : callable
+        Mean of the observable per lag -> True where the lag may be in the automatic fit range
+        (the range ends before the first lag that is not; NaN counts as not usable).
+    probe : Probe, optional
+        A preliminary fit that may end the range earlier (from the angular noise).
+    """
+
+    observable: str
+    usable: Callable[[NDArray[np.float64]], NDArray[np.bool_]]
+    probe: Probe | None = None
+
+
+@dataclass(frozen=True)
+class Compared:
+    """A summary line: a measured quantity beside a prediction (with its D_est sensitivity)."""
+
+    measured: str
+    label: str
+    prediction: str | None
+    unit: str
+
+
+@dataclass(frozen=True)
+class Reported:
+    """A summary line: a measured quantity alone (unit from the measurement)."""
+
+    measured: str
+    label: str
+    source: str
+    expected: float = NAN
+
+
+@dataclass(frozen=True)
+class Curve:
+    """One observable in an MSD panel; with ``measured``, its fit is drawn and labelled
+    ``fit: <symbol> = <value>`` (``symbol`` defaults to the measurement's key)."""
+
+    observable: str
+    colour: str
+    measured: str | None = None
+    symbol: str | None = None
+
+
+@dataclass(frozen=True)
+class MsdPanel:
+    """One panel of the MSD figure."""
+
+    title: str | None
+    curves: tuple[Curve, ...]
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """Everything the analysis does differently for one particle model.
+
+    Attributes
+    ----------
+    name : str
+        The model's name (``--model``).
+    observables : tuple of str
+        Lag statistics to compute, in order (the first one's rejected-pair counts are the
+        ones reported).
+    translation_probe : Probe
+        Sets the default translational fit range.
+    rotation : Rotation, optional
+        The rotational observable (None: translation only).
+    orientation : bool
+        The model uses the particle's orientation (it needs it, and it can be cleaned).
+    head_tail, reject : bool
+        Default cleaning: head-tail flip correction, rejection of improbable jumps.
+    sizes : tuple of str
+        Sizes the predictions need (``a_um``, ``b_um``).
+    measure : callable
+        ``measure(fit, t_lags, r_lags, options) -> {key: Measurement}``: the fits and what is
+        derived from them.
+    predict : callable
+        ``predict(sizes, temperature_c, temperature_err_c, notes) -> {key: (Prediction, unit,
+        source)}``; appends to ``notes`` why a prediction is missing.
+    summary : tuple
+        Lines of the summary table (:class:`Compared`, :class:`Reported`), after the sizes.
+    radius_is_hydrodynamic : bool
+        The size ``a`` is the hydrodynamic radius (a sphere): effective radii are compared
+        with it.
+    msd_panels : tuple of MsdPanel
+        The MSD figure.
+    """
+
+    name: str
+    observables: tuple[str, ...]
+    translation_probe: Probe
+    rotation: Rotation | None
+    orientation: bool
+    head_tail: bool
+    reject: bool
+    sizes: tuple[str, ...]
+    measure: Callable[[FitFunction, NDArray[np.int64], NDArray[np.int64] | None,
+                       MeasureOptions], dict[str, Measurement]]
+    predict: Callable[[Sizes, float, float, list[str]], Predictions]
+    summary: tuple[Compared | Reported, ...]
+    radius_is_hydrodynamic: bool
+    msd_panels: tuple[MsdPanel, ...]
+
+
+def _eps_nm(f: FitResult) -> Measurement:
+    """The localisation error ``sqrt(eps2)`` of a fit's intercept, nm."""
+    e2, de2 = f.value("eps2"), f.error("eps2")
+    if e2 <= 0:
+        return Measurement(0.0, 1e3 * math.sqrt(max(de2, 0.0)), "nm")
+    e = math.sqrt(e2)
+    return Measurement(1e3 * e, 1e3 * de2 / (2 * e), "nm")
+
+
+# ---------------------------------------------------------------------------------- rod
+
+
+def _measure_rod(
+    fit: FitFunction, t_lags: NDArray[np.int64], r_lags: NDArray[np.int64] | None,
+    options: MeasureOptions,
+) -> dict[str, Measurement]:
+    meas: dict[str, Measurement] = {}
+    fp = fit("par", "par", linear_msd_model(2, "par"), t_lags)
+    fq = fit("perp", "perp", linear_msd_model(4, "perp"), t_lags)
+    fl = fit("lab_3d", "lab_3d", linear_msd_model(6, "lab_3d"), t_lags)
+    fr = fit("orient", "orient", orientation_msd_model(), r_lags)
+    dpar, dperp = fp.value("D"), fq.value("D")
+    meas["D_par"] = Measurement(dpar, fp.error("D"), "um^2/s")
+    meas["D_perp"] = Measurement(dperp, fq.error("D"), "um^2/s")
+    dt_val, dt_err = combine(
+        [(1 / 3, fp.influence_of("D")), (2 / 3, fq.influence_of("D"))], (dpar + 2 * dperp) / 3
+    )
+    meas["D_t"] = Measurement(dt_val, dt_err, "um^2/s")
+    meas["D_t_lab"] = Measurement(fl.value("D"), fl.error("D"), "um^2/s")
+    ratio, ratio_err = combine(
+        [(1 / dperp, fp.influence_of("D")), (-dpar / dperp**2, fq.influence_of("D"))],
+        dpar / dperp,
+    )
+    meas["D_par/D_perp"] = Measurement(ratio, ratio_err, "1")
+    meas["D_r"] = Measurement(fr.value("D"), fr.error("D"), "1/s")
+    meas["eps_par"] = _eps_nm(fp)
+    meas["eps_perp"] = _eps_nm(fq)
+    er = _eps_nm(fr)
+    meas["eps_r"] = Measurement(math.degrees(er.value / 1e3), math.degrees(er.error / 1e3),
+                                "deg")
+    return meas
+
+
+def _predict_rod(sizes: Sizes, t: float, dt_c: float, notes: list[str]) -> Predictions:
+    out: Predictions = {}
+    if "a_um" not in sizes or "b_um" not in sizes:
+        notes.append("no rod sizes (a_um, b_um) in the table or options: no predictions")
+        return out
+    (a, da, _), (b, db, _) = sizes["a_um"], sizes["b_um"]
+    if not b > a:
+        notes.append(f"b = {b:g} um is not longer than a = {a:g} um: aspect ratio < 1")
+    args = {"a_um": a, "b_um": b}
+    errs = {"a_um": da, "b_um": db}
+    sc = "spherocylinder (Martchenko 2011 / Yoshizaki & Yamakawa 1980)"
+    cy = "cylinder (Tirado et al. 1984)"
+    for key, unit, fn, src in (
+        ("D_t", "um^2/s", lambda **k: hd.spherocylinder_diffusion(**k)["D_t"], sc),
+        ("D_r", "1/s", lambda **k: hd.spherocylinder_diffusion(**k)["D_r"], sc),
+        ("cyl D_par", "um^2/s", lambda **k: hd.cylinder_diffusion(**k)["D_par"], cy),
+        ("cyl D_perp", "um^2/s", lambda **k: hd.cylinder_diffusion(**k)["D_perp"], cy),
+        ("cyl D_t", "um^2/s", lambda **k: hd.cylinder_diffusion(**k)["D_t"], cy),
+        ("cyl D_r", "1/s", lambda **k: hd.cylinder_diffusion(**k)["D_r"], cy),
+        ("cyl D_par/D_perp", "1", lambda **k: hd.cylinder_diffusion(**k)["D_par/D_perp"], cy),
+    ):
+        out[key] = (hd.predict(fn, t, dt_c, args, errs), unit, src)
+    return out
+
+
+ROD = Recipe(
+    name="rod",
+    observables=("par", "perp", "orient", "lab_x", "lab_y", "lab_z", "lab_3d"),
+    translation_probe=Probe("lab_3d", lambda: linear_msd_model(6, "lab_3d")),
+    # <|du|^2> = 4 (D_r tau + eps_r^2 / 2) at short lags: x = (eps_r^2 / 2) / (D_r dt)
+    rotation=Rotation("orient", lambda mean: mean <= ORIENT_MSD_LIMIT,
+                      Probe("orient", orientation_msd_model, noise_factor=0.5)),
+    orientation=True,
+    head_tail=True,
+    reject=True,
+    sizes=("a_um", "b_um"),
+    measure=_measure_rod,
+    predict=_predict_rod,
+    summary=(
+        Compared("D_par", "D_par", "cyl D_par", "um^2/s"),
+        Compared("D_perp", "D_perp", "cyl D_perp", "um^2/s"),
+        Compared("D_t", "D_t = (2 D_perp + D_par)/3", "D_t", "um^2/s"),
+        Compared("D_t", "D_t = (2 D_perp + D_par)/3", "cyl D_t", "um^2/s"),
+        Compared("D_t_lab", "D_t (lab-frame MSD)", "D_t", "um^2/s"),
+        Compared("D_r", "D_r", "D_r", "1/s"),
+        Compared("D_r", "D_r", "cyl D_r", "1/s"),
+        Compared("D_par/D_perp", "D_par/D_perp", "cyl D_par/D_perp", "1"),
+        Reported("eps_par", "eps_par", "fit intercept"),
+        Reported("eps_perp", "eps_perp", "fit intercept"),
+        Reported("eps_r", "eps_r", "fit intercept"),
+    ),
+    radius_is_hydrodynamic=False,
+    msd_panels=(
+        MsdPanel("particle frame", (Curve("par", "C0", "D_par"), Curve("perp", "C3", "D_perp"))),
+        MsdPanel("lab frame", (Curve("lab_x", "C0"), Curve("lab_y", "C1"), Curve("lab_z", "C2"),
+                               Curve("lab_3d", "k", "D_t_lab", "D_t"))),
+    ),
+)
+
+
+# ----------------------------------------------------------------------- sphere, janus
+
+
+def _measure_xy(
+    fit: FitFunction, t_lags: NDArray[np.int64], r_lags: NDArray[np.int64] | None,
+    options: MeasureOptions,
+) -> dict[str, Measurement]:
+    fx = fit("xy", "xy", linear_msd_model(4, "xy"), t_lags)
+    return {"D_t": Measurement(fx.value("D"), fx.error("D"), "um^2/s"), "eps": _eps_nm(fx)}
+
+
+def _measure_janus(
+    fit: FitFunction, t_lags: NDArray[np.int64], r_lags: NDArray[np.int64] | None,
+    options: MeasureOptions,
+) -> dict[str, Measurement]:
+    meas = _measure_xy(fit, t_lags, r_lags, options)
+    amplitude = options.projection_amplitude
+    fj = fit("proj", "proj", projection_model(amplitude), r_lags)
+    meas["D_r"] = Measurement(fj.value("D"), fj.error("D"), "1/s")
+    if amplitude:
+        meas["A"] = Measurement(fj.value("A"), fj.error("A"), "1")
+    try:  # for comparison only (biased at short lags)
+        fit("proj_single_exp", "proj", single_exponential_model(amplitude), r_lags)
+    except ValueError:
+        pass
+    return meas
+
+
+def _predict_sphere(
+    sizes: Sizes, t: float, dt_c: float, notes: list[str], rotation: bool = False
+) -> Predictions:
+    out: Predictions = {}
+    if "a_um" not in sizes:
+        notes.append("no radius (a_um or radius_um) in the table or options: no predictions")
+        return out
+    a, da, _ = sizes["a_um"]
+    out["D_t"] = (
+        hd.predict(lambda **k: hd.sphere_diffusion(**k)["D_t"], t, dt_c, {"a_um": a},
+                   {"a_um": da}), "um^2/s", "Stokes-Einstein sphere")
+    if rotation:
+        out["D_r"] = (
+            hd.predict(lambda **k: hd.sphere_diffusion(**k)["D_r"], t, dt_c, {"a_um": a},
+                       {"a_um": da}), "1/s", "Stokes-Einstein-Debye sphere")
+    return out
+
+
+def _predict_janus(sizes: Sizes, t: float, dt_c: float, notes: list[str]) -> Predictions:
+    return _predict_sphere(sizes, t, dt_c, notes, rotation=True)
+
+
+_XY_PANEL = (MsdPanel(None, (Curve("xy", "C0", "D_t", "D"),)),)
+_XY_PROBE = Probe("xy", lambda: linear_msd_model(4, "xy"))
+_EPS_XY = Reported("eps", "eps (x-y)", "fit intercept")
+
+JANUS = Recipe(
+    name="janus",
+    observables=("xy", "proj"),
+    translation_probe=_XY_PROBE,
+    rotation=Rotation("proj", lambda mean: mean >= PROJECTION_LIMIT),
+    orientation=True,
+    head_tail=False,
+    # psi alone is analysed, which a mirrored polar angle does not change
+    reject=False,
+    sizes=("a_um",),
+    measure=_measure_janus,
+    predict=_predict_janus,
+    summary=(
+        Compared("D_t", "D (x-y MSD)", "D_t", "um^2/s"),
+        Compared("D_r", "D_r (projection correlation)", "D_r", "1/s"),
+        Reported("A", "A (projection amplitude)", "1 without angular noise", expected=1.0),
+        _EPS_XY,
+    ),
+    radius_is_hydrodynamic=True,
+    msd_panels=_XY_PANEL,
+)
+
+SPHERE = Recipe(
+    name="sphere",
+    observables=("xy",),
+    translation_probe=_XY_PROBE,
+    rotation=None,
+    orientation=False,
+    head_tail=False,
+    reject=False,
+    sizes=("a_um",),
+    measure=_measure_xy,
+    predict=_predict_sphere,
+    summary=(Compared("D_t", "D (x-y MSD)", "D_t", "um^2/s"), _EPS_XY),
+    radius_is_hydrodynamic=True,
+    msd_panels=_XY_PANEL,
+)
+
+#: every model, by name
+RECIPES: dict[str, Recipe] = {r.name: r for r in (ROD, JANUS, SPHERE)}
+MODELS: tuple[str, ...] = tuple(RECIPES)
+
+
+def recipe_for(model: str) -> Recipe:
+    """The recipe of a model (``KeyError`` naming the known models if there is none)."""
+    try:
+        return RECIPES[model]
+    except KeyError:
+        raise KeyError(
+            f"no analysis recipe for model {model!r}; known: {', '.join(MODELS)}"
+        ) from None
