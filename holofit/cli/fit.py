@@ -42,8 +42,8 @@ from holofit.scattering.select import ENGINE_CHOICES
               show_default=True,
               help="initial: everything free on the first frames, writes static.json; final: "
                    "static parameters fixed, every frame; both: one then the other.")
-@click.option("--initial-frames", type=click.IntRange(min=3), default=500, show_default=True,
-              help="Frames of the initial pass.")
+@click.option("--initial-frames", type=click.IntRange(min=1), default=500, show_default=True,
+              help="Frames of the initial pass (1 for a single hologram: everything free).")
 @click.option("--static", "static_file", default=None,
               type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="static.json with the static parameters of the final pass [default: "

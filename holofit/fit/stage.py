@@ -162,12 +162,12 @@ def static_average(table: pd.DataFrame, model: ParticleModel) -> dict[str, Any]:
     Raises
     ------
     ValueError
-        Fewer than 3 ``ok`` rows.
+        No ``ok`` row.
     """
     ok = table[table["status"] == OK]
-    if len(ok) < 3:
-        raise ValueError(f"the initial pass has only {len(ok)} ok frame(s); the static "
-                         "parameters need at least 3 (see initial.csv's status and message)")
+    if len(ok) < 1:
+        raise ValueError("the initial pass has no ok frame: no static parameters to fix (see "
+                         "initial.csv's status and message)")
     out: dict[str, Any] = {"values": {}, "spread": {}, "mean": {}, "std": {},
                            "n_frames": len(ok)}
     for p in static_parameters(model):
@@ -175,7 +175,8 @@ def static_average(table: pd.DataFrame, model: ParticleModel) -> dict[str, Any]:
         v = v[np.isfinite(v)]
         med = float(np.median(v))
         out["values"][p.name] = med
-        out["spread"][p.name] = float(MAD_TO_SIGMA * np.median(np.abs(v - med)))
+        out["spread"][p.name] = (float(MAD_TO_SIGMA * np.median(np.abs(v - med)))
+                                 if v.size >= 3 else math.nan)
         out["mean"][p.name] = float(np.mean(v))
         out["std"][p.name] = float(np.std(v, ddof=1)) if v.size > 1 else 0.0
     return out
@@ -311,8 +312,8 @@ def run_fit(
     """
     if pass_name not in PASSES:
         raise ValueError(f"pass must be one of {', '.join(PASSES)}, got {pass_name!r}")
-    if initial_frames < 3:
-        raise ValueError(f"initial_frames must be >= 3, got {initial_frames}")
+    if initial_frames < 1:
+        raise ValueError(f"initial_frames must be >= 1, got {initial_frames}")
     opts = options or FrameFitOptions()
     out = Path(out_dir)
     run = FitRun()

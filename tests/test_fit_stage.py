@@ -1,0 +1,160 @@
+"""The library and fit stages end to end on a tiny simulated rod movie (known truth), their
+reruns, and bad input: tables made from other crops or for another particle, missing prefit
+rows, a frame that cannot be fitted."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from holofit.batch import BatchOptions
+from holofit.cli import main
+from holofit.config import load_instrument, load_particle, resolve_config
+from holofit.crop import run_crop
+from holofit.fit.frame import FrameFitOptions
+from holofit.fit.stage import run_fit
+from holofit.fit_table import read_fit_table
+from holofit.fitting.inputs import StageInputError
+from holofit.library.stage import LibrarySettings, run_library
+from holofit.prefit import run_prefit
+from holofit.simulate.holograms import simulate_movie
+
+SERIAL = BatchOptions(workers=0, progress=False)
+ROD_TOML = """
+[particle]
+model = "spherocylinder"
+a_um = 0.3
+b_um = 0.7
+index = 1.5
+
+[dda]
+dipole_size_um = 0.1
+"""
+TRUTH_ANGLES = np.radians([[30, 50, 0], [34, 53, 0], [38, 49, 0]])
+LIB = LibrarySettings(tilt_step_deg=15, n_phi=64, n_candidates=2)
+
+
+@pytest.fixture(scope="module")
+def movie(tmp_path_factory):
+    """A 3-frame movie of a small rod, cropped and prefitted (shared by the tests)."""
+    root = tmp_path_factory.mktemp("rodmovie")
+    (root / "rod.toml").write_text(ROD_TOML)
+    particle = load_particle(root / "rod.toml")
+    inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
+    pos = np.array([[8.0, 8.0, 9.0], [8.1, 7.9, 9.2], [7.9, 8.05, 9.1]])
+    sim = simulate_movie(particle.model, inst, pos, (90, 90), orientations=TRUTH_ANGLES,
+                         alpha=0.9, theory=particle.theory(), seed=2, out_dir=root / "sim")
+    run_crop(sim.movie, sim.background, inst, root / "crop", size=64, plot=False)
+    run_prefit(root / "crop", root / "prefit", batch=SERIAL, plot=False)
+    run_library(root / "crop", root / "prefit", particle, root / "lib", settings=LIB,
+                batch=SERIAL, plot=False)
+    return root, particle, pos
+
+
+def test_library_then_both_passes_recover_the_truth(movie, tmp_path):
+    root, particle, pos = movie
+    lib = pd.read_csv(root / "lib" / "library.csv")
+    assert (lib["status"] == "ok").all() and (lib["n_candidates"] >= 1).all()
+    run = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "fit",
+                  initial_frames=2, batch=SERIAL, plot=True)
+    static = json.loads(run.static.read_text())
+    assert static["n_frames"] == 2 and static["particle_model"] == "spherocylinder"
+    assert static["values"]["a_um"] == pytest.approx(0.3, abs=0.01)
+    assert static["values"]["b_um"] == pytest.approx(0.7, abs=0.02)
+    fit = read_fit_table(run.final)  # the fit-table schema, as analyze reads it
+    table = fit.table
+    assert (table["status"] == "ok").all(), table["message"].tolist()
+    np.testing.assert_allclose(table[["x_um", "y_um", "z_um"]], pos, atol=0.02)
+    u_true = np.column_stack([np.sin(TRUTH_ANGLES[:, 1]) * np.cos(TRUTH_ANGLES[:, 0]),
+                              np.sin(TRUTH_ANGLES[:, 1]) * np.sin(TRUTH_ANGLES[:, 0]),
+                              np.cos(TRUTH_ANGLES[:, 1])])
+    cos = np.abs(np.sum(table[["ux", "uy", "uz"]].to_numpy() * u_true, axis=1))
+    assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 2.0
+    for col in ("d_x_um", "d_theta_rad", "chi2", "chi2_red", "r2", "n_eval", "delta_chi2",
+                "ambiguous"):
+        assert col in table.columns
+    assert (tmp_path / "fit" / "fit.png").exists()
+    assert list((tmp_path / "fit" / "frames_final").glob("frame_*.png"))
+    # a rerun finds everything done and changes nothing
+    before = run.final.read_bytes()
+    again = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "fit",
+                    initial_frames=2, batch=SERIAL, plot=False)
+    assert again.summaries["final"].n_run == 0 and run.final.read_bytes() == before
+
+
+def test_a_library_for_another_particle_is_refused(movie, tmp_path):
+    root, _, _ = movie
+    other = tmp_path / "rod2.toml"
+    other.write_text(ROD_TOML.replace("b_um = 0.7", "b_um = 0.9"))
+    with pytest.raises(StageInputError, match=r"library made for another spherocylinder.*b_um"):
+        run_fit(root / "crop", root / "prefit", root / "lib", load_particle(other),
+                tmp_path / "fit", batch=SERIAL, plot=False)
+    janus = tmp_path / "janus.toml"
+    janus.write_text('[particle]\nmodel = "janus"\nradius_um = 0.4\ncap_thickness_um = 0.05\n'
+                     'index_core = 1.58\nindex_cap = 2.7\n')
+    with pytest.raises(StageInputError, match="library made for a 'spherocylinder'"):
+        run_fit(root / "crop", root / "prefit", root / "lib", load_particle(janus),
+                tmp_path / "fit", batch=SERIAL, plot=False)
+
+
+def test_tables_made_from_other_crops_are_refused(movie, tmp_path):
+    root, particle, _ = movie
+    crop2 = tmp_path / "crop2"
+    shutil.copytree(root / "crop", crop2)
+    table = pd.read_csv(crop2 / "crops.csv")
+    table.loc[0, "x_px"] += 0.5
+    table.to_csv(crop2 / "crops.csv", index=False)
+    with pytest.raises(StageInputError, match="made from other crops"):
+        run_library(crop2, root / "prefit", particle, tmp_path / "lib", settings=LIB,
+                    batch=SERIAL, plot=False)
+    with pytest.raises(StageInputError, match="made from other crops"):
+        run_fit(crop2, root / "prefit", root / "lib", particle, tmp_path / "fit",
+                batch=SERIAL, plot=False)
+
+
+def test_missing_prefit_rows_and_unfittable_frames_are_recorded_and_the_batch_goes_on(
+        movie, tmp_path):
+    root, particle, _ = movie
+    pre = tmp_path / "prefit"
+    shutil.copytree(root / "prefit", pre)
+    table = pd.read_csv(pre / "prefit.csv")
+    table = table[table["frame"] != 1]
+    table.loc[table["frame"] == 2, "z_um"] = 0.2  # a start inside the particle: cannot fit
+    table.to_csv(pre / "prefit.csv", index=False)
+    run = run_fit(root / "crop", pre, root / "lib", particle, tmp_path / "fit",
+                  pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False,
+                  options=FrameFitOptions(mirror=False))
+    out = pd.read_csv(run.final).set_index("frame")
+    assert out.loc[0, "status"] == "ok"
+    assert out.loc[1, "status"] == "skipped" and "prefit: no row" in out.loc[1, "message"]
+    assert out.loc[2, "status"] != "ok" and out.loc[2, "message"]
+
+
+def _static(tmp_path):
+    path = tmp_path / "static.json"
+    path.write_text(json.dumps({"particle_model": "spherocylinder",
+                                "values": {"a_um": 0.3, "b_um": 0.7, "n": 1.5}}))
+    return path
+
+
+def test_cli_runs_the_final_pass_from_a_static_file(movie, tmp_path):
+    root, _, _ = movie
+    res = CliRunner().invoke(main, [
+        "fit", str(root / "crop"), "--prefit", str(root / "prefit"), "--library",
+        str(root / "lib"), "-p", str(root / "rod.toml"), "-o", str(tmp_path / "fit"),
+        "--pass", "final", "--static", str(_static(tmp_path)), "-j", "0", "--no-plot",
+        "--frames", "0:1", "--starts", "1", "--no-mirror"])
+    assert res.exit_code == 0, res.output
+    assert "fit (final): 1 frame(s) [ok 1]" in res.output
+    wrong = tmp_path / "wrong.json"
+    wrong.write_text(json.dumps({"particle_model": "janus", "values": {}}))
+    res = CliRunner().invoke(main, [
+        "fit", str(root / "crop"), "--prefit", str(root / "prefit"), "--library",
+        str(root / "lib"), "-p", str(root / "rod.toml"), "-o", str(tmp_path / "fit2"),
+        "--pass", "final", "--static", str(wrong), "-j", "0", "--no-plot"])
+    assert res.exit_code == 1 and "wrong.json: static parameters of a 'janus'" in res.output
