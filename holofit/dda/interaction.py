@@ -13,27 +13,24 @@ Circulant embedding
     ``(grid, d, k, precision)``; every box that fits the grid (any size, any orientation with the
     same d and k) reuses it.
 
-Pruned transforms
-    Box fields are stored in (component, z, y, x) order. The forward transform runs along z on
-    the ``ny * nx`` occupied lines only, then along y on ``Mz * nx`` lines, then along the
-    contiguous x axis on all; the inverse in the opposite order, keeping only the box. That is
-    7/12 of the work of full 3D transforms, and the full-size passes run along contiguous
-    memory. Buffers are preallocated per box (no allocation per product).
+Grid sizes
+    ``M`` is the smallest even number ``>= 2 n`` whose prime factors are 2, 3, 5 and 7, with at
+    most one factor 11 or 13 (sizes FFTW transforms at full speed; ADDA's rule).
+
+The matrix-vector product that uses the tensor lives in :mod:`holofit.dda.convolution`; it
+asks the interaction for the tensor in its slab layout (:meth:`Interaction.slab_tensor`).
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 import scipy.fft as sfft
 from numpy.typing import NDArray
 
-from holofit.dda import fftw
-
-__all__ = ["Convolver", "Interaction", "clear_cache", "get_interaction", "green_tensor",
+__all__ = ["Interaction", "clear_cache", "fft_size", "get_interaction", "green_tensor",
            "grid_for_box"]
 
 _CACHE: OrderedDict[tuple, Interaction] = OrderedDict()
@@ -60,22 +57,22 @@ def green_tensor(r: NDArray[np.float64], k: float) -> NDArray[np.complex128]:
     return np.where((dist > 0)[..., None, None], g, 0.0)
 
 
-def _smooth_even(m: int) -> int:
-    """Smallest even 5-smooth integer >= m."""
+def fft_size(m: int) -> int:
+    """Smallest even integer ``>= m`` with prime factors 2, 3, 5, 7 and at most one 11 or 13."""
     m = max(m + (m % 2), 2)
     while True:
         r = m
-        for f in (2, 3, 5):
+        for f in (2, 3, 5, 7):
             while r % f == 0:
                 r //= f
-        if r == 1:
+        if r in (1, 11, 13):
             return m
         m += 2
 
 
 def grid_for_box(shape: tuple[int, int, int]) -> tuple[int, int, int]:
-    """Circulant grid ``(Mx, My, Mz)`` for a box ``(nx, ny, nz)``: even, 5-smooth, ``>= 2n``."""
-    return tuple(_smooth_even(2 * n) for n in shape)  # type: ignore[return-value]
+    """Circulant grid ``(Mx, My, Mz)`` for a box ``(nx, ny, nz)``: :func:`fft_size` of ``2n``."""
+    return tuple(fft_size(2 * n) for n in shape)  # type: ignore[return-value]
 
 
 def _octant_transform(g: NDArray, parity: tuple[int, int, int]) -> NDArray:
@@ -120,6 +117,7 @@ class Interaction:
     d: float
     k: float
     g_oct: NDArray[np.complexfloating]
+    _slab_cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, grid: tuple[int, int, int], d: float, k: float,
@@ -155,109 +153,46 @@ class Interaction:
     def dtype(self) -> np.dtype:
         return self.g_oct.dtype
 
+    def slab_tensor(self, order: tuple[int, int, int]) -> tuple[NDArray, NDArray]:
+        """The tensor in the layout of the slab convolution (cached per axis order).
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _fold(i, m):  # pragma: no cover - compiled
-    """Octant index of grid index ``i`` (grid size ``m``) and the sign of an odd component."""
-    if i > m // 2:
-        return m - i, -1.0
-    return i, 1.0
+        Parameters
+        ----------
+        order : tuple of int
+            Lattice axes ``(s, a, b)`` (0 = x, 1 = y, 2 = z): slab axis, then the two in-slab
+            axes, ``b`` contiguous.
 
-
-@numba.njit(cache=True, nogil=True)
-def _tensor_apply(g, y, mz, my, mx):  # pragma: no cover - compiled
-    """In place ``y(q) = G(q) . y(q)`` on the full grid, G unfolded from its octant."""
-    for iz in range(mz):
-        fz, sz = _fold(iz, mz)
-        for iy in range(my):
-            fy, sy = _fold(iy, my)
-            for ix in range(mx):
-                fx, sx = _fold(ix, mx)
-                gxx = g[0, fz, fy, fx]
-                gxy = g[1, fz, fy, fx] * (sx * sy)
-                gxz = g[2, fz, fy, fx] * (sx * sz)
-                gyy = g[3, fz, fy, fx]
-                gyz = g[4, fz, fy, fx] * (sy * sz)
-                gzz = g[5, fz, fy, fx]
-                y0 = y[0, iz, iy, ix]
-                y1 = y[1, iz, iy, ix]
-                y2 = y[2, iz, iy, ix]
-                y[0, iz, iy, ix] = gxx * y0 + gxy * y1 + gxz * y2
-                y[1, iz, iy, ix] = gxy * y0 + gyy * y1 + gyz * y2
-                y[2, iz, iy, ix] = gxz * y0 + gyz * y1 + gzz * y2
-
-
-class Convolver:
-    """``z_i = sum_j G(r_i - r_j) y_j`` on one box, with preallocated buffers.
-
-    Uses FFTW (through pyFFTW, with measured plans whose wisdom is cached on disk, see
-    :mod:`holofit.dda.fftw`) when it is installed, numpy's pocketfft otherwise; set
-    ``HOLOFIT_FFT=numpy`` to force the latter.
-
-    Parameters
-    ----------
-    interaction : Interaction
-        The transformed tensor (its grid must hold the box).
-    box : tuple of int
-        ``(nx, ny, nz)``.
-    """
-
-    def __init__(self, interaction: Interaction, box: tuple[int, int, int]) -> None:
-        mx, my, mz = interaction.grid
-        nx, ny, nz = box
-        if 2 * nx > mx or 2 * ny > my or 2 * nz > mz:
-            raise ValueError(f"box {box} does not fit the interaction grid {interaction.grid}")
-        self.interaction = interaction
-        self.box = box
-        dt = interaction.dtype
-        self.field = np.zeros((3, nz, ny, nx), dtype=dt)  # the box, (c, z, y, x)
-        self._plans = fftw.plans((3, mz, ny, nx), (3, mz, my, nx), (3, mz, my, mx), dt)
-        if self._plans is not None:
-            self._b1, self._b2, self._b3 = self._plans.buffers
-        else:
-            self._b1 = np.empty((3, mz, ny, nx), dtype=dt)
-            self._b2 = np.empty((3, mz, my, nx), dtype=dt)
-            self._b3 = np.empty((3, mz, my, mx), dtype=dt)
-
-    @property
-    def backend(self) -> str:
-        return "fftw" if self._plans is not None else "numpy"
-
-    def convolve(self) -> NDArray[np.complexfloating]:
-        """Convolve :attr:`field` in place and return it (shape (3, nz, ny, nx))."""
-        mx, my, mz = self.interaction.grid
-        nx, ny, nz = self.box
-        b1, b2, b3 = self._b1, self._b2, self._b3
-        plans = self._plans
-        if plans is None:
-            np.fft.fft(self.field, n=mz, axis=1, out=b1)
-            np.fft.fft(b1, n=my, axis=2, out=b2)
-            np.fft.fft(b2, n=mx, axis=3, out=b3)
-            _tensor_apply(self.interaction.g_oct, b3, mz, my, mx)
-            np.fft.ifft(b3, axis=3, out=b3)
-            np.fft.ifft(b3[..., :nx], axis=2, out=b2)
-            np.fft.ifft(b2[:, :, :ny], axis=1, out=b1)
-            self.field[...] = b1[:, :nz]
-            return self.field
-        # FFTW: zero-padding is explicit, every transform runs in place
-        b1[:, :nz] = self.field
-        b1[:, nz:] = 0
-        plans.forward[0]()
-        b2[:, :, :ny] = b1
-        b2[:, :, ny:] = 0
-        plans.forward[1]()
-        b3[..., :nx] = b2
-        b3[..., nx:] = 0
-        plans.forward[2]()
-        _tensor_apply(self.interaction.g_oct, b3, mz, my, mx)
-        plans.backward[2]()
-        b2[...] = b3[..., :nx]
-        plans.backward[1]()
-        b1[...] = b2[:, :, :ny]
-        plans.backward[0]()
-        self.field[...] = b1[:, :nz]
-        self.field *= 1.0 / (mx * my * mz)
-        return self.field
+        Returns
+        -------
+        tensor : ndarray, shape (M_s/2+1, M_a/2+1, 6, M_b)
+            Folded along ``s`` and ``a``, unfolded along ``b`` (the odd components' signs along
+            ``b`` applied), divided by ``M_s M_a M_b`` (the inverse transform's normalisation).
+        signs : ndarray, shape (2, 2, 3)
+            Signs of the xy, xz, yz components in the upper (1) or lower (0) half of the slab
+            axis (first index) and of the ``a`` axis (second index).
+        """
+        key = tuple(int(i) for i in order)
+        if key in self._slab_cache:
+            return self._slab_cache[key]
+        s, a, b = key
+        goct_axis = {0: 3, 1: 2, 2: 1}  # lattice axis -> axis of g_oct (c, z, y, x)
+        g = np.transpose(self.g_oct, (goct_axis[s], goct_axis[a], 0, goct_axis[b]))
+        mb = self.grid[b]
+        idx = np.arange(mb)
+        upper = idx > mb // 2
+        g = g[..., np.where(upper, mb - idx, idx)]
+        odd_b = np.array([PARITY[c][b] < 0 for c in COMPONENTS])
+        g = g * np.where(odd_b[:, None] & upper[None, :], -1.0, 1.0)
+        tensor = np.ascontiguousarray(g / float(np.prod(self.grid)), dtype=self.dtype)
+        signs = np.empty((2, 2, 3), dtype=tensor.real.dtype)
+        for hs in range(2):
+            for ha in range(2):
+                sg = np.ones(3)
+                sg[s] = -1.0 if hs else 1.0
+                sg[a] = -1.0 if ha else 1.0
+                signs[hs, ha] = (sg[0] * sg[1], sg[0] * sg[2], sg[1] * sg[2])
+        self._slab_cache[key] = (tensor, signs)
+        return tensor, signs
 
 
 def get_interaction(shape: tuple[int, int, int], d: float, k: float,
