@@ -238,12 +238,13 @@ class Convolver:
         along_s = (ms, lines, lines, [(lines, 1, 1)])
         along_a = (ma, mb, mb, [(3, ma * mb, ma * mb), (nb, 1, 1)])
         along_b = (mb, 1, 1, [(3 * ma, mb, mb)])
+        # the per-slab transforms run M_s times per product: worth FFTW's patient planner
         self._plans = [
             fftw.plan_dft(dt, *along_s, self._box_in, self._xmat, F),
-            fftw.plan_dft(dt, *along_a, self._slab, self._slab, F),
-            fftw.plan_dft(dt, *along_b, self._slab, self._slab, F),
-            fftw.plan_dft(dt, *along_b, self._slab, self._slab, B),
-            fftw.plan_dft(dt, *along_a, self._slab, self._slab, B),
+            fftw.plan_dft(dt, *along_a, self._slab, self._slab, F, patient=True),
+            fftw.plan_dft(dt, *along_b, self._slab, self._slab, F, patient=True),
+            fftw.plan_dft(dt, *along_b, self._slab, self._slab, B, patient=True),
+            fftw.plan_dft(dt, *along_a, self._slab, self._slab, B, patient=True),
             fftw.plan_dft(dt, *along_s, self._xmat, self._xmat, B),
         ]
         self._plan_ptrs = np.array([p.pointer for p in self._plans], dtype=np.int64)

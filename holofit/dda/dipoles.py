@@ -12,7 +12,8 @@ engine rotates the incident wave and the observation directions into it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -48,6 +49,10 @@ class DipoleSolution:
     P: NDArray[np.complex128]
     iterations: int
     residual: float
+    #: wall seconds of the solve's parts: "polarizability", "incident_field", "start" (the
+    #: initial product and the choice of x0), "matvec" (products inside the Krylov loop),
+    #: "krylov" (the solver's own vector updates and residual checks), "total"
+    timings: dict[str, float] = field(default_factory=dict)
 
 
 class DipoleSystem:
@@ -119,17 +124,25 @@ class DipoleSystem:
         """
         if method not in ("qmr", "bicgstab"):
             raise ValueError(f"solver method must be 'qmr' or 'bicgstab', got {method!r}")
+        clock = time.perf_counter
+        t_start = clock()
         a = np.asarray(propagation, dtype=float)
         e = np.asarray(polarization, dtype=float)
         alpha = self.alpha(a, e)
         sqrt_alpha = np.sqrt(alpha)
         w = np.ascontiguousarray(np.repeat(sqrt_alpha[:, None], 3, axis=1))
+        t_alpha = clock()
         e_inc = incident_field(self.lattice.positions, self.k, a, e)
         b = (sqrt_alpha[:, None] * e_inc).ravel()
         buf = np.empty_like(b)
+        t_inc = clock()
+        mv_time = [0.0]
 
         def mv(v: NDArray) -> NDArray:
-            return self._matvec(v, w, buf)
+            t0 = clock()
+            out = self._matvec(v, w, buf)
+            mv_time[0] += clock() - t0
+            return out
 
         known: dict[str, NDArray] = {}
         if x0 is None:
@@ -141,6 +154,8 @@ class DipoleSystem:
             known = {"a_x0": ab} if start is not None else {"a_r0": ab}
         else:
             start = np.asarray(x0, dtype=complex).ravel()
+        t_x0 = clock()
+        mv_time[0] = 0.0
         if method == "qmr":
             result: SolveResult = qmr_cs(mv, b, x0=start, tol=tol, maxiter=maxiter, **known)
         else:
@@ -152,7 +167,12 @@ class DipoleSystem:
                 "dipoles)"
             )
         P = result.x.reshape(-1, 3) * sqrt_alpha[:, None]
+        t_end = clock()
+        timings = {"polarizability": t_alpha - t_start, "incident_field": t_inc - t_alpha,
+                   "start": t_x0 - t_inc, "matvec": mv_time[0],
+                   "krylov": t_end - t_x0 - mv_time[0], "total": t_end - t_start}
         return DipoleSolution(
             lattice=self.lattice, k=self.k, propagation=a, polarization=e, alpha=alpha,
             x=result.x, P=P, iterations=result.iterations, residual=result.residual,
+            timings=timings,
         )
