@@ -84,7 +84,7 @@ def test_warm_start_gives_the_same_answer_faster():
 def test_only_the_instrument_polarization_is_solved():
     eng = BuiltinDDA(dipole_size_um=0.05)
     wave = eng.solve(Spherocylinder(0.3, 0.6, 1.5), OPTICS, Orientation(0.2, 0.9, 0.0))
-    system = next(iter(eng._systems.values()))
+    system = next(iter(eng._systems.items()))[1]
     # one solve: the iterations plus the initial-residual product(s), not two polarisations
     assert system.matvecs <= wave.solution.iterations + 2
 
