@@ -55,14 +55,18 @@ def _d1(z: complex, nmax: int) -> NDArray[np.complex128]:
 
 
 def _d3(z: complex, d1: NDArray[np.complex128]) -> NDArray[np.complex128]:
-    """``D3_n(z)`` from ``D1_n(z)``: ``D3_n = D1_n + i / (psi_n xi_n)``, upward."""
+    """``D3_n(z)`` from ``D1_n(z)``: ``D3_n = D1_n + i / (psi_n xi_n)``, upward.
+
+    ``psi_n xi_n = psi_{n-1} xi_{n-1} (n/z - D3_{n-1}) / (D1_n + n/z)`` (the ratio forms that
+    do not cancel for small ``|z|``).
+    """
     nmax = d1.size - 1
     d3 = np.empty(nmax + 1, dtype=complex)
     # psi_0 xi_0 = (1 - exp(2iz)) / 2 with xi_n = psi_n - i chi_n
     psixi = 0.5 * (1.0 - np.exp(2j * z))
     d3[0] = 1j
     for n in range(1, nmax + 1):
-        psixi = psixi * (n / z - d1[n - 1]) * (n / z - d3[n - 1])
+        psixi = psixi * (n / z - d3[n - 1]) / (d1[n] + n / z)
         d3[n] = d1[n] + 1j / psixi
     return d3
 
@@ -71,8 +75,8 @@ def _psi_over_xi_ratio(z1: complex, z2: complex, d1_1: NDArray, d3_1: NDArray, d
                        d3_2: NDArray) -> NDArray[np.complex128]:
     """``Q_n = [psi_n/xi_n](z1) / [psi_n/xi_n](z2)``, n = 0..nmax.
 
-    ``psi_0/xi_0 = (1 - exp(-2iz))/2``; ``psi_n/xi_n = psi_{n-1}/xi_{n-1} (D3_n + n/z) /
-    (D1_n + n/z)``. ``Q_0`` is written with the exponential that cannot overflow.
+    ``psi_0/xi_0 = (1 - exp(-2iz))/2``; ``psi_n/xi_n = psi_{n-1}/xi_{n-1} / ((D1_n + n/z)
+    (n/z - D3_{n-1}))``. ``Q_0`` is written with the exponential that cannot overflow.
     """
     nmax = d1_1.size - 1
     q = np.empty(nmax + 1, dtype=complex)
@@ -82,9 +86,9 @@ def _psi_over_xi_ratio(z1: complex, z2: complex, d1_1: NDArray, d3_1: NDArray, d
     else:  # pragma: no cover - gain media only
         q[0] = (1.0 - np.exp(-2j * z1)) / (1.0 - np.exp(-2j * z2))
     for n in range(1, nmax + 1):
-        r1 = (d3_1[n] + n / z1) / (d1_1[n] + n / z1)
-        r2 = (d3_2[n] + n / z2) / (d1_2[n] + n / z2)
-        q[n] = q[n - 1] * r1 / r2
+        r1 = (d1_1[n] + n / z1) * (n / z1 - d3_1[n - 1])
+        r2 = (d1_2[n] + n / z2) * (n / z2 - d3_2[n - 1])
+        q[n] = q[n - 1] * r2 / r1
     return q
 
 
