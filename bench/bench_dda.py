@@ -25,7 +25,7 @@ def _run(case: str) -> dict[str, float]:
 
 def bench_dda() -> dict[str, float]:
     results: dict[str, float] = {}
-    for case in ("rod", "janus", "janus_tilted", "sphere92k", "matvec", "solve"):
+    for case in ("rod", "janus", "janus_tilted", "sphere92k", "matvec", "solve", "precision"):
         results.update(_run(case))
     return results
 

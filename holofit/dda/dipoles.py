@@ -66,7 +66,7 @@ class DipoleSystem:
         Wavenumber in the medium, rad/um.
     n_medium : float
         Refractive index of the medium (to form relative permittivities).
-    pol : {"ldr", "cm"}
+    pol : {"ldr", "cm", "fcd"}
         Polarisability prescription.
     dtype : numpy complex dtype
         Precision of the FFT convolution (complex128 by default).
@@ -78,8 +78,12 @@ class DipoleSystem:
         self.k = float(k)
         self.pol = pol
         self.dtype = np.dtype(dtype)
-        self.eps_rel = lattice.relative_permittivity(n_medium)
-        self.interaction: Interaction = get_interaction(lattice.shape, lattice.d, self.k, dtype)
+        # (N,) isotropic voxels, or (N, 3) along the lattice axes for laminate boundary voxels
+        self.eps_rel = (lattice.relative_permittivity(n_medium) if lattice.normals is None
+                        else lattice.component_permittivity(n_medium))
+        # filtered coupled dipoles: the FCD polarisability with the filtered interaction
+        self.interaction: Interaction = get_interaction(
+            lattice.shape, lattice.d, self.k, dtype, "fcd" if pol == "fcd" else "poi")
         self._conv = Convolver(self.interaction, lattice.shape, lattice.ijk)
         self.matvecs = 0
 
@@ -129,11 +133,12 @@ class DipoleSystem:
         a = np.asarray(propagation, dtype=float)
         e = np.asarray(polarization, dtype=float)
         alpha = self.alpha(a, e)
-        sqrt_alpha = np.sqrt(alpha)
-        w = np.ascontiguousarray(np.repeat(sqrt_alpha[:, None], 3, axis=1))
+        # (N,) isotropic or (N, 3) diagonal (lattice axes) polarisabilities
+        w = np.sqrt(alpha if alpha.ndim == 2 else alpha[:, None] * np.ones(3))
+        w = np.ascontiguousarray(w)
         t_alpha = clock()
         e_inc = incident_field(self.lattice.positions, self.k, a, e)
-        b = (sqrt_alpha[:, None] * e_inc).ravel()
+        b = (w * e_inc).ravel()
         buf = np.empty_like(b)
         t_inc = clock()
         mv_time = [0.0]
@@ -166,7 +171,7 @@ class DipoleSystem:
                 f"{result.iterations} iterations (tolerance {tol:g}, {self.lattice.n_dipoles} "
                 "dipoles)"
             )
-        P = result.x.reshape(-1, 3) * sqrt_alpha[:, None]
+        P = result.x.reshape(-1, 3) * w
         t_end = clock()
         timings = {"polarizability": t_alpha - t_start, "incident_field": t_inc - t_alpha,
                    "start": t_x0 - t_inc, "matvec": mv_time[0],

@@ -184,9 +184,9 @@ class DDAWave(ScatteredWave):
         k = self.optics.k
         e_inc = incident_field(self.lattice.positions, k, sol.propagation, sol.polarization)
         cext = 4 * np.pi * k * float(np.sum(np.imag(np.sum(np.conj(e_inc) * sol.P, axis=1))))
-        p2 = np.sum(np.abs(sol.P) ** 2, axis=1)
-        inv_alpha = 1.0 / sol.alpha
-        cabs = 4 * np.pi * k * float(np.sum((-np.imag(inv_alpha) - 2.0 / 3.0 * k**3) * p2))
+        inv_alpha = 1.0 / (sol.alpha if sol.alpha.ndim == 2 else sol.alpha[:, None])
+        cabs = 4 * np.pi * k * float(np.sum((-np.imag(inv_alpha) - 2.0 / 3.0 * k**3)
+                                            * np.abs(sol.P) ** 2))
         volume = float(self.lattice.occupied_volume_um3().sum())
         geo = np.pi * (3.0 * volume / (4.0 * np.pi)) ** (2.0 / 3.0)
         return CrossSections(cext, cext - cabs, cabs, cext / geo, (cext - cabs) / geo,
@@ -361,7 +361,7 @@ class BuiltinDDA(ScatteringTheory):
             phase = np.exp(1j * k * (pos @ (a_p - s.propagation)))
             p0 = (s.P @ q.T) * phase[:, None]
         alpha = system.alpha(a_p, e_p)
-        return (p0 / np.sqrt(alpha)[:, None]).ravel()
+        return (p0 / np.sqrt(alpha if alpha.ndim == 2 else alpha[:, None])).ravel()
 
 
 def _rotation_between(old: tuple[NDArray, NDArray], new: tuple[NDArray, NDArray]) -> NDArray:

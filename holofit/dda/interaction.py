@@ -4,6 +4,17 @@ Point-dipole Green's tensor (Gaussian units, ADDA ``-int poi``):
 
     G(R) = exp(ikR)/R [k^2 (I - R^ R^) - (1 - ikR)/R^2 (I - 3 R^ R^)],   G(0) = 0.
 
+Filtered coupled dipoles (``kind="fcd"``, ADDA ``-int fcd``; Piller 1998, Gay-Balmaz & Martin
+2002, Yurkin, Min & Hoekstra 2010): the point-dipole tensor plus a real correction that removes
+the spatial frequencies above ``k_F = pi / d`` (the lattice cannot represent them),
+
+    G_F = G + [(-g0 (kR)^2 - g2) I + (g0 (kR)^2 + 3 g2) R^ R^],
+    g0 = [Im(e) C + Re(e) S] / pi,
+    g2 = [kR (Re(e) C - Im(e) S) + (2/3)(k_F R cos(k_F R) - 4 sin(k_F R)) / R^3] / pi - g0,
+
+with ``e = exp(ikR)/R^3``, ``C = Ci((k_F + k)R) - Ci((k_F - k)R)`` and
+``S = pi - Si((k_F + k)R) - Si((k_F - k)R)`` (sine and cosine integrals).
+
 Circulant embedding
     Its values at the lattice offsets are embedded in a circulant grid of ``M >= 2n`` points per
     axis (``M`` even and FFT-friendly). Every component is even or odd in each axis (``G_xy`` is
@@ -28,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.fft as sfft
+import scipy.special as ssp
 from numpy.typing import NDArray
 
 __all__ = ["Interaction", "clear_cache", "fft_size", "get_interaction", "green_tensor",
@@ -35,6 +47,8 @@ __all__ = ["Interaction", "clear_cache", "fft_size", "get_interaction", "green_t
 
 _CACHE: OrderedDict[tuple, Interaction] = OrderedDict()
 CACHE_SIZE = 3
+#: interaction tensors: point dipoles (ADDA's default) and filtered coupled dipoles
+INTERACTIONS = ("poi", "fcd")
 #: component order of the stored tensor and, per component, its parity along (x, y, z):
 #: 1 = even, -1 = odd
 COMPONENTS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
@@ -117,11 +131,15 @@ class Interaction:
     d: float
     k: float
     g_oct: NDArray[np.complexfloating]
+    kind: str = "poi"
     _slab_cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, grid: tuple[int, int, int], d: float, k: float,
-              dtype: type = np.complex128) -> Interaction:
+              dtype: type = np.complex128, kind: str = "poi") -> Interaction:
+        """Transform the tensor of ``kind`` ("poi" point dipoles, "fcd" filtered) on ``grid``."""
+        if kind not in INTERACTIONS:
+            raise ValueError(f"interaction kind must be one of {INTERACTIONS}, got {kind!r}")
         if any(m % 2 for m in grid):
             raise ValueError(f"interaction grid must be even along every axis, got {grid}")
         mx, my, mz = grid
@@ -134,6 +152,24 @@ class Interaction:
             e = np.exp(1j * k * dist) * inv
             a = e * (k**2 - (1 - 1j * k * dist) * inv**2)
             b = e * (3 * (1 - 1j * k * dist) * inv**2 - k**2)
+        if kind == "fcd":
+            # filtered correction: a += -g0 (kR)^2 - g2 (isotropic), b += g0 (kR)^2 + 3 g2
+            kf = np.pi / d
+            if k >= kf:
+                raise ValueError(f"filtered coupled dipoles need k d < pi (k d = {k * d:.3g})")
+            kr = k * dist
+            ev = e * inv**2  # exp(ikR)/R^3
+            with np.errstate(invalid="ignore"):  # Ci(0) = -inf at R = 0 (masked below)
+                si1, ci1 = ssp.sici((kf + k) * dist)
+                si2, ci2 = ssp.sici((kf - k) * dist)
+                c_int = ci1 - ci2
+            s_int = np.pi - si1 - si2
+            g0 = (ev.imag * c_int + ev.real * s_int) / np.pi
+            g2 = (kr * (ev.real * c_int - ev.imag * s_int)
+                  + 2.0 / 3.0 * inv**3 * (kf * dist * np.cos(kf * dist)
+                                          - 4.0 * np.sin(kf * dist))) / np.pi - g0
+            a = a + np.where(dist > 0, np.nan_to_num(-g0 * kr**2 - g2), 0.0)
+            b = b + np.where(dist > 0, np.nan_to_num(g0 * kr**2 + 3.0 * g2), 0.0)
         del e
         # offsets M/2 are never used by a box that fits (n <= M/2): zero them so that the
         # embedded array has exact parity
@@ -147,7 +183,8 @@ class Interaction:
                 g = g + a
             g = np.where((dist > 0) & ~outer, g, 0.0)
             g_oct[c] = _octant_transform(g, PARITY[(p, q)])
-        return cls(grid=tuple(int(v) for v in grid), d=d, k=k, g_oct=g_oct)  # type: ignore[arg-type]
+        return cls(grid=tuple(int(v) for v in grid), d=d, k=k, g_oct=g_oct,  # type: ignore[arg-type]
+                   kind=kind)
 
     @property
     def dtype(self) -> np.dtype:
@@ -196,18 +233,19 @@ class Interaction:
 
 
 def get_interaction(shape: tuple[int, int, int], d: float, k: float,
-                    dtype: type = np.complex128) -> Interaction:
+                    dtype: type = np.complex128, kind: str = "poi") -> Interaction:
     """The cached interaction for a box (built on first use, LRU cache of a few grids)."""
     grid = grid_for_box(shape)
     for key, inter in _CACHE.items():
-        g, dd, kk, dt = key
+        g, dd, kk, dt, kd = key
         fits = all(2 * n <= m for n, m in zip(shape, g, strict=True))
         not_wasteful = all(m <= 1.3 * mi for m, mi in zip(g, grid, strict=True))
-        if dd == d and kk == k and dt == np.dtype(dtype) and fits and not_wasteful:
+        if (dd == d and kk == k and dt == np.dtype(dtype) and kd == kind and fits
+                and not_wasteful):
             _CACHE.move_to_end(key)
             return inter
-    inter = Interaction.build(grid, d, k, dtype)
-    _CACHE[(grid, d, k, np.dtype(dtype))] = inter
+    inter = Interaction.build(grid, d, k, dtype, kind)
+    _CACHE[(grid, d, k, np.dtype(dtype), kind)] = inter
     while len(_CACHE) > CACHE_SIZE:
         _CACHE.popitem(last=False)
     return inter
