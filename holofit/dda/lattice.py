@@ -106,17 +106,23 @@ class Lattice:
         components in the interface, ``eps_perp = 1 / (f_0 + sum_k f_k / eps_k)`` across it
         (``f_0`` the medium's fraction), and ``eps_c = eps_par (1 - n_c^2) + eps_perp n_c^2``
         along lattice axis ``c`` (the diagonal of the laminate's tensor). Full voxels get their
-        material's permittivity on every axis. Without normals: the isotropic
-        :meth:`relative_permittivity` on every axis.
+        material's permittivity on every axis. Voxels holding a metal (``Re eps < 0``) and
+        lattices without normals: the isotropic :meth:`relative_permittivity` on every axis.
         """
+        isotropic = np.repeat(self.relative_permittivity(n_medium)[:, None], 3, axis=1)
         if self.normals is None:
-            return np.repeat(self.relative_permittivity(n_medium)[:, None], 3, axis=1)
+            return isotropic
         m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices])
         f_medium = 1.0 - self.fractions.sum(axis=1)
         eps_par = f_medium + self.fractions @ m2
-        eps_perp = 1.0 / (f_medium + self.fractions @ (1.0 / m2))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            eps_perp = 1.0 / (f_medium + self.fractions @ (1.0 / m2))
         nn = self.normals**2
-        return eps_par[:, None] * (1.0 - nn) + eps_perp[:, None] * nn
+        laminate = eps_par[:, None] * (1.0 - nn) + eps_perp[:, None] * nn
+        # metals (Re eps < 0): the harmonic mean has a spurious plasmon resonance at some
+        # filling (f_0 + f / eps = 0); their boundary voxels stay Maxwell-Garnett
+        metallic = self.fractions[:, m2.real < 0].sum(axis=1) > 0
+        return np.where(metallic[:, None], isotropic, laminate)
 
     def occupied_volume_um3(self) -> NDArray[np.float64]:
         """Volume of each material, um^3 (sum of fractions times d^3)."""

@@ -20,12 +20,13 @@ anisotropic permittivity (the arithmetic mean of the permittivities for field co
 along the interface, the harmonic mean across it; Wiener's bounds, the rule that makes
 sub-voxel smoothing second-order accurate in FDTD), with the interface normal ``n`` from the
 gradient of the filling (:attr:`Lattice.normals`); per lattice axis ``c``,
-``eps_c = eps_par (1 - n_c^2) + eps_perp n_c^2`` (:meth:`Lattice.component_permittivity`).
-Measured against exact Lorenz-Mie for homogeneous and coated spheres (``bench/
-study_dda_discretisation.py``), this with filtered coupled dipoles is as accurate as binary
-voxels or better for polystyrene, silica, n = 2.0, absorbing (n = 1.5 + 0.5i, 1.2 + 2i) and
-thin TiO2 shells, where the previous scheme (a ramp twice as wide, Maxwell-Garnett mixing)
-lost to binary voxels by up to 6x in hologram error.
+``eps_c = eps_par (1 - n_c^2) + eps_perp n_c^2`` (:meth:`Lattice.component_permittivity`;
+voxels holding a metal, ``Re eps < 0``, keep Maxwell-Garnett mixing). Measured against exact
+Lorenz-Mie for homogeneous and coated spheres (``bench/study_dda_discretisation.py``), this
+with filtered coupled dipoles is more accurate than binary voxels with ADDA's LDR for silica,
+polystyrene, n = 2.0, absorbing (n = 1.5 + 0.5i, 1.2 + 2i) and TiO2 spheres and thin shells,
+where the previous scheme (a ramp twice as wide, Maxwell-Garnett mixing) lost to binary
+voxels by up to 6x in hologram error.
 
 The ``filling="binary"`` mode keeps a voxel if its centre lies inside the shape (ADDA's rule
 for built-in shapes, without ADDA's volume correction).
