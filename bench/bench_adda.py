@@ -57,7 +57,7 @@ def _builtin_timings(name: str, model) -> dict[str, float]:
     from holofit.dda.engine import BuiltinDDA
 
     out: dict[str, float] = {}
-    engine = BuiltinDDA(filling="binary", polarizability="ldr")
+    engine = BuiltinDDA(filling="binary")
     t0 = time.perf_counter()
     calc_hologram(engine.solve(model, OPTICS, ORIENTATIONS[0]), POSITION, GRID)
     out[f"builtin_{name}_cold_s"] = time.perf_counter() - t0
@@ -125,7 +125,7 @@ def bench_adda() -> dict[str, float]:
         "janus_thetapi": (PARTICLES["janus"], Orientation(0.4, np.pi, 0.0)),
         "rod_tilted": (PARTICLES["rod"], Orientation(0.5, 1.0, 0.3)),
     }
-    builtin = BuiltinDDA(filling="binary", polarizability="ldr")  # ADDA's prescription
+    builtin = BuiltinDDA(filling="binary")
     for case, (model, o) in cases.items():
         h_adda = calc_hologram(engine.solve(model, OPTICS, o), POSITION, GRID)
         h_builtin = calc_hologram(builtin.solve(model, OPTICS, o), POSITION, GRID,

@@ -64,7 +64,7 @@ def test_adda_hologram_matches_builtin_far_field(engine: ae.AddaEngine, model,
     """pol 0.6 rad: ADDA's lab is turned so that its X solution is the instrument's (the LDR
     polarisability depends on the polarisation; superposing X and Y would differ by ~3e-3)."""
     optics = Optics(OPTICS.wavelength_um, OPTICS.n_medium, pol)
-    builtin = BuiltinDDA(filling="binary", polarizability="ldr")  # ADDA's prescription
+    builtin = BuiltinDDA(filling="binary")
     assert builtin.dipole_size(model, optics) == engine.dipole_size(model, optics)
     wave_adda = engine.solve(model, optics, orientation)
     with pytest.warns(ae.AddaFarFieldWarning):
@@ -88,7 +88,7 @@ def test_janus_cap_up_and_down_differ_in_adda_as_in_builtin(engine: ae.AddaEngin
     """Cross-check of the frame with the real binary: ADDA's theta=0 is not the builtin's pi."""
     n = np.array([[np.sin(t), 0.0, -np.cos(t)] for t in np.radians([0, 5, 10, 15])])
     up = engine.solve(JANUS, OPTICS, Orientation(0.0, 0.0, 0.0)).far_field_amplitude(n)
-    builtin = BuiltinDDA(filling="binary", polarizability="ldr")  # ADDA's prescription
+    builtin = BuiltinDDA(filling="binary")
     down_b = builtin.solve(JANUS, OPTICS, Orientation(0.0, np.pi, 0.0)).far_field_amplitude(n)
     up_b = builtin.solve(JANUS, OPTICS, Orientation(0.0, 0.0, 0.0)).far_field_amplitude(n)
     scale = np.abs(up_b).max()
