@@ -109,7 +109,7 @@ def janus_tilted() -> dict[str, float]:
 
 
 def sphere92k() -> dict[str, float]:
-    """A sphere r = 0.95 um, n = 1.585, d = 0.034 um (~92k dipoles binary, ~100k fractional)."""
+    """A sphere r = 0.95 um, n = 1.585, d = 0.034 um (56^3 box, 91k dipoles binary, 96k smooth)."""
     engine = BuiltinDDA(dipole_size_um=0.034)
     wave, t_first = _first(engine, Sphere(0.95, 1.585), Orientation())
     return {"dda_sphere92k_first_s": t_first,
