@@ -274,7 +274,7 @@ def builtin_far_fields() -> dict:
     out = {}
     for name in CASES:
         model, orientation, _ = recorded_problem(name)
-        engine = BuiltinDDA(tolerance=1e-8)
+        engine = BuiltinDDA(tolerance=1e-8, polarizability="ldr")  # ADDA's prescription
         for pol in (0.0, np.pi / 2):
             wave = engine.solve(model, Optics(WAVELENGTH, N_MEDIUM, pol), orientation)
             out[name, pol] = wave.far_field_amplitude(n_lab)

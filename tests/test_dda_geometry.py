@@ -39,15 +39,37 @@ def test_fractional_volumes_match_shapes(model, volumes):
     assert np.all(lat.fractions >= 0) and np.all(lat.fractions.sum(axis=1) <= 1 + 1e-12)
 
 
-def test_ramp_is_the_plane_volume_fraction_near_the_surface():
-    s = np.linspace(-0.2, 0.2, 9)
-    np.testing.assert_allclose(ramp(s), 0.5 - s, atol=1e-2)
-    h = 1e-6
-    assert (ramp(np.array([h])) - ramp(np.array([-h])))[0] / (2 * h) == pytest.approx(-1.0)
+def test_ramp_spans_one_voxel_like_the_plane_volume_fraction():
+    # the exact fraction of a voxel cut by a face-parallel plane is 1/2 - s on |s| <= 1/2:
+    # the C2 ramp has its support, its end values and its value at the surface
+    s = np.linspace(-0.5, 0.5, 11)
+    np.testing.assert_allclose(ramp(s), 0.5 - s, atol=0.15)
+    assert ramp(np.array([0.0]))[0] == 0.5
+    assert ramp(np.array([-0.5]))[0] == 1.0 and ramp(np.array([0.5]))[0] == 0.0
     # antisymmetric about the surface, so a flat interface keeps its volume exactly
     t = np.linspace(0, 1.2, 13)
     np.testing.assert_allclose(ramp(t) + ramp(-t), 1.0, atol=1e-15)
-    assert ramp(np.array([-0.94]))[0] == 1.0 and ramp(np.array([0.94]))[0] == 0.0
+    # C2: first and second derivatives vanish at the ends of the support
+    h = 1e-4
+    for end in (-0.5, 0.5):
+        assert abs(ramp(np.array([end + h]))[0] - ramp(np.array([end - h]))[0]) < 1e-9
+
+
+def test_boundary_voxels_are_laminates_with_radial_normals():
+    lat = voxelize(Sphere(0.3, 1.5), D)
+    total = lat.fractions.sum(axis=1)
+    partial = (total > 0) & (total < 1)
+    radial = lat.positions[partial] / np.linalg.norm(lat.positions[partial], axis=1)[:, None]
+    np.testing.assert_allclose(lat.normals[partial], radial, atol=1e-4)
+    assert np.all(lat.normals[total == 1] == 0)
+    eps = lat.component_permittivity(1.0)
+    np.testing.assert_allclose(eps[total == 1], 1.5**2)  # full voxels: isotropic material
+    # a partly filled voxel: arithmetic mean along the interface, harmonic across it
+    i = np.flatnonzero(partial)[np.argmin(np.abs(total[partial] - 0.5))]
+    f, n = total[i], lat.normals[i]
+    par, perp = 1 + f * (1.5**2 - 1), 1 / (1 - f + f / 1.5**2)
+    np.testing.assert_allclose(eps[i], par * (1 - n**2) + perp * n**2)
+    assert voxelize(Sphere(0.3, 1.5), D, filling="binary").normals is None
 
 
 def test_lattice_fixed_to_particle_centre():

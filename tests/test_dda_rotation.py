@@ -8,7 +8,8 @@ from holofit.conventions import PROPAGATION_DIRECTION, DetectorGrid, euler_zyz, 
 from holofit.dda.dipoles import DipoleSystem
 from holofit.dda.engine import BuiltinDDA, DDAWave
 from holofit.dda.lattice import Lattice
-from holofit.dda.voxelize import _shape_fractions
+from holofit.dda.settings import DDASettings
+from holofit.dda.voxelize import _interface_normals, _shape_fractions
 from holofit.hologram import calc_hologram
 from holofit.models import JanusSphere, Spherocylinder
 from holofit.optics import Optics
@@ -26,13 +27,14 @@ def _lattice_of_rotated(model, rot, d, extent):
     lab = (jj + 0.5) * d
     frac = _shape_fractions(model, lab @ rot, d, binary=False)  # particle-frame coordinates
     keep = frac.sum(axis=1) > 0
-    jj, frac = jj[keep], frac[keep]
+    jj, frac, lab = jj[keep], frac[keep], lab[keep]
+    normals = _interface_normals(model, lab @ rot, frac, d) @ rot.T  # lab-frame normals
     j0 = jj.min(axis=0)
     ijk = jj - j0
     order = np.lexsort((ijk[:, 2], ijk[:, 1], ijk[:, 0]))
     indices = tuple(complex(getattr(model, f)) for f in model.index_fields)
     return Lattice(d, tuple(int(v) for v in ijk.max(axis=0) + 1), (j0 + 0.5) * d,
-                   ijk[order], frac[order], indices)
+                   ijk[order], frac[order], indices, normals[order])
 
 
 @pytest.mark.parametrize("model,extent", [
@@ -46,7 +48,7 @@ def test_rotated_wave_equals_rotated_voxels(model, extent, psi, theta):
     engine_wave = BuiltinDDA(dipole_size_um=d, tolerance=1e-8).solve(model, OPTICS, ori)
     rot = euler_zyz(*ori.as_tuple())
     lat = _lattice_of_rotated(model, rot, d, extent)
-    system = DipoleSystem(lat, OPTICS.k, OPTICS.n_medium)
+    system = DipoleSystem(lat, OPTICS.k, OPTICS.n_medium, DDASettings().polarizability)
     sol = system.solve(PROPAGATION_DIRECTION, OPTICS.polarization, tol=1e-8)
     direct_wave = DDAWave(model, OPTICS, Orientation(), sol, np.eye(3))
     a = calc_hologram(engine_wave, POS, GRID)

@@ -12,12 +12,14 @@ engine rotates the incident wave and the observation directions into it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from holofit.dda.interaction import Convolver, Interaction, get_interaction
+from holofit.dda.convolution import Convolver
+from holofit.dda.interaction import Interaction, get_interaction
 from holofit.dda.lattice import Lattice
 from holofit.dda.polarizability import ldr_s_term, polarizability
 from holofit.dda.solver import ConvergenceError, SolveResult, bicgstab, qmr_cs
@@ -47,6 +49,10 @@ class DipoleSolution:
     P: NDArray[np.complex128]
     iterations: int
     residual: float
+    #: wall seconds of the solve's parts: "polarizability", "incident_field", "start" (the
+    #: initial product and the choice of x0), "matvec" (products inside the Krylov loop),
+    #: "krylov" (the solver's own vector updates and residual checks), "total"
+    timings: dict[str, float] = field(default_factory=dict)
 
 
 class DipoleSystem:
@@ -60,7 +66,7 @@ class DipoleSystem:
         Wavenumber in the medium, rad/um.
     n_medium : float
         Refractive index of the medium (to form relative permittivities).
-    pol : {"ldr", "cm"}
+    pol : {"ldr", "cm", "fcd"}
         Polarisability prescription.
     dtype : numpy complex dtype
         Precision of the FFT convolution (complex128 by default).
@@ -72,13 +78,13 @@ class DipoleSystem:
         self.k = float(k)
         self.pol = pol
         self.dtype = np.dtype(dtype)
-        self.eps_rel = lattice.relative_permittivity(n_medium)
-        self.interaction: Interaction = get_interaction(lattice.shape, lattice.d, self.k, dtype)
-        self._conv = Convolver(self.interaction, lattice.shape)
-        nx, ny, nz = lattice.shape
-        # flat index of each dipole in the (z, y, x) box layout of the convolver
-        self._flat = np.ravel_multi_index(
-            (lattice.ijk[:, 2], lattice.ijk[:, 1], lattice.ijk[:, 0]), (nz, ny, nx))
+        # (N,) isotropic voxels, or (N, 3) along the lattice axes for laminate boundary voxels
+        self.eps_rel = (lattice.relative_permittivity(n_medium) if lattice.normals is None
+                        else lattice.component_permittivity(n_medium))
+        # filtered coupled dipoles: the FCD polarisability with the filtered interaction
+        self.interaction: Interaction = get_interaction(
+            lattice.shape, lattice.d, self.k, dtype, "fcd" if pol == "fcd" else "poi")
+        self._conv = Convolver(self.interaction, lattice.shape, lattice.ijk)
         self.matvecs = 0
 
     def alpha(self, propagation: ArrayLike, polarization: ArrayLike) -> NDArray[np.complex128]:
@@ -86,17 +92,10 @@ class DipoleSystem:
         s = ldr_s_term(propagation, polarization)
         return polarizability(self.eps_rel, self.lattice.d, self.k, self.pol, s)
 
-    def _matvec(self, x: NDArray, sqrt_alpha: NDArray) -> NDArray:
-        n = self.lattice.n_dipoles
-        y = x.reshape(n, 3) * sqrt_alpha[:, None]
-        field = self._conv.field
-        field.fill(0)
-        flat = field.reshape(3, -1)
-        flat[:, self._flat] = y.T
-        z = self._conv.convolve()
-        gz = z.reshape(3, -1)[:, self._flat].T
+    def _matvec(self, x: NDArray, sqrt_alpha: NDArray, out: NDArray | None = None) -> NDArray:
+        """``(I - alpha^(1/2) G alpha^(1/2)) x``."""
         self.matvecs += 1
-        return (x.reshape(n, 3) - sqrt_alpha[:, None] * gz).ravel()
+        return self._conv.product(x, sqrt_alpha, 1.0, -1.0, out)
 
     def solve(
         self,
@@ -127,32 +126,58 @@ class DipoleSystem:
         method : {"qmr", "bicgstab"}
             Krylov solver.
         """
+        if method not in ("qmr", "bicgstab"):
+            raise ValueError(f"solver method must be 'qmr' or 'bicgstab', got {method!r}")
+        clock = time.perf_counter
+        t_start = clock()
         a = np.asarray(propagation, dtype=float)
         e = np.asarray(polarization, dtype=float)
         alpha = self.alpha(a, e)
-        sqrt_alpha = np.sqrt(alpha)
+        # (N,) isotropic or (N, 3) diagonal (lattice axes) polarisabilities
+        w = np.sqrt(alpha if alpha.ndim == 2 else alpha[:, None] * np.ones(3))
+        w = np.ascontiguousarray(w)
+        t_alpha = clock()
         e_inc = incident_field(self.lattice.positions, self.k, a, e)
-        b = (sqrt_alpha[:, None] * e_inc).ravel()
+        b = (w * e_inc).ravel()
+        buf = np.empty_like(b)
+        t_inc = clock()
+        mv_time = [0.0]
 
         def mv(v: NDArray) -> NDArray:
-            return self._matvec(v, sqrt_alpha)
+            t0 = clock()
+            out = self._matvec(v, w, buf)
+            mv_time[0] += clock() - t0
+            return out
 
+        known: dict[str, NDArray] = {}
         if x0 is None:
-            # ADDA's 'auto': start from b if that beats zero (residual |b - Ab| vs |b|)
-            r_b = b - mv(b)
-            start = b if np.linalg.norm(r_b) < np.linalg.norm(b) else None
+            # ADDA's 'auto': start from b if that beats zero (residual |b - Ab| vs |b|); the
+            # product A b is then the initial residual's (x0 = b) or the first Lanczos
+            # product's (x0 = 0, r0 = b), so it is not wasted
+            ab = mv(b).copy()
+            start = b if np.linalg.norm(b - ab) < np.linalg.norm(b) else None
+            known = {"a_x0": ab} if start is not None else {"a_r0": ab}
         else:
             start = np.asarray(x0, dtype=complex).ravel()
-        solver = {"qmr": qmr_cs, "bicgstab": bicgstab}[method]
-        result: SolveResult = solver(mv, b, x0=start, tol=tol, maxiter=maxiter)
+        t_x0 = clock()
+        mv_time[0] = 0.0
+        if method == "qmr":
+            result: SolveResult = qmr_cs(mv, b, x0=start, tol=tol, maxiter=maxiter, **known)
+        else:
+            result = bicgstab(lambda v: mv(v).copy(), b, x0=start, tol=tol, maxiter=maxiter)
         if not result.converged and raise_on_failure:
             raise ConvergenceError(
                 f"DDA solve did not converge: relative residual {result.residual:.3g} after "
                 f"{result.iterations} iterations (tolerance {tol:g}, {self.lattice.n_dipoles} "
                 "dipoles)"
             )
-        P = result.x.reshape(-1, 3) * sqrt_alpha[:, None]
+        P = result.x.reshape(-1, 3) * w
+        t_end = clock()
+        timings = {"polarizability": t_alpha - t_start, "incident_field": t_inc - t_alpha,
+                   "start": t_x0 - t_inc, "matvec": mv_time[0],
+                   "krylov": t_end - t_x0 - mv_time[0], "total": t_end - t_start}
         return DipoleSolution(
             lattice=self.lattice, k=self.k, propagation=a, polarization=e, alpha=alpha,
             x=result.x, P=P, iterations=result.iterations, residual=result.residual,
+            timings=timings,
         )

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.cache import LRUCache
 from holofit.conventions import PROPAGATION_DIRECTION, euler_zyz, incident_phase_at
 from holofit.dda.dipoles import DipoleSolution, DipoleSystem, incident_field
-from holofit.dda.farfield import far_field, far_field_on_grid
+from holofit.dda.farfield import adda_amplitude_matrix, far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
 from holofit.dda.multipole import (
     MultipoleExpansion,
@@ -40,6 +40,7 @@ from holofit.dda.voxelize import voxelize
 from holofit.dda.wigner import rotate_coefficients
 from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.scattering.mie import CrossSections
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["BuiltinDDA", "DDAWave"]
@@ -53,6 +54,8 @@ MAX_STORED_SOLUTIONS = 6
 MAX_WARM_BASIS = 4
 #: relative size below which trailing multipole orders are dropped (numerical noise)
 COEFF_FLOOR = 1e-13
+#: holofit lab -> ADDA lab for x polarisation: Rx(pi) (ADDA's light travels along +z)
+_T = np.diag([1.0, -1.0, -1.0])
 
 
 def _trim(expansion: MultipoleExpansion) -> MultipoleExpansion:
@@ -81,12 +84,16 @@ class DDAWave(ScatteredWave):
     exact_near_field = True
 
     def __init__(self, model: ParticleModel, optics: Optics, orientation: Orientation,
-                 solution: DipoleSolution, rotation: NDArray[np.float64]) -> None:
+                 solution: DipoleSolution, rotation: NDArray[np.float64],
+                 system: DipoleSystem | None = None, tolerance: float = 1e-5) -> None:
         self.model = model
         self.optics = optics
         self.orientation = orientation
         self.solution = solution
         self.rotation = rotation
+        self._system = system
+        self._tolerance = tolerance
+        self._cross_solution: DipoleSolution | None = None
         lat = solution.lattice
         self.radius_um = float(np.sqrt((lat.positions**2).sum(axis=1)).max()
                                + lat.d * np.sqrt(3) / 2)
@@ -104,6 +111,86 @@ class DDAWave(ScatteredWave):
         d = np.atleast_2d(np.asarray(directions, dtype=float))
         f_p = far_field(self.lattice, self.solution.P, self.optics.k, d @ self.rotation)
         return f_p @ self.rotation.T
+
+    def _adda_lab(self) -> NDArray[np.float64]:
+        """holofit lab -> ADDA's lab for this instrument: light along +z, the instrument's
+        polarisation along x (``Rx(pi) Rz(-beta)``)."""
+        c, s = np.cos(self.optics.polarization_rad), np.sin(self.optics.polarization_rad)
+        return _T @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    def _cross_polarised(self) -> DipoleSolution:
+        """The solution for the orthogonal polarisation (ADDA's "Y"), solved on first use."""
+        if self._cross_solution is None:
+            if self._system is None:
+                raise RuntimeError("this wave has no dipole system to solve the orthogonal "
+                                   "polarisation (build it with BuiltinDDA.solve)")
+            e_y = self._adda_lab().T @ np.array([0.0, 1.0, 0.0])  # ADDA's y in holofit's lab
+            sol = self.solution
+            self._cross_solution = self._system.solve(sol.propagation, self.rotation.T @ e_y,
+                                                      tol=self._tolerance)
+        return self._cross_solution
+
+    def amplitude_matrix(self, directions: ArrayLike,
+                         phase_origin: str = "particle") -> NDArray[np.complex128]:
+        """Amplitude matrix ``[S1, S2, S3, S4]`` (M, 4) at holofit-lab unit directions.
+
+        ADDA's (Bohren & Huffman) convention, in ADDA's lab (light along +z, the instrument's
+        polarisation along x: ``n_adda = Rx(pi) Rz(-beta) n``), at the scattering angles
+        ``theta, phi`` of ``n_adda``: with ``e_par_i = (cos phi, sin phi, 0)``,
+        ``e_per_i = (sin phi, -cos phi, 0)``, ``e_par_s = e_theta`` and ``e_per_s = -e_phi``,
+
+            [E_par_s, E_per_s] = exp(ikr)/(-ikr) [[S2, S3], [S4, S1]] [E_par_i, E_per_i].
+
+        This is what ADDA writes to ``ampl_scatgrid`` for the same dipoles and orientation
+        (:class:`~holofit.dda.adda.engine.AddaWave.amplitude_matrix`). The second incident
+        polarisation is solved on first use.
+
+        Parameters
+        ----------
+        directions : array_like, shape (M, 3)
+            Scattering directions in holofit's lab.
+        phase_origin : {"particle", "box"}
+            Refer the phases to the particle centre (holofit's convention) or to the centre of
+            the dipole box (ADDA's; the same point for centred lattices).
+        """
+        n = np.atleast_2d(np.asarray(directions, dtype=float))
+        n = n / np.linalg.norm(n, axis=1, keepdims=True)
+        lab = self._adda_lab()
+        n_a = n @ lab.T
+        theta = np.arccos(np.clip(n_a[:, 2], -1.0, 1.0))
+        phi = np.arctan2(n_a[:, 1], n_a[:, 0])
+        k = self.optics.k
+        rot = self.rotation
+        f_x = far_field(self.lattice, self.solution.P, k, n @ rot) @ rot.T
+        f_y = far_field(self.lattice, self._cross_polarised().P, k, n @ rot) @ rot.T
+        s = adda_amplitude_matrix(f_x @ lab.T, f_y @ lab.T, theta, phi)
+        if phase_origin == "box":
+            # S_box(n) = S_particle(n) exp(i k (a - n).s), s = particle centre - box centre
+            centre = lab @ (rot @ (-self.lattice.box_centre))
+            s = s * np.exp(1j * k * ((np.array([0.0, 0.0, 1.0]) - n_a) @ centre))[:, None]
+        elif phase_origin != "particle":
+            raise ValueError(f"phase_origin must be 'particle' or 'box', got {phase_origin!r}")
+        return s
+
+    def cross_sections(self) -> CrossSections:
+        """Extinction, scattering and absorption cross sections (um^2) for the instrument's
+        polarisation; efficiencies per ``pi r_eq^2`` (volume-equivalent radius of the filling).
+
+        ``C_ext = 4 pi k sum_j Im(E_inc,j^* . P_j)`` and
+        ``C_abs = 4 pi k sum_j [Im(P_j . (alpha_j^-1)^* P_j^*) - (2/3) k^3 |P_j|^2]``
+        (Draine 1988; ADDA's formulas), ``C_sca = C_ext - C_abs``, unit incident amplitude.
+        """
+        sol = self.solution
+        k = self.optics.k
+        e_inc = incident_field(self.lattice.positions, k, sol.propagation, sol.polarization)
+        cext = 4 * np.pi * k * float(np.sum(np.imag(np.sum(np.conj(e_inc) * sol.P, axis=1))))
+        inv_alpha = 1.0 / (sol.alpha if sol.alpha.ndim == 2 else sol.alpha[:, None])
+        cabs = 4 * np.pi * k * float(np.sum((-np.imag(inv_alpha) - 2.0 / 3.0 * k**3)
+                                            * np.abs(sol.P) ** 2))
+        volume = float(self.lattice.occupied_volume_um3().sum())
+        geo = np.pi * (3.0 * volume / (4.0 * np.pi)) ** (2.0 / 3.0)
+        return CrossSections(cext, cext - cabs, cabs, cext / geo, (cext - cabs) / geo,
+                             cabs / geo)
 
     @property
     def expansion(self) -> MultipoleExpansion:
@@ -128,6 +215,14 @@ class DDAWave(ScatteredWave):
         return e_p @ self.rotation.T
 
     def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
+        """Scattered field (N, 3) at lab points relative to the particle centre.
+
+        Points within ``NEAR_ZONE`` circumscribing radii: direct dipole sums; beyond: the
+        multipole expansion's compiled series (a 240 x 240 camera in about a second). For the
+        pixels of a camera plane :meth:`field_on_pixels` /
+        :meth:`field_on_detector` are much faster still (tens of milliseconds: an
+        interpolated grid of the same expansion, transverse components only).
+        """
         pts = np.atleast_2d(np.asarray(points_um, dtype=float))
         r = np.linalg.norm(pts, axis=1)
         out = np.empty((pts.shape[0], 3), dtype=complex)
@@ -233,7 +328,7 @@ class BuiltinDDA(ScatteringTheory):
         previous.append(sol)
         if len(previous) > MAX_STORED_SOLUTIONS:
             previous.pop(0)
-        return DDAWave(model, optics, orientation, sol, rot)
+        return DDAWave(model, optics, orientation, sol, rot, system, self.settings.tolerance)
 
 
     @staticmethod
@@ -266,7 +361,7 @@ class BuiltinDDA(ScatteringTheory):
             phase = np.exp(1j * k * (pos @ (a_p - s.propagation)))
             p0 = (s.P @ q.T) * phase[:, None]
         alpha = system.alpha(a_p, e_p)
-        return (p0 / np.sqrt(alpha)[:, None]).ravel()
+        return (p0 / np.sqrt(alpha if alpha.ndim == 2 else alpha[:, None])).ravel()
 
 
 def _rotation_between(old: tuple[NDArray, NDArray], new: tuple[NDArray, NDArray]) -> NDArray:

@@ -4,6 +4,17 @@ Point-dipole Green's tensor (Gaussian units, ADDA ``-int poi``):
 
     G(R) = exp(ikR)/R [k^2 (I - R^ R^) - (1 - ikR)/R^2 (I - 3 R^ R^)],   G(0) = 0.
 
+Filtered coupled dipoles (``kind="fcd"``, ADDA ``-int fcd``; Piller 1998, Gay-Balmaz & Martin
+2002, Yurkin, Min & Hoekstra 2010): the point-dipole tensor plus a real correction that removes
+the spatial frequencies above ``k_F = pi / d`` (the lattice cannot represent them),
+
+    G_F = G + [(-g0 (kR)^2 - g2) I + (g0 (kR)^2 + 3 g2) R^ R^],
+    g0 = [Im(e) C + Re(e) S] / pi,
+    g2 = [kR (Re(e) C - Im(e) S) + (2/3)(k_F R cos(k_F R) - 4 sin(k_F R)) / R^3] / pi - g0,
+
+with ``e = exp(ikR)/R^3``, ``C = Ci((k_F + k)R) - Ci((k_F - k)R)`` and
+``S = pi - Si((k_F + k)R) - Si((k_F - k)R)`` (sine and cosine integrals).
+
 Circulant embedding
     Its values at the lattice offsets are embedded in a circulant grid of ``M >= 2n`` points per
     axis (``M`` even and FFT-friendly). Every component is even or odd in each axis (``G_xy`` is
@@ -13,31 +24,31 @@ Circulant embedding
     ``(grid, d, k, precision)``; every box that fits the grid (any size, any orientation with the
     same d and k) reuses it.
 
-Pruned transforms
-    Box fields are stored in (component, z, y, x) order. The forward transform runs along z on
-    the ``ny * nx`` occupied lines only, then along y on ``Mz * nx`` lines, then along the
-    contiguous x axis on all; the inverse in the opposite order, keeping only the box. That is
-    7/12 of the work of full 3D transforms, and the full-size passes run along contiguous
-    memory. Buffers are preallocated per box (no allocation per product).
+Grid sizes
+    ``M`` is the smallest even number ``>= 2 n`` whose prime factors are 2, 3, 5 and 7, with at
+    most one factor 11 or 13 (sizes FFTW transforms at full speed; ADDA's rule).
+
+The matrix-vector product that uses the tensor lives in :mod:`holofit.dda.convolution`; it
+asks the interaction for the tensor in its slab layout (:meth:`Interaction.slab_tensor`).
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 import scipy.fft as sfft
+import scipy.special as ssp
 from numpy.typing import NDArray
 
-from holofit.dda import fftw
-
-__all__ = ["Convolver", "Interaction", "clear_cache", "get_interaction", "green_tensor",
+__all__ = ["Interaction", "clear_cache", "fft_size", "get_interaction", "green_tensor",
            "grid_for_box"]
 
 _CACHE: OrderedDict[tuple, Interaction] = OrderedDict()
 CACHE_SIZE = 3
+#: interaction tensors: point dipoles (ADDA's default) and filtered coupled dipoles
+INTERACTIONS = ("poi", "fcd")
 #: component order of the stored tensor and, per component, its parity along (x, y, z):
 #: 1 = even, -1 = odd
 COMPONENTS = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
@@ -60,22 +71,22 @@ def green_tensor(r: NDArray[np.float64], k: float) -> NDArray[np.complex128]:
     return np.where((dist > 0)[..., None, None], g, 0.0)
 
 
-def _smooth_even(m: int) -> int:
-    """Smallest even 5-smooth integer >= m."""
+def fft_size(m: int) -> int:
+    """Smallest even integer ``>= m`` with prime factors 2, 3, 5, 7 and at most one 11 or 13."""
     m = max(m + (m % 2), 2)
     while True:
         r = m
-        for f in (2, 3, 5):
+        for f in (2, 3, 5, 7):
             while r % f == 0:
                 r //= f
-        if r == 1:
+        if r in (1, 11, 13):
             return m
         m += 2
 
 
 def grid_for_box(shape: tuple[int, int, int]) -> tuple[int, int, int]:
-    """Circulant grid ``(Mx, My, Mz)`` for a box ``(nx, ny, nz)``: even, 5-smooth, ``>= 2n``."""
-    return tuple(_smooth_even(2 * n) for n in shape)  # type: ignore[return-value]
+    """Circulant grid ``(Mx, My, Mz)`` for a box ``(nx, ny, nz)``: :func:`fft_size` of ``2n``."""
+    return tuple(fft_size(2 * n) for n in shape)  # type: ignore[return-value]
 
 
 def _octant_transform(g: NDArray, parity: tuple[int, int, int]) -> NDArray:
@@ -120,10 +131,15 @@ class Interaction:
     d: float
     k: float
     g_oct: NDArray[np.complexfloating]
+    kind: str = "poi"
+    _slab_cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, grid: tuple[int, int, int], d: float, k: float,
-              dtype: type = np.complex128) -> Interaction:
+              dtype: type = np.complex128, kind: str = "poi") -> Interaction:
+        """Transform the tensor of ``kind`` ("poi" point dipoles, "fcd" filtered) on ``grid``."""
+        if kind not in INTERACTIONS:
+            raise ValueError(f"interaction kind must be one of {INTERACTIONS}, got {kind!r}")
         if any(m % 2 for m in grid):
             raise ValueError(f"interaction grid must be even along every axis, got {grid}")
         mx, my, mz = grid
@@ -136,6 +152,24 @@ class Interaction:
             e = np.exp(1j * k * dist) * inv
             a = e * (k**2 - (1 - 1j * k * dist) * inv**2)
             b = e * (3 * (1 - 1j * k * dist) * inv**2 - k**2)
+        if kind == "fcd":
+            # filtered correction: a += -g0 (kR)^2 - g2 (isotropic), b += g0 (kR)^2 + 3 g2
+            kf = np.pi / d
+            if k >= kf:
+                raise ValueError(f"filtered coupled dipoles need k d < pi (k d = {k * d:.3g})")
+            kr = k * dist
+            ev = e * inv**2  # exp(ikR)/R^3
+            with np.errstate(invalid="ignore"):  # Ci(0) = -inf at R = 0 (masked below)
+                si1, ci1 = ssp.sici((kf + k) * dist)
+                si2, ci2 = ssp.sici((kf - k) * dist)
+                c_int = ci1 - ci2
+            s_int = np.pi - si1 - si2
+            g0 = (ev.imag * c_int + ev.real * s_int) / np.pi
+            g2 = (kr * (ev.real * c_int - ev.imag * s_int)
+                  + 2.0 / 3.0 * inv**3 * (kf * dist * np.cos(kf * dist)
+                                          - 4.0 * np.sin(kf * dist))) / np.pi - g0
+            a = a + np.where(dist > 0, np.nan_to_num(-g0 * kr**2 - g2), 0.0)
+            b = b + np.where(dist > 0, np.nan_to_num(g0 * kr**2 + 3.0 * g2), 0.0)
         del e
         # offsets M/2 are never used by a box that fits (n <= M/2): zero them so that the
         # embedded array has exact parity
@@ -149,130 +183,69 @@ class Interaction:
                 g = g + a
             g = np.where((dist > 0) & ~outer, g, 0.0)
             g_oct[c] = _octant_transform(g, PARITY[(p, q)])
-        return cls(grid=tuple(int(v) for v in grid), d=d, k=k, g_oct=g_oct)  # type: ignore[arg-type]
+        return cls(grid=tuple(int(v) for v in grid), d=d, k=k, g_oct=g_oct,  # type: ignore[arg-type]
+                   kind=kind)
 
     @property
     def dtype(self) -> np.dtype:
         return self.g_oct.dtype
 
+    def slab_tensor(self, order: tuple[int, int, int]) -> tuple[NDArray, NDArray]:
+        """The tensor in the layout of the slab convolution (cached per axis order).
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _fold(i, m):  # pragma: no cover - compiled
-    """Octant index of grid index ``i`` (grid size ``m``) and the sign of an odd component."""
-    if i > m // 2:
-        return m - i, -1.0
-    return i, 1.0
+        Parameters
+        ----------
+        order : tuple of int
+            Lattice axes ``(s, a, b)`` (0 = x, 1 = y, 2 = z): slab axis, then the two in-slab
+            axes, ``b`` contiguous.
 
-
-@numba.njit(cache=True, nogil=True)
-def _tensor_apply(g, y, mz, my, mx):  # pragma: no cover - compiled
-    """In place ``y(q) = G(q) . y(q)`` on the full grid, G unfolded from its octant."""
-    for iz in range(mz):
-        fz, sz = _fold(iz, mz)
-        for iy in range(my):
-            fy, sy = _fold(iy, my)
-            for ix in range(mx):
-                fx, sx = _fold(ix, mx)
-                gxx = g[0, fz, fy, fx]
-                gxy = g[1, fz, fy, fx] * (sx * sy)
-                gxz = g[2, fz, fy, fx] * (sx * sz)
-                gyy = g[3, fz, fy, fx]
-                gyz = g[4, fz, fy, fx] * (sy * sz)
-                gzz = g[5, fz, fy, fx]
-                y0 = y[0, iz, iy, ix]
-                y1 = y[1, iz, iy, ix]
-                y2 = y[2, iz, iy, ix]
-                y[0, iz, iy, ix] = gxx * y0 + gxy * y1 + gxz * y2
-                y[1, iz, iy, ix] = gxy * y0 + gyy * y1 + gyz * y2
-                y[2, iz, iy, ix] = gxz * y0 + gyz * y1 + gzz * y2
-
-
-class Convolver:
-    """``z_i = sum_j G(r_i - r_j) y_j`` on one box, with preallocated buffers.
-
-    Uses FFTW (through pyFFTW, with measured plans whose wisdom is cached on disk, see
-    :mod:`holofit.dda.fftw`) when it is installed, numpy's pocketfft otherwise; set
-    ``HOLOFIT_FFT=numpy`` to force the latter.
-
-    Parameters
-    ----------
-    interaction : Interaction
-        The transformed tensor (its grid must hold the box).
-    box : tuple of int
-        ``(nx, ny, nz)``.
-    """
-
-    def __init__(self, interaction: Interaction, box: tuple[int, int, int]) -> None:
-        mx, my, mz = interaction.grid
-        nx, ny, nz = box
-        if 2 * nx > mx or 2 * ny > my or 2 * nz > mz:
-            raise ValueError(f"box {box} does not fit the interaction grid {interaction.grid}")
-        self.interaction = interaction
-        self.box = box
-        dt = interaction.dtype
-        self.field = np.zeros((3, nz, ny, nx), dtype=dt)  # the box, (c, z, y, x)
-        self._plans = fftw.plans((3, mz, ny, nx), (3, mz, my, nx), (3, mz, my, mx), dt)
-        if self._plans is not None:
-            self._b1, self._b2, self._b3 = self._plans.buffers
-        else:
-            self._b1 = np.empty((3, mz, ny, nx), dtype=dt)
-            self._b2 = np.empty((3, mz, my, nx), dtype=dt)
-            self._b3 = np.empty((3, mz, my, mx), dtype=dt)
-
-    @property
-    def backend(self) -> str:
-        return "fftw" if self._plans is not None else "numpy"
-
-    def convolve(self) -> NDArray[np.complexfloating]:
-        """Convolve :attr:`field` in place and return it (shape (3, nz, ny, nx))."""
-        mx, my, mz = self.interaction.grid
-        nx, ny, nz = self.box
-        b1, b2, b3 = self._b1, self._b2, self._b3
-        plans = self._plans
-        if plans is None:
-            np.fft.fft(self.field, n=mz, axis=1, out=b1)
-            np.fft.fft(b1, n=my, axis=2, out=b2)
-            np.fft.fft(b2, n=mx, axis=3, out=b3)
-            _tensor_apply(self.interaction.g_oct, b3, mz, my, mx)
-            np.fft.ifft(b3, axis=3, out=b3)
-            np.fft.ifft(b3[..., :nx], axis=2, out=b2)
-            np.fft.ifft(b2[:, :, :ny], axis=1, out=b1)
-            self.field[...] = b1[:, :nz]
-            return self.field
-        # FFTW: zero-padding is explicit, every transform runs in place
-        b1[:, :nz] = self.field
-        b1[:, nz:] = 0
-        plans.forward[0]()
-        b2[:, :, :ny] = b1
-        b2[:, :, ny:] = 0
-        plans.forward[1]()
-        b3[..., :nx] = b2
-        b3[..., nx:] = 0
-        plans.forward[2]()
-        _tensor_apply(self.interaction.g_oct, b3, mz, my, mx)
-        plans.backward[2]()
-        b2[...] = b3[..., :nx]
-        plans.backward[1]()
-        b1[...] = b2[:, :, :ny]
-        plans.backward[0]()
-        self.field[...] = b1[:, :nz]
-        self.field *= 1.0 / (mx * my * mz)
-        return self.field
+        Returns
+        -------
+        tensor : ndarray, shape (M_s/2+1, M_a/2+1, 6, M_b)
+            Folded along ``s`` and ``a``, unfolded along ``b`` (the odd components' signs along
+            ``b`` applied), divided by ``M_s M_a M_b`` (the inverse transform's normalisation).
+        signs : ndarray, shape (2, 2, 3)
+            Signs of the xy, xz, yz components in the upper (1) or lower (0) half of the slab
+            axis (first index) and of the ``a`` axis (second index).
+        """
+        key = tuple(int(i) for i in order)
+        if key in self._slab_cache:
+            return self._slab_cache[key]
+        s, a, b = key
+        goct_axis = {0: 3, 1: 2, 2: 1}  # lattice axis -> axis of g_oct (c, z, y, x)
+        g = np.transpose(self.g_oct, (goct_axis[s], goct_axis[a], 0, goct_axis[b]))
+        mb = self.grid[b]
+        idx = np.arange(mb)
+        upper = idx > mb // 2
+        g = g[..., np.where(upper, mb - idx, idx)]
+        odd_b = np.array([PARITY[c][b] < 0 for c in COMPONENTS])
+        g = g * np.where(odd_b[:, None] & upper[None, :], -1.0, 1.0)
+        tensor = np.ascontiguousarray(g / float(np.prod(self.grid)), dtype=self.dtype)
+        signs = np.empty((2, 2, 3), dtype=tensor.real.dtype)
+        for hs in range(2):
+            for ha in range(2):
+                sg = np.ones(3)
+                sg[s] = -1.0 if hs else 1.0
+                sg[a] = -1.0 if ha else 1.0
+                signs[hs, ha] = (sg[0] * sg[1], sg[0] * sg[2], sg[1] * sg[2])
+        self._slab_cache[key] = (tensor, signs)
+        return tensor, signs
 
 
 def get_interaction(shape: tuple[int, int, int], d: float, k: float,
-                    dtype: type = np.complex128) -> Interaction:
+                    dtype: type = np.complex128, kind: str = "poi") -> Interaction:
     """The cached interaction for a box (built on first use, LRU cache of a few grids)."""
     grid = grid_for_box(shape)
     for key, inter in _CACHE.items():
-        g, dd, kk, dt = key
+        g, dd, kk, dt, kd = key
         fits = all(2 * n <= m for n, m in zip(shape, g, strict=True))
         not_wasteful = all(m <= 1.3 * mi for m, mi in zip(g, grid, strict=True))
-        if dd == d and kk == k and dt == np.dtype(dtype) and fits and not_wasteful:
+        if (dd == d and kk == k and dt == np.dtype(dtype) and kd == kind and fits
+                and not_wasteful):
             _CACHE.move_to_end(key)
             return inter
-    inter = Interaction.build(grid, d, k, dtype)
-    _CACHE[(grid, d, k, np.dtype(dtype))] = inter
+    inter = Interaction.build(grid, d, k, dtype, kind)
+    _CACHE[(grid, d, k, np.dtype(dtype), kind)] = inter
     while len(_CACHE) > CACHE_SIZE:
         _CACHE.popitem(last=False)
     return inter

@@ -32,6 +32,10 @@ class Lattice:
         Volume fraction of each material in each voxel (sum <= 1).
     indices : tuple of complex
         Absolute refractive index of each material.
+    normals : ndarray, shape (N, 3), optional
+        Unit normal of the material interface through each partly filled voxel (zero for full
+        voxels); with it, partly filled voxels are laminates
+        (:meth:`component_permittivity`). None: isotropic voxels (binary lattices, voxel files).
     """
 
     d: float
@@ -40,6 +44,7 @@ class Lattice:
     ijk: NDArray[np.int64]
     fractions: NDArray[np.float64]
     indices: tuple[complex, ...]
+    normals: NDArray[np.float64] | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -93,6 +98,32 @@ class Lattice:
         keep = self.fractions.sum(axis=1) >= threshold
         return self.ijk[keep], np.argmax(self.fractions[keep], axis=1)
 
+    def component_permittivity(self, n_medium: float) -> NDArray[np.complex128]:
+        """Relative permittivity of each voxel along each lattice axis, shape (N, 3).
+
+        A partly filled voxel is a laminate of its materials and the medium with the
+        interface normal ``n`` (:attr:`normals`): ``eps_par = f_0 + sum_k f_k eps_k`` for field
+        components in the interface, ``eps_perp = 1 / (f_0 + sum_k f_k / eps_k)`` across it
+        (``f_0`` the medium's fraction), and ``eps_c = eps_par (1 - n_c^2) + eps_perp n_c^2``
+        along lattice axis ``c`` (the diagonal of the laminate's tensor). Full voxels get their
+        material's permittivity on every axis. Voxels holding a metal (``Re eps < 0``) and
+        lattices without normals: the isotropic :meth:`relative_permittivity` on every axis.
+        """
+        isotropic = np.repeat(self.relative_permittivity(n_medium)[:, None], 3, axis=1)
+        if self.normals is None:
+            return isotropic
+        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices])
+        f_medium = 1.0 - self.fractions.sum(axis=1)
+        eps_par = f_medium + self.fractions @ m2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            eps_perp = 1.0 / (f_medium + self.fractions @ (1.0 / m2))
+        nn = self.normals**2
+        laminate = eps_par[:, None] * (1.0 - nn) + eps_perp[:, None] * nn
+        # metals (Re eps < 0): the harmonic mean has a spurious plasmon resonance at some
+        # filling (f_0 + f / eps = 0); their boundary voxels stay Maxwell-Garnett
+        metallic = self.fractions[:, m2.real < 0].sum(axis=1) > 0
+        return np.where(metallic[:, None], isotropic, laminate)
+
     def occupied_volume_um3(self) -> NDArray[np.float64]:
         """Volume of each material, um^3 (sum of fractions times d^3)."""
         return self.fractions.sum(axis=0) * self.d**3
@@ -106,6 +137,7 @@ class Lattice:
                 tuple(np.round(self.origin, 12)),
                 hash(self.ijk.tobytes()),
                 hash(np.round(self.fractions, 14).tobytes()),
+                None if self.normals is None else hash(np.round(self.normals, 12).tobytes()),
                 self.indices,
             )
         return self._cache["key"]

@@ -41,8 +41,9 @@ def polarizability(
         Dipole size, um.
     k : float
         Wavenumber in the medium, rad/um.
-    kind : {"ldr", "cm"}
-        Prescription.
+    kind : {"ldr", "cm", "fcd"}
+        Prescription ("fcd" goes with the filtered interaction,
+        :mod:`holofit.dda.interaction`).
     s_term : float
         LDR's ``S`` for the incident direction and polarisation.
 
@@ -55,8 +56,15 @@ def polarizability(
     alpha_cm = 3.0 * d**3 / (4.0 * np.pi) * (m2 - 1.0) / (m2 + 2.0)
     if kind == "cm":
         return alpha_cm
+    if kind == "fcd":
+        # filtered coupled dipoles (ADDA -pol fcd): M = (4/3)(kd)^2 + (2/(3 pi)) ln((pi - kd) /
+        # (pi + kd)) (kd)^3, plus the radiative reaction (2/3) i (kd)^3
+        kd = k * d
+        big_m = (4.0 / 3.0 * kd**2 + 2.0 / (3.0 * np.pi) * np.log((np.pi - kd) / (np.pi + kd))
+                 * kd**3 + 2.0 / 3.0 * 1j * kd**3)
+        return alpha_cm / (1.0 - (alpha_cm / d**3) * big_m)
     if kind != "ldr":
-        raise ValueError(f"polarizability kind must be 'ldr' or 'cm', got {kind!r}")
+        raise ValueError(f"polarizability kind must be 'ldr', 'cm' or 'fcd', got {kind!r}")
     kd = k * d
     big_m = (LDR_B1 + (LDR_B2 + LDR_B3 * s_term) * m2) * kd**2 + (2.0 / 3.0) * 1j * kd**3
     return alpha_cm / (1.0 - (alpha_cm / d**3) * big_m)

@@ -147,7 +147,8 @@ def adda_command(
         "-lambda", repr(optics.wavelength_medium_um),
         "-orient", *(repr(float(a)) for a in orient_deg),
         "-pol", polarizability,
-        "-int", "poi",
+        # filtered coupled dipoles are a polarisability *and* an interaction (both engines)
+        "-int", "fcd" if polarizability == "fcd" else "poi",
         "-scat", "dr",
         "-iter", "qmr",
         "-eps", repr(-math.log10(tolerance)),
