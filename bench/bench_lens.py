@@ -9,7 +9,8 @@ positions), and the ratio is reported:
   a lateral move only (``..._lateral_...``), and a new NA (``..._new_na_...``: new Bessel tables);
 * the built-in DDA rod of ``dda_cases.py`` (capsule a = 0.5, b = 1.0 um): the plane-grid position
   update (new x, y, z each call, as ``dda_rod_position_update_s``) against the lens hologram at
-  the same positions (``dda_rod_lens_140px_s``), plus the first lens hologram of a new solve;
+  the same positions (``dda_rod_lens_140px_s``); the very first lens hologram (new Bessel
+  tables); and the first hologram of each new solve, ideal and lens (``..._new_wave_...``);
 * Mie on a full 1024 x 1280 frame.
 """
 
@@ -93,6 +94,17 @@ def bench_lens_dda() -> dict[str, float]:
     out["dda_rod_lens_lateral_140px_s"] = median_time(lambda: calc_hologram(lens, pos(), GRID),
                                                       repeat=20)
     out["dda_rod_lens_first_s"] = first
+    # the first hologram of a new solve (new orientation: a new far field, new pupil modes and
+    # tables; the multipole expansion, needed by both models, included), solve excluded
+    for name, optics, engine_ in (("ideal", IDEAL, BuiltinDDA(dipole_size_um=0.0433341407)),
+                                  ("lens", LENS, engine)):
+        times = []
+        for i in range(5):
+            wave = engine_.solve(model, optics, Orientation(np.radians(80), np.radians(21 + i)))
+            t0 = time.perf_counter()
+            calc_hologram(wave, (7.0, 7.0, 12.0), GRID)
+            times.append(time.perf_counter() - t0)
+        out[f"dda_rod_{name}_new_wave_hologram_s"] = float(np.median(times))
     out["dda_rod_lens_over_ideal_ratio"] = (out["dda_rod_lens_140px_s"]
                                             / out["dda_rod_ideal_position_update_s"])
     return out

@@ -8,7 +8,7 @@ from scipy import special
 
 
 def pupil_integral(far_field, k, position, xs, ys, theta_max, apodization="aplanatic",
-                   n_v=400, n_phi=256, chunk=64):
+                   n_v=300, n_phi=160, chunk=64):
     """``-exp(-ikz)/(2 pi) Int sin th dth dph T exp(ik(...))`` by a tensor-product rule.
 
     The polar variable is ``v`` with ``cos th = v^2`` (Gauss-Legendre in v, which makes

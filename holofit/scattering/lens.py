@@ -35,6 +35,7 @@ heights and particles.
 
 from __future__ import annotations
 
+import threading
 import weakref
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -111,6 +112,7 @@ class LensImage:
         self.source: SpherePupil | ExpansionPupil = pupil_source(wave)
         self._pupils: OrderedDict[tuple, _Pupil] = OrderedDict()
         self._tables: OrderedDict[tuple, _Tables] = OrderedDict()
+        self._lock = threading.Lock()
 
     def aperture_angle(self, numerical_aperture: float | None = None) -> float:
         """Largest collected angle for ``numerical_aperture`` (default: the optics'), rad."""
@@ -125,16 +127,18 @@ class LensImage:
     def _pupil(self, theta_max: float, n_nodes: int) -> _Pupil:
         sqrt_end = bool(self.apodization == "aplanatic" and np.cos(theta_max) < SQRT_SWITCH)
         key = (theta_max, n_nodes, sqrt_end)
-        pupil = self._pupils.get(key)
+        with self._lock:
+            pupil = self._pupils.get(key)
         if pupil is None:
             theta, w = pupil_nodes(theta_max, n_nodes, sqrt_end)
             modes = self.source.modes(theta, self.apodization)
             if isinstance(self.source, ExpansionPupil):
                 modes = _trim_modes(*modes)
             pupil = _Pupil(theta_max, theta, w, modes, key)
-            self._pupils[key] = pupil
-            while len(self._pupils) > KEEP_PUPILS:
-                self._pupils.popitem(last=False)
+            with self._lock:
+                self._pupils[key] = pupil
+                while len(self._pupils) > KEEP_PUPILS:
+                    self._pupils.popitem(last=False)
         return pupil
 
     def _tables_for(self, z: float, rho_max: float, theta_max: float) -> _Tables:
@@ -143,10 +147,11 @@ class LensImage:
         step = STEP / (k * np.sin(theta_max))
         n_rho = int(np.ceil(rho_max / step)) + STENCIL // 2 + 2
         key = (z, theta_max, n_nodes)
-        tables = self._tables.get(key)
-        if tables is not None and tables.n_rho >= n_rho:
-            self._tables.move_to_end(key)
-            return tables
+        with self._lock:
+            tables = self._tables.get(key)
+            if tables is not None and tables.n_rho >= n_rho:
+                self._tables.move_to_end(key)
+                return tables
         if tables is not None:
             n_rho = max(n_rho, int(1.3 * tables.n_rho))
         pupil = self._pupil(theta_max, n_nodes)
@@ -161,9 +166,10 @@ class LensImage:
         else:
             a, b = polar_grid(*pupil.modes, base, x_step, n_rho, bkey)
         tables = _Tables(step, n_rho, a, b)
-        self._tables[key] = tables
-        while len(self._tables) > KEEP_TABLES:
-            self._tables.popitem(last=False)
+        with self._lock:
+            self._tables[key] = tables
+            while len(self._tables) > KEEP_TABLES:
+                self._tables.popitem(last=False)
         return tables
 
     def field_on_pixels(
@@ -244,16 +250,18 @@ def _trim_modes(t_plus: NDArray, t_minus: NDArray) -> tuple[NDArray, NDArray]:
 
 _IMAGES: weakref.WeakKeyDictionary[ScatteredWave, dict[str, LensImage]] = (
     weakref.WeakKeyDictionary())
+_IMAGES_LOCK = threading.Lock()
 
 
 def lens_image(wave: ScatteredWave, apodization: str = "aplanatic") -> LensImage:
     """The :class:`LensImage` of ``wave``, kept as long as the wave lives: repeated calls for
     the same wave (new positions, another NA) re-use its pupil field and tables."""
-    per_wave = _IMAGES.setdefault(wave, {})
-    image = per_wave.get(apodization)
+    with _IMAGES_LOCK:
+        image = _IMAGES.get(wave, {}).get(apodization)
     if image is None:
         image = LensImage(wave, apodization)
-        per_wave[apodization] = image
+        with _IMAGES_LOCK:
+            image = _IMAGES.setdefault(wave, {}).setdefault(apodization, image)
     return image
 
 

@@ -56,6 +56,7 @@ __all__ = [
     "aperture_angle",
     "apodization_factors",
     "check_apodization",
+    "expansion_far_modes",
     "expansion_pupil_modes",
     "pupil_nodes",
     "sphere_pupil",
@@ -168,18 +169,13 @@ def expansion_pupil_modes(
     Notes
     -----
     The expansion gives ``F_th^m, F_ph^m`` (spherical components about +z, per azimuthal order
-    ``m``); downstream ``th_s = pi - th`` and ``e_th = -e_m``. With ``R = -q_m F_th`` and
-    ``Ph = q_ph F_ph``, ``T_+ = (R + i Ph) exp(i ph)`` and ``T_- = (R - i Ph) exp(-i ph)``:
-    the modes shift by one order each way.
+    ``m``, :func:`expansion_far_modes`); downstream ``th_s = pi - th`` and ``e_th = -e_m``.
+    With ``R = -q_m F_th`` and ``Ph = q_ph F_ph``, ``T_+ = (R + i Ph) exp(i ph)`` and
+    ``T_- = (R - i Ph) exp(-i ph)``: the modes shift by one order each way.
     """
     theta = np.asarray(theta, dtype=float)
-    k = expansion.k
     L = expansion.order
-    # far form at kr = 1 carries exp(i); A = lim kr exp(-ikr) E = i F
-    _, a_t, a_p = expansion.spherical_components(np.full(theta.size, 1.0 / k), np.pi - theta,
-                                                 far=True)
-    f_t = -1j * np.exp(-1j) * a_t
-    f_p = -1j * np.exp(-1j) * a_p
+    f_t, f_p = expansion_far_modes(expansion, np.pi - theta)
     q_m, q_ph = apodization_factors(np.cos(theta), apodization)
     r = -q_m[:, None] * f_t
     ph = q_ph[:, None] * f_p
@@ -190,3 +186,55 @@ def expansion_pupil_modes(
     t_plus[:, 2:] = r + 1j * ph
     t_minus[:, :-2] = r - 1j * ph
     return t_plus, t_minus
+
+
+def expansion_far_modes(
+    expansion: MultipoleExpansion, theta_s: ArrayLike
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """Far-field amplitude ``F = E (-ikr) exp(-ikr)`` of an expansion, per azimuthal order.
+
+    Parameters
+    ----------
+    expansion : MultipoleExpansion
+        Coefficients ``p_nm, q_nm`` of ``N_nm, M_nm`` (:mod:`holofit.dda.multipole`).
+    theta_s : array_like, shape (N,)
+        Polar angles from +z, rad.
+
+    Returns
+    -------
+    f_th, f_ph : ndarray of complex, shape (N, 2L + 1)
+        ``F_th(th, ph) = sum_m f_th[:, m + L] exp(i m ph)``, likewise ``F_ph``.
+
+    Notes
+    -----
+    In the far field ``h_n -> (-i)^(n+1) exp(ikr)/(kr)`` and ``xi_n'/(kr) -> (-i)^n exp(ikr)/(kr)``,
+    so ``A = i F`` has ``A_th^m = sum_n (-i)^n (p_nm dY_nm + q_nm mY_nm)`` and
+    ``A_ph^m = i sum_n (-i)^n (p_nm mY_nm + q_nm dY_nm)``, with ``dY = dPbar_n^m/dth`` and
+    ``mY = m Pbar_n^m / sin th`` (``Pbar`` orthonormal, Condon-Shortley phase;
+    ``Pbar_n^-m = (-1)^m Pbar_n^m``).
+    """
+    from holofit.dda.legendre import legendre_tables
+
+    theta_s = np.asarray(theta_s, dtype=float)
+    L = expansion.order
+    _, dp, mp = legendre_tables(np.ascontiguousarray(np.cos(theta_s)), L)  # [pt, n, m >= 0]
+    c = ((-1j) ** np.arange(L + 1))[:, None]
+    p = expansion.p * c
+    q = expansion.q * c
+    # coefficients per |m| (rows n): p, q at +m and at -m (times (-1)^m, which the tables
+    # carry for negative orders), as real columns for real matrix products
+    sign = ((-1.0) ** np.arange(L + 1))[None, :]
+    m = np.arange(L + 1)
+    coef = np.stack([p[:, L + m], q[:, L + m], p[:, L - m] * sign, q[:, L - m] * sign])
+    coef = np.ascontiguousarray(np.moveaxis(coef, 2, 0))  # [m, (p+, q+, p-, q-), n]
+    real = np.ascontiguousarray(np.swapaxes(coef, 1, 2)).view(np.float64)  # [m, n, 8]
+    d = np.matmul(np.ascontiguousarray(dp.transpose(2, 0, 1)), real).view(complex)
+    e = np.matmul(np.ascontiguousarray(mp.transpose(2, 0, 1)), real).view(complex)
+    # d, e: [m, pt, (p+, q+, p-, q-)] contracted with dY and mY; for -m, mY changes sign
+    a_t = np.empty((theta_s.size, 2 * L + 1), dtype=complex)
+    a_p = np.empty_like(a_t)
+    a_t[:, L:] = (d[:, :, 0] + e[:, :, 1]).T
+    a_p[:, L:] = 1j * (e[:, :, 0] + d[:, :, 1]).T
+    a_t[:, L - 1 :: -1] = (d[1:, :, 2] - e[1:, :, 3]).T
+    a_p[:, L - 1 :: -1] = 1j * (-e[1:, :, 2] + d[1:, :, 3]).T
+    return -1j * a_t, -1j * a_p

@@ -19,6 +19,7 @@ to 30 um, pixel reach 4-15 um, spheres and a DDA rod); the 8-point Lagrange inte
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 
 import numpy as np
@@ -32,15 +33,16 @@ __all__ = ["STENCIL", "STEP", "node_count", "polar_grid", "radial_transform", "s
 #: Lagrange stencil (points per axis) and radial step times the band limit k sin(th_max)
 STENCIL = 8
 STEP = 0.4
-#: polar-grid step in phi times (highest azimuthal order + 1)
-PHI_STEP = 0.7
+#: polar-grid step in phi times (highest azimuthal order + 1); the orders near the highest kept
+#: are small, so this is coarser than the radial step at the same accuracy (tested up to 1.6)
+PHI_STEP = 1.0
 #: quadrature rule: NODES_PER_RAD * phase variation + NODES_EXTRA, rounded up to a multiple of
 #: NODES_ROUND (so that small moves keep the nodes and their Bessel tables)
 NODES_PER_RAD = 0.5
 NODES_EXTRA = 24
 NODES_ROUND = 16
 #: the Bessel tables kept, in bytes; a single table bigger than this is computed in row blocks
-BESSEL_CACHE_BYTES = 256 * 2**20
+BESSEL_CACHE_BYTES = 128 * 2**20
 BLOCK_BYTES = 32 * 2**20
 
 
@@ -59,11 +61,13 @@ def node_count(k: float, z_um: float, rho_max_um: float, theta_max: float, order
 # -- Bessel tables ---------------------------------------------------------------------------
 
 _BESSEL: OrderedDict[tuple, NDArray[np.float64]] = OrderedDict()
+_BESSEL_LOCK = threading.Lock()
 
 
 def clear_cache() -> None:
     """Forget the cached Bessel tables."""
-    _BESSEL.clear()
+    with _BESSEL_LOCK:
+        _BESSEL.clear()
 
 
 def _bessel_rows(x_step: NDArray, rows: range, orders: int | None) -> NDArray:
@@ -91,20 +95,22 @@ def _cached_table(x_step: NDArray, n_rho: int, orders: int | None, key: tuple) -
     more orders or rows serves fewer. The cache is bounded by :data:`BESSEL_CACHE_BYTES`.
     """
     n_orders = 2 if orders is None else orders + 1
-    table = _BESSEL.get(key)
-    if table is not None and table.shape[0] >= n_orders and table.shape[1] >= n_rho:
-        _BESSEL.move_to_end(key)
-        return table
+    with _BESSEL_LOCK:
+        table = _BESSEL.get(key)
+        if table is not None and table.shape[0] >= n_orders and table.shape[1] >= n_rho:
+            _BESSEL.move_to_end(key)
+            return table
     if table is not None:  # grow, with a little room for the next few moves
         rows = table.shape[1]
         n_rho = max(n_rho, int(1.3 * rows)) if rows < n_rho else rows
         if orders is not None:
             orders = max(orders, table.shape[0] - 1)
     table = _bessel_rows(x_step, range(n_rho), orders)
-    _BESSEL[key] = table
-    _BESSEL.move_to_end(key)
-    while sum(t.nbytes for t in _BESSEL.values()) > BESSEL_CACHE_BYTES and len(_BESSEL) > 1:
-        _BESSEL.popitem(last=False)
+    with _BESSEL_LOCK:
+        _BESSEL[key] = table
+        _BESSEL.move_to_end(key)
+        while sum(t.nbytes for t in _BESSEL.values()) > BESSEL_CACHE_BYTES and len(_BESSEL) > 1:
+            _BESSEL.popitem(last=False)
     return table
 
 
@@ -180,7 +186,9 @@ def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray
     spec[:, :, m] = np.transpose(up[:, :, 0::2], (2, 1, 0))
     spec[:, :, (-m[1:]) % n_phi] = np.transpose(down[1:, :, 1::2], (2, 1, 0))
     plus, minus = np.fft.ifft(spec, axis=2, norm="forward")
-    return _reflect_polar(-0.5 * (plus + minus)), _reflect_polar(0.5j * (plus - minus))
+    gx = _padded_polar(plus, minus, -0.5)
+    gy = _padded_polar(plus, minus, 0.5j, subtract=True)
+    return gx, gy
 
 
 def _reflect_rows(g: NDArray) -> NDArray:
@@ -188,9 +196,21 @@ def _reflect_rows(g: NDArray) -> NDArray:
     return np.ascontiguousarray(np.concatenate([g[1 : STENCIL + 1][::-1], g]))
 
 
-def _reflect_polar(g: NDArray) -> NDArray:
-    """Prepend ``STENCIL`` rows for negative rho, ``g(-rho, ph) = g(rho, ph + pi)``, and pad
-    ``STENCIL`` columns on each side with the periodic continuation in ``ph``."""
-    half = g.shape[1] // 2
-    g = np.concatenate([np.roll(g[1 : STENCIL + 1][::-1], -half, axis=1), g])
-    return np.ascontiguousarray(np.concatenate([g[:, -STENCIL:], g, g[:, :STENCIL]], axis=1))
+def _padded_polar(plus: NDArray, minus: NDArray, factor: complex,
+                  subtract: bool = False) -> NDArray:
+    """``factor (plus +- minus)`` with ``STENCIL`` rows for negative rho prepended,
+    ``g(-rho, ph) = g(rho, ph + pi)``, and ``STENCIL`` columns on each side repeating the
+    period in ``ph``."""
+    n_rho, n_phi = plus.shape
+    s = STENCIL
+    out = np.empty((n_rho + s, n_phi + 2 * s), dtype=complex)
+    core = out[s:, s : s + n_phi]
+    (np.subtract if subtract else np.add)(plus, minus, out=core)
+    core *= factor
+    half = n_phi // 2
+    mirror = core[1 : s + 1][::-1]
+    out[:s, s : s + half] = mirror[:, half:]
+    out[:s, s + half : s + n_phi] = mirror[:, :half]
+    out[:, :s] = out[:, n_phi : n_phi + s]
+    out[:, s + n_phi :] = out[:, s : 2 * s]
+    return out
