@@ -34,6 +34,23 @@ IDEAL = Optics(0.66, 1.33, 0.0)
 LENS = Optics(0.66, 1.33, 0.0, numerical_aperture=1.2)
 
 
+def _paired(fa, fb, repeat: int) -> tuple[float, float]:
+    """Median times of ``fa()`` and ``fb()`` called alternately (same machine conditions)."""
+    for _ in range(2):
+        fa()
+        fb()
+    ta, tb = [], []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fa()
+        t1 = time.perf_counter()
+        fb()
+        t2 = time.perf_counter()
+        ta.append(t1 - t0)
+        tb.append(t2 - t1)
+    return float(np.median(ta)), float(np.median(tb))
+
+
 def _positions(start: tuple[float, float, float], step: tuple[float, float, float]):
     """A new position at every call (as a fit's iterations)."""
     i = 0
@@ -49,11 +66,10 @@ def _positions(start: tuple[float, float, float], step: tuple[float, float, floa
 def bench_lens_mie() -> dict[str, float]:
     ideal = LorenzMie().solve(Sphere(0.5, 1.59), IDEAL)
     lens = LorenzMie().solve(Sphere(0.5, 1.59), LENS)
-    out = {"mie_holo_ideal_140px_s": median_time(
-        lambda: calc_hologram(ideal, (7.0, 7.0, 10.0), GRID, 0.8), repeat=100)}
     pos = _positions((7.0, 7.0, 10.0), (0.0, 0.0, 1e-4))
-    out["mie_holo_lens_140px_s"] = median_time(
-        lambda: calc_hologram(lens, pos(), GRID, 0.8), repeat=100)
+    t_ideal, t_lens = _paired(lambda: calc_hologram(ideal, (7.0, 7.0, 10.0), GRID, 0.8),
+                              lambda: calc_hologram(lens, pos(), GRID, 0.8), repeat=200)
+    out = {"mie_holo_ideal_140px_s": t_ideal, "mie_holo_lens_140px_s": t_lens}
     pos = _positions((7.0, 7.0, 10.0), (1e-3, -1e-3, 0.0))
     out["mie_holo_lens_lateral_140px_s"] = median_time(
         lambda: calc_hologram(lens, pos(), GRID, 0.8), repeat=100)
@@ -84,12 +100,11 @@ def bench_lens_dda() -> dict[str, float]:
     calc_hologram(lens, (7.0, 7.0, 12.0), GRID)
     first = time.perf_counter() - t0
     step = (0.013, 0.007, 0.011)
-    pos = _positions((7.0, 6.9, 12.0), step)
-    out = {"dda_rod_ideal_position_update_s": median_time(
-        lambda: calc_hologram(ideal, pos(), GRID), repeat=20)}
-    pos = _positions((7.0, 6.9, 12.0), step)
-    out["dda_rod_lens_140px_s"] = median_time(lambda: calc_hologram(lens, pos(), GRID),
-                                              repeat=20)
+    pos_ideal = _positions((7.0, 6.9, 12.0), step)
+    pos_lens = _positions((7.0, 6.9, 12.0), step)
+    t_ideal, t_lens = _paired(lambda: calc_hologram(ideal, pos_ideal(), GRID),
+                              lambda: calc_hologram(lens, pos_lens(), GRID), repeat=40)
+    out = {"dda_rod_ideal_position_update_s": t_ideal, "dda_rod_lens_140px_s": t_lens}
     pos = _positions((7.0, 6.9, 12.0), (0.013, 0.007, 0.0))
     out["dda_rod_lens_lateral_140px_s"] = median_time(lambda: calc_hologram(lens, pos(), GRID),
                                                       repeat=20)
