@@ -8,9 +8,10 @@ Kept apart from :mod:`holofit.scattering.lens` so that the physics there reads a
   (azimuthal orders 0 and 2 only);
 * :func:`polar_pixels`: any image from its samples on a polar ``(rho, phi)`` grid.
 
-Radial tables are sampled at ``rho_j = (j - n_ext) h``; rows ``j < n_ext`` hold negative
-``rho`` (the point reflection), so that a Lagrange stencil never needs a special case at the
-centre. Interpolation is barycentric Lagrange on ``stencil`` nodes in each direction.
+The callers pass each pixel's fractional row ``t = rho / h + n_ext`` (radial tables sampled at
+``rho_j = (j - n_ext) h``, rows ``j < n_ext`` holding negative ``rho``, the point reflection, so
+that a stencil needs no special case at the centre) and, on the polar grid, its fractional
+column. Interpolation is Lagrange on ``stencil`` nodes in each direction.
 """
 
 from __future__ import annotations
