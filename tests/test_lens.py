@@ -12,7 +12,9 @@
 
 from __future__ import annotations
 
+import gc
 import sys
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +27,12 @@ from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
 from holofit.models import Sphere, Spherocylinder
 from holofit.optics import Optics
-from holofit.scattering.lens import LensImage, lens_field_on_detector, lens_field_on_pixels
+from holofit.scattering.lens import (
+    LensImage,
+    lens_field_on_detector,
+    lens_field_on_pixels,
+    lens_image,
+)
 from holofit.scattering.lens_kernels import bessel_table
 from holofit.scattering.lens_pupil import aperture_angle
 from holofit.scattering.lens_transform import node_count
@@ -232,3 +239,13 @@ def test_node_rule_grows_with_height_reach_and_order():
     assert node_count(k, 20.0, 5.0, th, 10) > base
     assert node_count(k, 5.0, 20.0, th, 10) > base
     assert node_count(k, -5.0, 5.0, th, 10) == base
+
+
+def test_images_are_reused_per_wave_and_released_with_it():
+    wave = LorenzMie().solve(Sphere(0.5, 1.59), Optics(0.66, 1.33))
+    image = lens_image(wave)
+    assert lens_image(wave) is image and lens_image(wave, "none") is not image
+    ref = weakref.ref(wave)
+    del wave
+    gc.collect()
+    assert ref() is None  # the cache holds no reference to the wave

@@ -256,8 +256,11 @@ _IMAGES_LOCK = threading.Lock()
 def lens_image(wave: ScatteredWave, apodization: str = "aplanatic") -> LensImage:
     """The :class:`LensImage` of ``wave``, kept as long as the wave lives: repeated calls for
     the same wave (new positions, another NA) re-use its pupil field and tables."""
-    with _IMAGES_LOCK:
-        image = _IMAGES.get(wave, {}).get(apodization)
+    try:
+        with _IMAGES_LOCK:
+            image = _IMAGES.get(wave, {}).get(apodization)
+    except TypeError:  # a wave that cannot be weakly referenced or hashed: no re-use
+        return LensImage(wave, apodization)
     if image is None:
         image = LensImage(wave, apodization)
         with _IMAGES_LOCK:
