@@ -146,7 +146,7 @@ def _ideal_on_pixels(wave, pos, xs, ys):
 
 
 def test_adda_wave_through_the_lens(tmp_path, monkeypatch):
-    from holofit import adda_engine as ae
+    from holofit.dda import adda as ae
 
     stub = Path(__file__).parent / "stubs" / "fake_adda.py"
     exe = tmp_path / "adda"
