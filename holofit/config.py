@@ -120,8 +120,9 @@ class Instrument:
 
     @property
     def optics(self) -> Optics:
-        """The illumination as the scattering engines see it."""
-        return Optics(self.wavelength_um, self.medium_index, self.polarization_rad)
+        """The illumination as the scattering engines see it (with the objective's NA, if set)."""
+        return Optics(self.wavelength_um, self.medium_index, self.polarization_rad,
+                      self.extra.get("numerical_aperture"))
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict for sidecar JSON files (units in the keys)."""

@@ -1,5 +1,7 @@
 """Holograms on a detector: the scattered field of a solved particle, interfered with the
-incident plane wave (the formula is in :mod:`holofit.conventions`)."""
+incident plane wave (formula in :mod:`holofit.conventions`). With an objective NA in the optics
+the field is the lens image of :mod:`holofit.scattering.lens`; without, the field in the focal
+plane itself (the ideal model)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.conventions import DetectorGrid, hologram_intensity
 from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.scattering.lens import lens_field_on_detector
 from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
@@ -36,14 +39,19 @@ def calc_hologram(
         Scattered-field scaling.
     far_field : bool
         Use the asymptotic far-field form of the scattered field (as ADDA and the paper did).
-        Engines that only know the far field use it whatever this says.
+        Engines that only know the far field use it whatever this says. Ignored when
+        ``wave.optics.numerical_aperture`` is set: the lens image is built from the far-field
+        amplitude exactly, at any distance.
 
     Returns
     -------
     ndarray, shape ``grid.shape``
         Intensity relative to the background.
     """
-    ex, ey = wave.field_on_detector(position_um, grid, far_field=far_field)
+    if wave.optics.numerical_aperture is not None:
+        ex, ey = lens_field_on_detector(wave, position_um, grid)
+    else:
+        ex, ey = wave.field_on_detector(position_um, grid, far_field=far_field)
     return hologram_intensity(ex, ey, wave.optics.polarization_rad, alpha)
 
 

@@ -24,11 +24,22 @@ class Optics:
         Refractive index of the medium (real).
     polarization_rad : float
         Angle of the linear polarisation from lab x, rad.
+    numerical_aperture : float, optional
+        NA of the objective that images the sample onto the camera. None (default): the ideal
+        model, in which the camera records the field in the focal plane itself. A number: the
+        hologram is the image through an ideal objective of that NA
+        (:mod:`holofit.scattering.lens`).
     """
 
     wavelength_um: float
     n_medium: float
     polarization_rad: float = 0.0
+    numerical_aperture: float | None = None
+
+    def __post_init__(self) -> None:
+        na = self.numerical_aperture
+        if na is not None and not (np.isfinite(na) and na > 0):
+            raise ValueError(f"numerical_aperture must be a positive number or None, got {na}")
 
     @property
     def k(self) -> float:

@@ -1,0 +1,216 @@
+"""The radial transforms of the lens image: quadrature over the pupil, Bessel tables, and the
+tables or polar grid that the pixels are interpolated from.
+
+For one height ``z_p`` and azimuthal order ``m``,
+
+    G_m(rho_j) = sum_i w_i sin th_i t_m(th_i) exp(i k z_p cos th_i) J_m(k rho_j sin th_i),
+
+Gauss-Legendre nodes ``th_i`` over the aperture (:func:`node_count` of them) and a uniform radial
+grid ``rho_j = j h``, ``h = STEP / (k sin th_max)`` (the image is band-limited to spatial
+frequencies ``k sin th_max``). With the Bessel values ``J_m(j x_i)``, ``x_i = k h sin th_i``,
+tabulated once (they depend on the aperture and the node count only, not on the particle or its
+height), a height costs one real matrix product per order.
+
+Accuracy (measured against the brute-force pupil integral of tests/lens_reference.py): the node
+rule keeps the quadrature error below 1e-10 of the field (calibrated over NA 0.8-1.4, z from -10
+to 30 um, pixel reach 4-15 um, spheres and a DDA rod); the 8-point Lagrange interpolation at
+``STEP = 0.4`` leaves ~5e-8 of the field (1e-6 at ``STEP = 0.7``).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import special
+
+from holofit.scattering.lens_kernels import bessel_table
+
+__all__ = ["STENCIL", "STEP", "node_count", "polar_grid", "radial_transform", "sphere_tables"]
+
+#: Lagrange stencil (points per axis) and radial step times the band limit k sin(th_max)
+STENCIL = 8
+STEP = 0.4
+#: polar-grid step in phi times (highest azimuthal order + 1); the orders near the highest kept
+#: are small, so this is coarser than the radial step at the same accuracy (tested up to 1.6)
+PHI_STEP = 1.0
+#: quadrature rule: NODES_PER_RAD * phase variation + NODES_EXTRA, rounded up to a multiple of
+#: NODES_ROUND (so that small moves keep the nodes and their Bessel tables)
+NODES_PER_RAD = 0.5
+NODES_EXTRA = 24
+NODES_ROUND = 16
+#: the Bessel tables kept, in bytes; a single table bigger than this is computed in row blocks
+BESSEL_CACHE_BYTES = 128 * 2**20
+BLOCK_BYTES = 32 * 2**20
+
+
+def node_count(k: float, z_um: float, rho_max_um: float, theta_max: float, order: int) -> int:
+    """Gauss-Legendre nodes over the pupil for a height, a pixel reach and a far-field order.
+
+    The integrand's phase varies by ``k |z| (1 - cos th_max) + k rho_max sin th_max`` over the
+    pupil, and a far field of multipole order L by about ``L th_max``.
+    """
+    variation = (k * abs(z_um) * (1.0 - np.cos(theta_max)) + k * rho_max_um * np.sin(theta_max)
+                 + order * theta_max)
+    n = NODES_PER_RAD * variation + NODES_EXTRA
+    return int(np.ceil(n / NODES_ROUND) * NODES_ROUND)
+
+
+# -- Bessel tables ---------------------------------------------------------------------------
+
+_BESSEL: OrderedDict[tuple, NDArray[np.float64]] = OrderedDict()
+_BESSEL_LOCK = threading.Lock()
+
+
+def clear_cache() -> None:
+    """Forget the cached Bessel tables."""
+    with _BESSEL_LOCK:
+        _BESSEL.clear()
+
+
+def _bessel_rows(x_step: NDArray, rows: range, orders: int | None) -> NDArray:
+    """``J_m(j x_step[i])`` for j in ``rows``: shape (n_orders, len(rows), n_nodes).
+
+    ``orders`` None: the sphere's orders 0 and 2; an int M: every order 0..M.
+    """
+    j = np.arange(rows.start, rows.stop, dtype=float)
+    x = j[:, None] * x_step[None, :]
+    if orders is None:
+        j0 = special.j0(x)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            j2 = np.where(x > 0, 2.0 * special.j1(x) / x - j0, 0.0)
+        return np.stack([j0, j2])
+    flat = np.ascontiguousarray(x.ravel())
+    out = np.empty((flat.size, orders + 1))
+    bessel_table(flat, special.j0(flat), special.j1(flat), orders, out)
+    return np.ascontiguousarray(out.T.reshape(orders + 1, j.size, x_step.size))
+
+
+def _cached_table(x_step: NDArray, n_rho: int, orders: int | None, key: tuple) -> NDArray:
+    """A cached Bessel table with at least ``n_rho`` rows and the orders asked for.
+
+    Tables are shared by everything with the same nodes and radial step (``key``); a table with
+    more orders or rows serves fewer. The cache is bounded by :data:`BESSEL_CACHE_BYTES`.
+    """
+    n_orders = 2 if orders is None else orders + 1
+    with _BESSEL_LOCK:
+        table = _BESSEL.get(key)
+        if table is not None and table.shape[0] >= n_orders and table.shape[1] >= n_rho:
+            _BESSEL.move_to_end(key)
+            return table
+    if table is not None:  # grow, with a little room for the next few moves
+        rows = table.shape[1]
+        n_rho = max(n_rho, int(1.3 * rows)) if rows < n_rho else rows
+        if orders is not None:
+            orders = max(orders, table.shape[0] - 1)
+    table = _bessel_rows(x_step, range(n_rho), orders)
+    with _BESSEL_LOCK:
+        _BESSEL[key] = table
+        _BESSEL.move_to_end(key)
+        while sum(t.nbytes for t in _BESSEL.values()) > BESSEL_CACHE_BYTES and len(_BESSEL) > 1:
+            _BESSEL.popitem(last=False)
+    return table
+
+
+def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
+                     orders: int | None, key: tuple) -> NDArray[np.complex128]:
+    """``G[o, j, c] = sum_i J_{m_o}(j x_step[i]) h[o, i, c]`` for ``j = 0..n_rho-1``.
+
+    Parameters
+    ----------
+    x_step : ndarray, shape (n_nodes,)
+        ``k h sin th_i``.
+    h : ndarray of complex, shape (n_orders, n_nodes, n_cols)
+        Weighted pupil field per order.
+    n_rho : int
+        Radial samples.
+    orders : int or None
+        None: orders (0, 2) (a sphere); M: orders 0..M.
+    key : tuple
+        Identifies ``x_step`` (the nodes and the radial step) for the Bessel cache.
+    """
+    n_orders, n_nodes, n_cols = h.shape
+    hr = np.ascontiguousarray(h).view(np.float64)  # (o, i, 2c): real and imaginary parts
+    if n_orders * n_rho * n_nodes * 8 <= BESSEL_CACHE_BYTES:
+        table = _cached_table(x_step, n_rho, orders, (orders is None, *key))
+        return np.matmul(table[:n_orders, :n_rho], hr).view(np.complex128)
+    out = np.empty((n_orders, n_rho, 2 * n_cols))
+    block = max(1, BLOCK_BYTES // (n_orders * n_nodes * 8))
+    for start in range(0, n_rho, block):
+        rows = range(start, min(n_rho, start + block))
+        out[:, rows.start:rows.stop] = np.matmul(_bessel_rows(x_step, rows, orders), hr)
+    return out.view(np.complex128)
+
+
+# -- what the pixels are interpolated from ---------------------------------------------------
+
+
+def sphere_tables(a: NDArray, b: NDArray, base: NDArray, x_step: NDArray, n_rho: int,
+                  key: tuple) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """Radial tables of a sphere's image, in the frame of the polarisation.
+
+    ``E_x' = -(G_0 - G_2 cos 2ph')`` and ``E_y' = G_2 sin 2ph'`` (``i^2 = -1``), so the tables
+    are ``(-G_0, G_2)``, with ``G_0`` from ``a`` and ``J_0``, ``G_2`` from ``b`` and ``J_2``,
+    ``base = w sin th exp(ik z cos th) exp(-ikz)`` at the nodes. Rows ``< STENCIL`` hold negative
+    ``rho`` (both are even in ``rho``).
+    """
+    h = np.stack([base * a, base * b])[:, :, None]
+    g = radial_transform(x_step, h, n_rho, None, key)[:, :, 0]
+    return _reflect_rows(-g[0]), _reflect_rows(g[1])
+
+
+def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray, n_rho: int,
+               key: tuple) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """The image ``(E_x, E_y)`` on a polar grid ``[rho row, phi column]``.
+
+    ``E_+- = -sum_m i^m exp(i m ph) G_m^+-`` (an FFT over m per row) for the circular
+    components ``T_+- = T_x +- i T_y`` of the pupil field, ``E_x = (E_+ + E_-)/2``,
+    ``E_y = (E_+ - E_-)/(2i)``. Rows ``< STENCIL`` hold negative ``rho``
+    (``E(-rho, ph) = E(rho, ph + pi)``); ``STENCIL`` columns on each side repeat the period.
+    """
+    mmax = (t_plus.shape[1] - 1) // 2
+    m = np.arange(mmax + 1)
+    # h[|m|, node, (T+ at +m, T+ at -m, T- at +m, T- at -m)], J_{-m} = (-1)^m J_m
+    sign = ((-1.0) ** m)[:, None]
+    h = np.empty((mmax + 1, base.size, 4), dtype=complex)
+    for c, t in enumerate((t_plus, t_minus)):
+        h[:, :, 2 * c] = (t[:, mmax + m] * base[:, None]).T
+        h[:, :, 2 * c + 1] = (t[:, mmax - m] * base[:, None]).T * sign
+    g = radial_transform(x_step, h, n_rho, mmax, key)
+    n_phi = max(int(np.ceil(np.pi * (mmax + 1) / PHI_STEP)) * 2, 2 * mmax + 2)
+    spec = np.zeros((2, n_rho, n_phi), dtype=complex)
+    up = (1j**m)[:, None, None] * g
+    down = (1j ** (-m))[:, None, None] * g
+    spec[:, :, m] = np.transpose(up[:, :, 0::2], (2, 1, 0))
+    spec[:, :, (-m[1:]) % n_phi] = np.transpose(down[1:, :, 1::2], (2, 1, 0))
+    plus, minus = np.fft.ifft(spec, axis=2, norm="forward")
+    gx = _padded_polar(plus, minus, -0.5)
+    gy = _padded_polar(plus, minus, 0.5j, subtract=True)
+    return gx, gy
+
+
+def _reflect_rows(g: NDArray) -> NDArray:
+    """Prepend ``STENCIL`` rows for negative rho (an even function of rho)."""
+    return np.ascontiguousarray(np.concatenate([g[1 : STENCIL + 1][::-1], g]))
+
+
+def _padded_polar(plus: NDArray, minus: NDArray, factor: complex,
+                  subtract: bool = False) -> NDArray:
+    """``factor (plus +- minus)`` with ``STENCIL`` rows for negative rho prepended,
+    ``g(-rho, ph) = g(rho, ph + pi)``, and ``STENCIL`` columns on each side repeating the
+    period in ``ph``."""
+    n_rho, n_phi = plus.shape
+    s = STENCIL
+    out = np.empty((n_rho + s, n_phi + 2 * s), dtype=complex)
+    core = out[s:, s : s + n_phi]
+    (np.subtract if subtract else np.add)(plus, minus, out=core)
+    core *= factor
+    half = n_phi // 2
+    mirror = core[1 : s + 1][::-1]
+    out[:s, s : s + half] = mirror[:, half:]
+    out[:s, s + half : s + n_phi] = mirror[:, :half]
+    out[:, :s] = out[:, n_phi : n_phi + s]
+    out[:, s + n_phi :] = out[:, s : 2 * s]
+    return out
