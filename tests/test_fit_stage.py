@@ -16,6 +16,7 @@ from holofit.batch import BatchOptions
 from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
+from holofit.fit import stage
 from holofit.fit.frame import FrameFitOptions
 from holofit.fit.stage import run_fit
 from holofit.fit_table import read_fit_table
@@ -118,21 +119,28 @@ def test_tables_made_from_other_crops_are_refused(movie, tmp_path):
 
 
 def test_missing_prefit_rows_and_unfittable_frames_are_recorded_and_the_batch_goes_on(
-        movie, tmp_path):
+        movie, tmp_path, monkeypatch):
     root, particle, _ = movie
     pre = tmp_path / "prefit"
     shutil.copytree(root / "prefit", pre)
     table = pd.read_csv(pre / "prefit.csv")
     table = table[table["frame"] != 1]
-    table.loc[table["frame"] == 2, "z_um"] = 0.2  # a start inside the particle: cannot fit
     table.to_csv(pre / "prefit.csv", index=False)
+    real_fit = stage.fit_frame
+
+    def failing(*args, seed=0, **kwargs):
+        if seed == 2:
+            raise ValueError("the hologram of frame 2 cannot be fitted")
+        return real_fit(*args, seed=seed, **kwargs)
+
+    monkeypatch.setattr(stage, "fit_frame", failing)
     run = run_fit(root / "crop", pre, root / "lib", particle, tmp_path / "fit",
                   pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False,
                   options=FrameFitOptions(mirror=False))
     out = pd.read_csv(run.final).set_index("frame")
     assert out.loc[0, "status"] == "ok"
     assert out.loc[1, "status"] == "skipped" and "prefit: no row" in out.loc[1, "message"]
-    assert out.loc[2, "status"] != "ok" and out.loc[2, "message"]
+    assert out.loc[2, "status"] == "error" and "frame 2 cannot be fitted" in out.loc[2, "message"]
 
 
 def _static(tmp_path):

@@ -21,7 +21,7 @@ from holofit.cli.stage_options import (
     quality_options,
 )
 from holofit.fit.frame import FrameFitOptions
-from holofit.fit.stage import PASSES, run_fit
+from holofit.fit.stage import PASSES, check_fixed, run_fit
 from holofit.fitting.result import QualityLimits
 from holofit.scattering.select import ENGINE_CHOICES
 
@@ -50,6 +50,8 @@ from holofit.scattering.select import ENGINE_CHOICES
                    "OUT/static.json from the initial pass].")
 @click.option("--engine", type=click.Choice(ENGINE_CHOICES), default=None,
               help="Scattering engine [default: the particle config's].")
+@click.option("--fix", "fixed", default="", metavar="NAME,NAME",
+              help="Hold these parameters at the particle config's values (e.g. gap_um, n2).")
 @click.option("--starts", "n_starts", type=click.IntRange(min=1), default=2, show_default=True,
               help="Library candidates used as starts (plus the mirrored best).")
 @click.option("--no-mirror", is_flag=True,
@@ -80,6 +82,7 @@ def fit(
     initial_frames: int,
     static_file: Path | None,
     engine: str | None,
+    fixed: str,
     n_starts: int,
     no_mirror: bool,
     ambiguity_chi2: float,
@@ -116,9 +119,14 @@ def fit(
                            saturation=saturation, noise_sd=noise_sd, far_field=far_field,
                            quality=QualityLimits(max_chi2_red, min_r2))
     batch = make_batch_options(workers, scheduler, dask_local, retry_failed, overwrite, progress)
+    names = tuple(n.strip() for n in fixed.split(",") if n.strip())
+    try:
+        check_fixed(cfg.model, names)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--fix") from None
     run = run_fit(crop_dir, prefit_dir, library_dir, cfg, out, pass_name=pass_name,
                   initial_frames=initial_frames, static=static_file, instrument=inst,
-                  override_instrument=override_instrument, options=opts, engine=engine,
+                  override_instrument=override_instrument, options=opts, engine=engine, fixed=names,
                   frames=frame_list(crop_dir, frame_range), batch=batch, plot=plot,
                   plot_frames=parse_int_list(plot_frames, "--plot-frames"),
                   outlier_factor=outlier_factor)

@@ -62,11 +62,21 @@ PASSES = ("initial", "final", "both")
 MAD_TO_SIGMA = 1.4826
 
 
-def _free(model: ParticleModel, pass_name: str) -> tuple[str, ...]:
+def _free(model: ParticleModel, pass_name: str, fixed: tuple[str, ...] = ()) -> tuple[str, ...]:
     names = ["x_um", "y_um", "z_um", "orientation", "alpha"]
     if pass_name == "initial":
         names += [p.name for p in static_parameters(model)]
-    return tuple(names)
+    return tuple(n for n in names if n not in fixed)
+
+
+def check_fixed(model: ParticleModel, fixed: tuple[str, ...]) -> None:
+    """Refuse names in ``fixed`` that are not fit parameters of ``model`` (a typo)."""
+    known = {"x_um", "y_um", "z_um", "orientation", "alpha"} | {
+        p.name for p in static_parameters(model)}
+    unknown = sorted(set(fixed) - known)
+    if unknown:
+        raise ValueError(f"cannot fix {', '.join(unknown)}: a {model.kind}'s fit parameters are "
+                         f"{', '.join(sorted(known))}")
 
 
 def fit_columns(model: ParticleModel, free: tuple[str, ...]) -> tuple[str, ...]:
@@ -98,6 +108,8 @@ class FitConfig:
         How each frame is fitted.
     engine : str, optional
         Scattering engine (default: the particle config's).
+    fixed : tuple of str
+        Parameters held at their start values in both passes (e.g. a dimer's ``gap_um``).
     """
 
     particle: ParticleConfig
@@ -105,10 +117,11 @@ class FitConfig:
     pass_name: str
     options: FrameFitOptions = field(default_factory=FrameFitOptions)
     engine: str | None = None
+    fixed: tuple[str, ...] = ()
 
     @property
     def free(self) -> tuple[str, ...]:
-        return _free(self.particle.model, self.pass_name)
+        return _free(self.particle.model, self.pass_name, self.fixed)
 
     def as_dict(self) -> dict[str, Any]:
         return {"particle": self.particle.as_dict(), "instrument": self.instrument.as_dict(),
@@ -259,6 +272,7 @@ def run_fit(
     override_instrument: bool = False,
     options: FrameFitOptions | None = None,
     engine: str | None = None,
+    fixed: tuple[str, ...] = (),
     frames: list[int] | None = None,
     batch: BatchOptions | None = None,
     plot: bool = True,
@@ -294,6 +308,8 @@ def run_fit(
         How frames are fitted.
     engine : str, optional
         Scattering engine (default: the particle config's).
+    fixed : tuple of str
+        Parameters held at their start values (the particle config's for static ones).
     frames : list of int, optional
         Only these frames (both passes).
     batch : BatchOptions, optional
@@ -315,6 +331,7 @@ def run_fit(
     if initial_frames < 1:
         raise ValueError(f"initial_frames must be >= 1, got {initial_frames}")
     opts = options or FrameFitOptions()
+    check_fixed(particle.model, tuple(fixed))
     out = Path(out_dir)
     run = FitRun()
     model = particle.model
@@ -360,7 +377,7 @@ def run_fit(
 
         def one_pass(name: str, cfg_particle: ParticleConfig, pass_frames: list[int],
                      table_name: str) -> Path:
-            cfg = FitConfig(cfg_particle, inst, name, opts, engine)
+            cfg = FitConfig(cfg_particle, inst, name, opts, engine, tuple(fixed))
             columns = fit_columns(model, cfg.free)
             units = {c: column_unit(c) for c in columns}
             units["status"] = describe(FIT_STATUS_MEANINGS)
@@ -401,8 +418,9 @@ def run_fit(
             static_path = run.static if static is None else static_path
         if pass_name in ("final", "both"):
             values = read_static(static_path, model)
-            fixed = ParticleConfig(particle_with(model, values), particle.settings, particle.path)
-            run.final = one_pass("final", fixed, todo, "fit.csv")
+            settled = ParticleConfig(particle_with(model, values), particle.settings,
+                                     particle.path)
+            run.final = one_pass("final", settled, todo, "fit.csv")
     return run
 
 

@@ -1,9 +1,10 @@
 """The forward model of every fit: parameters -> hologram on a set of pixels, and its Jacobian.
 
 One object serves the Lorenz-Mie prefit and the DDA fits alike: it works for any
-:class:`~holofit.scattering.theory.ScatteringTheory` through ``theory.solve`` and the solved
-wave's ``field_on_pixels``, and keeps a small cache of solved waves keyed by what a solve
-depends on (the static parameters and the orientation), so that
+:class:`~holofit.scattering.theory.ScatteringTheory` through ``theory.solve`` and the field the
+camera records (:func:`holofit.scattering.camera.recorded_field`: the objective lens's image
+when the optics have a numerical aperture), and keeps a small cache of solved waves keyed by
+what a solve depends on (the static parameters and the orientation), so that
 
 - a position change reuses the solved wave (a new field evaluation, no new solve);
 - the alpha column of the Jacobian is exact, ``dI/dalpha = 2 Re[(e_pol + alpha E) . E*]``;
@@ -32,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.cache import LRUCache
 from holofit.fitting.parameters import ParameterSpace, State
 from holofit.optics import Optics
+from holofit.scattering.camera import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["Evaluation", "HologramModel", "InvalidParameters"]
@@ -133,13 +135,14 @@ class HologramModel:
     def fields(self, state: State) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
         """Transverse scattered field at the pixels."""
         z = state.position[2]
-        if not abs(z) > 1.0001 * self._radius_for(state):
+        lens = self.optics.numerical_aperture is not None
+        if not lens and not abs(z) > 1.0001 * self._radius_for(state):
             raise InvalidParameters(
                 f"|z| = {abs(z):.4g} um: the detector plane cuts the particle "
                 f"({self._radius_for(state):.4g} um)")
         wave = self.wave(state)
         try:
-            ex, ey = wave.field_on_pixels(state.position, self.xs, self.ys, self.far_field)
+            ex, ey = recorded_field(wave, state.position, self.xs, self.ys, self.far_field)
         except ValueError as exc:  # e.g. pixels too close to grazing for the plane grid
             raise InvalidParameters(str(exc)) from None
         self.n_holograms += 1
@@ -233,8 +236,8 @@ class HologramModel:
         out = {}
         for name, axis in zip(names, self.space.rotation_axes(), strict=False):
             dwave = derivative(axis)
-            dx, dy = dwave.field_on_pixels(base.state.position, self.xs, self.ys,
-                                           self.far_field)
+            dx, dy = recorded_field(dwave, base.state.position, self.xs, self.ys,
+                                    self.far_field)
             ex, ey = base.ex, base.ey
             out[name] = 2.0 * a * (((cp + a * ex.real) * dx.real + a * ex.imag * dx.imag)
                                    + ((sp + a * ey.real) * dy.real + a * ey.imag * dy.imag))

@@ -14,17 +14,19 @@ is that of the unturned one, lit at ``gamma = beta - psi``, at ``(rho, phi - psi
     A1 = alpha Re(X_x - Y_y) + alpha^2 (|X|^2 - |Y|^2) / 2,
     A2 = alpha Re(X_y + Y_x) + alpha^2 Re(X . Y*),
 
-with ``E = cos(gamma) X + sin(gamma) Y`` by linearity (exact for an incidence-independent
-polarisability; with LDR, whose polarisability depends on the polarisation, a small
-approximation that only ranks starting points). On a polar grid the shift by ``psi`` is cyclic,
-so the weighted sums that make up R^2 for *every* psi on the grid are a few FFT correlations
-along the azimuth: per tilt and frame, two field evaluations and nine correlations.
+(the fields as the camera records them: an objective lens is linear and commutes with the
+rotation about its axis) with ``E = cos(gamma) X + sin(gamma) Y`` by linearity: exact for an
+incidence-independent polarisability (FCD, the default, and CM); with LDR, whose polarisability
+depends on the polarisation, a small approximation that only ranks starting points. On a polar
+grid the shift by ``psi`` is cyclic, so the weighted sums that make up R^2 for *every* psi on
+the grid are a few FFT correlations along the azimuth: per tilt and frame, two field
+evaluations and nine correlations.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +35,7 @@ from holofit.conventions import axis_from_angles, euler_zyz
 from holofit.library.polar import PolarGrid
 from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.scattering.camera import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["Candidate", "OrientationLibrary", "Tilt", "pick_candidates", "tilt_grid"]
@@ -103,8 +106,8 @@ class OrientationLibrary:
         self.model = model
         self.optics = optics
         self.tilts = list(tilts)
-        self._x = Optics(optics.wavelength_um, optics.n_medium, 0.0)
-        self._y = Optics(optics.wavelength_um, optics.n_medium, math.pi / 2)
+        self._x = replace(optics, polarization_rad=0.0)
+        self._y = replace(optics, polarization_rad=math.pi / 2)
         self._waves: dict[int, tuple[ScatteredWave, ScatteredWave]] = {}
         self.n_solves = 0
 
@@ -165,8 +168,8 @@ class OrientationLibrary:
 
         for i in range(len(self.tilts)):
             wx, wy = self.waves(i)
-            xx, xy = (v.reshape(grid.shape) for v in wx.field_on_pixels(position_um, xs, ys))
-            yx, yy = (v.reshape(grid.shape) for v in wy.field_on_pixels(position_um, xs, ys))
+            xx, xy = (v.reshape(grid.shape) for v in recorded_field(wx, position_um, xs, ys))
+            yx, yy = (v.reshape(grid.shape) for v in recorded_field(wy, position_um, xs, ys))
             mag_x = xx.real**2 + xx.imag**2 + xy.real**2 + xy.imag**2
             mag_y = yx.real**2 + yx.imag**2 + yy.real**2 + yy.imag**2
             cross = (xx * np.conj(yx) + xy * np.conj(yy)).real

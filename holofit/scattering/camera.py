@@ -1,0 +1,46 @@
+"""The field the camera records: the one rule every hologram goes through.
+
+Without an objective in the model (``optics.numerical_aperture`` is None) that is the scattered
+field at the pixels (:meth:`~holofit.scattering.theory.ScatteredWave.field_on_pixels`); with
+one, it is the image of the scattered field through a lens of that numerical aperture
+(:func:`holofit.scattering.lens.lens_field_on_pixels`), which also holds at and below the
+focal plane.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from holofit.scattering.lens import lens_field_on_pixels
+from holofit.scattering.theory import ScatteredWave
+
+__all__ = ["has_lens", "recorded_field"]
+
+
+def has_lens(wave: ScatteredWave) -> bool:
+    """True if the wave's optics include an objective lens."""
+    return wave.optics.numerical_aperture is not None
+
+
+def recorded_field(
+    wave: ScatteredWave, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
+    far_field: bool = False,
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """Transverse field at pixel centres as the camera records it, incident phase included.
+
+    Parameters
+    ----------
+    wave : ScatteredWave
+        The solved particle.
+    position_um : array_like, shape (3,)
+        Full-frame particle position, um.
+    xs_um, ys_um : array_like, shape (N,)
+        Full-frame pixel coordinates, um.
+    far_field : bool
+        Asymptotic far-field form of the scattered field (no lens only; the lens image is
+        built from the far field exactly).
+    """
+    if has_lens(wave):
+        return lens_field_on_pixels(wave, position_um, xs_um, ys_um)
+    return wave.field_on_pixels(position_um, xs_um, ys_um, far_field)
