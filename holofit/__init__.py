@@ -10,6 +10,8 @@ The public API, by job (the command line is a thin layer over these functions)::
     geometry       Orientation, DetectorGrid, Optics
     engines        LorenzMie, BuiltinDDA, AddaEngine, select_theory, get_theory
     holograms      hologram, calc_hologram
+    fitting        HologramModel, ParameterSpace, solve_least_squares, FitResult,
+                   fit_sphere_crop, fit_frame
     tables         read_fit_table, write_fit_table
 
 Names are imported on first use (``holofit.run_crop`` loads the crop stage only), so that
@@ -36,6 +38,7 @@ _API: dict[str, str] = {
     "run_crop": "holofit.crop.run",
     "run_prefit": "holofit.prefit.stage",
     "run_analysis": "holofit.analysis",
+    "AnalysisSettings": "holofit.analysis",
     # simulation
     "simulate_movie": "holofit.simulate.holograms",
     "simulate_trajectory": "holofit.simulate.brownian",
@@ -68,6 +71,13 @@ _API: dict[str, str] = {
     # holograms
     "hologram": "holofit.hologram",
     "calc_hologram": "holofit.hologram",
+    # fitting kit
+    "HologramModel": "holofit.fitting.forward",
+    "ParameterSpace": "holofit.fitting.parameters",
+    "solve_least_squares": "holofit.fitting.leastsq",
+    "FitResult": "holofit.fitting.result",
+    "fit_sphere_crop": "holofit.prefit.sphere",
+    "fit_frame": "holofit.fit.frame",
     # tables
     "read_fit_table": "holofit.fit_table",
     "write_fit_table": "holofit.fit_table",
