@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from holofit.dda.settings import DDASettings
-from holofit.models import MODEL_TYPES, ParticleModel
+from holofit.models import MODEL_TYPES, ParticleModel, Sphere
 from holofit.optics import Optics
 from holofit.scattering.select import select_theory
 from holofit.scattering.theory import ScatteringTheory
@@ -255,10 +255,32 @@ class ParticleConfig:
         """The ``[dda]`` table as :class:`holofit.dda.settings.DDASettings` (defaults if absent)."""
         return DDASettings.from_dict(self.settings.get("dda", {}), self.path)
 
-    def theory(self, engine: str | None = None) -> ScatteringTheory:
+    def with_fixed_lattice(self, optics: Optics) -> ParticleConfig:
+        """This config with its DDA dipole size written out (``[dda] dipole_size_um``), as the
+        dipoles-per-wavelength rule gives it for this particle in ``optics``; unchanged for a
+        sphere computed by Lorenz-Mie. Stages that vary the particle's sizes or indices use it
+        so that every model they compute sits on one lattice."""
+        if isinstance(self.model, Sphere) and "dda" not in self.settings:
+            return self
+        table = dict(self.settings.get("dda", {}))
+        if table.get("dipole_size_um") is None:
+            table["dipole_size_um"] = self.dda_settings().dipole_size_for(self.model, optics)
+        return dataclasses.replace(self, settings={**self.settings, "dda": table})
+
+    def theory(self, engine: str | None = None, fixed_lattice_for: Optics | None = None
+               ) -> ScatteringTheory:
         """The scattering engine for this particle (:func:`holofit.scattering.select.select_theory`:
         Lorenz-Mie for a sphere without a ``[dda]`` table, else the table's engine), or the one
         ``engine`` names.
+
+        Parameters
+        ----------
+        engine : str, optional
+            Overrides the choice (``mie``, ``builtin``, ``adda``, ``auto``).
+        fixed_lattice_for : Optics, optional
+            Freeze a DDA engine's dipole size at the value the dipoles-per-wavelength rule gives
+            for this particle in these optics (a fit must: a rule that followed a fitted index
+            would move the lattice, and the residuals would jump).
 
         Raises
         ------
@@ -266,6 +288,11 @@ class ParticleConfig:
             Naming this file, if the engine cannot handle the particle.
         """
         settings = self.dda_settings() if "dda" in self.settings else None
+        if fixed_lattice_for is not None:
+            base = settings or DDASettings()
+            d = base.dipole_size_for(self.model, fixed_lattice_for)
+            if settings is not None or not isinstance(self.model, Sphere):
+                settings = base.replace(dipole_size_um=d)
         try:
             return select_theory(self.model, settings, engine)
         except ValueError as exc:

@@ -15,6 +15,7 @@ Solving a particle (``BuiltinDDA.solve``):
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -290,6 +291,11 @@ class BuiltinDDA(ScatteringTheory):
             settings or DDASettings())
         self._lattices: LRUCache[tuple, Lattice] = LRUCache(16)
         self._solutions: dict[tuple, list[DipoleSolution]] = {}
+        #: recent solutions by lattice spacing and wavenumber, whatever the particle's sizes:
+        #: another size of a smoothly filled particle keeps its dipoles where they were (a few
+        #: appear or vanish at the surface with fractions near zero), so an earlier solution,
+        #: carried over dipole by dipole, is a good start for it too
+        self._by_spacing: LRUCache[tuple, list[DipoleSolution]] = LRUCache(8)
         self._systems: LRUCache[tuple, DipoleSystem] = LRUCache(
             8, on_evict=lambda key, _: self._solutions.pop(key, None))
         self.last_iterations = 0
@@ -321,13 +327,19 @@ class BuiltinDDA(ScatteringTheory):
         lat = self.lattice(model, optics)
         key, system = self._system(lat, optics)
         previous = self._solutions.setdefault(key, [])
+        siblings = self._by_spacing.get_or_create((lat.d, optics.k, optics.n_medium), list)
         x0 = self._warm_start(lat, optics.k, previous, a_p, e_p, system)
+        if x0 is None:
+            carried = [carry_over(s, lat) for s in siblings if s.lattice is not lat]
+            x0 = self._warm_start(lat, optics.k, [c for c in carried if c is not None], a_p,
+                                  e_p, system)
         sol = system.solve(a_p, e_p, tol=self.settings.tolerance, x0=x0,
                            maxiter=self.settings.max_iterations, method=self.settings.solver)
         self.last_iterations = sol.iterations
-        previous.append(sol)
-        if len(previous) > MAX_STORED_SOLUTIONS:
-            previous.pop(0)
+        for store in (previous, siblings):
+            store.append(sol)
+            if len(store) > MAX_STORED_SOLUTIONS:
+                store.pop(0)
         return DDAWave(model, optics, orientation, sol, rot, system, self.settings.tolerance)
 
 
@@ -362,6 +374,34 @@ class BuiltinDDA(ScatteringTheory):
             p0 = (s.P @ q.T) * phase[:, None]
         alpha = system.alpha(a_p, e_p)
         return (p0 / np.sqrt(alpha if alpha.ndim == 2 else alpha[:, None])).ravel()
+
+
+def carry_over(solution: DipoleSolution, lattice: Lattice) -> DipoleSolution | None:
+    """``solution`` moved onto another lattice of the same spacing, dipole by dipole.
+
+    Dipoles at the same particle-frame position keep their moments; new ones start at zero.
+    None if the lattices do not share the same grid (another spacing or offset).
+    """
+    old = solution.lattice
+    d = lattice.d
+    if old.d != d:
+        return None
+    shift = (old.origin - lattice.origin) / d
+    if np.max(np.abs(shift - np.round(shift))) > 1e-6:
+        return None
+    old_ijk = old.ijk + np.round(shift).astype(np.int64)
+    lo = np.minimum(old_ijk.min(axis=0), lattice.ijk.min(axis=0))
+    hi = np.maximum(old_ijk.max(axis=0), lattice.ijk.max(axis=0))
+    dims = tuple(int(v) for v in hi - lo + 1)
+    old_flat = np.ravel_multi_index((old_ijk - lo).T, dims)
+    new_flat = np.ravel_multi_index((lattice.ijk - lo).T, dims)
+    order = np.argsort(old_flat)
+    pos = np.searchsorted(old_flat[order], new_flat)
+    pos = np.clip(pos, 0, old_flat.size - 1)
+    match = old_flat[order][pos] == new_flat
+    moments = np.zeros((lattice.n_dipoles, 3), dtype=solution.P.dtype)
+    moments[match] = solution.P[order[pos[match]]]
+    return dataclasses.replace(solution, lattice=lattice, P=moments)
 
 
 def _rotation_between(old: tuple[NDArray, NDArray], new: tuple[NDArray, NDArray]) -> NDArray:

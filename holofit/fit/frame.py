@@ -252,17 +252,26 @@ def fit_frame(
             screened.append(_Branch(s, space, run(space, sub, opts.screen_nfev, 1e-4)))
         screened.sort(key=lambda b: b.solution.rss if np.isfinite(b.solution.rss) else np.inf)
 
-    def refine(branch: _Branch | None) -> _Branch:
+    def refine(branch: _Branch | None, statics: tuple | None = None) -> _Branch:
         start_state = (branch.space.state(branch.solution.vector) if branch is not None
                        else space_for(starts[0], free).start)
-        space = space_for(start_state, free)
+        names = free
+        if statics is not None:
+            # the runner-up takes the best fit's static parameters and keeps them: the two
+            # then differ in placement and orientation only, which is what the ambiguity is
+            start_state = replace(start_state, statics=statics)
+            static_names = {name for name, _ in statics}
+            names = [n for n in free if n not in static_names]
+        space = space_for(start_state, names)
         sol = run(space, None, opts.max_nfev, opts.ftol)
         return _Branch(branch.start if branch is not None else starts[0], space, sol)
 
     best = refine(screened[0] if screened else None)
     runner: _Branch | None = None
     if len(screened) > 1:
-        runner = refine(screened[1]) if opts.refine_runner_up else screened[1]
+        best_statics = best.space.state(best.solution.vector).statics
+        runner = (refine(screened[1], best_statics) if opts.refine_runner_up
+                  else screened[1])
         if opts.refine_runner_up:
             a = best.space.state(best.solution.vector)
             b = runner.space.state(runner.solution.vector)
@@ -270,7 +279,10 @@ def fit_frame(
                     and abs(a.position[2] - b.position[2]) < SAME_BASIN_Z_UM):
                 runner = None  # both starts led to the same minimum: nothing to confuse
             elif runner.solution.rss < best.solution.rss:
-                best, runner = runner, best
+                # the other branch is better: fit it with every parameter of the pass
+                challenger = refine(runner) if set(runner.space.names) != set(
+                    best.space.names) else runner
+                best, runner = challenger, best
 
     result = fit_result(best.space, best.solution, pix.data, noise, opts.quality,
                         n_solves=sum(m.n_solves for m in models))

@@ -153,7 +153,8 @@ def fit_frame_task(config: FitConfig, frame: int, payload: FitPayload) -> dict[s
     inst = config.instrument
     key = json.dumps({"particle": config.particle.as_dict(), "engine": config.engine},
                      sort_keys=True, default=str)
-    theory = _THEORIES.get_or_create(key, lambda: config.particle.theory(config.engine))
+    theory = _THEORIES.get_or_create(
+        key, lambda: config.particle.theory(config.engine, fixed_lattice_for=inst.optics))
     start = payload.start
     result = fit_frame(payload.crop, payload.corner, inst.pixel_size_um, theory,
                        config.particle.model, inst.optics,
@@ -337,6 +338,8 @@ def run_fit(
     model = particle.model
     with CropSet(crop_dir) as crops:
         inst = resolve_instrument(crops, instrument, override_instrument)
+        # one lattice for both passes, whatever the fitted index does to the dipole rule
+        particle = particle.with_fixed_lattice(inst.optics)
         pre, _ = read_stage_table(prefit, crops, "prefit")
         lib_table: pd.DataFrame | None = None
         n_cand = 0

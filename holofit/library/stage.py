@@ -136,7 +136,9 @@ def _library(config: LibraryConfig) -> OrientationLibrary:
     def make() -> OrientationLibrary:
         model = config.particle.model
         tilts = tilt_grid(model, math.radians(config.settings.tilt_step_deg))
-        return OrientationLibrary(config.particle.theory(config.engine), model,
+        theory = config.particle.theory(config.engine,
+                                        fixed_lattice_for=config.instrument.optics)
+        return OrientationLibrary(theory, model,
                                   config.instrument.optics, tilts)
 
     return _LIBRARIES.get_or_create(config.key(), make)
