@@ -1,4 +1,4 @@
-"""Cleaning orientation trajectories from frame-by-frame fits (paper section 3, DESIGN.md §5).
+"""Cleaning orientation trajectories from frame-by-frame fits (the paper, section 3).
 
 Frames are fitted independently, so two artefacts appear that a sequential tracker would not
 make:
