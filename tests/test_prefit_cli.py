@@ -191,3 +191,26 @@ def test_dask_gives_the_process_pool_table(tmp_path, crops6):
     meta = json.loads((tmp_path / "sched" / "prefit.csv.json").read_text())
     assert meta["batch"]["scheduler"] == address
     pd.testing.assert_frame_equal(reference, _values(tmp_path / "sched" / "prefit.csv"))
+
+
+def test_prefit_draws_data_model_and_residual_of_chosen_frames(tmp_path, crops6):
+    crops, _ = crops6
+    out = tmp_path / "out"
+    res = _invoke(crops, "-o", out, "-j", "0", "--frames", "0:4", "--plot-frames", "1,2,3")
+    assert res.exit_code == 0, res.output
+    pictures = sorted(p.name for p in (out / "frames").glob("*.png"))
+    # frame 2 has no particle (skipped: nothing to draw)
+    assert pictures == ["frame_000001.png", "frame_000003.png"]
+    assert (out / "frames" / "frame_000001.png").stat().st_size > 5000
+
+
+def test_an_instrument_that_contradicts_the_crops_needs_an_explicit_flag(tmp_path, crops6):
+    crops, _ = crops6
+    res = _invoke(crops, "-o", tmp_path / "a", "-j", "0", "--frames", "0:1", "--no-plot",
+                  "-i", "pylorenzmie")
+    assert res.exit_code == 1
+    assert "contradicts the one the crops" in res.output and "paper-100x-oil" in res.output
+    assert "wavelength_um 0.447 vs 0.66" in res.output and "--override-instrument" in res.output
+    res = _invoke(crops, "-o", tmp_path / "b", "-j", "0", "--frames", "0:1", "--no-plot",
+                  "-i", "pylorenzmie", "--override-instrument")
+    assert res.exit_code == 0, res.output

@@ -46,10 +46,10 @@ def _crop_folder(tmp_path, raw, background_level, size, instrument, follow_start
     return tmp_path / "crops"
 
 
-def _prefit(tmp_path, crops, fit=None):
+def _prefit(tmp_path, crops, fit=None, status="ok"):
     result = run_prefit(crops, tmp_path / "prefit", fit=fit, batch=SERIAL, plot=False)
     row = pd.read_csv(result.table).iloc[0]
-    assert row["status"] == "ok", row["message"]
+    assert row["status"] == status, row["message"]
     return row
 
 
@@ -97,9 +97,32 @@ def test_pylorenzmie_image0400_both_spheres(tmp_path, label, centre, a_pub, n_pu
     raw = _pylorenzmie("image0400")
     start = (round(centre[0]) + 0.6, round(centre[1]) - 0.8)
     crops = _crop_folder(tmp_path, raw, 100, 200, inst, follow_start=start)
-    row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0))
+    # the two spheres' fringes overlap: each crop holds its neighbour's rings, which no single
+    # sphere explains (R^2 0.63-0.72, residual 15-20 times the pixel noise): the values agree
+    # with the published fits, and the fit is flagged all the same
+    row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0), status="poor_fit")
+    assert "far above the pixel noise" in row["message"]
     assert row["n_masked"] > 0  # the saturated core is left out
     assert row["radius_um"] == pytest.approx(a_pub, abs=0.05)
     assert row["n"] == pytest.approx(n_pub, abs=0.01)
     px = inst.pixel_size_um
     assert np.hypot(row["x_um"] / px - centre[0], row["y_um"] / px - centre[1]) < 1.0
+
+
+def test_a_fit_far_from_the_data_is_not_plain_ok(tmp_path):
+    # pylorenzmie's `sample`, upper-right particle: no good sphere fit exists (its README: "many
+    # minima; lm chi2_red >= 8: use it as a failure-flagging test")
+    inst = load_instrument(CONFIGS / "instruments" / "pylorenzmie.toml")
+    raw = tifffile.imread(DATA / "pylorenzmie" / "sample.tif")
+    bg = tifffile.imread(DATA / "pylorenzmie" / "background.tif")
+    movie, background = tmp_path / "m.tif", tmp_path / "b.tif"
+    tifffile.imwrite(movie, raw)
+    tifffile.imwrite(background, bg)
+    crops = run_crop(movie, background, inst, tmp_path / "crops", size=301, follow="nearest",
+                     start=(921, 303), dark=13.0, plot=False)
+    assert pd.read_csv(crops.table).iloc[0]["status"] in ("ok", "edge")
+    result = run_prefit(tmp_path / "crops", tmp_path / "prefit", fit=FitOptions(fix_alpha=1.0),
+                        batch=SERIAL, plot=False)
+    row = pd.read_csv(result.table).iloc[0]
+    assert row["status"] == "poor_fit"
+    assert "far above the pixel noise" in row["message"] or "outside" in row["message"]

@@ -43,9 +43,10 @@ _OPTIONS = [
 
 
 _QUALITY = [
-    click.option("--max-chi2-red", type=click.FloatRange(min=0, min_open=True), default=25.0,
+    click.option("--max-chi2-red", type=click.FloatRange(min=0, min_open=True), default=10.0,
                  show_default=True,
-                 help="A converged fit with a larger reduced chi^2 is poor_fit."),
+                 help="A converged fit with a larger reduced chi^2 and an R^2 below 0.8 is "
+                      "poor_fit."),
     click.option("--min-r2", type=click.FloatRange(max=1, max_open=True), default=0.5,
                  show_default=True, help="A converged fit with a smaller R^2 is poor_fit."),
     click.option("--outlier-factor", type=click.FloatRange(min=1), default=4.0,

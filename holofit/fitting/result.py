@@ -11,9 +11,10 @@ Goodness of fit, the same words everywhere:
 - ``r2``: the coefficient of determination (the paper's R^2).
 
 Status (:mod:`holofit.status`): a converged fit is ``ok`` only if it is also close to the data
-and physical; otherwise it is ``poor_fit``, with the reason in ``message`` (a reduced chi^2
-far above the noise, an R^2 below the threshold, or a parameter outside its physical or
-search range). ``holofit analyze`` uses ``ok`` rows only.
+and physical; otherwise it is ``poor_fit``, with the reason in ``message``: a parameter outside
+its physical or search range, an R^2 below ``min_r2``, or a reduced chi^2 far above the noise
+together with an R^2 below ``good_r2`` (:class:`QualityLimits`). ``holofit analyze`` uses
+``ok`` rows only.
 """
 
 from __future__ import annotations
@@ -54,16 +55,23 @@ class QualityLimits:
     Attributes
     ----------
     max_chi2_red : float
-        Largest reduced chi^2 (residual over the camera noise) of an ``ok`` fit.
+        Largest reduced chi^2 (residual over the camera noise) of an ``ok`` fit whose R^2 is
+        below ``good_r2``.
     min_r2 : float
         Smallest R^2 of an ``ok`` fit.
+    good_r2 : float
+        A fit that explains this much of the fringe variance is close to the data even when
+        its reduced chi^2 is large: real holograms carry imperfections of the set-up (the
+        lens, dust, a neighbour's fringes) far above a low camera noise, so a large reduced
+        chi^2 alone does not make a fit poor.
     ranges : dict
         Parameter name -> (low, high): an ``ok`` fit ends inside (besides each parameter's
         physical range).
     """
 
-    max_chi2_red: float = 25.0
+    max_chi2_red: float = 10.0
     min_r2: float = 0.5
+    good_r2: float = 0.8
     ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -163,9 +171,9 @@ def _assess(space: ParameterSpace, solution: Solution, values: dict[str, float],
         v = values.get(name, math.nan)
         if name in space.names and not lo <= v <= hi:
             reasons.append(f"{name} = {v:.4g} outside [{lo:.4g}, {hi:.4g}]")
-    if math.isfinite(chi2_red) and chi2_red > limits.max_chi2_red:
-        reasons.append(f"reduced chi2 {chi2_red:.3g} > {limits.max_chi2_red:g} (residual far "
-                       "above the pixel noise)")
+    if math.isfinite(chi2_red) and chi2_red > limits.max_chi2_red and r2 < limits.good_r2:
+        reasons.append(f"reduced chi2 {chi2_red:.3g} > {limits.max_chi2_red:g} with R^2 "
+                       f"{r2:.3g} < {limits.good_r2:g} (residual far above the pixel noise)")
     if not r2 >= limits.min_r2:
         reasons.append(f"R^2 {r2:.3g} < {limits.min_r2:g}")
     if reasons:

@@ -16,6 +16,7 @@ whose parameters leave the search range, or that is far from the data, is ``poor
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -117,7 +118,7 @@ def _limits(opts: FitOptions, n_medium: float) -> QualityLimits:
     ranges = {"radius_um": (0.95 * a0, 1.05 * a1), "n": (n0 - 0.05 * (n1 - n0) - 1e-3,
                                                         n1 + 0.05 * (n1 - n0) + 1e-3)}
     ranges.update(opts.quality.ranges)
-    return QualityLimits(opts.quality.max_chi2_red, opts.quality.min_r2, ranges)
+    return dataclasses.replace(opts.quality, ranges=ranges)
 
 
 def fit_sphere_crop(
