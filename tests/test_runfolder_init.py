@@ -223,3 +223,27 @@ def test_a_batch_makefile_runs_every_run_folder(tmp_path, inputs):
     res = _init(other, inputs, "--batch-makefile", run="m01")
     assert res.exit_code == 0 and "left as it is" in res.stderr
     assert (other / "Makefile").read_text() == "all:\n\techo mine\n"
+
+
+def test_a_voxel_particle_brings_its_shape_file(tmp_path, inputs):
+    from tests.conftest import DATA
+
+    shapes = tmp_path / "configs" / "shapes"
+    shapes.mkdir(parents=True)
+    geom = DATA / "adda" / "d_janus_o0_0_0" / "janus_d0.024.geom"
+    (shapes / "janus.geom").write_bytes(geom.read_bytes())
+    cfg = tmp_path / "configs" / "janus_voxels.toml"
+    cfg.write_text('[particle]\nmodel = "voxels"\npath = "shapes/janus.geom"\n'
+                   'dipole_size_um = 0.024\nindices = [1.59, 2.7]\n')
+    with pytest.raises(RunFolderError, match="which diffusion analysis"):
+        init_run(tmp_path / "run", inputs["movie"], instrument="paper_100x_oil", particle=cfg,
+                 backgrounds=[inputs["bg"]])
+    made = init_run(tmp_path / "run", inputs["movie"], instrument="paper_100x_oil",
+                    particle=cfg, backgrounds=[inputs["bg"]], model="janus")
+    assert (tmp_path / "run" / "shapes" / "janus.geom").read_bytes() == geom.read_bytes()
+    copy = load_particle(made.particle).model.parameters()
+    original = load_particle(cfg).model.parameters()
+    assert copy.pop("path") == str(tmp_path / "run" / "shapes" / "janus.geom")  # the copy's
+    original.pop("path")
+    assert copy == original
+    assert made.spec.anisotropic and made.spec.analysis_model == "janus"
