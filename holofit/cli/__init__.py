@@ -10,6 +10,7 @@ from holofit.cli.crop import crop
 from holofit.cli.demo import demo
 from holofit.cli.errors import DEBUG_ENV, HolofitGroup
 from holofit.cli.fit import fit
+from holofit.cli.init import init
 from holofit.cli.library import library
 from holofit.cli.prefit import prefit
 from holofit.cli.simulate import simulate
@@ -37,5 +38,5 @@ def main(debug: bool) -> None:
     """
 
 
-for command in (crop, prefit, library, fit, analyze, simulate, demo):
+for command in (init, crop, prefit, library, fit, analyze, simulate, demo):
     main.add_command(command)

@@ -1,0 +1,316 @@
+"""``holofit init``: write a run folder (Makefile, README, copies of the two configs).
+
+Everything is checked before anything is written: the movie, backgrounds and dark frames
+exist and are readable movies, make can use their paths, the configs resolve and validate,
+the analysis model suits the particle, the extra stage options leave the Makefile's own
+options alone, and the folder has no Makefile yet (unless ``force``). The Makefile is written
+last, so a folder with a Makefile is a complete run folder.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import shlex
+import sys
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+
+import holofit
+from holofit.analysis.settings import AnalysisSettings, SettingError
+from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
+from holofit.io.atomic import atomic_write_text
+from holofit.io.movie import MovieError, open_movie
+from holofit.provenance import command_line
+from holofit.runfolder.errors import RunFolderError
+from holofit.runfolder.makefile import (
+    BATCH_MAKEFILE_MARK,
+    render_batch_makefile,
+    render_run_makefile,
+)
+from holofit.runfolder.readme import render_readme
+from holofit.runfolder.spec import (
+    STAGES,
+    RunSpec,
+    analysis_model_for,
+    check_make_path,
+    check_stage_options,
+)
+from holofit.scattering.select import ENGINE_CHOICES
+
+__all__ = ["RunFolder", "default_holofit_command", "init_run", "write_batch_makefile"]
+
+INSTRUMENT_COPY = "instrument.toml"
+PARTICLE_COPY = "particle.toml"
+
+
+@dataclass
+class RunFolder:
+    """What :func:`init_run` wrote.
+
+    Attributes
+    ----------
+    path : Path
+        The run folder.
+    makefile, readme, instrument, particle : Path
+        Its Makefile, README.md and the two config copies.
+    spec : RunSpec
+        What the Makefile says.
+    batch_makefile : Path, optional
+        The parent folder's Makefile that runs every run folder (``batch_makefile=True``).
+    notes : list of str
+        What the user should know (e.g. a parent Makefile left alone).
+    """
+
+    path: Path
+    makefile: Path
+    readme: Path
+    instrument: Path
+    particle: Path
+    spec: RunSpec
+    batch_makefile: Path | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def default_holofit_command() -> str:
+    """The shell command of the holofit that is running: the ``holofit`` script beside this
+    interpreter, else ``python -m holofit.cli`` with this interpreter."""
+    exe = Path(sys.executable)
+    script = exe.with_name("holofit")
+    if script.is_file() and os.access(script, os.X_OK):
+        return shlex.quote(str(script))
+    return f"{shlex.quote(str(exe))} -m holofit.cli"
+
+
+def _input(path: str | Path, what: str) -> str:
+    """Absolute path of an existing input movie / background / dark, usable by make."""
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise RunFolderError(f"{what} {path}: no such file or folder")
+    absolute = os.path.abspath(p)
+    check_make_path(absolute, what)
+    try:
+        with open_movie(absolute) as movie:
+            len(movie)
+    except MovieError as exc:
+        raise RunFolderError(f"{what}: {exc}") from None
+    return absolute
+
+
+def _check_light(backgrounds: Sequence[str], darks: Sequence[str], dark_count: float | None,
+                 normalized: bool) -> None:
+    """The combinations ``holofit crop`` accepts."""
+    if darks and dark_count is not None:
+        raise RunFolderError("give either dark frames (--dark) or a dark level (--dark-count), "
+                             "not both")
+    if normalized and (backgrounds or darks or dark_count is not None):
+        raise RunFolderError("a normalised movie (--normalized) takes no background and no "
+                             "dark level")
+    if not normalized and not backgrounds:
+        raise RunFolderError("give the background of the raw movie (--background, repeat for "
+                             "several files), or --normalized for a movie that is normalised "
+                             "already")
+    if dark_count is not None and not dark_count >= 0:
+        raise RunFolderError(f"dark level must be >= 0 counts, got {dark_count}")
+
+
+def _config_copy(source: Path) -> str:
+    """The text of a config copy: a header naming the source, then the file as it is."""
+    return (f"# Copy of {source} made by `holofit init`: the stages of this run folder read\n"
+            f"# this file. Edit it here; make reruns the stages it affects.\n"
+            + source.read_text(encoding="utf-8"))
+
+
+def _shape_file(source: Path) -> PurePosixPath | None:
+    """The relative shape file of a ``voxels`` particle config, to be copied beside it."""
+    doc = tomllib.loads(source.read_text(encoding="utf-8"))
+    rel = doc.get("particle", {}).get("path")
+    if not isinstance(rel, str) or Path(rel).is_absolute():
+        return None
+    rel_path = PurePosixPath(rel)
+    if ".." in rel_path.parts:
+        raise RunFolderError(f"{source}: the shape file {rel} lies outside the config's folder; "
+                             "give its absolute path in the config")
+    return rel_path
+
+
+def _check_particle(cfg: ParticleConfig, source: Path) -> None:
+    adda = cfg.settings.get("dda", {}).get("adda_path") if isinstance(
+        cfg.settings.get("dda"), dict) else None
+    if isinstance(adda, str) and adda and not Path(adda).is_absolute() and "/" in adda:
+        raise RunFolderError(f"{source}: [dda] adda_path {adda!r} is relative; the stages run "
+                             "in the run folder: give an absolute path")
+
+
+def _command() -> str:
+    """The command that is running, quoted as a shell would need it, on one line."""
+    words = command_line().split(" ", 1)[:1] + sys.argv[1:]
+    return " ".join(shlex.quote(w) for w in words).replace("\n", " ")
+
+
+def _write_if_changed(path: Path, text: str) -> None:
+    """Write ``text`` unless the file holds it already (its time stamp then stays: make does
+    not rerun the stages that depend on it)."""
+    if path.is_file() and path.read_text(encoding="utf-8") == text:
+        return
+    atomic_write_text(path, text)
+
+
+def write_batch_makefile(folder: str | Path) -> tuple[Path, str | None]:
+    """Write ``folder/Makefile`` that runs every run folder in ``folder``.
+
+    Returns
+    -------
+    path : Path
+        The Makefile.
+    note : str or None
+        Why an existing Makefile that holofit did not write was left alone (None: written or
+        already holofit's).
+    """
+    path = Path(folder) / "Makefile"
+    if path.exists():
+        first = path.read_text(encoding="utf-8", errors="replace").split("\n", 1)[0]
+        if not first.startswith(BATCH_MAKEFILE_MARK):
+            return path, (f"{path} exists and was not written by holofit: left as it is (see "
+                          "README.md, 'Batch runs with make', for the lines that run every "
+                          "run folder)")
+    _write_if_changed(path, render_batch_makefile())
+    return path, None
+
+
+def init_run(
+    run_dir: str | Path,
+    movie: str | Path,
+    *,
+    instrument: str | Path,
+    particle: str | Path,
+    backgrounds: Sequence[str | Path] = (),
+    darks: Sequence[str | Path] = (),
+    dark_count: float | None = None,
+    normalized: bool = False,
+    engine: str | None = None,
+    temperature_c: float = 21.0,
+    model: str | None = None,
+    options: Mapping[str, str] | None = None,
+    holofit_command: str | None = None,
+    force: bool = False,
+    batch_makefile: bool = False,
+) -> RunFolder:
+    """Write a run folder: ``Makefile``, ``README.md``, ``instrument.toml``, ``particle.toml``.
+
+    ``make -C run_dir`` then runs crop -> prefit -> library (anisotropic particles) -> fit
+    (initial, final) -> analyze, each only when out of date (see
+    :mod:`holofit.runfolder.makefile`).
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        The run folder (created).
+    movie : str or Path
+        The raw movie (TIFF stack or folder of frames); referred to by absolute path.
+    instrument, particle : str or Path
+        Config files or names (``paper_60x_water``, ``rod_paper``); copied into the folder.
+    backgrounds, darks : sequence of paths
+        Background and dark files (as ``holofit crop --background / --dark``).
+    dark_count : float, optional
+        Dark level in counts, instead of dark frames.
+    normalized : bool
+        The movie is background-divided already (no background).
+    engine : str, optional
+        Scattering engine of library and fit (default: the particle config's).
+    temperature_c : float
+        Sample temperature for the analysis, C.
+    model : {"rod", "janus", "sphere"}, optional
+        Diffusion analysis (default: from the particle model).
+    options : mapping, optional
+        Stage (``crop``, ``prefit``, ``library``, ``fit``, ``analyze``) -> extra options.
+    holofit_command : str, optional
+        Shell command that runs holofit (default: :func:`default_holofit_command`).
+    force : bool
+        Replace an existing run folder's Makefile, README and configs (outputs are kept; make
+        reruns what the new settings invalidate).
+    batch_makefile : bool
+        Also write the parent folder's Makefile that runs every run folder in it
+        (:func:`write_batch_makefile`), unless the parent has a Makefile of its own.
+
+    Returns
+    -------
+    RunFolder
+
+    Raises
+    ------
+    RunFolderError, ConfigError
+        Naming the input, option or file at fault; nothing is written then.
+    """
+    run = Path(run_dir)
+    if (run / "Makefile").exists() and not force:
+        raise RunFolderError(f"{run / 'Makefile'} exists: {run} is a run folder already (force "
+                             "to write it again: its outputs are kept, and make reruns what the "
+                             "new settings change)")
+    if run.exists() and not run.is_dir():
+        raise RunFolderError(f"{run}: exists and is not a folder")
+    if batch_makefile:
+        check_make_path(run.resolve().name, "run folder name")
+    backgrounds = [str(b) for b in backgrounds]
+    darks = [str(d) for d in darks]
+    _check_light(backgrounds, darks, dark_count, normalized)
+    movie_abs = _input(movie, "movie")
+    bg_abs = tuple(_input(b, "background") for b in backgrounds)
+    dark_abs = tuple(_input(d, "dark frame") for d in darks)
+
+    inst_source = resolve_config(instrument, "instruments")
+    load_instrument(inst_source)
+    part_source = resolve_config(particle, "particles")
+    cfg = load_particle(part_source)
+    _check_particle(cfg, part_source)
+    shape = _shape_file(part_source) if cfg.model.kind == "voxels" else None
+
+    if engine is not None:
+        if engine not in ENGINE_CHOICES:
+            raise RunFolderError(f"engine {engine!r}: expected one of "
+                                 f"{', '.join(ENGINE_CHOICES)}")
+        cfg.theory(engine)  # an engine that cannot handle the particle: ConfigError now
+    analysis = analysis_model_for(cfg.model.kind, model)
+    try:
+        AnalysisSettings(model=analysis, temperature_c=temperature_c)
+    except SettingError as exc:
+        raise RunFolderError(f"analysis {exc.setting}: {exc.problem}") from None
+    opts = dict(options or {})
+    unknown = sorted(set(opts) - set(STAGES))
+    if unknown:
+        raise RunFolderError(f"options for unknown stage(s) {', '.join(unknown)}; stages: "
+                             f"{', '.join(STAGES)}")
+    opts = {stage: check_stage_options(stage, text) for stage, text in opts.items() if text}
+
+    now = _dt.datetime.now().astimezone().replace(microsecond=0).isoformat()
+    spec = RunSpec(
+        movie=movie_abs, backgrounds=bg_abs, darks=dark_abs, dark_count=dark_count,
+        normalized=normalized, particle_kind=cfg.model.kind, anisotropic=cfg.model.anisotropic,
+        analysis_model=analysis, temperature_c=float(temperature_c), engine=engine,
+        options=opts, holofit=holofit_command or default_holofit_command(),
+        instrument_source=str(inst_source.resolve()), particle_source=str(part_source.resolve()),
+        header=(f"holofit run folder: written by `holofit init` (holofit {holofit.__version__}), "
+                f"{now}", _command()),
+    )
+
+    run.mkdir(parents=True, exist_ok=True)
+    out = RunFolder(run, run / "Makefile", run / "README.md", run / INSTRUMENT_COPY,
+                    run / PARTICLE_COPY, spec)
+    _write_if_changed(out.instrument, _config_copy(inst_source))
+    if shape is not None:
+        target = run / shape
+        target.parent.mkdir(parents=True, exist_ok=True)
+        data = (part_source.parent / shape).read_bytes()
+        if not target.is_file() or target.read_bytes() != data:
+            target.write_bytes(data)
+    _write_if_changed(out.particle, _config_copy(part_source))
+    load_particle(out.particle)  # the copy reads as the original does
+    _write_if_changed(out.readme, render_readme(spec))
+    atomic_write_text(out.makefile, render_run_makefile(spec))
+    if batch_makefile:
+        out.batch_makefile, note = write_batch_makefile(run.resolve().parent)
+        if note:
+            out.notes.append(note)
+    return out
