@@ -229,12 +229,16 @@ class _OutputFiles:
         Its columns, in order.
     meta : dict
         The sidecar document; a ``batch`` entry is added on every write.
+    finish : callable, optional
+        Applied to the final table (in place) before it is written.
     """
 
-    def __init__(self, output: Path, columns: list[str], meta: dict[str, Any]) -> None:
+    def __init__(self, output: Path, columns: list[str], meta: dict[str, Any],
+                 finish: Callable[[pd.DataFrame], Any] | None = None) -> None:
         self.output = output
         self.columns = columns
         self.meta = meta
+        self.finish_table = finish
         self.journal = journal_path(output)
         self.partial = partial_path(output)
 
@@ -242,6 +246,10 @@ class _OutputFiles:
         """Write the rows (sorted by frame) as the final or the partial table, atomically."""
         frames = sorted(rows)
         table = pd.DataFrame([rows[f] for f in frames], columns=self.columns)
+        if final and self.finish_table is not None:
+            self.finish_table(table)
+            for rec in table[["frame", "status", "message"]].to_dict(orient="records"):
+                rows[int(rec["frame"])].update(status=rec["status"], message=rec["message"])
         doc = dict(self.meta)
         doc["batch"] = info | {"frames_done": len(frames)}
         write_table(self.output if final else self.partial, table, doc)
@@ -532,6 +540,7 @@ def run_batch(
     options: BatchOptions | None = None,
     backend: Backend | None = None,
     desc: str = "batch",
+    finish: Callable[[pd.DataFrame], Any] | None = None,
 ) -> BatchSummary:
     """Run ``func`` on every frame, in parallel, resumably, writing a table keyed by frame.
 
@@ -563,6 +572,9 @@ def run_batch(
         Use this backend instead of making one from ``options`` (it is not closed).
     desc : str
         Label of the progress bar, and the stage named in the folder's lock.
+    finish : callable, optional
+        Applied (in place) to the complete table just before it is written, with the whole
+        movie at hand (e.g. flagging outlier frames); changed statuses and messages are kept.
 
     Returns
     -------
@@ -580,7 +592,7 @@ def run_batch(
     output = Path(output)
     columns = list(columns)
     frames = _checked_frames(frames, columns)
-    files = _OutputFiles(output, columns, dict(meta or {}))
+    files = _OutputFiles(output, columns, dict(meta or {}), finish)
     with output_lock(output.parent, stage=desc) as lock:
         rows = _earlier_rows(files, fingerprint, opts.overwrite)
         if opts.retry_failed:

@@ -42,6 +42,7 @@ FORESEEABLE: tuple[tuple[str, str], ...] = (
     ("holofit.io.movie", "MovieError"),
     ("holofit.batch.errors", "BatchError"),
     ("holofit.io.lock", "OutputLocked"),
+    ("holofit.fit.stage", "FitStageError"),
     ("holofit.analysis.errors", "AnalysisError"),
     ("holofit.analysis.settings", "SettingError"),
     ("holofit.batch.journal", "JournalError"),

@@ -34,7 +34,7 @@ from holofit.config import ConfigError, Instrument, ParticleConfig
 from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitOptions, fit_frame
 from holofit.fit_table import column_unit
 from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
-from holofit.fitting.finish import finish_fit_table
+from holofit.fitting.finish import outlier_rule, outlier_sidecar
 from holofit.fitting.inputs import StageInputError, read_stage_table, usable_start
 from holofit.fitting.parameters import particle_with, static_parameters, static_values
 from holofit.fitting.pictures import write_frame_pictures
@@ -50,6 +50,7 @@ __all__ = [
     "FitConfig",
     "FitPayload",
     "FitRun",
+    "FitStageError",
     "fit_columns",
     "fit_frame_task",
     "read_static",
@@ -58,6 +59,10 @@ __all__ = [
 ]
 
 PASSES = ("initial", "final", "both")
+
+
+class FitStageError(RuntimeError):
+    """A fit stage cannot go on (e.g. the initial pass left no frame to average)."""
 #: spread of a normal sample from its median absolute deviation
 MAD_TO_SIGMA = 1.4826
 
@@ -175,13 +180,13 @@ def static_average(table: pd.DataFrame, model: ParticleModel) -> dict[str, Any]:
 
     Raises
     ------
-    ValueError
+    FitStageError
         No ``ok`` row.
     """
     ok = table[table["status"] == OK]
     if len(ok) < 1:
-        raise ValueError("the initial pass has no ok frame: no static parameters to fix (see "
-                         "initial.csv's status and message)")
+        raise FitStageError("the initial pass has no ok frame: no static parameters to fix "
+                            "(see initial.csv's status and message)")
     out: dict[str, Any] = {"values": {}, "spread": {}, "mean": {}, "std": {},
                            "n_frames": len(ok)}
     for p in static_parameters(model):
@@ -388,17 +393,19 @@ def run_fit(
                 kind=f"DDA fit table ({name} pass)", units=units, config=cfg.as_dict(),
                 inputs=[crops.table_path, Path(prefit), *([Path(library)] if library else [])],
                 extra={"crops": crops.fingerprint(), "particle_model": model.kind,
+                       "quality": outlier_sidecar(outlier_factor),
                        **({"frame_interval_s": 1.0 / inst.frame_rate_hz}
                           if inst.frame_rate_hz else {})},
             )
             fingerprint = hashlib.sha256(json.dumps(
-                {"config": cfg.as_dict(), "crops": crops.fingerprint()}, sort_keys=True,
+                {"config": cfg.as_dict(), "crops": crops.fingerprint(),
+                 "outlier_factor": outlier_factor}, sort_keys=True,
                 default=str).encode()).hexdigest()[:16]
             path = out / table_name
             run.summaries[name] = run_batch(fit_frame_task, cfg, pass_frames, load, path,
                                             columns, fingerprint=fingerprint, meta=meta,
-                                            options=batch, desc=f"fit ({name})")
-            finish_fit_table(path, outlier_factor)
+                                            options=batch, desc=f"fit ({name})",
+                                            finish=outlier_rule(outlier_factor))
             if plot:
                 _plots(path, crops, cfg_particle.model, cfg_particle.theory(engine), inst,
                        out, name, plot_frames, opts.far_field)

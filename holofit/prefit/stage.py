@@ -24,7 +24,7 @@ from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_ba
 from holofit.config import Instrument
 from holofit.fit_table import column_unit
 from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
-from holofit.fitting.finish import finish_fit_table
+from holofit.fitting.finish import outlier_rule, outlier_sidecar
 from holofit.fitting.pictures import write_frame_pictures
 from holofit.fitting.result import result_columns, result_row
 from holofit.io.tables import read_table
@@ -241,6 +241,7 @@ def run_prefit(
             config=config.as_dict(),
             inputs=[crops.table_path, crops.stack_path],
             extra={"crop_shape": list(crops.crop_shape), "crops": inputs,
+                   "quality": outlier_sidecar(outlier_factor),
                    **({"frame_interval_s": 1.0 / inst.frame_rate_hz}
                       if inst.frame_rate_hz else {})},
         )
@@ -251,12 +252,12 @@ def run_prefit(
             _loader(crops),
             out / "prefit.csv",
             PREFIT_COLUMNS,
-            fingerprint=fingerprint_of(config, inputs),
+            fingerprint=fingerprint_of(config, {**inputs, "outlier_factor": outlier_factor}),
             meta=meta,
             options=batch,
             desc="prefit",
+            finish=outlier_rule(outlier_factor),
         )
-        finish_fit_table(out / "prefit.csv", outlier_factor)
         png = None
         if plot:
             from holofit.prefit.plots import plot_prefit
