@@ -186,9 +186,15 @@ class FitTable:
         ]
 
     def static_summary(self) -> dict[str, dict[str, float]]:
-        """Median, standard deviation and count of each static parameter over the ok rows."""
+        """Median, standard deviation and count of each static parameter over the ok rows.
+
+        A parameter the fit held fixed (constant in the table) takes its spread and count from
+        where its value came from when the sidecar says (``static``: the initial pass's robust
+        average, written by ``holofit fit``), so its uncertainty is not lost.
+        """
         out: dict[str, dict[str, float]] = {}
         rows = self.table[self.ok]
+        source = self.meta.get("static") if isinstance(self.meta.get("static"), dict) else {}
         for c in self.static_columns():
             values = rows[c].to_numpy(dtype=float)
             values = values[np.isfinite(values)]
@@ -199,6 +205,9 @@ class FitTable:
                     "std": float(np.std(values, ddof=1)) if spread else 0.0,
                     "count": int(values.size),
                 }
+                held = (source.get("spread", {}).get(c), source.get("n_frames"))
+                if not spread and all(isinstance(v, int | float) for v in held):
+                    out[c].update(std=float(held[0]), count=int(held[1]))
         return out
 
 

@@ -162,3 +162,38 @@ def test_fit_range_options_are_used():
     assert list(res.fits["par"].lags) == [2, 3, 4, 5, 6]
     assert res.fits["orient"].lags[-1] == 30 and res.fits["orient"].lags[0] == 1
     assert math.isfinite(res.measured["D_r"].value)
+
+
+def test_frames_flagged_ambiguous_are_left_out_of_a_rod_analysis(tmp_path):
+    p = BrownianParameters(1500, 0.01, R["d_par"], R["d_perp"], R["d_r"])
+    sim = simulate_trajectory(p, MeasurementNoise(R["eps_um"], None, R["eps_r"]), seed=4)
+    table = sim.table.copy()
+    rng = np.random.default_rng(1)
+    flagged = rng.random(len(table)) < 0.05
+    # what an ambiguous frame of a rod is: the axis mirrored through the x-y plane
+    table.loc[flagged, "uz"] *= -1
+    table = table.drop(columns=["theta_rad", "psi_rad"], errors="ignore")
+    table["ambiguous"] = flagged.astype(int)
+    fit = validate_fit_table(table)
+    off = AnalysisSettings("rod", reject=False, drop_ambiguous=False)
+    on = AnalysisSettings("rod", reject=False)  # rods drop ambiguous frames by default
+    assert on.drop_ambiguous and not AnalysisSettings("janus").drop_ambiguous
+    biased = analyze_trajectory(Trajectory.from_fit_table(fit, False), off).measured["D_r"]
+    traj = Trajectory.from_fit_table(fit, True)
+    assert traj.n_ambiguous == int(flagged.sum())
+    res = analyze_trajectory(traj, on)
+    assert _within(res.measured["D_r"], R["d_r"])
+    # kept, the mirrored axes inflate D_r far beyond the clean analysis' error
+    assert biased.value - R["d_r"] > 3 * res.measured["D_r"].error
+    assert any("ambiguous" in note for note in res.notes)
+
+
+def test_sizes_held_fixed_keep_the_initial_pass_spread():
+    _traj, sim = _rod_traj(seed=3, n=300, static={"a_um": 0.501, "b_um": 1.079})
+    fit = validate_fit_table(sim.table)
+    fit.meta = {"static": {"values": {"a_um": 0.501, "b_um": 1.079},
+                           "spread": {"a_um": 0.02, "b_um": 0.05}, "n_frames": 100}}
+    summary = fit.static_summary()
+    assert summary["a_um"]["std"] == 0.02 and summary["a_um"]["count"] == 100
+    res = analyze_trajectory(Trajectory.from_fit_table(fit), AnalysisSettings("rod"))
+    assert res.sizes["a_um"][1] == pytest.approx(0.02 / 10)

@@ -40,7 +40,8 @@ def analyze_table(
 ) -> AnalysisResult:
     """Read a fit table (validating it) and analyse it."""
     fit = read_fit_table(path, frame_interval_s)
-    return analyze_trajectory(Trajectory.from_fit_table(fit), settings)
+    traj = Trajectory.from_fit_table(fit, bool(settings.drop_ambiguous))
+    return analyze_trajectory(traj, settings)
 
 
 def run_analysis(

@@ -354,6 +354,9 @@ def _analyze(traj: Trajectory, s: AnalysisSettings) -> AnalysisResult:
     if core.cleaning is not None and core.cleaning.estimate is not None and s.reject:
         _sensitivity(core, traj, s, recipe, pos, ranges)
     notes = _fit_notes(core.fits)
+    if traj.n_ambiguous:
+        notes.append(f"{traj.n_ambiguous} frame(s) the fit flagged ambiguous (the mirrored "
+                     "orientation fits as well) left out")
     sizes = {}
     for name in recipe.sizes:
         given, given_err = getattr(s, name), getattr(s, name.replace("_um", "_err_um"))

@@ -93,6 +93,9 @@ class AnalysisSettings:
         correlation, up to the lag where ``<p . p'>`` falls to 0.5.
     max_lag : int, optional
         Longest lag computed for the plots (default: a quarter of the trajectory).
+    drop_ambiguous : bool, optional
+        Treat frames the DDA fit flagged ``ambiguous`` (the runner-up orientation fits as well,
+        within the noise) as gaps (default: True for rods, False otherwise).
     projection_amplitude : bool
         Fit an amplitude ``A`` in front of the projection series (absorbs angular noise).
 
@@ -121,6 +124,7 @@ class AnalysisSettings:
     fit_lags_rotation: tuple[int, int] | None = None
     max_lag: int | None = None
     projection_amplitude: bool = True
+    drop_ambiguous: bool | None = None
 
     def __post_init__(self) -> None:
         if self.model not in RECIPES:
@@ -130,6 +134,10 @@ class AnalysisSettings:
             self.head_tail = recipe.head_tail
         if self.reject is None:
             self.reject = recipe.reject
+        if self.drop_ambiguous is None:
+            # a frame whose mirrored orientation fits as well is a coin toss for a rod's axis;
+            # a Janus particle's analysis uses x, y and psi only, which the mirror keeps
+            self.drop_ambiguous = recipe.name == "rod"
         if not recipe.orientation:
             self.head_tail, self.reject = False, False
         for name, spec in SETTING_SPECS.items():

@@ -33,6 +33,8 @@ class Trajectory:
         Static-parameter summaries of the table (median, std, count per column).
     source : str
         Where it came from.
+    n_ambiguous : int
+        Frames left out because the fit flagged them ``ambiguous``.
     """
 
     frame_interval_s: float
@@ -42,6 +44,7 @@ class Trajectory:
     valid: NDArray[np.bool_]
     static: dict[str, dict[str, float]] = field(default_factory=dict)
     source: str = "<trajectory>"
+    n_ambiguous: int = 0
 
     @property
     def n_frames(self) -> int:
@@ -83,10 +86,16 @@ class Trajectory:
         return cls(float(frame_interval_s), 0, pos, ax, ok, static or {}, source)
 
     @classmethod
-    def from_fit_table(cls, fit: FitTable) -> Trajectory:
-        """Place the ok rows of a validated fit table on the frame grid."""
+    def from_fit_table(cls, fit: FitTable, drop_ambiguous: bool = False) -> Trajectory:
+        """Place the ok rows of a validated fit table on the frame grid (without the rows
+        flagged ``ambiguous`` if ``drop_ambiguous``)."""
         df = fit.table
         ok = fit.ok
+        n_ambiguous = 0
+        if drop_ambiguous and "ambiguous" in df.columns:
+            amb = ok & (df["ambiguous"].fillna(0).to_numpy(dtype=float) > 0)
+            n_ambiguous = int(amb.sum())
+            ok = ok & ~amb
         frames = df["frame"].to_numpy()
         if not ok.any():
             raise AnalysisError(f"{fit.source}: no frame has status 'ok'")
@@ -103,4 +112,5 @@ class Trajectory:
             axis = np.full((n, 3), np.nan)
             axis[slots] = df.loc[ok, list(AXIS_COLUMNS)].to_numpy(dtype=float)
         valid[slots] = True
-        return cls(fit.frame_interval_s, first, pos, axis, valid, fit.static_summary(), fit.source)
+        return cls(fit.frame_interval_s, first, pos, axis, valid, fit.static_summary(), fit.source,
+                   n_ambiguous)

@@ -384,7 +384,7 @@ def run_fit(
                               cands)
 
         def one_pass(name: str, cfg_particle: ParticleConfig, pass_frames: list[int],
-                     table_name: str) -> Path:
+                     table_name: str, static_doc: dict[str, Any] | None = None) -> Path:
             cfg = FitConfig(cfg_particle, inst, name, opts, engine, tuple(fixed))
             columns = fit_columns(model, cfg.free)
             units = {c: column_unit(c) for c in columns}
@@ -394,6 +394,7 @@ def run_fit(
                 inputs=[crops.table_path, Path(prefit), *([Path(library)] if library else [])],
                 extra={"crops": crops.fingerprint(), "particle_model": model.kind,
                        "quality": outlier_sidecar(outlier_factor),
+                       **({"static": static_doc} if static_doc else {}),
                        **({"frame_interval_s": 1.0 / inst.frame_rate_hz}
                           if inst.frame_rate_hz else {})},
             )
@@ -430,7 +431,9 @@ def run_fit(
             values = read_static(static_path, model)
             settled = ParticleConfig(particle_with(model, values), particle.settings,
                                      particle.path)
-            run.final = one_pass("final", settled, todo, "fit.csv")
+            doc = json.loads(static_path.read_text())
+            static_doc = {k: doc[k] for k in ("values", "spread", "n_frames") if k in doc}
+            run.final = one_pass("final", settled, todo, "fit.csv", static_doc)
     return run
 
 
