@@ -36,7 +36,11 @@ from numpy.typing import NDArray
 
 from holofit.dda.legendre import legendre_tables
 
-__all__ = ["MultipoleExpansion", "default_order", "expansion_from_far_field"]
+__all__ = ["NEAR_ZONE", "MultipoleExpansion", "default_order", "expansion_from_far_field"]
+
+#: points closer to the centre than this multiple of the circumscribing radius are not
+#: evaluated from an expansion (its series converges slowly there): the engines use the dipoles
+NEAR_ZONE = 2.0
 
 
 def default_order(k: float, radius_um: float) -> int:

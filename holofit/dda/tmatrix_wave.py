@@ -1,0 +1,236 @@
+"""Scattered waves served from a T-matrix: fields, holograms and exact orientation derivatives.
+
+:class:`ExpansionWave` is any field known by its outgoing multipole expansion about the
+particle centre (lab frame): it evaluates the expansion outside ``NEAR_ZONE`` times the
+circumscribing radius (on a camera plane through :mod:`holofit.dda.multipole`'s interpolated
+grid) and asks a near-field callable for points closer in. :class:`TMatrixWave` is the wave of
+one orientation (``o_lab = D T D^H a``, :mod:`holofit.dda.tmatrix`); its
+:meth:`~TMatrixWave.orientation_derivative` is again an :class:`ExpansionWave`, whose "field" is
+the exact derivative of the scattered field with respect to one Euler angle (the expansion is
+linear in its coefficients), so
+
+    wave = theory.solve(model, optics, orientation)      # TMatrixWave
+    e_x, e_y = wave.field_on_detector(position, grid)
+    de_x, de_y = wave.orientation_derivative("theta").field_on_detector(position, grid)
+
+gives the scattered field and its theta-derivative (1/rad) on the pixels, incident phase
+included, with the same conventions as every :class:`~holofit.scattering.theory.ScatteredWave`.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from holofit.conventions import DetectorGrid, euler_zyz, incident_phase_at
+from holofit.dda.multipole import (
+    NEAR_ZONE,
+    MultipoleExpansion,
+    PlaneGrid,
+    evaluate_plane,
+    plane_grid,
+)
+from holofit.dda.tmatrix import LabCoefficients, TMatrix
+from holofit.dda.wigner import EULER_ANGLES
+from holofit.models import ParticleModel
+from holofit.optics import Optics
+from holofit.scattering.theory import Orientation, ScatteredWave
+
+__all__ = ["ExpansionWave", "NearField", "TMatrixWave"]
+
+#: ``points (N, 3) lab, relative to the centre -> field (N, 3)``, exact near the particle
+NearField = Callable[[NDArray[np.float64]], NDArray[np.complex128]]
+#: step of the central differences that give derivatives of the near field, rad
+NEAR_DERIVATIVE_STEP = 1e-4
+
+
+class ExpansionWave(ScatteredWave):
+    """A field given by its outgoing expansion (lab frame) about the particle centre.
+
+    Parameters
+    ----------
+    optics : Optics
+        The illumination (for the wavenumber and the incident phase at the particle).
+    expansion : MultipoleExpansion
+        The field outside the circumscribing sphere.
+    near_field : callable, optional
+        Exact field at points within ``NEAR_ZONE * radius`` (lab, relative to the centre);
+        without it such points raise ``ValueError``.
+    """
+
+    exact_near_field = True
+
+    def __init__(self, optics: Optics, expansion: MultipoleExpansion,
+                 near_field: NearField | None = None) -> None:
+        self.optics = optics
+        self._expansion = expansion
+        self.radius_um = float(expansion.radius_um)
+        self._near = near_field
+        self._grids: OrderedDict[tuple, PlaneGrid] = OrderedDict()
+
+    @property
+    def expansion(self) -> MultipoleExpansion:
+        """Outgoing multipole expansion about the particle centre (lab frame)."""
+        return self._expansion
+
+    def far_field_amplitude(self, directions: ArrayLike) -> NDArray[np.complex128]:
+        """``F(n)`` (lab frame) at lab unit directions, ``E_sca = exp(ikr)/(-ikr) F``."""
+        return -1j * self.expansion.far_amplitude(directions)
+
+    def _near_field(self, points: NDArray) -> NDArray[np.complex128]:
+        if self._near is None:
+            raise ValueError(
+                f"points within {NEAR_ZONE * self.radius_um:.3g} um of the particle centre need "
+                "the dipoles; this wave only has its multipole expansion"
+            )
+        return self._near(points)
+
+    def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
+        pts = np.atleast_2d(np.asarray(points_um, dtype=float))
+        r = np.linalg.norm(pts, axis=1)
+        if far_field:
+            k = self.optics.k
+            f = self.far_field_amplitude(pts / r[:, None])
+            return f * (np.exp(1j * k * r) / (-1j * k * r))[:, None]
+        out = np.empty((pts.shape[0], 3), dtype=complex)
+        near = r < NEAR_ZONE * self.radius_um
+        if np.any(near):
+            out[near] = self._near_field(pts[near])
+        if np.any(~near):
+            out[~near] = self.expansion.field_at(pts[~near])
+        return out
+
+    def _plane_grid(self, z_p: float, delta_max: float, far: bool) -> PlaneGrid:
+        key = (z_p, far)
+        grid = self._grids.get(key)
+        if grid is None or grid.delta_max < delta_max:
+            margin = min(0.03 * delta_max + 0.01, 0.5 * (np.pi / 2 - delta_max))
+            grid = plane_grid(self.expansion, z_p, delta_max + margin, far)
+            self._grids[key] = grid
+            while len(self._grids) > 4:
+                self._grids.popitem(last=False)
+        else:
+            self._grids.move_to_end(key)
+        return grid
+
+    def field_on_detector(
+        self, position_um: ArrayLike, grid: DetectorGrid, far_field: bool = False
+    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        xp, yp, zp = (float(v) for v in position_um)
+        rows = (grid.corner[0] + np.arange(grid.shape[0])) * grid.pixel_size_um
+        cols = (grid.corner[1] + np.arange(grid.shape[1])) * grid.pixel_size_um
+        dx = np.array([cols[0] - xp, cols[-1] - xp])
+        dy = np.array([rows[0] - yp, rows[-1] - yp])
+        rho_max = float(np.sqrt(np.max(dx**2) + np.max(dy**2)))
+        delta_max = float(np.arctan2(rho_max, abs(zp)))
+        phase = complex(incident_phase_at(zp, self.optics.k))
+        skip = None
+        if not far_field and abs(zp) < NEAR_ZONE * self.radius_um:
+            rr2 = (cols[None, :] - xp) ** 2 + (rows[:, None] - yp) ** 2 + zp**2
+            skip = rr2 < (NEAR_ZONE * self.radius_um) ** 2
+        pg = self._plane_grid(zp, delta_max, far_field)
+        ex, ey = evaluate_plane(pg, cols, rows, xp, yp, phase, skip)
+        if skip is not None and np.any(skip):
+            ii, jj = np.nonzero(skip)
+            pts = np.column_stack([cols[jj] - xp, rows[ii] - yp, np.full(ii.size, -zp)])
+            e = self._near_field(pts) * phase
+            ex[ii, jj] = e[:, 0]
+            ey[ii, jj] = e[:, 1]
+        return ex, ey
+
+
+class TMatrixWave(ExpansionWave):
+    """The scattered wave of one orientation, from the particle's T-matrix.
+
+    Parameters
+    ----------
+    model : ParticleModel
+        The particle.
+    optics : Optics
+        The illumination.
+    orientation : Orientation
+        zyz Euler angles.
+    tmatrix : TMatrix
+        The particle's T-matrix (same model, lattice, optics and polarisability).
+    direct : callable, optional
+        ``orientation -> ScatteredWave`` by a direct DDA solve, used (lazily) for points within
+        ``NEAR_ZONE`` circumscribing radii of the centre, where the expansion is not used.
+    """
+
+    def __init__(self, model: ParticleModel, optics: Optics, orientation: Orientation,
+                 tmatrix: TMatrix,
+                 direct: Callable[[Orientation], ScatteredWave] | None = None) -> None:
+        self.model = model
+        self.orientation = orientation
+        self.tmatrix = tmatrix
+        self.rotation = euler_zyz(*orientation.as_tuple())
+        self._direct = direct
+        self._direct_wave: ScatteredWave | None = None
+        self._coefficients: LabCoefficients | None = None
+        coeffs = tmatrix.lab_coefficients(orientation.as_tuple(), optics.polarization)
+        super().__init__(optics, tmatrix.expansion(coeffs.vector),
+                         self._direct_near if direct is not None else None)
+
+    @property
+    def coefficients(self) -> NDArray[np.complex128]:
+        """Flat lab-frame outgoing coefficients (:mod:`holofit.dda.tmatrix_waves` layout)."""
+        from holofit.dda.tmatrix_waves import pack
+
+        return pack(self.expansion.p, self.expansion.q)
+
+    def _direct_near(self, points: NDArray) -> NDArray[np.complex128]:
+        if self._direct_wave is None:
+            assert self._direct is not None
+            self._direct_wave = self._direct(self.orientation)
+        return self._direct_wave.field_at(points)
+
+    def coefficient_derivatives(self) -> dict[str, NDArray[np.complex128]]:
+        """Exact derivatives of the lab outgoing coefficients with respect to ``psi``,
+        ``theta``, ``phi`` (1/rad), from the Wigner-d derivatives (no solve)."""
+        if self._coefficients is None:
+            self._coefficients = self.tmatrix.lab_coefficients(
+                self.orientation.as_tuple(), self.optics.polarization, derivatives=True)
+        return self._coefficients.derivatives
+
+    def orientation_derivative(self, angle: str) -> ExpansionWave:
+        """The derivative of this wave with respect to one Euler angle, as a wave.
+
+        Parameters
+        ----------
+        angle : {"psi", "theta", "phi"}
+            The zyz Euler angle (:class:`~holofit.scattering.theory.Orientation`).
+
+        Returns
+        -------
+        ExpansionWave
+            Its ``field_on_detector``, ``field_at`` and ``far_field_amplitude`` give the exact
+            derivatives (per radian) of this wave's. Near the particle (within ``NEAR_ZONE``
+            radii) the derivative comes from central differences of direct solves.
+        """
+        if angle not in EULER_ANGLES:
+            raise ValueError(f"orientation angle must be one of {EULER_ANGLES}, got {angle!r}")
+        vec = self.coefficient_derivatives()[angle]
+        near = None
+        if self._direct is not None:
+            near = self._near_derivative(angle)
+        return ExpansionWave(self.optics, self.tmatrix.expansion(vec), near)
+
+    def _near_derivative(self, angle: str) -> NearField:
+        direct = self._direct
+        assert direct is not None
+        h = NEAR_DERIVATIVE_STEP
+        j = EULER_ANGLES.index(angle)
+
+        def field(points: NDArray) -> NDArray[np.complex128]:
+            values = list(self.orientation.as_tuple())
+            out = []
+            for sign in (1.0, -1.0):
+                shifted = values.copy()
+                shifted[j] += sign * h
+                out.append(direct(Orientation(*shifted)).field_at(points))
+            return (out[0] - out[1]) / (2 * h)
+
+        return field
