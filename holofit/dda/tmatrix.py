@@ -51,6 +51,21 @@ def z_rotation_order(ops: list[NDArray]) -> int:
     return 1
 
 
+def _angular_momentum(c: NDArray[np.complex128], axis: ArrayLike) -> NDArray[np.complex128]:
+    """``(n.J) c`` for coefficients ``c`` in the padded layout ``[kind, n, m + L]``:
+    ``n.J = (n_x - i n_y) J+ / 2 + (n_x + i n_y) J- / 2 + n_z J_z`` in each ``|n m>`` block."""
+    ax = np.asarray(axis, dtype=float)
+    L = c.shape[1] - 1
+    m = np.arange(-L, L + 1)
+    nn = np.arange(L + 1)[:, None] * (np.arange(L + 1)[:, None] + 1.0)
+    up = np.sqrt(np.clip(nn - m[None, :] * (m[None, :] - 1.0), 0.0, None))  # (J+)_{m, m-1}
+    down = np.sqrt(np.clip(nn - m[None, :] * (m[None, :] + 1.0), 0.0, None))  # (J-)_{m, m+1}
+    out = ax[2] * m[None, None, :] * c
+    out[:, :, 1:] += 0.5 * (ax[0] - 1j * ax[1]) * up[None, :, 1:] * c[:, :, :-1]
+    out[:, :, :-1] += 0.5 * (ax[0] + 1j * ax[1]) * down[None, :, :-1] * c[:, :, 1:]
+    return out
+
+
 @dataclass
 class LabCoefficients:
     """Outgoing coefficients of one orientation in the lab frame, and their derivatives.
@@ -196,6 +211,29 @@ class TMatrix:
             dv = np.einsum("nab,knb->kna", dd[j], v_pad[..., 0]) + out[..., j + 1]
             derivs[name] = dv[kind, n, m + L]
         return LabCoefficients(out[..., 0][kind, n, m + L], derivs)
+
+    def rotation_derivative(self, euler: tuple[float, float, float], polarization: ArrayLike,
+                            axis: ArrayLike) -> NDArray[np.complex128]:
+        """Derivative of :meth:`lab_coefficients` with respect to a rotation of the particle
+        about the unit lab ``axis``, ``R -> exp(eps [axis]x) R`` (per radian).
+
+        ``D(exp(eps [n]x) R) = exp(-i eps n.J) D(R)``, so with ``T_lab = D T D^H``:
+        ``d o / d eps = -i (n.J) T_lab a + i T_lab (n.J) a``.
+        """
+        psi, theta, phi = (float(v) for v in euler)
+        L = self.order
+        kind, n, m = term_indices(L)
+        a_pad = np.zeros((2, L + 1, 2 * L + 1), dtype=complex)
+        a_pad[kind, n, m + L] = self.incident_coefficients(polarization)
+        d = wigner_d_all(L, psi, theta, phi)
+        cols = [np.einsum("nab,kna->knb", d.conj(), x)[kind, n, m + L]
+                for x in (a_pad, _angular_momentum(a_pad, axis))]
+        v = self.scatter(np.stack(cols, axis=1))
+        v_pad = np.zeros((2, L + 1, 2 * L + 1, 2), dtype=complex)
+        v_pad[kind, n, m + L] = v
+        o = np.einsum("nab,knbc->knac", d, v_pad)
+        out = -1j * _angular_momentum(o[..., 0], axis) + 1j * o[..., 1]
+        return out[kind, n, m + L]
 
     def expansion(self, vector: NDArray[np.complex128]) -> MultipoleExpansion:
         """The multipole expansion (lab frame) of a flat outgoing coefficient vector."""

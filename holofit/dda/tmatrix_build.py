@@ -36,6 +36,7 @@ from holofit.dda.lattice import Lattice
 from holofit.dda.multipole import project_far_field
 from holofit.dda.polarizability import INCIDENCE_INDEPENDENT
 from holofit.dda.settings import DDASettings
+from holofit.dda.solver import ConvergenceError, SolveResult
 from holofit.dda.tmatrix import TMatrix, z_rotation_order
 from holofit.dda.tmatrix_io import describe
 from holofit.dda.tmatrix_symmetry import (
@@ -70,6 +71,8 @@ DEFAULT_TRUNCATION = 1e-7
 MAX_BUILD_TOLERANCE = 1e-7
 #: right-hand sides whose incident fields are synthesised together
 CHUNK = 8
+#: |b^T b| / |b|^2 below which QMR's Lanczos process is not trusted to start
+BILINEAR_FLOOR = 1e-4
 
 
 def truncation_estimate(k: float, radii: NDArray, weights: NDArray, order: int) -> float:
@@ -189,7 +192,7 @@ def build_lattice_tmatrix(
         cols = design[:, start : start + CHUNK]
         fields = incident_on_lattice(lattice, cols, k, order)
         for j in range(cols.shape[1]):
-            P, res = system.solve_field(fields[j], tol=tolerance, maxiter=max_iterations)
+            P, res = _solve(system, fields[j], alpha, tolerance, max_iterations)
             iterations.append(res.iterations)
             out[:, start + j] = outgoing_coefficients(lattice, P, k, order, grid)
             if progress is not None:
@@ -213,6 +216,20 @@ def build_lattice_tmatrix(
         "build_seconds": stats.seconds,
     })
     return tm, stats
+
+
+def _solve(system: DipoleSystem, e_inc: NDArray, alpha: NDArray, tolerance: float,
+           max_iterations: int) -> tuple[NDArray, SolveResult]:
+    """QMR (one product per iteration), BiCGStab where complex-symmetric Lanczos would break
+    down (``b^T b ~ 0``) or did not converge."""
+    b = np.sqrt(alpha)[:, None] * e_inc
+    safe = abs(np.sum(b * b)) > BILINEAR_FLOOR * float(np.sum(np.abs(b) ** 2))
+    if safe:
+        try:
+            return system.solve_field(e_inc, tol=tolerance, maxiter=max_iterations)
+        except ConvergenceError:
+            pass
+    return system.solve_field(e_inc, tol=tolerance, maxiter=max_iterations, method="bicgstab")
 
 
 def _validate(tm: TMatrix, system: DipoleSystem, tolerance: float, max_iterations: int) -> float:

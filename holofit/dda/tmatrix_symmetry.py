@@ -198,13 +198,17 @@ def design_vectors(group: SymmetryGroup, seed: int = 20140101) -> NDArray[np.com
     """Incident coefficient vectors ``c_s`` (columns) whose images under the group form a
     Parseval frame: ``sum_s sum_g rho(g) c_s c_s^H rho(g)^H = 1`` (see the module docstring).
 
-    Their number is ``max_G ceil(m_G / d_G)``; for the trivial group, the unit vectors.
+    Their number is ``max_G ceil(m_G / d_G)``; for the trivial group, the columns of a random
+    unitary matrix (not the unit vectors: a single regular wave of odd ``m`` on a lattice with
+    a fourfold axis has ``b^T b = 0`` on the dipoles, a breakdown of the complex-symmetric
+    Lanczos process that QMR runs on).
     """
     order = group.order
     size = n_terms(order)
-    if group.size == 1:
-        return np.eye(size, dtype=complex)
     rng = np.random.default_rng(seed)
+    if group.size == 1:
+        q, r = np.linalg.qr(rng.normal(size=(size, size)) + 1j * rng.normal(size=(size, size)))
+        return q * (np.diag(r) / np.abs(np.diag(r)))[None, :]
     classes = group.classes()
     c_class = rng.normal(size=len(classes)) + 1j * rng.normal(size=len(classes))
     r_alg = rng.normal(size=group.size) + 1j * rng.normal(size=group.size)
@@ -288,16 +292,41 @@ def design_vectors(group: SymmetryGroup, seed: int = 20140101) -> NDArray[np.com
     return design
 
 
+def _monomial(group: SymmetryGroup, g: int) -> tuple[NDArray, NDArray] | None:
+    """``(perm, phase)`` with ``rho(g) v = phase * v[perm]`` if ``rho(g)`` has one nonzero per
+    row (rotations by multiples of 90 deg about z and the two-fold axes and mirrors of the
+    coordinate planes), else None."""
+    slices = _block_slices(group.order)
+    perm = np.empty(n_terms(group.order), dtype=np.int64)
+    phase = np.empty(n_terms(group.order), dtype=complex)
+    for kind, n, sl in slices:
+        b = group.block(g, kind, n)
+        big = np.abs(b) > 1e-12
+        if np.any(big.sum(axis=1) != 1):
+            return None
+        cols = np.argmax(big, axis=1)
+        perm[sl] = sl.start + cols
+        phase[sl] = b[np.arange(b.shape[0]), cols]
+    return perm, phase
+
+
 def symmetrize(t_partial: NDArray[np.complex128], group: SymmetryGroup) -> NDArray[np.complex128]:
     """``sum_g rho(g) T~ rho(g)^H`` (the T-matrix from the design's partial sum)."""
     if group.size == 1:
         return t_partial
     slices = _block_slices(group.order)
     out = np.zeros_like(t_partial)
-    tmp = np.empty_like(t_partial)
     for g in range(group.size):
+        mono = _monomial(group, g)
+        if mono is not None:
+            perm, phase = mono
+            out += (phase[:, None] * t_partial[np.ix_(perm, perm)]) * phase.conj()[None, :]
+            continue
+        tmp = np.empty_like(t_partial)
         for kind, n, sl in slices:
             tmp[sl] = group.block(g, kind, n) @ t_partial[sl]
+        tmp = np.ascontiguousarray(tmp.T)  # rows of tmp^T are columns of tmp
         for kind, n, sl in slices:
-            out[:, sl] += tmp[:, sl] @ group.block(g, kind, n).conj().T
+            tmp[sl] = group.block(g, kind, n).conj() @ tmp[sl]
+        out += tmp.T
     return out

@@ -10,27 +10,31 @@ the exact derivative of the scattered field with respect to one Euler angle (the
 linear in its coefficients), so
 
     wave = theory.solve(model, optics, orientation)      # TMatrixWave
-    e_x, e_y = wave.field_on_detector(position, grid)
-    de_x, de_y = wave.orientation_derivative("theta").field_on_detector(position, grid)
+    e_x, e_y = wave.field_on_pixels(position, xs, ys)
+    de_x, de_y = wave.orientation_derivative("theta").field_on_pixels(position, xs, ys)
+    dr_x, dr_y = wave.rotation_derivative(axis).field_on_pixels(position, xs, ys)
 
-gives the scattered field and its theta-derivative (1/rad) on the pixels, incident phase
-included, with the same conventions as every :class:`~holofit.scattering.theory.ScatteredWave`.
+gives the scattered field, its derivative with respect to the Euler angle theta, and its
+derivative with respect to a rotation of the particle about a lab axis (``R -> exp(eps [axis]x)
+R``, what :class:`holofit.fitting.forward.HologramModel` uses), all per radian, incident phase
+included, with the same conventions as every
+:class:`~holofit.scattering.theory.ScatteredWave` (``field_on_detector`` and ``field_at`` too).
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from holofit.conventions import DetectorGrid, euler_zyz, incident_phase_at
+from holofit.cache import LRUCache
+from holofit.conventions import euler_zyz, incident_phase_at
 from holofit.dda.multipole import (
     NEAR_ZONE,
     MultipoleExpansion,
     PlaneGrid,
-    evaluate_plane,
+    evaluate_plane_at,
     plane_grid,
 )
 from holofit.dda.tmatrix import LabCoefficients, TMatrix
@@ -69,7 +73,7 @@ class ExpansionWave(ScatteredWave):
         self._expansion = expansion
         self.radius_um = float(expansion.radius_um)
         self._near = near_field
-        self._grids: OrderedDict[tuple, PlaneGrid] = OrderedDict()
+        self._grids: LRUCache[tuple, PlaneGrid] = LRUCache(4)
 
     @property
     def expansion(self) -> MultipoleExpansion:
@@ -108,37 +112,34 @@ class ExpansionWave(ScatteredWave):
         grid = self._grids.get(key)
         if grid is None or grid.delta_max < delta_max:
             margin = min(0.03 * delta_max + 0.01, 0.5 * (np.pi / 2 - delta_max))
-            grid = plane_grid(self.expansion, z_p, delta_max + margin, far)
-            self._grids[key] = grid
-            while len(self._grids) > 4:
-                self._grids.popitem(last=False)
-        else:
-            self._grids.move_to_end(key)
+            grid = self._grids.put(key, plane_grid(self.expansion, z_p, delta_max + margin, far))
         return grid
 
-    def field_on_detector(
-        self, position_um: ArrayLike, grid: DetectorGrid, far_field: bool = False
+    def field_on_pixels(
+        self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike, far_field: bool = False
     ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        """Transverse field at pixel centres, incident phase included: the interpolated
+        multipole grid of the camera plane, the near-field callable for pixels within the near
+        zone."""
         xp, yp, zp = (float(v) for v in position_um)
-        rows = (grid.corner[0] + np.arange(grid.shape[0])) * grid.pixel_size_um
-        cols = (grid.corner[1] + np.arange(grid.shape[1])) * grid.pixel_size_um
-        dx = np.array([cols[0] - xp, cols[-1] - xp])
-        dy = np.array([rows[0] - yp, rows[-1] - yp])
-        rho_max = float(np.sqrt(np.max(dx**2) + np.max(dy**2)))
+        dx = np.asarray(xs_um, dtype=float).ravel() - xp
+        dy = np.asarray(ys_um, dtype=float).ravel() - yp
+        if dx.size == 0:
+            return np.zeros(0, dtype=complex), np.zeros(0, dtype=complex)
+        rho_max = float(np.sqrt(np.max(dx * dx + dy * dy)))
         delta_max = float(np.arctan2(rho_max, abs(zp)))
         phase = complex(incident_phase_at(zp, self.optics.k))
         skip = None
         if not far_field and abs(zp) < NEAR_ZONE * self.radius_um:
-            rr2 = (cols[None, :] - xp) ** 2 + (rows[:, None] - yp) ** 2 + zp**2
-            skip = rr2 < (NEAR_ZONE * self.radius_um) ** 2
+            skip = dx * dx + dy * dy + zp * zp < (NEAR_ZONE * self.radius_um) ** 2
         pg = self._plane_grid(zp, delta_max, far_field)
-        ex, ey = evaluate_plane(pg, cols, rows, xp, yp, phase, skip)
+        ex, ey = evaluate_plane_at(pg, dx, dy, phase, skip)
         if skip is not None and np.any(skip):
-            ii, jj = np.nonzero(skip)
-            pts = np.column_stack([cols[jj] - xp, rows[ii] - yp, np.full(ii.size, -zp)])
+            idx = np.flatnonzero(skip)
+            pts = np.column_stack([dx[idx], dy[idx], np.full(idx.size, -zp)])
             e = self._near_field(pts) * phase
-            ex[ii, jj] = e[:, 0]
-            ey[ii, jj] = e[:, 1]
+            ex[idx] = e[:, 0]
+            ey[idx] = e[:, 1]
         return ex, ey
 
 
@@ -217,6 +218,40 @@ class TMatrixWave(ExpansionWave):
         if self._direct is not None:
             near = self._near_derivative(angle)
         return ExpansionWave(self.optics, self.tmatrix.expansion(vec), near)
+
+    def rotation_derivative(self, axis: ArrayLike) -> ExpansionWave:
+        """The derivative of this wave with respect to a rotation of the particle about a lab
+        axis, ``R -> exp(eps [axis]x) R`` at ``eps = 0``, as a wave (per radian; ``axis`` is
+        normalised). Exact from the generator of rotations (no solve); near the particle,
+        central differences of direct solves."""
+        n = np.asarray(axis, dtype=float)
+        n = n / np.linalg.norm(n)
+        vec = self.tmatrix.rotation_derivative(self.orientation.as_tuple(),
+                                               self.optics.polarization, n)
+        near = None
+        if self._direct is not None:
+            near = self._near_rotation_derivative(n)
+        return ExpansionWave(self.optics, self.tmatrix.expansion(vec), near)
+
+    def _near_rotation_derivative(self, axis: NDArray) -> NearField:
+        from holofit.conventions import euler_zyz_from_matrix
+
+        direct = self._direct
+        assert direct is not None
+        h = NEAR_DERIVATIVE_STEP
+        kx = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
+                       [-axis[1], axis[0], 0.0]])
+
+        def field(points: NDArray) -> NDArray[np.complex128]:
+            out = []
+            for sign in (1.0, -1.0):
+                a = sign * h
+                rot = np.eye(3) + np.sin(a) * kx + (1.0 - np.cos(a)) * (kx @ kx)
+                angles = (float(v) for v in euler_zyz_from_matrix(rot @ self.rotation))
+                out.append(direct(Orientation(*angles)).field_at(points))
+            return (out[0] - out[1]) / (2 * h)
+
+        return field
 
     def _near_derivative(self, angle: str) -> NearField:
         direct = self._direct
