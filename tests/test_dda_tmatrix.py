@@ -252,3 +252,23 @@ def test_a_file_for_anything_else_is_refused(rod_file, engine_kw, model, optics,
     with pytest.raises(TMatrixMismatch, match=field) as info:
         engine.tmatrix(model, optics, path=str(rod_file))
     assert str(rod_file) in str(info.value)
+
+
+def test_averaged_ldr_is_as_accurate_as_ldr_against_mie():
+    """The incidence-independent prescription costs no accuracy (Lorenz-Mie as the truth;
+    bench/polarizability_vs_mie.py has the full table)."""
+    from holofit.models import Sphere
+    from holofit.scattering.mie import LorenzMie
+
+    sphere = Sphere(0.3, 1.585)
+    grid, pos = DetectorGrid((80, 80), 0.1), (4.0, 4.0, 8.0)
+    exact = calc_hologram(LorenzMie().solve(sphere, OPTICS), pos, grid)
+    misfit = {}
+    for kind in ("ldr", "ldr_avg", "cm"):
+        for name, ori in (("axis", Orientation()), ("diagonal", Orientation(0.79, 0.96))):
+            wave = BuiltinDDA(polarizability=kind, tolerance=1e-8).solve(sphere, OPTICS, ori)
+            misfit[kind, name] = 1.0 - r_squared(exact, calc_hologram(wave, pos, grid))
+    for name in ("axis", "diagonal"):
+        assert misfit["ldr_avg", name] <= 2.0 * misfit["ldr", name]
+        assert misfit["ldr_avg", name] < 1e-4
+        assert misfit["cm", name] > 3 * misfit["ldr_avg", name]

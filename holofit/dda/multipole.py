@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numba
 import numpy as np
@@ -371,6 +372,126 @@ class PlaneGrid:
     z_p: float
     k: float
 
+    @property
+    def packed(self) -> NDArray[np.float64]:
+        """``(Re U_x, Im U_x, Re U_y, Im U_y)`` per node, shape (rows, n_phi + 2 stencil, 4),
+        columns shifted by ``stencil`` and wrapped, so that interpolation needs no modulo."""
+        cached = self.__dict__.get("_packed")
+        if cached is None:
+            pad = self.stencil
+            cols = (np.arange(self.n_phi + 2 * pad) - pad) % self.n_phi
+            cached = np.ascontiguousarray(np.stack(
+                [self.ux.real[:, cols], self.ux.imag[:, cols], self.uy.real[:, cols],
+                 self.uy.imag[:, cols]], axis=-1))
+            self.__dict__["_packed"] = cached
+        return cached
+
+
+@lru_cache(maxsize=16)
+def _legendre_coefficients(lmax: int) -> tuple[NDArray, ...]:
+    """Recurrence coefficients of :func:`holofit.dda.legendre.legendre_tables` (per order)."""
+    L = lmax
+    a = np.zeros((L + 1, L + 1))
+    b = np.zeros((L + 1, L + 1))
+    c = np.zeros((L + 1, L + 1))
+    for n in range(2, L + 1):
+        a[n, 0] = np.sqrt((4.0 * n * n - 1.0) / (n * n))
+        b[n, 0] = np.sqrt(((n - 1.0) ** 2) * (2.0 * n + 1.0) / (n * n * (2.0 * n - 3.0)))
+    for m in range(1, L + 1):
+        for n in range(m + 2, L + 1):
+            a[n, m] = np.sqrt((4.0 * n * n - 1.0) / (n * n - m * m))
+            b[n, m] = np.sqrt(((n - 1.0) ** 2 - m * m) * (2.0 * n + 1.0)
+                              / ((n * n - m * m) * (2.0 * n - 3.0)))
+        for n in range(m, L + 1):
+            c[n, m] = np.sqrt((n * n - m * m) * (2.0 * n + 1.0) / (2.0 * n - 1.0))
+    m = np.arange(L + 1)
+    sect = np.zeros(L + 1)
+    sect[1:] = -np.sqrt((2.0 * m[1:] + 1.0) / (2.0 * m[1:]))
+    return a, b, c, sect
+
+
+@numba.njit(cache=True, nogil=True)
+def _plane_fourier(p, q, mu, h, dx, hk, fac, rec_a, rec_b, rec_c, sect, n_ext, n_phi, out_x,
+                   out_y):  # pragma: no cover - compiled
+    """Fourier coefficients over phi of ``U_x, U_y`` on every grid row (and the reflected
+    rows ``i < n_ext``), from the expansion ``p, q`` ([n, m + L]).
+
+    Per row: the Legendre recurrences at ``mu = cos th``; the per-m spherical components
+    ``E_r, E_th, E_ph``; then ``E_x = rho cos ph - E_ph sin ph``, ``E_y = rho sin ph +
+    E_ph cos ph`` (``rho = E_r sin th + E_th cos th``) as shifts ``m -> m +- 1``.
+    """
+    L = p.shape[0] - 1
+    pb = np.zeros((L + 1, L + 1))
+    dp = np.zeros((L + 1, L + 1))
+    mp = np.zeros((L + 1, L + 1))
+    u = np.zeros((L + 2, L + 1))
+    rho = np.zeros(2 * L + 3, dtype=np.complex128)
+    eph = np.zeros(2 * L + 3, dtype=np.complex128)
+    p0 = np.sqrt(1.0 / (4.0 * np.pi))
+    for i in range(mu.shape[0]):
+        x = mu[i]
+        s = np.sqrt(max(0.0, 1.0 - x * x))
+        # Legendre tables (Condon-Shortley, orthonormal), as holofit.dda.legendre
+        pb[0, 0] = p0
+        if L >= 1:
+            pb[1, 0] = np.sqrt(3.0) * x * p0
+        for n in range(2, L + 1):
+            pb[n, 0] = rec_a[n, 0] * x * pb[n - 1, 0] - rec_b[n, 0] * pb[n - 2, 0]
+        if L >= 1:
+            u[1, 1] = -np.sqrt(1.5) * p0
+            for m in range(2, L + 1):
+                u[m, m] = sect[m] * s * u[m - 1, m - 1]
+            for m in range(1, L + 1):
+                if m + 1 <= L:
+                    u[m + 1, m] = np.sqrt(2.0 * m + 3.0) * x * u[m, m]
+                for n in range(m + 2, L + 1):
+                    u[n, m] = rec_a[n, m] * x * u[n - 1, m] - rec_b[n, m] * u[n - 2, m]
+            for m in range(1, L + 1):
+                for n in range(m, L + 1):
+                    pb[n, m] = s * u[n, m]
+                    mp[n, m] = m * u[n, m]
+                    prev = u[n - 1, m] if n - 1 >= m else 0.0
+                    dp[n, m] = n * x * u[n, m] - rec_c[n, m] * prev
+            for n in range(1, L + 1):
+                dp[n, 0] = np.sqrt(n * (n + 1.0)) * pb[n, 1]
+        # per-m spherical components, combined into rho and E_ph at index m + L + 1
+        for m in range(-L, L + 1):
+            mm = abs(m)
+            sign = 1.0 if (m >= 0 or mm % 2 == 0) else -1.0
+            msign = sign if m >= 0 else -sign
+            ar = 0.0 + 0.0j
+            at = 0.0 + 0.0j
+            ap = 0.0 + 0.0j
+            for n in range(max(1, mm), L + 1):
+                pc = p[n, m + L]
+                qc = q[n, m + L]
+                pf = sign * pb[n, mm]
+                df = sign * dp[n, mm]
+                mf = msign * mp[n, mm]
+                ar += pc * hk[i, n] * pf
+                pdx = pc * dx[i, n]
+                qh = qc * h[i, n]
+                at += pdx * df + 1j * qh * mf
+                ap += 1j * pdx * mf - qh * df
+            rho[m + L + 1] = ar * s + at * x
+            eph[m + L + 1] = ap
+        f = fac[i]
+        for m in range(-L - 1, L + 2):
+            k = m + L + 1
+            rm = rho[k - 1] if k >= 1 else 0.0j
+            rp = rho[k + 1] if k + 1 <= 2 * L + 2 else 0.0j
+            em = eph[k - 1] if k >= 1 else 0.0j
+            ep = eph[k + 1] if k + 1 <= 2 * L + 2 else 0.0j
+            ux = (0.5 * (rm + rp) + 0.5j * (em - ep)) * f
+            uy = (-0.5j * (rm - rp) + 0.5 * (em + ep)) * f
+            col = m % n_phi
+            out_x[n_ext + i, col] = ux
+            out_y[n_ext + i, col] = uy
+            if 1 <= i <= n_ext:
+                sgn = 1.0 if m % 2 == 0 else -1.0
+                out_x[n_ext - i, col] = sgn * ux
+                out_y[n_ext - i, col] = sgn * uy
+
 
 def plane_grid(
     expansion: MultipoleExpansion, z_p: float, delta_max: float, far: bool = False
@@ -401,61 +522,46 @@ def plane_grid(
     step = min(STEP_FACTOR / (2 * L + 2), (np.pi / 2 - delta_max) / (STENCIL // 2 + 3))
     n_phi = int(np.ceil(2 * np.pi * (L + 1) / STEP_FACTOR / 2.0)) * 2
     n_ext = STENCIL
-    n_rows = int(np.ceil(delta_max / step)) + STENCIL // 2 + 2
+    # rows 1..n_ext also feed the reflected rows below the pole
+    n_rows = max(int(np.ceil(delta_max / step)) + STENCIL // 2 + 2, n_ext + 1)
     delta = np.arange(n_rows) * step
     r = abs(z_p) / np.cos(delta)
-    theta = np.pi - delta if z_p > 0 else delta
+    mu = -np.cos(delta) if z_p > 0 else np.cos(delta)  # cos(theta), theta = pi -+ delta
     h, dxr, hk = _radial(np.ascontiguousarray(k * r), L, far)
-    pb, dp, mp = legendre_tables(np.ascontiguousarray(np.cos(theta)), L)
-    g_r = np.zeros((n_rows, n_phi), dtype=complex)
-    g_t = np.zeros_like(g_r)
-    g_p = np.zeros_like(g_r)
-    _plane_rows(np.ascontiguousarray(expansion.p), np.ascontiguousarray(expansion.q), h, dxr,
-                hk, pb, dp, mp, n_phi, g_r, g_t, g_p)
-    er, et, ep = (np.fft.ifft(g, axis=1, norm="forward") for g in (g_r, g_t, g_p))
-    phi = 2.0 * np.pi * np.arange(n_phi) / n_phi
-    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
-    cp, sp = np.cos(phi)[None, :], np.sin(phi)[None, :]
-    rho_part = er * st + et * ct
     # U = kr exp(-ikr) E: smooth (the far mode's radial factors carry exp(ikr)/(kr) too)
-    factor = (k * r * np.exp(-1j * k * r))[:, None]
-    ex = (rho_part * cp - ep * sp) * factor
-    ey = (rho_part * sp + ep * cp) * factor
-    half = n_phi // 2
-    ext_x = np.roll(ex[1 : n_ext + 1][::-1], half, axis=1)
-    ext_y = np.roll(ey[1 : n_ext + 1][::-1], half, axis=1)
-    return PlaneGrid(
-        ux=np.ascontiguousarray(np.vstack([ext_x, ex])),
-        uy=np.ascontiguousarray(np.vstack([ext_y, ey])),
-        step=step, delta_max=float(delta_max), stencil=STENCIL, n_phi=n_phi, n_ext=n_ext,
-        z_p=float(z_p), k=k,
-    )
+    fac = k * r * np.exp(-1j * k * r)
+    rec_a, rec_b, rec_c, sect = _legendre_coefficients(L)
+    ux = np.zeros((n_ext + n_rows, n_phi), dtype=complex)
+    uy = np.zeros_like(ux)
+    _plane_fourier(np.ascontiguousarray(expansion.p), np.ascontiguousarray(expansion.q), mu, h,
+                   dxr, hk, fac, rec_a, rec_b, rec_c, sect, n_ext, n_phi, ux, uy)
+    ux = np.fft.ifft(ux, axis=1, norm="forward")
+    uy = np.fft.ifft(uy, axis=1, norm="forward")
+    return PlaneGrid(ux=ux, uy=uy, step=step, delta_max=float(delta_max), stencil=STENCIL,
+                     n_phi=n_phi, n_ext=n_ext, z_p=float(z_p), k=k)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _lagrange_weights(t, n, c, w):  # pragma: no cover - compiled
-    """Weights of the n-point Lagrange interpolant at t (nodes 0..n-1), barycentric form.
-
-    ``c[a] = 1 / prod_{b != a} (a - b)``.
-    """
-    total = 1.0
-    exact = -1
-    for b in range(n):
-        diff = t - b
-        if diff == 0.0:
-            exact = b
-        total *= diff
-    if exact >= 0:
-        for a in range(n):
-            w[a] = 1.0 if a == exact else 0.0
-        return
+    """Weights of the n-point Lagrange interpolant at t (nodes 0..n-1):
+    ``w[a] = c[a] prod_{b != a} (t - b)`` with ``c[a] = 1 / prod_{b != a} (a - b)``, the
+    products from prefix and suffix products (no division, exact at the nodes)."""
+    left = 1.0
     for a in range(n):
-        w[a] = c[a] * total / (t - a)
+        w[a] = c[a] * left
+        left *= t - a
+    right = 1.0
+    for a in range(n - 1, -1, -1):
+        w[a] *= right
+        right *= t - a
 
 
-@numba.njit(cache=True, nogil=True, fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _interp_plane(ux, uy, step, n_phi, n_ext, delta, phi, fac, ex, ey, skip,
-                  n):  # pragma: no cover - compiled
+@numba.njit(cache=True, nogil=True)
+def _interp_points(g, step, n_phi, n_ext, pad, dx, dy, az, k, phase, skip, ex, ey,
+                   n):  # pragma: no cover - compiled
+    """``E_{x,y} = U(delta, phi) exp(ikr)/(kr) * phase`` at points ``(dx, dy)`` of the plane
+    (offsets from below the expansion centre), ``U`` interpolated on the packed grid ``g``
+    (:attr:`PlaneGrid.packed`) with ``n`` x ``n``-point Lagrange stencils."""
     half = n // 2 - 1
     c = np.empty(n)
     for a in range(n):
@@ -467,41 +573,46 @@ def _interp_plane(ux, uy, step, n_phi, n_ext, delta, phi, fac, ex, ey, skip,
     wt = np.empty(n)
     wp = np.empty(n)
     hphi = 2.0 * np.pi / n_phi
-    for i in range(delta.shape[0]):
-        for j in range(delta.shape[1]):
-            if skip[i, j]:
-                continue
-            t = delta[i, j] / step + n_ext
-            i0 = int(t) - half
-            _lagrange_weights(t - i0, n, c, wt)
-            u = phi[i, j] / hphi
-            j0 = int(u) - half
-            _lagrange_weights(u - j0, n, c, wp)
-            sx = 0.0 + 0.0j
-            sy = 0.0 + 0.0j
-            if j0 >= 0 and j0 + n <= n_phi:
-                for a in range(n):
-                    rx = 0.0 + 0.0j
-                    ry = 0.0 + 0.0j
-                    row = i0 + a
-                    for b in range(n):
-                        rx += wp[b] * ux[row, j0 + b]
-                        ry += wp[b] * uy[row, j0 + b]
-                    sx += wt[a] * rx
-                    sy += wt[a] * ry
-            else:
-                for a in range(n):
-                    rx = 0.0 + 0.0j
-                    ry = 0.0 + 0.0j
-                    row = i0 + a
-                    for b in range(n):
-                        col = (j0 + b) % n_phi
-                        rx += wp[b] * ux[row, col]
-                        ry += wp[b] * uy[row, col]
-                    sx += wt[a] * rx
-                    sy += wt[a] * ry
-            ex[i, j] = sx * fac[i, j]
-            ey[i, j] = sy * fac[i, j]
+    two_pi = 2.0 * np.pi
+    for p in range(dx.shape[0]):
+        if skip[p]:
+            continue
+        x = dx[p]
+        y = dy[p]
+        rho2 = x * x + y * y
+        rho = np.sqrt(rho2)
+        delta = np.arctan2(rho, az)
+        phi = np.arctan2(y, x)
+        if phi < 0.0:
+            phi += two_pi
+        t = delta / step + n_ext
+        i0 = int(t) - half
+        _lagrange_weights(t - i0, n, c, wt)
+        u = phi / hphi
+        j0 = int(u) - half
+        _lagrange_weights(u - j0, n, c, wp)
+        j0 += pad
+        # scalar accumulators (kept in registers): Re/Im of U_x and U_y
+        a0 = a1 = a2 = a3 = 0.0
+        for a in range(n):
+            r0 = r1 = r2 = r3 = 0.0
+            ia = i0 + a
+            for b in range(n):
+                w = wp[b]
+                jb = j0 + b
+                r0 += w * g[ia, jb, 0]
+                r1 += w * g[ia, jb, 1]
+                r2 += w * g[ia, jb, 2]
+                r3 += w * g[ia, jb, 3]
+            w = wt[a]
+            a0 += w * r0
+            a1 += w * r1
+            a2 += w * r2
+            a3 += w * r3
+        kr = k * np.sqrt(rho2 + az * az)
+        f = (np.cos(kr) + 1j * np.sin(kr)) * phase / kr
+        ex[p] = (a0 + 1j * a1) * f
+        ey[p] = (a2 + 1j * a3) * f
 
 
 def evaluate_plane(
@@ -513,21 +624,9 @@ def evaluate_plane(
     ``(xp, yp)`` is the lateral position of the expansion centre; ``phase`` multiplies the
     result (the incident phase at the particle); pixels where ``skip`` is True are left 0.
     """
-    ex = np.zeros((ys.size, xs.size), dtype=complex)
-    ey = np.zeros_like(ex)
-    if skip is None:
-        skip = np.zeros(ex.shape, dtype=np.bool_)
-    dx = np.asarray(xs, dtype=float)[None, :] - xp
-    dy = np.asarray(ys, dtype=float)[:, None] - yp
-    az = abs(grid.z_p)
-    rho = np.hypot(dx, dy)
-    delta = np.arctan2(rho, az)
-    phi = np.arctan2(dy, dx) % (2.0 * np.pi)
-    kr = grid.k * np.sqrt(rho * rho + az * az)
-    fac = np.exp(1j * kr) * (complex(phase) / kr)
-    _interp_plane(grid.ux, grid.uy, grid.step, grid.n_phi, grid.n_ext, delta, phi, fac, ex, ey,
-                  np.ascontiguousarray(skip), grid.stencil)
-    return ex, ey
+    dx = np.broadcast_to(np.asarray(xs, dtype=float)[None, :] - xp, (ys.size, xs.size))
+    dy = np.broadcast_to(np.asarray(ys, dtype=float)[:, None] - yp, (ys.size, xs.size))
+    return evaluate_plane_at(grid, dx, dy, phase, skip)
 
 
 def evaluate_plane_at(
@@ -540,18 +639,12 @@ def evaluate_plane_at(
     centre, um; ``phase`` multiplies the result; points where ``skip`` is True are left 0.
     """
     shape = np.shape(dx)
-    dx2 = np.asarray(dx, dtype=float).reshape(-1, 1)
-    dy2 = np.asarray(dy, dtype=float).reshape(-1, 1)
-    ex = np.zeros(dx2.shape, dtype=complex)
+    dx1 = np.ascontiguousarray(dx, dtype=float).ravel()
+    dy1 = np.ascontiguousarray(dy, dtype=float).ravel()
+    ex = np.zeros(dx1.size, dtype=complex)
     ey = np.zeros_like(ex)
-    skip2 = (np.zeros(dx2.shape, dtype=np.bool_) if skip is None
-             else np.ascontiguousarray(np.asarray(skip, dtype=np.bool_).reshape(-1, 1)))
-    az = abs(grid.z_p)
-    rho = np.hypot(dx2, dy2)
-    delta = np.arctan2(rho, az)
-    phi = np.arctan2(dy2, dx2) % (2.0 * np.pi)
-    kr = grid.k * np.sqrt(rho * rho + az * az)
-    fac = np.exp(1j * kr) * (complex(phase) / kr)
-    _interp_plane(grid.ux, grid.uy, grid.step, grid.n_phi, grid.n_ext, delta, phi, fac, ex, ey,
-                  skip2, grid.stencil)
+    skip1 = (np.zeros(dx1.size, dtype=np.bool_) if skip is None
+             else np.ascontiguousarray(skip, dtype=np.bool_).ravel())
+    _interp_points(grid.packed, grid.step, grid.n_phi, grid.n_ext, grid.stencil, dx1, dy1,
+                   abs(grid.z_p), grid.k, complex(phase), skip1, ex, ey, grid.stencil)
     return ex.reshape(shape), ey.reshape(shape)

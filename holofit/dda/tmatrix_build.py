@@ -11,13 +11,21 @@ Then ``T = sum_g rho(g) (sum_s o_s c_s^H) rho(g)^H`` exactly, with ``~N/|G|`` so
 
 Order
 -----
-``L`` is the smallest order whose truncation estimate is below ``truncation`` (default 1e-7):
+``L`` is the smallest order whose truncation estimate is below ``truncation`` (default 1e-5):
 the polarisability-weighted RMS over the dipoles of the plane wave's discarded tail,
 ``eps(L)^2 = sum_j |alpha_j| sum_{n>L} (2n+1) j_n(k r_j)^2 / sum_j |alpha_j|`` (the tail of
 ``sum_n (2n+1) j_n^2 = 1``, i.e. of the incident field each dipole feels; the scattered field's
-discarded orders come from the same dipoles and fall off alike). Every build then checks
+discarded orders come from the same dipoles and fall off alike). Measured against direct
+solves, the camera-field error ``max|dE|/max|E|`` of a truncated T-matrix is 10-20 times below
+the estimate (paper's rod, L = 22: estimate 8.8e-6, error 4.9e-7; Janus particle, L = 14:
+6.1e-6 and 4.5e-7 on a 40 nm lattice), so the default keeps the truncation near 5e-7.
+
+Tolerance
+---------
+The solves run to a relative residual of 1e-6 by default; the T-matrix's camera-field error
+from the solver is then ~2.5e-7 (0.15-0.3 times the tolerance, measured). Every build checks
 itself against one direct DDA solve of a random plane wave and records the measured far-field
-error next to the estimate.
+error (truncation and solver together) next to the estimate.
 """
 
 from __future__ import annotations
@@ -66,9 +74,9 @@ __all__ = [
 ]
 
 #: default target of the truncation estimate
-DEFAULT_TRUNCATION = 1e-7
+DEFAULT_TRUNCATION = 1e-5
 #: the build's solver tolerance never exceeds this (direct solves default to 1e-5)
-MAX_BUILD_TOLERANCE = 1e-7
+MAX_BUILD_TOLERANCE = 1e-6
 #: right-hand sides whose incident fields are synthesised together
 CHUNK = 8
 #: |b^T b| / |b|^2 below which QMR's Lanczos process is not trusted to start
@@ -257,7 +265,7 @@ def build_tmatrix(
     """The T-matrix of ``model`` on the lattice the built-in engine uses with ``settings``.
 
     ``settings.polarizability`` must be incidence-independent (``"ldr_avg"`` or ``"cm"``);
-    the solver tolerance is ``min(settings.tolerance, 1e-7)`` unless ``tolerance`` is given.
+    the solver tolerance is ``min(settings.tolerance, 1e-6)`` unless ``tolerance`` is given.
     The provenance (:func:`holofit.dda.tmatrix_io.describe` plus the build's numbers) is
     stored in the result.
     """
