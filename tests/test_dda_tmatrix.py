@@ -23,7 +23,7 @@ from holofit.dda.tmatrix_waves import plane_wave_coefficients
 from holofit.dda.voxelize import voxelize
 from holofit.hologram import calc_hologram
 from holofit.io.shapefile import write_shape_file
-from holofit.models import Dimer, JanusSphere, Spherocylinder, VoxelShape
+from holofit.models import Dimer, JanusSphere, Sphere, Spherocylinder, VoxelShape
 from holofit.optics import Optics
 from holofit.scattering.theory import Orientation
 
@@ -39,8 +39,14 @@ MODELS = {
 }
 
 
-def _engine(**kw):
-    return BuiltinDDA(dipole_size_um=D, polarizability="ldr_avg", tolerance=1e-10, **kw)
+#: tight builds, so that these tests see the construction's exactness (the defaults, truncation
+#: 1e-5 and solver 1e-6 in single precision, are checked in test_dda_tmatrix_slow.py)
+TIGHT = {"tolerance": 1e-9, "truncation": 1e-7, "precision": "double"}
+
+
+def _engine(tolerance=1e-10):
+    """Direct solves at 1e-10; engines serving a tight T-matrix accept its 1e-9."""
+    return BuiltinDDA(dipole_size_um=D, polarizability="ldr_avg", tolerance=tolerance)
 
 
 @pytest.fixture(scope="module")
@@ -59,8 +65,8 @@ def engines(voxel_model):
     """name -> (model, engine serving from a T-matrix, engine solving directly)."""
     out = {}
     for name, model in {**MODELS, "voxels": voxel_model}.items():
-        fast = _engine()
-        fast.tmatrix(model, OPTICS)
+        fast = _engine(TIGHT["tolerance"])
+        fast.tmatrix(model, OPTICS, **TIGHT)
         out[name] = (model, fast, _engine())
     return out
 
@@ -94,14 +100,18 @@ def test_holograms_and_far_fields_equal_direct_solves(engines, name):
         assert np.abs(f_t - f_d).max() <= 1e-6 * np.abs(f_d).max()
 
 
-def test_symmetry_build_equals_build_without_symmetry():
-    lat = voxelize(ROD, 0.09)
-    kw = dict(tolerance=1e-10, order=6, validate=False)
+@pytest.mark.parametrize("model,d,ops", [
+    (ROD, 0.09, 16),  # D4h: every operation permutes coefficients (monomial path)
+    (Sphere(0.2, 1.5), 0.08, 48),  # Oh: 90-degree turns about x and y mix m (dense path)
+])
+def test_symmetry_build_equals_build_without_symmetry(model, d, ops):
+    lat = voxelize(model, d)
+    kw = dict(tolerance=1e-10, order=5, validate=False)
     sym, stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "ldr_avg", **kw)
     plain, plain_stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "ldr_avg",
                                                use_symmetry=False, **kw)
-    assert stats.symmetry_operations == 16 and plain_stats.symmetry_operations == 1
-    assert stats.n_solves * 16 == plain_stats.n_solves
+    assert stats.symmetry_operations == ops and plain_stats.symmetry_operations == 1
+    assert stats.n_solves == -(-plain_stats.n_solves // ops)
     a, b = sym.dense(), plain.dense()
     assert np.abs(a - b).max() <= 1e-8 * np.abs(b).max()
 
@@ -229,7 +239,7 @@ def test_file_roundtrip_and_provenance(engines, rod_file):
 
 
 def test_engine_loads_a_matching_file_instead_of_building(rod_file):
-    engine = _engine()
+    engine = _engine(TIGHT["tolerance"])
     tm = engine.tmatrix(ROD, OPTICS, path=str(rod_file))
     assert tm is load_tmatrix(rod_file)
     assert engine.last_iterations == 0  # nothing solved
@@ -247,7 +257,7 @@ def test_engine_loads_a_matching_file_instead_of_building(rod_file):
     ({"tolerance": 1e-12}, ROD, OPTICS, "tolerance"),
 ])
 def test_a_file_for_anything_else_is_refused(rod_file, engine_kw, model, optics, field):
-    kw = {"dipole_size_um": D, "polarizability": "ldr_avg", "tolerance": 1e-10, **engine_kw}
+    kw = {"dipole_size_um": D, "polarizability": "ldr_avg", "tolerance": 1e-9, **engine_kw}
     engine = BuiltinDDA(**kw)
     with pytest.raises(TMatrixMismatch, match=field) as info:
         engine.tmatrix(model, optics, path=str(rod_file))
@@ -257,7 +267,6 @@ def test_a_file_for_anything_else_is_refused(rod_file, engine_kw, model, optics,
 def test_averaged_ldr_is_as_accurate_as_ldr_against_mie():
     """The incidence-independent prescription costs no accuracy (Lorenz-Mie as the truth;
     bench/polarizability_vs_mie.py has the full table)."""
-    from holofit.models import Sphere
     from holofit.scattering.mie import LorenzMie
 
     sphere = Sphere(0.3, 1.585)
@@ -272,3 +281,44 @@ def test_averaged_ldr_is_as_accurate_as_ldr_against_mie():
         assert misfit["ldr_avg", name] <= 2.0 * misfit["ldr", name]
         assert misfit["ldr_avg", name] < 1e-4
         assert misfit["cm", name] > 3 * misfit["ldr_avg", name]
+
+
+def test_fit_forward_model_gets_exact_orientation_columns(engines):
+    """holofit.fitting's HologramModel takes its orientation columns from the T-matrix wave's
+    rotation derivatives; they equal central differences of direct solves."""
+    from holofit.conventions import euler_zyz
+    from holofit.fitting.forward import HologramModel
+    from holofit.fitting.parameters import ParameterSpace, State, static_values
+
+    model, fast, direct = engines["rod"]
+    xs, ys = (c.ravel() for c in pixel_centres(GRID.shape, GRID.pixel_size_um))
+    start = State(position=POS, rotation=euler_zyz(0.7, 1.1, 0.3), alpha=0.9,
+                  statics=static_values(model))
+    space = ParameterSpace(model, ["x_um", "orientation", "alpha"], start, fit_spin=True)
+    v0 = space.initial_vector()
+    analytic = HologramModel(fast, space, OPTICS, xs, ys).jacobian(v0)
+    reference = HologramModel(direct, space, OPTICS, xs, ys)
+    h = 1e-3
+    for i, name in enumerate(space.names):
+        if not name.startswith("rot_"):
+            continue
+        up, down = v0.copy(), v0.copy()
+        up[i] += h
+        down[i] -= h
+        fd = (reference.hologram(up) - reference.hologram(down)) / (2 * h)
+        assert np.abs(analytic[:, i] - fd).max() <= 1e-5 * np.abs(fd).max()
+
+
+def test_default_build_meets_the_hologram_criteria():
+    """Defaults (truncation estimate 1e-5, solver 1e-6, single-precision convolution):
+    max|dE|/max|E| <= 1e-5 and 1 - R^2 <= 1e-8 against direct solves at 1e-8."""
+    model = MODELS["dimer"]
+    fast = BuiltinDDA(dipole_size_um=D, polarizability="ldr_avg")
+    tm = fast.tmatrix(model, OPTICS)
+    assert tm.provenance["build_precision"] == "single"
+    assert tm.provenance["tolerance"] == 1e-6
+    direct = BuiltinDDA(dipole_size_um=D, polarizability="ldr_avg", tolerance=1e-8)
+    for ori in _orientations(3, seed=4):
+        w_t, w_d = fast.solve(model, OPTICS, ori), direct.solve(model, OPTICS, ori)
+        assert _max_rel(w_t.field_on_detector(POS, GRID), w_d.field_on_detector(POS, GRID)) <= 1e-5
+        assert 1 - r_squared(calc_hologram(w_d, POS, GRID), calc_hologram(w_t, POS, GRID)) <= 1e-8

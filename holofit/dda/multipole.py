@@ -320,39 +320,6 @@ STENCIL = 8
 STEP_FACTOR = 0.7
 
 
-@numba.njit(cache=True, nogil=True)
-def _plane_rows(p, q, h, dx, hk, pb, dp, mp, n_phi, g_r, g_t, g_p):  # pragma: no cover
-    """Per-m spherical components of the field on each grid row, placed at column m mod n_phi.
-
-    ``p, q`` are [n, m + L]; ``h, dx, hk`` radial functions [row, n]; ``pb, dp, mp`` Legendre
-    tables [row, n, |m|] (m >= 0, Condon-Shortley phase).
-    """
-    L = p.shape[0] - 1
-    for i in range(h.shape[0]):
-        for m in range(-L, L + 1):
-            mm = abs(m)
-            sign = 1.0 if (m >= 0 or mm % 2 == 0) else -1.0
-            msign = sign if m >= 0 else -sign
-            ar = 0.0 + 0.0j
-            at = 0.0 + 0.0j
-            ap = 0.0 + 0.0j
-            for n in range(max(1, mm), L + 1):
-                pc = p[n, m + L]
-                qc = q[n, m + L]
-                pf = sign * pb[i, n, mm]
-                df = sign * dp[i, n, mm]
-                mf = msign * mp[i, n, mm]
-                ar += pc * hk[i, n] * pf
-                pdx = pc * dx[i, n]
-                qh = qc * h[i, n]
-                at += pdx * df + 1j * qh * mf
-                ap += 1j * pdx * mf - qh * df
-            col = m % n_phi
-            g_r[i, col] += ar
-            g_t[i, col] += at
-            g_p[i, col] += ap
-
-
 @dataclass
 class PlaneGrid:
     """``U = kr exp(-ikr) E_{x,y}`` of a field on a plane, sampled on a (delta, phi) grid.
@@ -380,9 +347,10 @@ class PlaneGrid:
         if cached is None:
             pad = self.stencil
             cols = (np.arange(self.n_phi + 2 * pad) - pad) % self.n_phi
-            cached = np.ascontiguousarray(np.stack(
-                [self.ux.real[:, cols], self.ux.imag[:, cols], self.uy.real[:, cols],
-                 self.uy.imag[:, cols]], axis=-1))
+            both = np.empty((self.ux.shape[0], cols.size, 2), dtype=complex)
+            both[:, :, 0] = self.ux[:, cols]
+            both[:, :, 1] = self.uy[:, cols]
+            cached = both.view(np.float64)  # (rows, cols, 4): Re, Im of U_x then of U_y
             self.__dict__["_packed"] = cached
         return cached
 

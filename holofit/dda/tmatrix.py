@@ -116,9 +116,9 @@ class TMatrix:
 
     def __post_init__(self) -> None:
         self._incident_cache: dict[tuple, NDArray] = {}
-        idx = self.class_indices()
-        if len(self.blocks) != len(idx) or any(
-            b.shape != (i.size, i.size) for b, i in zip(self.blocks, idx, strict=True)
+        self._classes = self.class_indices()
+        if len(self.blocks) != len(self._classes) or any(
+            b.shape != (i.size, i.size) for b, i in zip(self.blocks, self._classes, strict=True)
         ):
             raise ValueError("T-matrix blocks do not match its order and modulus")
 
@@ -146,7 +146,7 @@ class TMatrix:
         """The full ``2L(L+2)``-square matrix."""
         size = n_terms(self.order)
         out = np.zeros((size, size), dtype=complex)
-        for i, b in zip(self.class_indices(), self.blocks, strict=True):
+        for i, b in zip(self._classes, self.blocks, strict=True):
             out[np.ix_(i, i)] = b
         return out
 
@@ -160,15 +160,9 @@ class TMatrix:
         (particle frame); vectors along the first axis, extra columns allowed."""
         a = np.asarray(incident, dtype=complex)
         out = np.empty(a.shape, dtype=complex)
-        for i, b in zip(self.class_indices_cached, self.blocks, strict=True):
+        for i, b in zip(self._classes, self.blocks, strict=True):
             out[i] = b @ a[i]
         return out
-
-    @property
-    def class_indices_cached(self) -> list[NDArray[np.int64]]:
-        if not hasattr(self, "_class_idx"):
-            self._class_idx = self.class_indices()
-        return self._class_idx
 
     def incident_coefficients(self, polarization: ArrayLike) -> NDArray[np.complex128]:
         """Lab-frame coefficients of the instrument's plane wave (along lab -z)."""

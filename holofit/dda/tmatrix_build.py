@@ -141,7 +141,7 @@ def build_lattice_tmatrix(
     tolerance: float = MAX_BUILD_TOLERANCE, order: int | None = None,
     truncation: float = DEFAULT_TRUNCATION, use_symmetry: bool = True,
     max_iterations: int = 2000, validate: bool = True,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None, precision: str = "double",
 ) -> tuple[TMatrix, BuildStats]:
     """T-matrix of a lattice (see the module docstring).
 
@@ -170,6 +170,8 @@ def build_lattice_tmatrix(
         Compare against one direct solve of a random plane wave and record the far-field error.
     progress : callable, optional
         ``progress(done, total)`` after each solve.
+    precision : {"double", "single"}
+        Precision of the FFT convolution in the build's solves (the validation is in double).
     """
     if polarizability not in INCIDENCE_INDEPENDENT:
         raise ValueError(
@@ -178,7 +180,8 @@ def build_lattice_tmatrix(
             "polarizability = 'ldr_avg')"
         )
     t0 = time.perf_counter()
-    system = DipoleSystem(lattice, k, n_medium, polarizability)
+    dtype = np.complex64 if precision == "single" else np.complex128
+    system = DipoleSystem(lattice, k, n_medium, polarizability, dtype)
     pos = lattice.positions
     radii = np.sqrt((pos**2).sum(axis=1))
     alpha = system.alpha(np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
@@ -210,7 +213,9 @@ def build_lattice_tmatrix(
     tm = TMatrix.from_dense(dense, order, k, radius, z_rotation_order(ops))
     error = None
     if validate:
-        error = _validate(tm, system, tolerance, max_iterations)
+        check = system if precision == "double" else DipoleSystem(lattice, k, n_medium,
+                                                                  polarizability)
+        error = _validate(tm, check, tolerance, max_iterations)
     stats = BuildStats(n_solves, iterations, time.perf_counter() - t0, len(ops), error)
     tm.provenance.update({
         "order": order,
@@ -221,6 +226,7 @@ def build_lattice_tmatrix(
         "symmetry_operations": len(ops),
         "validation_far_field_error": error,
         "n_dipoles": lattice.n_dipoles,
+        "build_precision": precision,
         "build_seconds": stats.seconds,
     })
     return tm, stats
@@ -260,12 +266,15 @@ def build_tmatrix(
     model: ParticleModel, optics: Optics, settings: DDASettings | None = None,
     order: int | None = None, truncation: float = DEFAULT_TRUNCATION,
     tolerance: float | None = None, use_symmetry: bool = True, validate: bool = True,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int], None] | None = None, precision: str = "single",
 ) -> TMatrix:
     """The T-matrix of ``model`` on the lattice the built-in engine uses with ``settings``.
 
     ``settings.polarizability`` must be incidence-independent (``"ldr_avg"`` or ``"cm"``);
     the solver tolerance is ``min(settings.tolerance, 1e-6)`` unless ``tolerance`` is given.
+    The solves use the single-precision FFT convolution by default (``precision``): the
+    iterations and the T-matrix's error are unchanged at these tolerances (measured: 3.1e-7
+    against 3.0e-7 in the camera field), the build's validation solve stays in double.
     The provenance (:func:`holofit.dda.tmatrix_io.describe` plus the build's numbers) is
     stored in the result.
     """
@@ -282,6 +291,7 @@ def build_tmatrix(
         lattice, optics.k, optics.n_medium, settings.polarizability, tolerance=tol,
         order=order, truncation=truncation, use_symmetry=use_symmetry,
         max_iterations=settings.max_iterations, validate=validate, progress=progress,
+        precision=precision,
     )
     tm.provenance = {**describe(model, d, optics, settings, lattice), **tm.provenance}
     return tm

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.cache import LRUCache
-from holofit.conventions import euler_zyz, incident_phase_at
+from holofit.conventions import euler_zyz, euler_zyz_from_matrix, incident_phase_at
 from holofit.dda.multipole import (
     NEAR_ZONE,
     MultipoleExpansion,
@@ -38,6 +38,7 @@ from holofit.dda.multipole import (
     plane_grid,
 )
 from holofit.dda.tmatrix import LabCoefficients, TMatrix
+from holofit.dda.tmatrix_waves import pack
 from holofit.dda.wigner import EULER_ANGLES
 from holofit.models import ParticleModel
 from holofit.optics import Optics
@@ -178,8 +179,6 @@ class TMatrixWave(ExpansionWave):
     @property
     def coefficients(self) -> NDArray[np.complex128]:
         """Flat lab-frame outgoing coefficients (:mod:`holofit.dda.tmatrix_waves` layout)."""
-        from holofit.dda.tmatrix_waves import pack
-
         return pack(self.expansion.p, self.expansion.q)
 
     def _direct_near(self, points: NDArray) -> NDArray[np.complex128]:
@@ -234,8 +233,6 @@ class TMatrixWave(ExpansionWave):
         return ExpansionWave(self.optics, self.tmatrix.expansion(vec), near)
 
     def _near_rotation_derivative(self, axis: NDArray) -> NearField:
-        from holofit.conventions import euler_zyz_from_matrix
-
         direct = self._direct
         assert direct is not None
         h = NEAR_DERIVATIVE_STEP
