@@ -99,12 +99,12 @@ def orientation(name: str, folder: Path, direct_repeat: int = 3) -> dict[str, fl
     out[f"dda_{name}_orientation_tmatrix_s"] = _median(
         new_orientation, len(oris), out, f"dda_{name}_orientation_tmatrix")
     axes = (np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    xs, ys = (c.ravel() for c in GRID.coordinates())
 
     def with_jacobian(i: int) -> None:
+        """The field and its derivatives for two rotation axes (a fit's Jacobian columns)."""
         wave = engine.solve(model, OPTICS, oris[i])
-        calc_hologram(wave, POS, GRID)
-        for axis in axes:
-            wave.rotation_derivative(axis).field_on_detector(POS, GRID)
+        wave.field_and_rotation_derivatives(POS, xs, ys, axes)
 
     out[f"dda_{name}_orientation_jacobian_tmatrix_s"] = _median(
         with_jacobian, len(oris), out, f"dda_{name}_orientation_jacobian_tmatrix")

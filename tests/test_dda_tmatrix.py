@@ -322,3 +322,22 @@ def test_default_build_meets_the_hologram_criteria():
         w_t, w_d = fast.solve(model, OPTICS, ori), direct.solve(model, OPTICS, ori)
         assert _max_rel(w_t.field_on_detector(POS, GRID), w_d.field_on_detector(POS, GRID)) <= 1e-5
         assert 1 - r_squared(calc_hologram(w_d, POS, GRID), calc_hologram(w_t, POS, GRID)) <= 1e-8
+
+
+def test_field_and_rotation_derivatives_in_one_pass(engines):
+    model, fast, _ = engines["janus"]
+    wave = fast.solve(model, OPTICS, Orientation(0.4, 2.0, 0.3))
+    xs, ys = (c.ravel() for c in pixel_centres(GRID.shape, GRID.pixel_size_um))
+    axes = [np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.6, 0.8])]
+    for pos in (POS, (4.5, 4.4, 0.5)):  # the second has pixels in the near zone
+        (ex, ey), derivs = wave.field_and_rotation_derivatives(pos, xs, ys, axes)
+        ref = wave.field_on_pixels(pos, xs, ys)
+        assert np.abs(ex - ref[0]).max() <= 1e-12 * np.abs(ref[0]).max()
+        assert np.abs(ey - ref[1]).max() <= 1e-12 * np.abs(ref[0]).max()
+        for axis, (dx, dy) in zip(axes, derivs, strict=True):
+            # separately, the derivative wave picks its own grid margin: equal to the
+            # interpolation's accuracy
+            one = wave.rotation_derivative(axis).field_on_pixels(pos, xs, ys)
+            scale = np.abs(one[0]).max()
+            assert np.abs(dx - one[0]).max() <= 1e-9 * scale
+            assert np.abs(dy - one[1]).max() <= 1e-9 * scale

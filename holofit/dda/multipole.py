@@ -27,7 +27,7 @@ only repeats the interpolation; a change of ``z_p`` also recomputes the grid.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -37,7 +37,17 @@ from numpy.typing import NDArray
 
 from holofit.dda.legendre import legendre_tables
 
-__all__ = ["NEAR_ZONE", "MultipoleExpansion", "default_order", "expansion_from_far_field"]
+__all__ = [
+    "NEAR_ZONE",
+    "MultipoleExpansion",
+    "PlaneGrid",
+    "default_order",
+    "evaluate_plane",
+    "evaluate_plane_at",
+    "evaluate_planes_at",
+    "expansion_from_far_field",
+    "plane_grid",
+]
 
 #: points closer to the centre than this multiple of the circumscribing radius are not
 #: evaluated from an expansion (its series converges slowly there): the engines use the dipoles
@@ -525,11 +535,13 @@ def _lagrange_weights(t, n, c, w):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _interp_points(g, step, n_phi, n_ext, pad, dx, dy, az, k, phase, skip, ex, ey,
+def _interp_points(gs, step, n_phi, n_ext, pad, dx, dy, az, k, phase, skip, ex, ey,
                    n):  # pragma: no cover - compiled
     """``E_{x,y} = U(delta, phi) exp(ikr)/(kr) * phase`` at points ``(dx, dy)`` of the plane
-    (offsets from below the expansion centre), ``U`` interpolated on the packed grid ``g``
-    (:attr:`PlaneGrid.packed`) with ``n`` x ``n``-point Lagrange stencils."""
+    (offsets from below the expansion centre) for several fields at once: ``U`` of field ``f``
+    interpolated on its packed grid ``gs[f]`` (:attr:`PlaneGrid.packed`, all of one geometry)
+    with ``n`` x ``n``-point Lagrange stencils; the point's angles, weights and ``exp(ikr)/kr``
+    are computed once for all fields."""
     half = n // 2 - 1
     c = np.empty(n)
     for a in range(n):
@@ -560,27 +572,28 @@ def _interp_points(g, step, n_phi, n_ext, pad, dx, dy, az, k, phase, skip, ex, e
         j0 = int(u) - half
         _lagrange_weights(u - j0, n, c, wp)
         j0 += pad
-        # scalar accumulators (kept in registers): Re/Im of U_x and U_y
-        a0 = a1 = a2 = a3 = 0.0
-        for a in range(n):
-            r0 = r1 = r2 = r3 = 0.0
-            ia = i0 + a
-            for b in range(n):
-                w = wp[b]
-                jb = j0 + b
-                r0 += w * g[ia, jb, 0]
-                r1 += w * g[ia, jb, 1]
-                r2 += w * g[ia, jb, 2]
-                r3 += w * g[ia, jb, 3]
-            w = wt[a]
-            a0 += w * r0
-            a1 += w * r1
-            a2 += w * r2
-            a3 += w * r3
         kr = k * np.sqrt(rho2 + az * az)
-        f = (np.cos(kr) + 1j * np.sin(kr)) * phase / kr
-        ex[p] = (a0 + 1j * a1) * f
-        ey[p] = (a2 + 1j * a3) * f
+        fac = (np.cos(kr) + 1j * np.sin(kr)) * phase / kr
+        for f in range(gs.shape[0]):
+            # scalar accumulators (kept in registers): Re/Im of U_x and U_y
+            a0 = a1 = a2 = a3 = 0.0
+            for a in range(n):
+                r0 = r1 = r2 = r3 = 0.0
+                ia = i0 + a
+                for b in range(n):
+                    w = wp[b]
+                    jb = j0 + b
+                    r0 += w * gs[f, ia, jb, 0]
+                    r1 += w * gs[f, ia, jb, 1]
+                    r2 += w * gs[f, ia, jb, 2]
+                    r3 += w * gs[f, ia, jb, 3]
+                w = wt[a]
+                a0 += w * r0
+                a1 += w * r1
+                a2 += w * r2
+                a3 += w * r3
+            ex[f, p] = (a0 + 1j * a1) * fac
+            ey[f, p] = (a2 + 1j * a3) * fac
 
 
 def evaluate_plane(
@@ -606,13 +619,29 @@ def evaluate_plane_at(
     ``dx, dy`` (any equal shapes) are the lateral offsets of the points from the expansion
     centre, um; ``phase`` multiplies the result; points where ``skip`` is True are left 0.
     """
+    return evaluate_planes_at([grid], dx, dy, phase, skip)[0]
+
+
+def evaluate_planes_at(
+    grids: Sequence[PlaneGrid], dx: NDArray, dy: NDArray, phase: complex = 1.0,
+    skip: NDArray | None = None,
+) -> list[tuple[NDArray[np.complex128], NDArray[np.complex128]]]:
+    """:func:`evaluate_plane_at` for several fields whose grids share one geometry (same
+    plane, step, azimuths and rows: expansions of one order, built for the same ``z_p`` and
+    ``delta_max``), in one pass over the points."""
+    g0 = grids[0]
+    for g in grids[1:]:
+        if (g.ux.shape, g.step, g.n_phi, g.n_ext, g.z_p, g.k, g.stencil) != (
+                g0.ux.shape, g0.step, g0.n_phi, g0.n_ext, g0.z_p, g0.k, g0.stencil):
+            raise ValueError("plane grids of different geometry cannot be evaluated together")
     shape = np.shape(dx)
     dx1 = np.ascontiguousarray(dx, dtype=float).ravel()
     dy1 = np.ascontiguousarray(dy, dtype=float).ravel()
-    ex = np.zeros(dx1.size, dtype=complex)
+    ex = np.zeros((len(grids), dx1.size), dtype=complex)
     ey = np.zeros_like(ex)
     skip1 = (np.zeros(dx1.size, dtype=np.bool_) if skip is None
              else np.ascontiguousarray(skip, dtype=np.bool_).ravel())
-    _interp_points(grid.packed, grid.step, grid.n_phi, grid.n_ext, grid.stencil, dx1, dy1,
-                   abs(grid.z_p), grid.k, complex(phase), skip1, ex, ey, grid.stencil)
-    return ex.reshape(shape), ey.reshape(shape)
+    gs = g0.packed[None] if len(grids) == 1 else np.stack([g.packed for g in grids])
+    _interp_points(gs, g0.step, g0.n_phi, g0.n_ext, g0.stencil, dx1, dy1, abs(g0.z_p), g0.k,
+                   complex(phase), skip1, ex, ey, g0.stencil)
+    return [(ex[f].reshape(shape), ey[f].reshape(shape)) for f in range(len(grids))]

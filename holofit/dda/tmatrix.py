@@ -206,13 +206,15 @@ class TMatrix:
             derivs[name] = dv[kind, n, m + L]
         return LabCoefficients(out[..., 0][kind, n, m + L], derivs)
 
-    def rotation_derivative(self, euler: tuple[float, float, float], polarization: ArrayLike,
-                            axis: ArrayLike) -> NDArray[np.complex128]:
-        """Derivative of :meth:`lab_coefficients` with respect to a rotation of the particle
-        about the unit lab ``axis``, ``R -> exp(eps [axis]x) R`` (per radian).
+    def rotation_derivatives(self, euler: tuple[float, float, float],
+                             polarization: ArrayLike) -> NDArray[np.complex128]:
+        """Derivatives of :meth:`lab_coefficients` with respect to rotations of the particle
+        about the lab x, y and z axes, ``R -> exp(eps [e_i]x) R`` (per radian), shape
+        (n_terms, 3). The derivative about any unit axis ``n`` is ``sum_i n_i`` times column i.
 
         ``D(exp(eps [n]x) R) = exp(-i eps n.J) D(R)``, so with ``T_lab = D T D^H``:
-        ``d o / d eps = -i (n.J) T_lab a + i T_lab (n.J) a``.
+        ``d o / d eps = -i (n.J) T_lab a + i T_lab (n.J) a`` (one product of ``T`` with four
+        vectors for all three axes).
         """
         psi, theta, phi = (float(v) for v in euler)
         L = self.order
@@ -220,14 +222,24 @@ class TMatrix:
         a_pad = np.zeros((2, L + 1, 2 * L + 1), dtype=complex)
         a_pad[kind, n, m + L] = self.incident_coefficients(polarization)
         d = wigner_d_all(L, psi, theta, phi)
-        cols = [np.einsum("nab,kna->knb", d.conj(), x)[kind, n, m + L]
-                for x in (a_pad, _angular_momentum(a_pad, axis))]
+        axes = np.eye(3)
+        sources = [a_pad] + [_angular_momentum(a_pad, ax) for ax in axes]
+        cols = [np.einsum("nab,kna->knb", d.conj(), x)[kind, n, m + L] for x in sources]
         v = self.scatter(np.stack(cols, axis=1))
-        v_pad = np.zeros((2, L + 1, 2 * L + 1, 2), dtype=complex)
+        v_pad = np.zeros((2, L + 1, 2 * L + 1, 4), dtype=complex)
         v_pad[kind, n, m + L] = v
         o = np.einsum("nab,knbc->knac", d, v_pad)
-        out = -1j * _angular_momentum(o[..., 0], axis) + 1j * o[..., 1]
-        return out[kind, n, m + L]
+        out = np.empty((self.n_terms, 3), dtype=complex)
+        for i, ax in enumerate(axes):
+            der = -1j * _angular_momentum(o[..., 0], ax) + 1j * o[..., i + 1]
+            out[:, i] = der[kind, n, m + L]
+        return out
+
+    def rotation_derivative(self, euler: tuple[float, float, float], polarization: ArrayLike,
+                            axis: ArrayLike) -> NDArray[np.complex128]:
+        """Derivative of :meth:`lab_coefficients` with respect to a rotation of the particle
+        about the unit lab ``axis``, ``R -> exp(eps [axis]x) R`` (per radian)."""
+        return self.rotation_derivatives(euler, polarization) @ np.asarray(axis, dtype=float)
 
     def expansion(self, vector: NDArray[np.complex128]) -> MultipoleExpansion:
         """The multipole expansion (lab frame) of a flat outgoing coefficient vector."""
