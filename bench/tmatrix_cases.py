@@ -42,10 +42,10 @@ def _warm_up() -> None:
     interaction.clear_cache()
 
 
-def build(name: str, folder: Path, **settings: float) -> dict[str, float]:
-    """Build the particle's T-matrix from scratch (empty caches) and save it."""
+def build(name: str, folder: Path, tag: str | None = None, **settings: float) -> dict[str, float]:
+    """Build the particle's T-matrix from scratch (empty caches) and save it as ``tag``."""
     engine = BuiltinDDA(**SETTINGS, **settings)
-    tag = name + "".join(f"_{k}{v:g}" for k, v in settings.items())
+    tag = tag or name
     t0, c0 = time.perf_counter(), time.process_time()
     tm = engine.tmatrix(PARTICLES[name], OPTICS)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -118,7 +118,8 @@ def orientation(name: str, folder: Path, direct_repeat: int = 3) -> dict[str, fl
     def cold(i: int) -> None:
         calc_hologram(direct.solve_direct(model, OPTICS, oris[10 + 3 * i]), POS, GRID)
 
-    out[f"dda_{name}_orientation_direct_s"] = _median(cold, direct_repeat)
+    out[f"dda_{name}_orientation_direct_s"] = _median(cold, direct_repeat, out,
+                                                      f"dda_{name}_orientation_direct")
     base = oris[0].as_tuple()
 
     def warm(i: int) -> None:
@@ -126,14 +127,15 @@ def orientation(name: str, folder: Path, direct_repeat: int = 3) -> dict[str, fl
         calc_hologram(direct.solve_direct(model, OPTICS, o), POS, GRID)
 
     direct.solve_direct(model, OPTICS, oris[0])
-    out[f"dda_{name}_small_rotation_direct_s"] = _median(warm, direct_repeat)
+    out[f"dda_{name}_small_rotation_direct_s"] = _median(warm, direct_repeat, out,
+                                                         f"dda_{name}_small_rotation_direct")
     return out
 
 
 CASES = {
     "rod_build": lambda d: build("rod", d),
     "janus_build": lambda d: build("janus", d),
-    "janus_build_d24nm": lambda d: build("janus", d, dipole_size_um=0.024),
+    "janus_build_d24nm": lambda d: build("janus", d, "janus_d24nm", dipole_size_um=0.024),
     "rod_orientation": lambda d: orientation("rod", d),
     "janus_orientation": lambda d: orientation("janus", d, direct_repeat=2),
 }

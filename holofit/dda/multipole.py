@@ -535,13 +535,12 @@ def _lagrange_weights(t, n, c, w):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _interp_points(gs, step, n_phi, n_ext, pad, dx, dy, az, k, phase, skip, ex, ey,
+def _interp_points(gs, step, n_phi, n_ext, pad, delta, phi, fac, skip, ex, ey,
                    n):  # pragma: no cover - compiled
-    """``E_{x,y} = U(delta, phi) exp(ikr)/(kr) * phase`` at points ``(dx, dy)`` of the plane
-    (offsets from below the expansion centre) for several fields at once: ``U`` of field ``f``
-    interpolated on its packed grid ``gs[f]`` (:attr:`PlaneGrid.packed`, all of one geometry)
-    with ``n`` x ``n``-point Lagrange stencils; the point's angles, weights and ``exp(ikr)/kr``
-    are computed once for all fields."""
+    """``E_{x,y} = U(delta, phi) * fac`` at points of the plane for several fields at once:
+    ``U`` of field ``f`` interpolated on its packed grid ``gs[f]`` (:attr:`PlaneGrid.packed`,
+    all of one geometry) with ``n`` x ``n``-point Lagrange stencils, the weights computed once
+    per point for all fields."""
     half = n // 2 - 1
     c = np.empty(n)
     for a in range(n):
@@ -553,27 +552,17 @@ def _interp_points(gs, step, n_phi, n_ext, pad, dx, dy, az, k, phase, skip, ex, 
     wt = np.empty(n)
     wp = np.empty(n)
     hphi = 2.0 * np.pi / n_phi
-    two_pi = 2.0 * np.pi
-    for p in range(dx.shape[0]):
+    for p in range(delta.shape[0]):
         if skip[p]:
             continue
-        x = dx[p]
-        y = dy[p]
-        rho2 = x * x + y * y
-        rho = np.sqrt(rho2)
-        delta = np.arctan2(rho, az)
-        phi = np.arctan2(y, x)
-        if phi < 0.0:
-            phi += two_pi
-        t = delta / step + n_ext
+        t = delta[p] / step + n_ext
         i0 = int(t) - half
         _lagrange_weights(t - i0, n, c, wt)
-        u = phi / hphi
+        u = phi[p] / hphi
         j0 = int(u) - half
         _lagrange_weights(u - j0, n, c, wp)
         j0 += pad
-        kr = k * np.sqrt(rho2 + az * az)
-        fac = (np.cos(kr) + 1j * np.sin(kr)) * phase / kr
+        f_p = fac[p]
         for f in range(gs.shape[0]):
             # scalar accumulators (kept in registers): Re/Im of U_x and U_y
             a0 = a1 = a2 = a3 = 0.0
@@ -592,8 +581,8 @@ def _interp_points(gs, step, n_phi, n_ext, pad, dx, dy, az, k, phase, skip, ex, 
                 a1 += w * r1
                 a2 += w * r2
                 a3 += w * r3
-            ex[f, p] = (a0 + 1j * a1) * fac
-            ey[f, p] = (a2 + 1j * a3) * fac
+            ex[f, p] = (a0 + 1j * a1) * f_p
+            ey[f, p] = (a2 + 1j * a3) * f_p
 
 
 def evaluate_plane(
@@ -642,6 +631,14 @@ def evaluate_planes_at(
     skip1 = (np.zeros(dx1.size, dtype=np.bool_) if skip is None
              else np.ascontiguousarray(skip, dtype=np.bool_).ravel())
     gs = g0.packed[None] if len(grids) == 1 else np.stack([g.packed for g in grids])
-    _interp_points(gs, g0.step, g0.n_phi, g0.n_ext, g0.stencil, dx1, dy1, abs(g0.z_p), g0.k,
-                   complex(phase), skip1, ex, ey, g0.stencil)
+    # per-point angles and the exact exp(ikr)/kr (vectorised transcendental functions)
+    az = abs(g0.z_p)
+    rho2 = dx1 * dx1 + dy1 * dy1
+    delta = np.arctan2(np.sqrt(rho2), az)
+    phi = np.arctan2(dy1, dx1)
+    phi[phi < 0.0] += 2.0 * np.pi
+    kr = g0.k * np.sqrt(rho2 + az * az)
+    fac = (np.cos(kr) + 1j * np.sin(kr)) * (complex(phase) / kr)
+    _interp_points(gs, g0.step, g0.n_phi, g0.n_ext, g0.stencil, delta, phi, fac, skip1, ex, ey,
+                   g0.stencil)
     return [(ex[f].reshape(shape), ey[f].reshape(shape)) for f in range(len(grids))]

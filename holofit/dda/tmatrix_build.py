@@ -11,14 +11,16 @@ Then ``T = sum_g rho(g) (sum_s o_s c_s^H) rho(g)^H`` exactly, with ``~N/|G|`` so
 
 Order
 -----
-``L`` is the smallest order whose truncation estimate is below ``truncation`` (default 1e-5):
+``L`` is the smallest order whose truncation estimate is below ``truncation`` (default 3e-6):
 the polarisability-weighted RMS over the dipoles of the plane wave's discarded tail,
 ``eps(L)^2 = sum_j |alpha_j| sum_{n>L} (2n+1) j_n(k r_j)^2 / sum_j |alpha_j|`` (the tail of
 ``sum_n (2n+1) j_n^2 = 1``, i.e. of the incident field each dipole feels; the scattered field's
 discarded orders come from the same dipoles and fall off alike). Measured against direct
 solves, the camera-field error ``max|dE|/max|E|`` of a truncated T-matrix is 10-20 times below
-the estimate (paper's rod, L = 22: estimate 8.8e-6, error 4.9e-7; Janus particle, L = 14:
-6.1e-6 and 4.5e-7 on a 40 nm lattice), so the default keeps the truncation near 5e-7.
+the estimate (paper's rod, L = 22: estimate 8.8e-6, error 4.9e-7; L = 23: 2.6e-6 and 1.1e-7;
+Janus particle on a 40 nm lattice, L = 14: 6.1e-6 and 4.5e-7). Orientation derivatives carry
+the truncated orders with a factor ~n, so the default is set by them: at 3e-6 the rod's
+theta-derivative is exact to 2.4e-6 of itself (1e-5 at the estimate 1e-5).
 
 Tolerance
 ---------
@@ -74,7 +76,7 @@ __all__ = [
 ]
 
 #: default target of the truncation estimate
-DEFAULT_TRUNCATION = 1e-5
+DEFAULT_TRUNCATION = 3e-6
 #: the build's solver tolerance never exceeds this (direct solves default to 1e-5)
 MAX_BUILD_TOLERANCE = 1e-6
 #: right-hand sides whose incident fields are synthesised together

@@ -19,6 +19,9 @@ derivative with respect to a rotation of the particle about a lab axis (``R -> e
 R``, what :class:`holofit.fitting.forward.HologramModel` uses), all per radian, incident phase
 included, with the same conventions as every
 :class:`~holofit.scattering.theory.ScatteredWave` (``field_on_detector`` and ``field_at`` too).
+``wave.field_and_rotation_derivatives(position, xs, ys, axes)`` gives the field and the
+rotation derivatives for several axes in one pass over the pixels (a fit's Jacobian columns,
+about 40 % cheaper than separate calls).
 """
 
 from __future__ import annotations
