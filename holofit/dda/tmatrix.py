@@ -20,6 +20,25 @@ an interpolation). The derivatives with respect to the Euler angles are exact:
 Storage: the lattice's rotation axis along particle z (order ``M`` = 4 for rods, Janus
 particles and dimers on their lattice) makes ``T`` couple ``m`` only to ``m' = m (mod M)``, so
 it is kept as ``M`` dense blocks (1/M of the memory and of the work of a product).
+
+Use
+---
+Through the built-in engine (its ``polarizability`` must be ``"ldr_avg"`` or ``"cm"``)::
+
+    engine = BuiltinDDA(settings)
+    engine.tmatrix(model, optics, path="particle.npz")  # load if it fits, else build + save
+    wave = engine.solve(model, optics, orientation)      # a TMatrixWave, milliseconds
+    e_x, e_y = wave.field_on_pixels(position, xs, ys)
+    (e_x, e_y), derivs = wave.field_and_rotation_derivatives(position, xs, ys, axes)
+    d_theta = wave.orientation_derivative("theta")      # a wave: d(field)/d(theta)
+
+``engine.solve_direct`` always solves. A worker that receives a file loads it once
+(:func:`holofit.dda.tmatrix_io.load_tmatrix` caches by path and modification time) and hands
+it to its engine with ``engine.use_tmatrix(model, optics, tmatrix, source=path)``; a file made
+for another model, lattice, wavelength, medium or settings raises
+:class:`~holofit.dda.tmatrix_io.TMatrixMismatch` naming the file and the field. The build
+(:mod:`holofit.dda.tmatrix_build`) chooses the order and records its truncation estimate and
+a measured validation error in :attr:`TMatrix.provenance`.
 """
 
 from __future__ import annotations
