@@ -5,6 +5,8 @@ indices (the rod's n = 1.495, the paper's sphere n = 1.585, high indices 2.0 and
 the built-in DDA at its default dipole size (10 dipoles per wavelength in the particle) and
 each prescription:
 
+- ``fcd``: filtered coupled dipoles with the filtered interaction (the engine's default),
+  incidence-independent;
 - ``ldr``: lattice dispersion relation (ADDA's default), S term of the incident wave;
 - ``ldr_avg``: LDR with S averaged over directions and polarisations (1/5), incidence-
   independent: the one a T-matrix needs;
@@ -39,7 +41,7 @@ SPHERES = [Sphere(0.45, 1.495), Sphere(0.75, 1.495), Sphere(0.45, 1.585), Sphere
            Sphere(0.45, 2.0), Sphere(0.25, 2.74)]
 ORIENTATIONS = {"axis": Orientation(), "diagonal": Orientation(np.pi / 4,
                                                                 np.arccos(1 / np.sqrt(3)))}
-KINDS = ("ldr", "ldr_avg", "cm")
+KINDS = ("fcd", "ldr", "ldr_avg", "cm")
 
 
 def compare(sphere: Sphere, kind: str, orientation: Orientation) -> dict[str, float]:

@@ -27,8 +27,8 @@ PARTICLES = {
     "rod": Spherocylinder(0.501, 1.079, 1.495),
     "janus": JanusSphere(0.443, 0.047, 1.581, 2.74),
 }
-#: T-matrix prescription; default dipole size (10 per wavelength in the particle)
-SETTINGS = {"polarizability": "ldr_avg"}
+#: the engine's defaults (filtered coupled dipoles, laminate voxels, 10 dipoles per wavelength)
+SETTINGS: dict[str, str] = {}
 
 
 def _warm_up() -> None:

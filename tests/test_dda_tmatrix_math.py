@@ -140,6 +140,12 @@ def _eps(lat, n_medium=1.33):
     return lat.relative_permittivity(n_medium)
 
 
+def _symmetries(lat, n_medium=1.33):
+    """As the build detects them: per-axis permittivities of laminate boundary voxels."""
+    eps = lat.component_permittivity(n_medium)
+    return lattice_symmetries(lat, eps, per_axis=True)
+
+
 @pytest.mark.parametrize("model,d,count", [
     (Spherocylinder(0.501, 1.079, 1.495), 0.0441, 16),
     (JanusSphere(0.443, 0.047, 1.581, 2.74), 0.04, 8),
@@ -149,10 +155,22 @@ def _eps(lat, n_medium=1.33):
 ])
 def test_lattice_symmetries_are_detected(model, d, count):
     lat = voxelize(model, d)
-    ops = lattice_symmetries(lat, _eps(lat))
+    assert lat.normals is not None  # laminate boundary voxels: anisotropic permittivities
+    ops = _symmetries(lat)
     assert len(ops) == count
+    assert len(lattice_symmetries(lat, _eps(lat))) == count  # isotropic voxels alike
     group = SymmetryGroup.from_operations(ops, 2)  # raises unless closed
     assert group.size == count
+
+
+def test_axis_permutations_permute_per_axis_permittivities():
+    """A laminate voxel's permittivity along x is its image's along y after a swap of x and y:
+    without permuting the components, the rod's eight axis-swapping operations are lost."""
+    lat = voxelize(Spherocylinder(0.3, 0.6, 1.5), 0.05)
+    eps = lat.component_permittivity(1.33)
+    assert np.abs(eps[:, 0] - eps[:, 1]).max() > 1e-3  # genuinely anisotropic voxels
+    assert len(lattice_symmetries(lat, eps, per_axis=True)) == 16
+    assert len(lattice_symmetries(lat, eps, per_axis=False)) == 8
 
 
 def test_off_centre_voxel_file_has_no_symmetry(tmp_path):
@@ -173,7 +191,7 @@ def test_design_images_form_a_parseval_frame(model, d):
     """sum_s sum_g rho(g) c_s c_s^H rho(g)^H = 1 with ~N/|G| design vectors."""
     lat = voxelize(model, d)
     L = 9
-    group = SymmetryGroup.from_operations(lattice_symmetries(lat, _eps(lat)), L)
+    group = SymmetryGroup.from_operations(_symmetries(lat), L)
     design = design_vectors(group)
     size = n_terms(L)
     assert design.shape[1] == -(-size // group.size)

@@ -5,8 +5,9 @@ Criteria (issue "orientation in milliseconds"): on a 140 x 140 camera of 0.1 um 
 below the particle, ``1 - R^2 <= 1e-8`` and ``max|dE|/max|E| <= 1e-5``; far-field amplitudes to
 1e-5; the optical theorem (extinction from the forward amplitude = scattering, the indices
 being real); analytic orientation derivatives against central differences of direct solves to
-1e-5. The T-matrices are built with their defaults (truncation estimate 3e-6, solver 1e-6 in
-single precision) unless a test says otherwise.
+1e-5. The engine's defaults throughout (filtered coupled dipoles, laminate boundary voxels);
+the T-matrices are built with theirs (truncation estimate 3e-6, solver 1e-6 in single
+precision) unless a test says otherwise.
 Run with ``-s`` to see the numbers.
 """
 
@@ -44,9 +45,9 @@ def _sphere_quadrature(n=60):
 @pytest.mark.parametrize("name", list(PARTICLES))
 def test_fifty_orientations_equal_direct_solves(name):
     model = PARTICLES[name]
-    fast = BuiltinDDA(polarizability="ldr_avg")
+    fast = BuiltinDDA()
     tm = fast.tmatrix(model, OPTICS)
-    direct = BuiltinDDA(polarizability="ldr_avg", tolerance=1e-8)
+    direct = BuiltinDDA(tolerance=1e-8)
     rng = np.random.default_rng(2014)
     far_dirs = rng.normal(size=(200, 3))
     far_dirs /= np.linalg.norm(far_dirs, axis=1, keepdims=True)
@@ -112,10 +113,10 @@ def test_rod_jacobian_equals_central_differences_of_direct_solves():
     of |E|), so its column is checked against the field's scale, to 1e-6 of max|E|.
     """
     model = PARTICLES["rod"]
-    direct = BuiltinDDA(polarizability="ldr_avg", tolerance=1e-11)
-    tight = BuiltinDDA(polarizability="ldr_avg", tolerance=1e-9)
+    direct = BuiltinDDA(tolerance=1e-11)
+    tight = BuiltinDDA(tolerance=1e-9)
     tight.tmatrix(model, OPTICS, tolerance=1e-9, truncation=1e-7, precision="double")
-    default = BuiltinDDA(polarizability="ldr_avg")
+    default = BuiltinDDA()
     default.tmatrix(model, OPTICS)
     xs, ys = (c.ravel() for c in pixel_centres(GRID.shape, GRID.pixel_size_um))
     h = 1e-3

@@ -46,7 +46,7 @@ class DDASettings:
         ``d = lambda_medium / (dpl * max |m|)``; 10 is ADDA's rule.
     filling : {"fractional", "binary"}
         Smooth fractional filling (default) or centre-inside voxels.
-    polarizability : {"fcd", "ldr", "cm"}
+    polarizability : {"fcd", "ldr", "ldr_avg", "cm"}
         Filtered coupled dipoles (FCD polarisability and filtered interaction; ADDA ``-pol fcd
         -int fcd``; the default: 1.5-4x smaller hologram errors than LDR for n >= 2 and
         absorbing materials, see ``bench/study_dda_discretisation.py``), the lattice dispersion
@@ -82,7 +82,8 @@ class DDASettings:
     adda_path: str | None = None
 
     def __post_init__(self) -> None:
-        choices = {"filling": ("fractional", "binary"), "polarizability": ("ldr", "ldr_avg", "cm", "fcd"),
+        choices = {"filling": ("fractional", "binary"),
+                   "polarizability": ("ldr", "ldr_avg", "cm", "fcd"),
                    "precision": ("double", "single"), "engine": ("builtin", "adda"),
                    "solver": ("qmr", "bicgstab")}
         for name, allowed in choices.items():

@@ -1,11 +1,11 @@
 """A particle's T-matrix: its DDA lattice's exact linear response, for every orientation.
 
-With an incidence-independent polarisability (``"ldr_avg"`` or ``"cm"``,
-:mod:`holofit.dda.polarizability`), the DDA is one linear map from the incident field at the
-dipoles to their moments, so the lattice has a T-matrix: regular-wave coefficients of any
-incident field (:mod:`holofit.dda.tmatrix_waves`) to outgoing-wave coefficients of its
-scattered field (:mod:`holofit.dda.multipole`), both about the particle centre in the particle
-frame, truncated at order ``L``. It is built once from DDA solves
+With an incidence-independent polarisability (``"fcd"``, the engine's default, ``"ldr_avg"``
+or ``"cm"``, :mod:`holofit.dda.polarizability`), the DDA is one linear map from the incident
+field at the dipoles to their moments, so the lattice has a T-matrix: regular-wave
+coefficients of any incident field (:mod:`holofit.dda.tmatrix_waves`) to outgoing-wave
+coefficients of its scattered field (:mod:`holofit.dda.multipole`), both about the particle
+centre in the particle frame, truncated at order ``L``. It is built once from DDA solves
 (:func:`holofit.dda.tmatrix_build.build_tmatrix`) and then any orientation is
 
     o_lab = D(R) T D(R)^H a_lab,
@@ -23,7 +23,7 @@ it is kept as ``M`` dense blocks (1/M of the memory and of the work of a product
 
 Use
 ---
-Through the built-in engine (its ``polarizability`` must be ``"ldr_avg"`` or ``"cm"``)::
+Through the built-in engine (with any polarizability but ``"ldr"``)::
 
     engine = BuiltinDDA(settings)
     engine.tmatrix(model, optics, path="particle.npz")  # load if it fits, else build + save

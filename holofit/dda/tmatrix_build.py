@@ -155,7 +155,7 @@ def build_lattice_tmatrix(
         Wavenumber in the medium, rad/um.
     n_medium : float
         Refractive index of the medium.
-    polarizability : {"ldr_avg", "cm"}
+    polarizability : {"fcd", "ldr_avg", "cm"}
         An incidence-independent prescription.
     tolerance : float
         Relative residual of every solve.
@@ -179,7 +179,7 @@ def build_lattice_tmatrix(
         raise ValueError(
             f"a T-matrix needs an incidence-independent polarizability {INCIDENCE_INDEPENDENT};"
             f" got {polarizability!r} (LDR's S term depends on the incident wave: use "
-            "polarizability = 'ldr_avg')"
+            "polarizability = 'fcd' or 'ldr_avg')"
         )
     t0 = time.perf_counter()
     dtype = np.complex64 if precision == "single" else np.complex128
@@ -187,12 +187,14 @@ def build_lattice_tmatrix(
     pos = lattice.positions
     radii = np.sqrt((pos**2).sum(axis=1))
     alpha = system.alpha(np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
+    weight = np.abs(alpha) if alpha.ndim == 1 else np.abs(alpha).mean(axis=1)
     if order is None:
-        order, estimate = choose_order(k, radii, np.abs(alpha), truncation)
+        order, estimate = choose_order(k, radii, weight, truncation)
     else:
-        estimate = truncation_estimate(k, radii, np.abs(alpha), order)
+        estimate = truncation_estimate(k, radii, weight, order)
     if use_symmetry:
-        ops = lattice_symmetries(lattice, system.eps_rel)
+        eps = system.eps_rel
+        ops = lattice_symmetries(lattice, eps, per_axis=eps.ndim == 2)
     else:
         ops = [np.eye(3, dtype=np.int64)]
     group = SymmetryGroup.from_operations(ops, order)
@@ -238,7 +240,7 @@ def _solve(system: DipoleSystem, e_inc: NDArray, alpha: NDArray, tolerance: floa
            max_iterations: int) -> tuple[NDArray, SolveResult]:
     """QMR (one product per iteration), BiCGStab where complex-symmetric Lanczos would break
     down (``b^T b ~ 0``) or did not converge."""
-    b = np.sqrt(alpha)[:, None] * e_inc
+    b = (np.sqrt(alpha) if alpha.ndim == 2 else np.sqrt(alpha)[:, None]) * e_inc
     safe = abs(np.sum(b * b)) > BILINEAR_FLOOR * float(np.sum(np.abs(b) ** 2))
     if safe:
         try:
@@ -272,7 +274,8 @@ def build_tmatrix(
 ) -> TMatrix:
     """The T-matrix of ``model`` on the lattice the built-in engine uses with ``settings``.
 
-    ``settings.polarizability`` must be incidence-independent (``"ldr_avg"`` or ``"cm"``);
+    ``settings.polarizability`` must be incidence-independent (``"fcd"``, the default,
+    ``"ldr_avg"`` or ``"cm"``);
     the solver tolerance is ``min(settings.tolerance, 1e-6)`` unless ``tolerance`` is given.
     The solves use the single-precision FFT convolution by default (``precision``): the
     iterations and the T-matrix's error are unchanged at these tolerances (measured: 3.1e-7
@@ -280,7 +283,7 @@ def build_tmatrix(
     The provenance (:func:`holofit.dda.tmatrix_io.describe` plus the build's numbers) is
     stored in the result.
     """
-    settings = settings or DDASettings(polarizability="ldr_avg")
+    settings = settings or DDASettings()
     if settings.polarizability not in INCIDENCE_INDEPENDENT:
         raise ValueError(
             f"dda polarizability {settings.polarizability!r} depends on the incident wave, so "

@@ -65,7 +65,7 @@ def _cube_operations() -> list[NDArray[np.int64]]:
     return ops
 
 
-def lattice_symmetries(lattice: Lattice, values: NDArray | None = None,
+def lattice_symmetries(lattice: Lattice, values: NDArray | None = None, per_axis: bool = False,
                        tol: float = 1e-10) -> list[NDArray[np.int64]]:
     """The cube operations (3x3 signed permutations, particle frame) that map the lattice
     about the expansion centre (the particle centre) onto itself with the same value on
@@ -78,6 +78,10 @@ def lattice_symmetries(lattice: Lattice, values: NDArray | None = None,
     values : ndarray, shape (N,) or (N, n), optional
         What must match per dipole (the relative permittivity for the DDA); the material
         fractions by default.
+    per_axis : bool
+        ``values`` (N, 3) are along the lattice axes (the diagonal permittivity of laminate
+        voxels): an operation permuting the axes permutes them too (component ``i`` of the
+        image is component ``pi(i)`` of the original, ``S[i, pi(i)] = +-1``).
     tol : float
         Largest difference of matched values.
 
@@ -95,12 +99,16 @@ def lattice_symmetries(lattice: Lattice, values: NDArray | None = None,
     vals = lattice.fractions if values is None else np.asarray(values)
     f_ref = vals[ref]
     found = []
+    if per_axis and (vals.ndim != 2 or vals.shape[1] != 3):
+        raise ValueError("per-axis values must have shape (N, 3)")
     for op in _cube_operations():
         v = u @ op.T
         order = np.lexsort(v.T[::-1])
         if not np.array_equal(v[order], u_ref):
             continue
-        if np.max(np.abs(vals[order] - f_ref), initial=0.0) > tol:
+        # dipole ref[j] is the image of dipole order[j]
+        image = vals[order][:, np.argmax(np.abs(op), axis=1)] if per_axis else vals[order]
+        if np.max(np.abs(image - f_ref), initial=0.0) > tol:
             continue
         found.append(op)
     return found
