@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.dda.convolution import Convolver
 from holofit.dda.interaction import Interaction, get_interaction
 from holofit.dda.lattice import Lattice
-from holofit.dda.polarizability import ldr_s_term, polarizability
+from holofit.dda.polarizability import INCIDENCE_INDEPENDENT, ldr_s_term, polarizability
 from holofit.dda.solver import ConvergenceError, SolveResult, bicgstab, qmr_cs
 
 __all__ = ["DipoleSolution", "DipoleSystem", "incident_field"]
@@ -66,7 +66,7 @@ class DipoleSystem:
         Wavenumber in the medium, rad/um.
     n_medium : float
         Refractive index of the medium (to form relative permittivities).
-    pol : {"ldr", "cm", "fcd"}
+    pol : {"ldr", "ldr_avg", "cm", "fcd"}
         Polarisability prescription.
     dtype : numpy complex dtype
         Precision of the FFT convolution (complex128 by default).
@@ -91,6 +91,62 @@ class DipoleSystem:
         """Polarisability of each dipole for this incident wave (LDR depends on it)."""
         s = ldr_s_term(propagation, polarization)
         return polarizability(self.eps_rel, self.lattice.d, self.k, self.pol, s)
+
+    @property
+    def incidence_independent(self) -> bool:
+        """True if the polarisabilities do not depend on the incident wave (the DDA is then
+        one linear map of any incident field: the lattice has a T-matrix)."""
+        return self.pol in INCIDENCE_INDEPENDENT
+
+    def solve_field(
+        self,
+        e_inc: NDArray[np.complex128],
+        tol: float = 1e-5,
+        x0: NDArray[np.complex128] | None = None,
+        maxiter: int = 2000,
+        method: str = "qmr",
+    ) -> tuple[NDArray[np.complex128], SolveResult]:
+        """Dipole moments (N, 3) for an arbitrary incident field ``e_inc`` (N, 3) at the
+        dipoles, with an incidence-independent polarisability (the same start rule and solvers
+        as :meth:`solve`).
+
+        Returns the moments and the solver's result (its ``x`` is the scaled unknown, for
+        warm starts); raises :class:`ConvergenceError` if the tolerance is not met.
+        """
+        if not self.incidence_independent:
+            raise ValueError(
+                f"polarizability {self.pol!r} depends on the incident wave; a general incident "
+                f"field needs one of {INCIDENCE_INDEPENDENT}"
+            )
+        if method not in ("qmr", "bicgstab"):
+            raise ValueError(f"solver method must be 'qmr' or 'bicgstab', got {method!r}")
+        alpha = self.alpha(np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
+        w = np.ascontiguousarray(np.sqrt(alpha if alpha.ndim == 2 else alpha[:, None]
+                                         * np.ones(3)))
+        b = (w * np.asarray(e_inc)).ravel()
+        buf = np.empty_like(b)
+
+        def mv(v: NDArray) -> NDArray:
+            return self._matvec(v, w, buf)
+
+        known: dict[str, NDArray] = {}
+        if x0 is None:
+            ab = mv(b).copy()
+            start = b if np.linalg.norm(b - ab) < np.linalg.norm(b) else None
+            known = {"a_x0": ab} if start is not None else {"a_r0": ab}
+        else:
+            start = np.asarray(x0, dtype=complex).ravel()
+        if method == "qmr":
+            result: SolveResult = qmr_cs(mv, b, x0=start, tol=tol, maxiter=maxiter, **known)
+        else:
+            result = bicgstab(lambda v: mv(v).copy(), b, x0=start, tol=tol, maxiter=maxiter)
+        if not result.converged:
+            raise ConvergenceError(
+                f"DDA solve did not converge: relative residual {result.residual:.3g} after "
+                f"{result.iterations} iterations (tolerance {tol:g}, {self.lattice.n_dipoles} "
+                "dipoles)"
+            )
+        return result.x.reshape(-1, 3) * w, result
 
     def _matvec(self, x: NDArray, sqrt_alpha: NDArray, out: NDArray | None = None) -> NDArray:
         """``(I - alpha^(1/2) G alpha^(1/2)) x``."""

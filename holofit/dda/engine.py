@@ -27,6 +27,7 @@ from holofit.dda.dipoles import DipoleSolution, DipoleSystem, incident_field
 from holofit.dda.farfield import adda_amplitude_matrix, far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
 from holofit.dda.multipole import (
+    NEAR_ZONE,
     MultipoleExpansion,
     PlaneGrid,
     default_order,
@@ -37,6 +38,8 @@ from holofit.dda.multipole import (
 )
 from holofit.dda.nearfield import direct_field
 from holofit.dda.settings import DDASettings
+from holofit.dda.tmatrix import TMatrix
+from holofit.dda.tmatrix_wave import TMatrixWave
 from holofit.dda.voxelize import voxelize
 from holofit.dda.wigner import rotate_coefficients
 from holofit.models import ParticleModel
@@ -44,10 +47,8 @@ from holofit.optics import Optics
 from holofit.scattering.mie import CrossSections
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
-__all__ = ["BuiltinDDA", "DDAWave"]
+__all__ = ["NEAR_ZONE", "BuiltinDDA", "DDAWave"]
 
-#: points closer to the centre than this multiple of the circumscribing radius use direct sums
-NEAR_ZONE = 2.0
 #: warm-start from an earlier solution only if its incident wave is this close (rad-ish)
 WARM_START_RADIUS = 0.3
 #: earlier solutions kept per lattice, and used at most in one least-squares warm start
@@ -298,6 +299,7 @@ class BuiltinDDA(ScatteringTheory):
         self._by_spacing: LRUCache[tuple, list[DipoleSolution]] = LRUCache(8)
         self._systems: LRUCache[tuple, DipoleSystem] = LRUCache(
             8, on_evict=lambda key, _: self._solutions.pop(key, None))
+        self._tmatrices: dict[tuple, TMatrix] = {}
         self.last_iterations = 0
 
     def dipole_size(self, model: ParticleModel, optics: Optics) -> float:
@@ -318,8 +320,64 @@ class BuiltinDDA(ScatteringTheory):
                                       self.settings.polarizability, dtype))
         return key, system
 
+    # -- T-matrix (holofit.dda.tmatrix): every orientation without a solve -------------------
+    def _tmatrix_key(self, model: ParticleModel, optics: Optics) -> tuple:
+        return (model, self.dipole_size(model, optics), optics.wavelength_um, optics.n_medium)
+
+    def use_tmatrix(self, model: ParticleModel, optics: Optics, tmatrix: TMatrix,
+                    source: str = "T-matrix") -> None:
+        """Serve :meth:`solve` for ``(model, optics)`` (any orientation and polarisation) from
+        ``tmatrix``, after checking that it was made for this model, lattice, optics and
+        settings (:func:`holofit.dda.tmatrix_io.check_compatible`, errors name ``source``)."""
+        from holofit.dda.tmatrix_io import check_compatible, describe
+
+        d = self.dipole_size(model, optics)
+        expected = describe(model, d, optics, self.settings, self.lattice(model, optics))
+        check_compatible(tmatrix.provenance, expected, source, self.settings.tolerance)
+        self._tmatrices[self._tmatrix_key(model, optics)] = tmatrix
+
+    def tmatrix(self, model: ParticleModel, optics: Optics, path: str | None = None,
+                **build_options: Any) -> TMatrix:
+        """The T-matrix of ``(model, optics)``, used from now on by :meth:`solve`.
+
+        Already in use: returned. Else, if ``path`` names an existing file, it is loaded
+        (refused with :class:`~holofit.dda.tmatrix_io.TMatrixMismatch` if made for anything
+        else); otherwise it is built (:func:`holofit.dda.tmatrix_build.build_tmatrix`, options
+        passed on) and, with ``path``, saved there.
+        """
+        from pathlib import Path
+
+        from holofit.dda.tmatrix_build import build_tmatrix
+        from holofit.dda.tmatrix_io import load_tmatrix, save_tmatrix
+
+        tm = self._tmatrices.get(self._tmatrix_key(model, optics))
+        if tm is not None:
+            return tm
+        if path is not None and Path(path).exists():
+            tm = load_tmatrix(path)
+            self.use_tmatrix(model, optics, tm, source=str(path))
+            return tm
+        tm = build_tmatrix(model, optics, self.settings, **build_options)
+        if path is not None:
+            save_tmatrix(tm, path)
+        self.use_tmatrix(model, optics, tm)
+        return tm
+
     def solve(self, model: ParticleModel, optics: Optics,
-              orientation: Orientation | None = None) -> DDAWave:
+              orientation: Orientation | None = None) -> DDAWave | TMatrixWave:
+        """The scattered wave: from the particle's T-matrix if one is in use for
+        ``(model, optics)`` (:meth:`tmatrix`), else by a DDA solve (:meth:`solve_direct`)."""
+        orientation = orientation or Orientation()
+        if self._tmatrices:
+            tm = self._tmatrices.get(self._tmatrix_key(model, optics))
+            if tm is not None:
+                return TMatrixWave(model, optics, orientation, tm,
+                                   direct=lambda o: self.solve_direct(model, optics, o))
+        return self.solve_direct(model, optics, orientation)
+
+    def solve_direct(self, model: ParticleModel, optics: Optics,
+                     orientation: Orientation | None = None) -> DDAWave:
+        """The scattered wave by a DDA solve (warm-started), never from a T-matrix."""
         orientation = orientation or Orientation()
         rot = euler_zyz(*orientation.as_tuple())
         a_p = rot.T @ PROPAGATION_DIRECTION

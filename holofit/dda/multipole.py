@@ -27,8 +27,9 @@ only repeats the interpolation; a change of ``z_p`` also recomputes the grid.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numba
 import numpy as np
@@ -36,7 +37,21 @@ from numpy.typing import NDArray
 
 from holofit.dda.legendre import legendre_tables
 
-__all__ = ["MultipoleExpansion", "default_order", "expansion_from_far_field"]
+__all__ = [
+    "NEAR_ZONE",
+    "MultipoleExpansion",
+    "PlaneGrid",
+    "default_order",
+    "evaluate_plane",
+    "evaluate_plane_at",
+    "evaluate_planes_at",
+    "expansion_from_far_field",
+    "plane_grid",
+]
+
+#: points closer to the centre than this multiple of the circumscribing radius are not
+#: evaluated from an expansion (its series converges slowly there): the engines use the dipoles
+NEAR_ZONE = 2.0
 
 
 def default_order(k: float, radius_um: float) -> int:
@@ -315,39 +330,6 @@ STENCIL = 8
 STEP_FACTOR = 0.7
 
 
-@numba.njit(cache=True, nogil=True)
-def _plane_rows(p, q, h, dx, hk, pb, dp, mp, n_phi, g_r, g_t, g_p):  # pragma: no cover
-    """Per-m spherical components of the field on each grid row, placed at column m mod n_phi.
-
-    ``p, q`` are [n, m + L]; ``h, dx, hk`` radial functions [row, n]; ``pb, dp, mp`` Legendre
-    tables [row, n, |m|] (m >= 0, Condon-Shortley phase).
-    """
-    L = p.shape[0] - 1
-    for i in range(h.shape[0]):
-        for m in range(-L, L + 1):
-            mm = abs(m)
-            sign = 1.0 if (m >= 0 or mm % 2 == 0) else -1.0
-            msign = sign if m >= 0 else -sign
-            ar = 0.0 + 0.0j
-            at = 0.0 + 0.0j
-            ap = 0.0 + 0.0j
-            for n in range(max(1, mm), L + 1):
-                pc = p[n, m + L]
-                qc = q[n, m + L]
-                pf = sign * pb[i, n, mm]
-                df = sign * dp[i, n, mm]
-                mf = msign * mp[i, n, mm]
-                ar += pc * hk[i, n] * pf
-                pdx = pc * dx[i, n]
-                qh = qc * h[i, n]
-                at += pdx * df + 1j * qh * mf
-                ap += 1j * pdx * mf - qh * df
-            col = m % n_phi
-            g_r[i, col] += ar
-            g_t[i, col] += at
-            g_p[i, col] += ap
-
-
 @dataclass
 class PlaneGrid:
     """``U = kr exp(-ikr) E_{x,y}`` of a field on a plane, sampled on a (delta, phi) grid.
@@ -366,6 +348,127 @@ class PlaneGrid:
     n_ext: int
     z_p: float
     k: float
+
+    @property
+    def packed(self) -> NDArray[np.float64]:
+        """``(Re U_x, Im U_x, Re U_y, Im U_y)`` per node, shape (rows, n_phi + 2 stencil, 4),
+        columns shifted by ``stencil`` and wrapped, so that interpolation needs no modulo."""
+        cached = self.__dict__.get("_packed")
+        if cached is None:
+            pad = self.stencil
+            cols = (np.arange(self.n_phi + 2 * pad) - pad) % self.n_phi
+            both = np.empty((self.ux.shape[0], cols.size, 2), dtype=complex)
+            both[:, :, 0] = self.ux[:, cols]
+            both[:, :, 1] = self.uy[:, cols]
+            cached = both.view(np.float64)  # (rows, cols, 4): Re, Im of U_x then of U_y
+            self.__dict__["_packed"] = cached
+        return cached
+
+
+@lru_cache(maxsize=16)
+def _legendre_coefficients(lmax: int) -> tuple[NDArray, ...]:
+    """Recurrence coefficients of :func:`holofit.dda.legendre.legendre_tables` (per order)."""
+    L = lmax
+    a = np.zeros((L + 1, L + 1))
+    b = np.zeros((L + 1, L + 1))
+    c = np.zeros((L + 1, L + 1))
+    for n in range(2, L + 1):
+        a[n, 0] = np.sqrt((4.0 * n * n - 1.0) / (n * n))
+        b[n, 0] = np.sqrt(((n - 1.0) ** 2) * (2.0 * n + 1.0) / (n * n * (2.0 * n - 3.0)))
+    for m in range(1, L + 1):
+        for n in range(m + 2, L + 1):
+            a[n, m] = np.sqrt((4.0 * n * n - 1.0) / (n * n - m * m))
+            b[n, m] = np.sqrt(((n - 1.0) ** 2 - m * m) * (2.0 * n + 1.0)
+                              / ((n * n - m * m) * (2.0 * n - 3.0)))
+        for n in range(m, L + 1):
+            c[n, m] = np.sqrt((n * n - m * m) * (2.0 * n + 1.0) / (2.0 * n - 1.0))
+    m = np.arange(L + 1)
+    sect = np.zeros(L + 1)
+    sect[1:] = -np.sqrt((2.0 * m[1:] + 1.0) / (2.0 * m[1:]))
+    return a, b, c, sect
+
+
+@numba.njit(cache=True, nogil=True)
+def _plane_fourier(p, q, mu, h, dx, hk, fac, rec_a, rec_b, rec_c, sect, n_ext, n_phi, out_x,
+                   out_y):  # pragma: no cover - compiled
+    """Fourier coefficients over phi of ``U_x, U_y`` on every grid row (and the reflected
+    rows ``i < n_ext``), from the expansion ``p, q`` ([n, m + L]).
+
+    Per row: the Legendre recurrences at ``mu = cos th``; the per-m spherical components
+    ``E_r, E_th, E_ph``; then ``E_x = rho cos ph - E_ph sin ph``, ``E_y = rho sin ph +
+    E_ph cos ph`` (``rho = E_r sin th + E_th cos th``) as shifts ``m -> m +- 1``.
+    """
+    L = p.shape[0] - 1
+    pb = np.zeros((L + 1, L + 1))
+    dp = np.zeros((L + 1, L + 1))
+    mp = np.zeros((L + 1, L + 1))
+    u = np.zeros((L + 2, L + 1))
+    rho = np.zeros(2 * L + 3, dtype=np.complex128)
+    eph = np.zeros(2 * L + 3, dtype=np.complex128)
+    p0 = np.sqrt(1.0 / (4.0 * np.pi))
+    for i in range(mu.shape[0]):
+        x = mu[i]
+        s = np.sqrt(max(0.0, 1.0 - x * x))
+        # Legendre tables (Condon-Shortley, orthonormal), as holofit.dda.legendre
+        pb[0, 0] = p0
+        if L >= 1:
+            pb[1, 0] = np.sqrt(3.0) * x * p0
+        for n in range(2, L + 1):
+            pb[n, 0] = rec_a[n, 0] * x * pb[n - 1, 0] - rec_b[n, 0] * pb[n - 2, 0]
+        if L >= 1:
+            u[1, 1] = -np.sqrt(1.5) * p0
+            for m in range(2, L + 1):
+                u[m, m] = sect[m] * s * u[m - 1, m - 1]
+            for m in range(1, L + 1):
+                if m + 1 <= L:
+                    u[m + 1, m] = np.sqrt(2.0 * m + 3.0) * x * u[m, m]
+                for n in range(m + 2, L + 1):
+                    u[n, m] = rec_a[n, m] * x * u[n - 1, m] - rec_b[n, m] * u[n - 2, m]
+            for m in range(1, L + 1):
+                for n in range(m, L + 1):
+                    pb[n, m] = s * u[n, m]
+                    mp[n, m] = m * u[n, m]
+                    prev = u[n - 1, m] if n - 1 >= m else 0.0
+                    dp[n, m] = n * x * u[n, m] - rec_c[n, m] * prev
+            for n in range(1, L + 1):
+                dp[n, 0] = np.sqrt(n * (n + 1.0)) * pb[n, 1]
+        # per-m spherical components, combined into rho and E_ph at index m + L + 1
+        for m in range(-L, L + 1):
+            mm = abs(m)
+            sign = 1.0 if (m >= 0 or mm % 2 == 0) else -1.0
+            msign = sign if m >= 0 else -sign
+            ar = 0.0 + 0.0j
+            at = 0.0 + 0.0j
+            ap = 0.0 + 0.0j
+            for n in range(max(1, mm), L + 1):
+                pc = p[n, m + L]
+                qc = q[n, m + L]
+                pf = sign * pb[n, mm]
+                df = sign * dp[n, mm]
+                mf = msign * mp[n, mm]
+                ar += pc * hk[i, n] * pf
+                pdx = pc * dx[i, n]
+                qh = qc * h[i, n]
+                at += pdx * df + 1j * qh * mf
+                ap += 1j * pdx * mf - qh * df
+            rho[m + L + 1] = ar * s + at * x
+            eph[m + L + 1] = ap
+        f = fac[i]
+        for m in range(-L - 1, L + 2):
+            k = m + L + 1
+            rm = rho[k - 1] if k >= 1 else 0.0j
+            rp = rho[k + 1] if k + 1 <= 2 * L + 2 else 0.0j
+            em = eph[k - 1] if k >= 1 else 0.0j
+            ep = eph[k + 1] if k + 1 <= 2 * L + 2 else 0.0j
+            ux = (0.5 * (rm + rp) + 0.5j * (em - ep)) * f
+            uy = (-0.5j * (rm - rp) + 0.5 * (em + ep)) * f
+            col = m % n_phi
+            out_x[n_ext + i, col] = ux
+            out_y[n_ext + i, col] = uy
+            if 1 <= i <= n_ext:
+                sgn = 1.0 if m % 2 == 0 else -1.0
+                out_x[n_ext - i, col] = sgn * ux
+                out_y[n_ext - i, col] = sgn * uy
 
 
 def plane_grid(
@@ -397,61 +500,47 @@ def plane_grid(
     step = min(STEP_FACTOR / (2 * L + 2), (np.pi / 2 - delta_max) / (STENCIL // 2 + 3))
     n_phi = int(np.ceil(2 * np.pi * (L + 1) / STEP_FACTOR / 2.0)) * 2
     n_ext = STENCIL
-    n_rows = int(np.ceil(delta_max / step)) + STENCIL // 2 + 2
+    # rows 1..n_ext also feed the reflected rows below the pole
+    n_rows = max(int(np.ceil(delta_max / step)) + STENCIL // 2 + 2, n_ext + 1)
     delta = np.arange(n_rows) * step
     r = abs(z_p) / np.cos(delta)
-    theta = np.pi - delta if z_p > 0 else delta
+    mu = -np.cos(delta) if z_p > 0 else np.cos(delta)  # cos(theta), theta = pi -+ delta
     h, dxr, hk = _radial(np.ascontiguousarray(k * r), L, far)
-    pb, dp, mp = legendre_tables(np.ascontiguousarray(np.cos(theta)), L)
-    g_r = np.zeros((n_rows, n_phi), dtype=complex)
-    g_t = np.zeros_like(g_r)
-    g_p = np.zeros_like(g_r)
-    _plane_rows(np.ascontiguousarray(expansion.p), np.ascontiguousarray(expansion.q), h, dxr,
-                hk, pb, dp, mp, n_phi, g_r, g_t, g_p)
-    er, et, ep = (np.fft.ifft(g, axis=1, norm="forward") for g in (g_r, g_t, g_p))
-    phi = 2.0 * np.pi * np.arange(n_phi) / n_phi
-    st, ct = np.sin(theta)[:, None], np.cos(theta)[:, None]
-    cp, sp = np.cos(phi)[None, :], np.sin(phi)[None, :]
-    rho_part = er * st + et * ct
     # U = kr exp(-ikr) E: smooth (the far mode's radial factors carry exp(ikr)/(kr) too)
-    factor = (k * r * np.exp(-1j * k * r))[:, None]
-    ex = (rho_part * cp - ep * sp) * factor
-    ey = (rho_part * sp + ep * cp) * factor
-    half = n_phi // 2
-    ext_x = np.roll(ex[1 : n_ext + 1][::-1], half, axis=1)
-    ext_y = np.roll(ey[1 : n_ext + 1][::-1], half, axis=1)
-    return PlaneGrid(
-        ux=np.ascontiguousarray(np.vstack([ext_x, ex])),
-        uy=np.ascontiguousarray(np.vstack([ext_y, ey])),
-        step=step, delta_max=float(delta_max), stencil=STENCIL, n_phi=n_phi, n_ext=n_ext,
-        z_p=float(z_p), k=k,
-    )
+    fac = k * r * np.exp(-1j * k * r)
+    rec_a, rec_b, rec_c, sect = _legendre_coefficients(L)
+    ux = np.zeros((n_ext + n_rows, n_phi), dtype=complex)
+    uy = np.zeros_like(ux)
+    _plane_fourier(np.ascontiguousarray(expansion.p), np.ascontiguousarray(expansion.q), mu, h,
+                   dxr, hk, fac, rec_a, rec_b, rec_c, sect, n_ext, n_phi, ux, uy)
+    ux = np.fft.ifft(ux, axis=1, norm="forward")
+    uy = np.fft.ifft(uy, axis=1, norm="forward")
+    return PlaneGrid(ux=ux, uy=uy, step=step, delta_max=float(delta_max), stencil=STENCIL,
+                     n_phi=n_phi, n_ext=n_ext, z_p=float(z_p), k=k)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _lagrange_weights(t, n, c, w):  # pragma: no cover - compiled
-    """Weights of the n-point Lagrange interpolant at t (nodes 0..n-1), barycentric form.
-
-    ``c[a] = 1 / prod_{b != a} (a - b)``.
-    """
-    total = 1.0
-    exact = -1
-    for b in range(n):
-        diff = t - b
-        if diff == 0.0:
-            exact = b
-        total *= diff
-    if exact >= 0:
-        for a in range(n):
-            w[a] = 1.0 if a == exact else 0.0
-        return
+    """Weights of the n-point Lagrange interpolant at t (nodes 0..n-1):
+    ``w[a] = c[a] prod_{b != a} (t - b)`` with ``c[a] = 1 / prod_{b != a} (a - b)``, the
+    products from prefix and suffix products (no division, exact at the nodes)."""
+    left = 1.0
     for a in range(n):
-        w[a] = c[a] * total / (t - a)
+        w[a] = c[a] * left
+        left *= t - a
+    right = 1.0
+    for a in range(n - 1, -1, -1):
+        w[a] *= right
+        right *= t - a
 
 
-@numba.njit(cache=True, nogil=True, fastmath={"contract", "reassoc", "nsz", "arcp"})
-def _interp_plane(ux, uy, step, n_phi, n_ext, delta, phi, fac, ex, ey, skip,
-                  n):  # pragma: no cover - compiled
+@numba.njit(cache=True, nogil=True)
+def _interp_points(gs, step, n_phi, n_ext, pad, delta, phi, fac, skip, ex, ey,
+                   n):  # pragma: no cover - compiled
+    """``E_{x,y} = U(delta, phi) * fac`` at points of the plane for several fields at once:
+    ``U`` of field ``f`` interpolated on its packed grid ``gs[f]`` (:attr:`PlaneGrid.packed`,
+    all of one geometry) with ``n`` x ``n``-point Lagrange stencils, the weights computed once
+    per point for all fields."""
     half = n // 2 - 1
     c = np.empty(n)
     for a in range(n):
@@ -463,41 +552,37 @@ def _interp_plane(ux, uy, step, n_phi, n_ext, delta, phi, fac, ex, ey, skip,
     wt = np.empty(n)
     wp = np.empty(n)
     hphi = 2.0 * np.pi / n_phi
-    for i in range(delta.shape[0]):
-        for j in range(delta.shape[1]):
-            if skip[i, j]:
-                continue
-            t = delta[i, j] / step + n_ext
-            i0 = int(t) - half
-            _lagrange_weights(t - i0, n, c, wt)
-            u = phi[i, j] / hphi
-            j0 = int(u) - half
-            _lagrange_weights(u - j0, n, c, wp)
-            sx = 0.0 + 0.0j
-            sy = 0.0 + 0.0j
-            if j0 >= 0 and j0 + n <= n_phi:
-                for a in range(n):
-                    rx = 0.0 + 0.0j
-                    ry = 0.0 + 0.0j
-                    row = i0 + a
-                    for b in range(n):
-                        rx += wp[b] * ux[row, j0 + b]
-                        ry += wp[b] * uy[row, j0 + b]
-                    sx += wt[a] * rx
-                    sy += wt[a] * ry
-            else:
-                for a in range(n):
-                    rx = 0.0 + 0.0j
-                    ry = 0.0 + 0.0j
-                    row = i0 + a
-                    for b in range(n):
-                        col = (j0 + b) % n_phi
-                        rx += wp[b] * ux[row, col]
-                        ry += wp[b] * uy[row, col]
-                    sx += wt[a] * rx
-                    sy += wt[a] * ry
-            ex[i, j] = sx * fac[i, j]
-            ey[i, j] = sy * fac[i, j]
+    for p in range(delta.shape[0]):
+        if skip[p]:
+            continue
+        t = delta[p] / step + n_ext
+        i0 = int(t) - half
+        _lagrange_weights(t - i0, n, c, wt)
+        u = phi[p] / hphi
+        j0 = int(u) - half
+        _lagrange_weights(u - j0, n, c, wp)
+        j0 += pad
+        f_p = fac[p]
+        for f in range(gs.shape[0]):
+            # scalar accumulators (kept in registers): Re/Im of U_x and U_y
+            a0 = a1 = a2 = a3 = 0.0
+            for a in range(n):
+                r0 = r1 = r2 = r3 = 0.0
+                ia = i0 + a
+                for b in range(n):
+                    w = wp[b]
+                    jb = j0 + b
+                    r0 += w * gs[f, ia, jb, 0]
+                    r1 += w * gs[f, ia, jb, 1]
+                    r2 += w * gs[f, ia, jb, 2]
+                    r3 += w * gs[f, ia, jb, 3]
+                w = wt[a]
+                a0 += w * r0
+                a1 += w * r1
+                a2 += w * r2
+                a3 += w * r3
+            ex[f, p] = (a0 + 1j * a1) * f_p
+            ey[f, p] = (a2 + 1j * a3) * f_p
 
 
 def evaluate_plane(
@@ -509,21 +594,9 @@ def evaluate_plane(
     ``(xp, yp)`` is the lateral position of the expansion centre; ``phase`` multiplies the
     result (the incident phase at the particle); pixels where ``skip`` is True are left 0.
     """
-    ex = np.zeros((ys.size, xs.size), dtype=complex)
-    ey = np.zeros_like(ex)
-    if skip is None:
-        skip = np.zeros(ex.shape, dtype=np.bool_)
-    dx = np.asarray(xs, dtype=float)[None, :] - xp
-    dy = np.asarray(ys, dtype=float)[:, None] - yp
-    az = abs(grid.z_p)
-    rho = np.hypot(dx, dy)
-    delta = np.arctan2(rho, az)
-    phi = np.arctan2(dy, dx) % (2.0 * np.pi)
-    kr = grid.k * np.sqrt(rho * rho + az * az)
-    fac = np.exp(1j * kr) * (complex(phase) / kr)
-    _interp_plane(grid.ux, grid.uy, grid.step, grid.n_phi, grid.n_ext, delta, phi, fac, ex, ey,
-                  np.ascontiguousarray(skip), grid.stencil)
-    return ex, ey
+    dx = np.broadcast_to(np.asarray(xs, dtype=float)[None, :] - xp, (ys.size, xs.size))
+    dy = np.broadcast_to(np.asarray(ys, dtype=float)[:, None] - yp, (ys.size, xs.size))
+    return evaluate_plane_at(grid, dx, dy, phase, skip)
 
 
 def evaluate_plane_at(
@@ -535,19 +608,37 @@ def evaluate_plane_at(
     ``dx, dy`` (any equal shapes) are the lateral offsets of the points from the expansion
     centre, um; ``phase`` multiplies the result; points where ``skip`` is True are left 0.
     """
+    return evaluate_planes_at([grid], dx, dy, phase, skip)[0]
+
+
+def evaluate_planes_at(
+    grids: Sequence[PlaneGrid], dx: NDArray, dy: NDArray, phase: complex = 1.0,
+    skip: NDArray | None = None,
+) -> list[tuple[NDArray[np.complex128], NDArray[np.complex128]]]:
+    """:func:`evaluate_plane_at` for several fields whose grids share one geometry (same
+    plane, step, azimuths and rows: expansions of one order, built for the same ``z_p`` and
+    ``delta_max``), in one pass over the points."""
+    g0 = grids[0]
+    for g in grids[1:]:
+        if (g.ux.shape, g.step, g.n_phi, g.n_ext, g.z_p, g.k, g.stencil) != (
+                g0.ux.shape, g0.step, g0.n_phi, g0.n_ext, g0.z_p, g0.k, g0.stencil):
+            raise ValueError("plane grids of different geometry cannot be evaluated together")
     shape = np.shape(dx)
-    dx2 = np.asarray(dx, dtype=float).reshape(-1, 1)
-    dy2 = np.asarray(dy, dtype=float).reshape(-1, 1)
-    ex = np.zeros(dx2.shape, dtype=complex)
+    dx1 = np.ascontiguousarray(dx, dtype=float).ravel()
+    dy1 = np.ascontiguousarray(dy, dtype=float).ravel()
+    ex = np.zeros((len(grids), dx1.size), dtype=complex)
     ey = np.zeros_like(ex)
-    skip2 = (np.zeros(dx2.shape, dtype=np.bool_) if skip is None
-             else np.ascontiguousarray(np.asarray(skip, dtype=np.bool_).reshape(-1, 1)))
-    az = abs(grid.z_p)
-    rho = np.hypot(dx2, dy2)
-    delta = np.arctan2(rho, az)
-    phi = np.arctan2(dy2, dx2) % (2.0 * np.pi)
-    kr = grid.k * np.sqrt(rho * rho + az * az)
-    fac = np.exp(1j * kr) * (complex(phase) / kr)
-    _interp_plane(grid.ux, grid.uy, grid.step, grid.n_phi, grid.n_ext, delta, phi, fac, ex, ey,
-                  skip2, grid.stencil)
-    return ex.reshape(shape), ey.reshape(shape)
+    skip1 = (np.zeros(dx1.size, dtype=np.bool_) if skip is None
+             else np.ascontiguousarray(skip, dtype=np.bool_).ravel())
+    gs = g0.packed[None] if len(grids) == 1 else np.stack([g.packed for g in grids])
+    # per-point angles and the exact exp(ikr)/kr (vectorised transcendental functions)
+    az = abs(g0.z_p)
+    rho2 = dx1 * dx1 + dy1 * dy1
+    delta = np.arctan2(np.sqrt(rho2), az)
+    phi = np.arctan2(dy1, dx1)
+    phi[phi < 0.0] += 2.0 * np.pi
+    kr = g0.k * np.sqrt(rho2 + az * az)
+    fac = (np.cos(kr) + 1j * np.sin(kr)) * (complex(phase) / kr)
+    _interp_points(gs, g0.step, g0.n_phi, g0.n_ext, g0.stencil, delta, phi, fac, skip1, ex, ey,
+                   g0.stencil)
+    return [(ex[f].reshape(shape), ey[f].reshape(shape)) for f in range(len(grids))]

@@ -7,6 +7,12 @@ Lattice dispersion relation (Draine & Goodman 1993; ADDA ``-pol ldr``, its defau
 ``M = (b1 + (b2 + b3 S) m^2) (kd)^2 + (2/3) i (kd)^3`` and ``S = sum_mu (a_mu e_mu)^2`` for
 propagation direction ``a`` and polarisation ``e`` in the lattice (particle) frame. ``m`` is
 the relative index and ``k`` the wavenumber in the medium.
+
+LDR with the averaged S term (``"ldr_avg"``): ``S`` replaced by its mean over propagation
+directions and polarisations, ``<S> = 3 <a_x^2 e_x^2> = 1/5`` (from the isotropic fourth-rank
+average of an orthonormal pair). Its polarisability, like Clausius-Mossotti's and the filtered
+coupled dipoles', does not depend on the incident wave, so the lattice has a T-matrix
+(:mod:`holofit.dda.tmatrix`).
 """
 
 from __future__ import annotations
@@ -14,11 +20,25 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["LDR_B1", "LDR_B2", "LDR_B3", "ldr_s_term", "polarizability"]
+__all__ = [
+    "INCIDENCE_INDEPENDENT",
+    "KINDS",
+    "LDR_B1",
+    "LDR_B2",
+    "LDR_B3",
+    "LDR_S_AVERAGE",
+    "ldr_s_term",
+    "polarizability",
+]
 
 LDR_B1 = 1.8915316529870797
 LDR_B2 = -0.1648469150877195
 LDR_B3 = 1.7700004019321372
+#: mean of LDR's S over propagation directions and polarisations
+LDR_S_AVERAGE = 0.2
+#: every prescription, and those whose polarisability does not depend on the incident wave
+KINDS = ("fcd", "ldr", "ldr_avg", "cm")
+INCIDENCE_INDEPENDENT = ("fcd", "ldr_avg", "cm")
 
 
 def ldr_s_term(propagation: ArrayLike, polarization: ArrayLike) -> float:
@@ -41,11 +61,12 @@ def polarizability(
         Dipole size, um.
     k : float
         Wavenumber in the medium, rad/um.
-    kind : {"ldr", "cm", "fcd"}
+    kind : {"ldr", "ldr_avg", "cm", "fcd"}
         Prescription ("fcd" goes with the filtered interaction,
         :mod:`holofit.dda.interaction`).
     s_term : float
-        LDR's ``S`` for the incident direction and polarisation.
+        LDR's ``S`` for the incident direction and polarisation (ignored by ``"ldr_avg"``,
+        which uses :data:`LDR_S_AVERAGE`, and by ``"cm"`` and ``"fcd"``).
 
     Returns
     -------
@@ -63,8 +84,10 @@ def polarizability(
         big_m = (4.0 / 3.0 * kd**2 + 2.0 / (3.0 * np.pi) * np.log((np.pi - kd) / (np.pi + kd))
                  * kd**3 + 2.0 / 3.0 * 1j * kd**3)
         return alpha_cm / (1.0 - (alpha_cm / d**3) * big_m)
-    if kind != "ldr":
-        raise ValueError(f"polarizability kind must be 'ldr', 'cm' or 'fcd', got {kind!r}")
+    if kind == "ldr_avg":
+        s_term = LDR_S_AVERAGE
+    elif kind != "ldr":
+        raise ValueError(f"polarizability kind must be one of {KINDS}, got {kind!r}")
     kd = k * d
     big_m = (LDR_B1 + (LDR_B2 + LDR_B3 * s_term) * m2) * kd**2 + (2.0 / 3.0) * 1j * kd**3
     return alpha_cm / (1.0 - (alpha_cm / d**3) * big_m)

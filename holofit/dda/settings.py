@@ -19,7 +19,8 @@ _SPECS: dict[str, Spec] = {
         default=10.0,
     ),
     "filling": Spec("str", "'fractional' or 'binary'", required=False, default="fractional"),
-    "polarizability": Spec("str", "'fcd', 'ldr' or 'cm'", required=False, default="fcd"),
+    "polarizability": Spec("str", "'fcd', 'ldr', 'ldr_avg' or 'cm'", required=False,
+                           default="fcd"),
     "tolerance": Spec("float", "the solver's relative residual", 1e-14, 0.1, required=False,
                       default=1e-5),
     "max_iterations": Spec("int", "the solver's iteration limit", 1, 100000, required=False,
@@ -45,11 +46,14 @@ class DDASettings:
         ``d = lambda_medium / (dpl * max |m|)``; 10 is ADDA's rule.
     filling : {"fractional", "binary"}
         Smooth fractional filling (default) or centre-inside voxels.
-    polarizability : {"fcd", "ldr", "cm"}
+    polarizability : {"fcd", "ldr", "ldr_avg", "cm"}
         Filtered coupled dipoles (FCD polarisability and filtered interaction; ADDA ``-pol fcd
         -int fcd``; the default: 1.5-4x smaller hologram errors than LDR for n >= 2 and
         absorbing materials, see ``bench/study_dda_discretisation.py``), the lattice dispersion
-        relation (ADDA's default: use it to compare with ADDA) or Clausius-Mossotti.
+        relation (ADDA's default: use it to compare with ADDA), LDR with its direction- and
+        polarisation-dependent S term replaced by the average 1/5 (``"ldr_avg"``), or
+        Clausius-Mossotti. All but ``"ldr"`` are incidence-independent: the lattice then has a
+        T-matrix (:mod:`holofit.dda.tmatrix`).
     tolerance : float
         Relative residual of the QMR solve (ADDA's default 1e-5).
     max_iterations : int
@@ -78,7 +82,8 @@ class DDASettings:
     adda_path: str | None = None
 
     def __post_init__(self) -> None:
-        choices = {"filling": ("fractional", "binary"), "polarizability": ("ldr", "cm", "fcd"),
+        choices = {"filling": ("fractional", "binary"),
+                   "polarizability": ("ldr", "ldr_avg", "cm", "fcd"),
                    "precision": ("double", "single"), "engine": ("builtin", "adda"),
                    "solver": ("qmr", "bicgstab")}
         for name, allowed in choices.items():

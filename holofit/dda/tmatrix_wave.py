@@ -1,0 +1,310 @@
+"""Scattered waves served from a T-matrix: fields, holograms and exact orientation derivatives.
+
+:class:`ExpansionWave` is any field known by its outgoing multipole expansion about the
+particle centre (lab frame): it evaluates the expansion outside ``NEAR_ZONE`` times the
+circumscribing radius (on a camera plane through :mod:`holofit.dda.multipole`'s interpolated
+grid) and asks a near-field callable for points closer in. :class:`TMatrixWave` is the wave of
+one orientation (``o_lab = D T D^H a``, :mod:`holofit.dda.tmatrix`); its
+:meth:`~TMatrixWave.orientation_derivative` is again an :class:`ExpansionWave`, whose "field" is
+the exact derivative of the scattered field with respect to one Euler angle (the expansion is
+linear in its coefficients), so
+
+    wave = theory.solve(model, optics, orientation)      # TMatrixWave
+    e_x, e_y = wave.field_on_pixels(position, xs, ys)
+    de_x, de_y = wave.orientation_derivative("theta").field_on_pixels(position, xs, ys)
+    dr_x, dr_y = wave.rotation_derivative(axis).field_on_pixels(position, xs, ys)
+
+gives the scattered field, its derivative with respect to the Euler angle theta, and its
+derivative with respect to a rotation of the particle about a lab axis (``R -> exp(eps [axis]x)
+R``, what :class:`holofit.fitting.forward.HologramModel` uses), all per radian, incident phase
+included, with the same conventions as every
+:class:`~holofit.scattering.theory.ScatteredWave` (``field_on_detector`` and ``field_at`` too).
+``wave.field_and_rotation_derivatives(position, xs, ys, axes)`` gives the field and the
+rotation derivatives for several axes in one pass over the pixels (a fit's Jacobian columns,
+about 40 % cheaper than separate calls).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from holofit.cache import LRUCache
+from holofit.conventions import euler_zyz, euler_zyz_from_matrix, incident_phase_at
+from holofit.dda.multipole import (
+    NEAR_ZONE,
+    MultipoleExpansion,
+    PlaneGrid,
+    evaluate_plane_at,
+    evaluate_planes_at,
+    plane_grid,
+)
+from holofit.dda.tmatrix import LabCoefficients, TMatrix
+from holofit.dda.tmatrix_waves import pack
+from holofit.dda.wigner import EULER_ANGLES
+from holofit.models import ParticleModel
+from holofit.optics import Optics
+from holofit.scattering.theory import Orientation, ScatteredWave
+
+__all__ = ["ExpansionWave", "NearField", "TMatrixWave"]
+
+#: ``points (N, 3) lab, relative to the centre -> field (N, 3)``, exact near the particle
+NearField = Callable[[NDArray[np.float64]], NDArray[np.complex128]]
+#: step of the central differences that give derivatives of the near field, rad
+NEAR_DERIVATIVE_STEP = 1e-4
+
+
+class ExpansionWave(ScatteredWave):
+    """A field given by its outgoing expansion (lab frame) about the particle centre.
+
+    Parameters
+    ----------
+    optics : Optics
+        The illumination (for the wavenumber and the incident phase at the particle).
+    expansion : MultipoleExpansion
+        The field outside the circumscribing sphere.
+    near_field : callable, optional
+        Exact field at points within ``NEAR_ZONE * radius`` (lab, relative to the centre);
+        without it such points raise ``ValueError``.
+    """
+
+    exact_near_field = True
+
+    def __init__(self, optics: Optics, expansion: MultipoleExpansion,
+                 near_field: NearField | None = None) -> None:
+        self.optics = optics
+        self._expansion = expansion
+        self.radius_um = float(expansion.radius_um)
+        self._near = near_field
+        self._grids: LRUCache[tuple, PlaneGrid] = LRUCache(4)
+
+    @property
+    def expansion(self) -> MultipoleExpansion:
+        """Outgoing multipole expansion about the particle centre (lab frame)."""
+        return self._expansion
+
+    def far_field_amplitude(self, directions: ArrayLike) -> NDArray[np.complex128]:
+        """``F(n)`` (lab frame) at lab unit directions, ``E_sca = exp(ikr)/(-ikr) F``."""
+        return -1j * self.expansion.far_amplitude(directions)
+
+    def _near_field(self, points: NDArray) -> NDArray[np.complex128]:
+        if self._near is None:
+            raise ValueError(
+                f"points within {NEAR_ZONE * self.radius_um:.3g} um of the particle centre need "
+                "the dipoles; this wave only has its multipole expansion"
+            )
+        return self._near(points)
+
+    def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
+        pts = np.atleast_2d(np.asarray(points_um, dtype=float))
+        r = np.linalg.norm(pts, axis=1)
+        if far_field:
+            k = self.optics.k
+            f = self.far_field_amplitude(pts / r[:, None])
+            return f * (np.exp(1j * k * r) / (-1j * k * r))[:, None]
+        out = np.empty((pts.shape[0], 3), dtype=complex)
+        near = r < NEAR_ZONE * self.radius_um
+        if np.any(near):
+            out[near] = self._near_field(pts[near])
+        if np.any(~near):
+            out[~near] = self.expansion.field_at(pts[~near])
+        return out
+
+    def _plane_grid(self, z_p: float, delta_max: float, far: bool) -> PlaneGrid:
+        key = (z_p, far)
+        grid = self._grids.get(key)
+        if grid is None or grid.delta_max < delta_max:
+            margin = min(0.03 * delta_max + 0.01, 0.5 * (np.pi / 2 - delta_max))
+            grid = self._grids.put(key, plane_grid(self.expansion, z_p, delta_max + margin, far))
+        return grid
+
+    def _pixel_geometry(self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
+                        far_field: bool) -> tuple:
+        """Offsets, height, widest angle, incident phase and near-zone mask of the pixels."""
+        xp, yp, zp = (float(v) for v in position_um)
+        dx = np.asarray(xs_um, dtype=float).ravel() - xp
+        dy = np.asarray(ys_um, dtype=float).ravel() - yp
+        rho_max = float(np.sqrt(np.max(dx * dx + dy * dy))) if dx.size else 0.0
+        delta_max = float(np.arctan2(rho_max, abs(zp)))
+        phase = complex(incident_phase_at(zp, self.optics.k))
+        skip = None
+        if not far_field and abs(zp) < NEAR_ZONE * self.radius_um:
+            skip = dx * dx + dy * dy + zp * zp < (NEAR_ZONE * self.radius_um) ** 2
+        return dx, dy, zp, delta_max, phase, skip
+
+    def _fill_near(self, ex: NDArray, ey: NDArray, dx: NDArray, dy: NDArray, zp: float,
+                   phase: complex, skip: NDArray | None) -> None:
+        if skip is not None and np.any(skip):
+            idx = np.flatnonzero(skip)
+            pts = np.column_stack([dx[idx], dy[idx], np.full(idx.size, -zp)])
+            e = self._near_field(pts) * phase
+            ex[idx] = e[:, 0]
+            ey[idx] = e[:, 1]
+
+    def field_on_pixels(
+        self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike, far_field: bool = False
+    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+        """Transverse field at pixel centres, incident phase included: the interpolated
+        multipole grid of the camera plane, the near-field callable for pixels within the near
+        zone."""
+        dx, dy, zp, delta_max, phase, skip = self._pixel_geometry(position_um, xs_um, ys_um,
+                                                                  far_field)
+        if dx.size == 0:
+            return np.zeros(0, dtype=complex), np.zeros(0, dtype=complex)
+        pg = self._plane_grid(zp, delta_max, far_field)
+        ex, ey = evaluate_plane_at(pg, dx, dy, phase, skip)
+        self._fill_near(ex, ey, dx, dy, zp, phase, skip)
+        return ex, ey
+
+
+class TMatrixWave(ExpansionWave):
+    """The scattered wave of one orientation, from the particle's T-matrix.
+
+    Parameters
+    ----------
+    model : ParticleModel
+        The particle.
+    optics : Optics
+        The illumination.
+    orientation : Orientation
+        zyz Euler angles.
+    tmatrix : TMatrix
+        The particle's T-matrix (same model, lattice, optics and polarisability).
+    direct : callable, optional
+        ``orientation -> ScatteredWave`` by a direct DDA solve, used (lazily) for points within
+        ``NEAR_ZONE`` circumscribing radii of the centre, where the expansion is not used.
+    """
+
+    def __init__(self, model: ParticleModel, optics: Optics, orientation: Orientation,
+                 tmatrix: TMatrix,
+                 direct: Callable[[Orientation], ScatteredWave] | None = None) -> None:
+        self.model = model
+        self.orientation = orientation
+        self.tmatrix = tmatrix
+        self.rotation = euler_zyz(*orientation.as_tuple())
+        self._direct = direct
+        self._direct_wave: ScatteredWave | None = None
+        self._coefficients: LabCoefficients | None = None
+        self._generators: NDArray[np.complex128] | None = None
+        coeffs = tmatrix.lab_coefficients(orientation.as_tuple(), optics.polarization)
+        super().__init__(optics, tmatrix.expansion(coeffs.vector),
+                         self._direct_near if direct is not None else None)
+
+    @property
+    def coefficients(self) -> NDArray[np.complex128]:
+        """Flat lab-frame outgoing coefficients (:mod:`holofit.dda.tmatrix_waves` layout)."""
+        return pack(self.expansion.p, self.expansion.q)
+
+    def _direct_near(self, points: NDArray) -> NDArray[np.complex128]:
+        if self._direct_wave is None:
+            assert self._direct is not None
+            self._direct_wave = self._direct(self.orientation)
+        return self._direct_wave.field_at(points)
+
+    def coefficient_derivatives(self) -> dict[str, NDArray[np.complex128]]:
+        """Exact derivatives of the lab outgoing coefficients with respect to ``psi``,
+        ``theta``, ``phi`` (1/rad), from the Wigner-d derivatives (no solve)."""
+        if self._coefficients is None:
+            self._coefficients = self.tmatrix.lab_coefficients(
+                self.orientation.as_tuple(), self.optics.polarization, derivatives=True)
+        return self._coefficients.derivatives
+
+    def orientation_derivative(self, angle: str) -> ExpansionWave:
+        """The derivative of this wave with respect to one Euler angle, as a wave.
+
+        Parameters
+        ----------
+        angle : {"psi", "theta", "phi"}
+            The zyz Euler angle (:class:`~holofit.scattering.theory.Orientation`).
+
+        Returns
+        -------
+        ExpansionWave
+            Its ``field_on_detector``, ``field_at`` and ``far_field_amplitude`` give the exact
+            derivatives (per radian) of this wave's. Near the particle (within ``NEAR_ZONE``
+            radii) the derivative comes from central differences of direct solves.
+        """
+        if angle not in EULER_ANGLES:
+            raise ValueError(f"orientation angle must be one of {EULER_ANGLES}, got {angle!r}")
+        vec = self.coefficient_derivatives()[angle]
+        near = None
+        if self._direct is not None:
+            near = self._near_derivative(angle)
+        return ExpansionWave(self.optics, self.tmatrix.expansion(vec), near)
+
+    def rotation_derivative(self, axis: ArrayLike) -> ExpansionWave:
+        """The derivative of this wave with respect to a rotation of the particle about a lab
+        axis, ``R -> exp(eps [axis]x) R`` at ``eps = 0``, as a wave (per radian; ``axis`` is
+        normalised). Exact from the generator of rotations (no solve); near the particle,
+        central differences of direct solves."""
+        n = np.asarray(axis, dtype=float)
+        n = n / np.linalg.norm(n)
+        if self._generators is None:  # lab x, y, z: any axis is their combination
+            self._generators = self.tmatrix.rotation_derivatives(self.orientation.as_tuple(),
+                                                                 self.optics.polarization)
+        vec = self._generators @ n
+        near = None
+        if self._direct is not None:
+            near = self._near_rotation_derivative(n)
+        return ExpansionWave(self.optics, self.tmatrix.expansion(vec), near)
+
+    def field_and_rotation_derivatives(
+        self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
+        axes: Sequence[ArrayLike], far_field: bool = False,
+    ) -> tuple[tuple[NDArray, NDArray], list[tuple[NDArray, NDArray]]]:
+        """The transverse field at pixel centres and its derivatives with respect to rotations
+        about each lab axis (as :meth:`rotation_derivative`), in one pass over the pixels.
+
+        Equal to ``field_on_pixels`` and ``rotation_derivative(axis).field_on_pixels`` for each
+        axis; the pixels' angles, interpolation weights and ``exp(ikr)/kr`` are computed once
+        for all of them. Returns ``((e_x, e_y), [(de_x, de_y) per axis])``.
+        """
+        dx, dy, zp, delta_max, phase, skip = self._pixel_geometry(position_um, xs_um, ys_um,
+                                                                  far_field)
+        waves = [self.rotation_derivative(axis) for axis in axes]
+        if dx.size == 0:
+            empty = (np.zeros(0, dtype=complex), np.zeros(0, dtype=complex))
+            return empty, [empty for _ in waves]
+        pg = self._plane_grid(zp, delta_max, far_field)
+        grids = [pg] + [plane_grid(w.expansion, zp, pg.delta_max, far_field) for w in waves]
+        fields = evaluate_planes_at(grids, dx, dy, phase, skip)
+        for wave, (ex, ey) in zip([self, *waves], fields, strict=True):
+            wave._fill_near(ex, ey, dx, dy, zp, phase, skip)
+        return fields[0], fields[1:]
+
+    def _near_rotation_derivative(self, axis: NDArray) -> NearField:
+        direct = self._direct
+        assert direct is not None
+        h = NEAR_DERIVATIVE_STEP
+        kx = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
+                       [-axis[1], axis[0], 0.0]])
+
+        def field(points: NDArray) -> NDArray[np.complex128]:
+            out = []
+            for sign in (1.0, -1.0):
+                a = sign * h
+                rot = np.eye(3) + np.sin(a) * kx + (1.0 - np.cos(a)) * (kx @ kx)
+                angles = (float(v) for v in euler_zyz_from_matrix(rot @ self.rotation))
+                out.append(direct(Orientation(*angles)).field_at(points))
+            return (out[0] - out[1]) / (2 * h)
+
+        return field
+
+    def _near_derivative(self, angle: str) -> NearField:
+        direct = self._direct
+        assert direct is not None
+        h = NEAR_DERIVATIVE_STEP
+        j = EULER_ANGLES.index(angle)
+
+        def field(points: NDArray) -> NDArray[np.complex128]:
+            values = list(self.orientation.as_tuple())
+            out = []
+            for sign in (1.0, -1.0):
+                shifted = values.copy()
+                shifted[j] += sign * h
+                out.append(direct(Orientation(*shifted)).field_at(points))
+            return (out[0] - out[1]) / (2 * h)
+
+        return field
