@@ -22,7 +22,7 @@ def _run(case: str) -> dict[str, float]:
 
 def bench_fit() -> dict[str, float]:
     results: dict[str, float] = {}
-    for case in ("rod", "janus"):
+    for case in ("rod", "rod_ideal", "janus"):
         results.update(_run(case))
     return results
 

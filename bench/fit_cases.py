@@ -5,15 +5,20 @@ The paper's rod (a 0.501, b 1.079 um, n 1.495; 60x water, NA 1.2) and Janus part
 8-bit camera noise, known truth. The "prefit" start is the truth moved by (30, -20, 250) nm and
 alpha 0.85 (what a sphere fit of a rod gives, roughly); the library runs at that start.
 
-Reported per particle: the library's one-time tilt solves (``library_<p>_setup_s``), the
+Every case uses the paper's instrument with its objective lens (the default) and, as
+``<particle>_ideal``, the ideal model without the lens. Reported per case: the library's
+one-time tilt solves (``library_<p>_setup_s``), the
 library per frame (``library_<p>_frame_s``), the final pass per frame (static parameters fixed:
 ``fit_<p>_frame_final_s``) and the initial pass (static parameters free from the config's
-values: ``fit_<p>_frame_initial_s``), with their solves and hologram evaluations, and the
+values: ``fit_<p>_frame_initial_s``), the final pass with direct solves
+(``fit_<p>_frame_final_direct_s``) and from the particle's T-matrix (``fit_<p>_frame_final_s``,
+the build timed apart), with their solves and hologram evaluations, and the
 errors against the truth.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -41,9 +46,17 @@ CASES_SETUP = {
 }
 
 
-def run(name: str) -> dict[str, float]:
+def run(case: str, with_tmatrix: bool = True) -> dict[str, float]:
+    """``case`` is a particle (``rod``, ``janus``: the paper's instrument, objective lens
+    included) or ``<particle>_ideal`` (no lens in the model: the focal-plane field itself)."""
+    ideal = case.endswith("_ideal")
+    name = case.removesuffix("_ideal")
     inst_name, part_name, truth_model, truth_o = CASES_SETUP[name]
     inst = load_instrument(resolve_config(inst_name, "instruments"))
+    if ideal:
+        inst = dataclasses.replace(inst, extra={k: v for k, v in inst.extra.items()
+                                                if k != "numerical_aperture"})
+        name = case
     cfg = load_particle(resolve_config(part_name, "particles"))
     px = inst.pixel_size_um
     grid = DetectorGrid((140, 140), px, (100, 200))
@@ -58,6 +71,7 @@ def run(name: str) -> dict[str, float]:
 
     # the library at the truth's static parameters (as after the initial pass)
     fixed_model = particle_with(cfg.model, dict(static_values(truth_model)))
+    cfg = cfg.with_fixed_lattice(inst.optics)
     theory = cfg.theory()
     lib = OrientationLibrary(theory, fixed_model, inst.optics,
                              tilt_grid(fixed_model, math.radians(10)))
@@ -72,11 +86,23 @@ def run(name: str) -> dict[str, float]:
     cands = pick_candidates(scores, lib.tilts, pg.phi, fixed_model, 4, math.radians(20))
     out[f"library_{name}_frame_s"] = time.perf_counter() - t0
 
-    for pass_name, model in (("final", fixed_model), ("initial", cfg.model)):
+    def fit(pass_name, model, label):
         t0 = time.perf_counter()
         res = fit_frame(crop, grid.corner, px, theory, model, inst.optics, start, 0.85, cands,
                         _free(model, pass_name), FrameFitOptions(), seed=0)
-        out[f"fit_{name}_frame_{pass_name}_s"] = time.perf_counter() - t0
+        out[f"fit_{name}_frame_{label}_s"] = time.perf_counter() - t0
+        return res
+
+    runs = [("final", fixed_model, "final_direct"), ("initial", cfg.model, "initial")]
+    if with_tmatrix:
+        runs.append(("final", fixed_model, "final"))
+    for pass_name, model, label in runs:
+        if label == "final":
+            t0 = time.perf_counter()
+            theory.tmatrix(fixed_model, inst.optics)
+            out[f"tmatrix_build_{name}_in_fit_s"] = time.perf_counter() - t0
+        res = fit(pass_name, model, label)
+        pass_name = label
         out[f"fit_{name}_frame_{pass_name}_evaluations"] = float(res.n_eval)
         out[f"fit_{name}_frame_{pass_name}_solves"] = float(res.extra["n_solves"])
         out[f"fit_{name}_frame_{pass_name}_ok"] = float(res.status == "ok")

@@ -166,3 +166,27 @@ def test_cli_runs_the_final_pass_from_a_static_file(movie, tmp_path):
         str(root / "lib"), "-p", str(root / "rod.toml"), "-o", str(tmp_path / "fit2"),
         "--pass", "final", "--static", str(wrong), "-j", "0", "--no-plot"])
     assert res.exit_code == 1 and "wrong.json: static parameters of a 'janus'" in res.output
+
+
+def test_final_pass_from_the_tmatrix_equals_direct_solves(movie, tmp_path):
+    root, particle, _ = movie
+    common = dict(pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False)
+    direct = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "d",
+                     tmatrix="never", **common)
+    served = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "t",
+                     tmatrix="always", **common)
+    assert direct.tmatrix is None and served.tmatrix == tmp_path / "t" / "tmatrix.npz"
+    assert served.tmatrix.exists() and any("T-matrix" in n for n in served.notes)
+    a = pd.read_csv(direct.final).set_index("frame")
+    b = pd.read_csv(served.final).set_index("frame")
+    assert (a["status"] == "ok").all() and (b["status"] == "ok").all()
+    # the same minimum: the T-matrix is the lattice's exact linear map (to solver precision)
+    np.testing.assert_allclose(b[["x_um", "y_um", "z_um"]], a[["x_um", "y_um", "z_um"]],
+                               atol=2e-3)
+    np.testing.assert_allclose(b[["ux", "uy", "uz"]].abs(), a[["ux", "uy", "uz"]].abs(),
+                               atol=5e-3)
+    assert (b["n_solves"] > 0).all()
+    # a rerun reuses the saved T-matrix
+    again = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "t",
+                    tmatrix="always", **common)
+    assert any("loaded" in n for n in again.notes)

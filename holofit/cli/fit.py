@@ -21,7 +21,7 @@ from holofit.cli.stage_options import (
     quality_options,
 )
 from holofit.fit.frame import FrameFitOptions
-from holofit.fit.stage import PASSES, check_fixed, run_fit
+from holofit.fit.stage import PASSES, TMATRIX_CHOICES, check_fixed, run_fit
 from holofit.fitting.result import QualityLimits
 from holofit.scattering.select import ENGINE_CHOICES
 
@@ -52,6 +52,10 @@ from holofit.scattering.select import ENGINE_CHOICES
               help="Scattering engine [default: the particle config's].")
 @click.option("--fix", "fixed", default="", metavar="NAME,NAME",
               help="Hold these parameters at the particle config's values (e.g. gap_um, n2).")
+@click.option("--tmatrix", type=click.Choice(TMATRIX_CHOICES), default="auto",
+              show_default=True,
+              help="Serve the final pass from the particle's T-matrix (built once, saved as "
+                   "OUT/tmatrix.npz; auto: built-in engine and at least 8 frames).")
 @click.option("--starts", "n_starts", type=click.IntRange(min=1), default=2, show_default=True,
               help="Library candidates used as starts (plus the mirrored best).")
 @click.option("--no-mirror", is_flag=True,
@@ -83,6 +87,7 @@ def fit(
     static_file: Path | None,
     engine: str | None,
     fixed: str,
+    tmatrix: str,
     n_starts: int,
     no_mirror: bool,
     ambiguity_chi2: float,
@@ -126,7 +131,8 @@ def fit(
         raise click.BadParameter(str(exc), param_hint="--fix") from None
     run = run_fit(crop_dir, prefit_dir, library_dir, cfg, out, pass_name=pass_name,
                   initial_frames=initial_frames, static=static_file, instrument=inst,
-                  override_instrument=override_instrument, options=opts, engine=engine, fixed=names,
+                  override_instrument=override_instrument, options=opts, engine=engine,
+                  fixed=names, tmatrix=tmatrix,
                   frames=frame_list(crop_dir, frame_range), batch=batch, plot=plot,
                   plot_frames=parse_int_list(plot_frames, "--plot-frames"),
                   outlier_factor=outlier_factor)
@@ -136,6 +142,8 @@ def fit(
         counts = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
         click.echo(f"fit ({name}): {s.n_frames} frame(s) [{counts}]; {s.n_run} fitted now, "
                    f"{s.n_done_before} done before; {s.elapsed_s:.1f} s")
+    for note in run.notes:
+        click.echo(f"note: {note}", err=True)
     if run.static is not None:
         click.echo(f"static parameters -> {run.static}")
     if run.final is not None:

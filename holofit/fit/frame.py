@@ -92,8 +92,8 @@ class FrameFitOptions:
     saturation: float | None = None
     noise_sd: float | None = None
     max_nfev: int = 100
-    ftol: float = 1e-7
-    xtol: float = 1e-7
+    ftol: float = 1e-6
+    xtol: float = 1e-6
     ambiguity_chi2: float = 9.0
     quality: QualityLimits = field(default_factory=QualityLimits)
     far_field: bool = False

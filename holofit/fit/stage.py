@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from numpy.typing import NDArray
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
 from holofit.cache import LRUCache
 from holofit.config import ConfigError, Instrument, ParticleConfig
+from holofit.dda.tmatrix_io import TMatrixMismatch
 from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitOptions, fit_frame
 from holofit.fit_table import column_unit
 from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
@@ -59,6 +61,9 @@ __all__ = [
 ]
 
 PASSES = ("initial", "final", "both")
+TMATRIX_CHOICES = ("auto", "always", "never")
+#: final passes at least this long are served from a T-matrix by default
+TMATRIX_MIN_FRAMES = 8
 
 
 class FitStageError(RuntimeError):
@@ -115,6 +120,9 @@ class FitConfig:
         Scattering engine (default: the particle config's).
     fixed : tuple of str
         Parameters held at their start values in both passes (e.g. a dimer's ``gap_um``).
+    tmatrix : str, optional
+        The particle's T-matrix file (final pass): every orientation is then served from it,
+        with analytic orientation columns of the Jacobian, instead of a DDA solve.
     """
 
     particle: ParticleConfig
@@ -123,6 +131,7 @@ class FitConfig:
     options: FrameFitOptions = field(default_factory=FrameFitOptions)
     engine: str | None = None
     fixed: tuple[str, ...] = ()
+    tmatrix: str | None = None
 
     @property
     def free(self) -> tuple[str, ...]:
@@ -131,7 +140,8 @@ class FitConfig:
     def as_dict(self) -> dict[str, Any]:
         return {"particle": self.particle.as_dict(), "instrument": self.instrument.as_dict(),
                 "pass": self.pass_name, "free": list(self.free),
-                "options": asdict(self.options), "engine": self.engine}
+                "options": asdict(self.options), "engine": self.engine,
+                "tmatrix": self.tmatrix is not None}
 
     def key(self) -> str:
         doc = json.dumps({k: v for k, v in self.as_dict().items() if k != "pass"},
@@ -158,8 +168,13 @@ def fit_frame_task(config: FitConfig, frame: int, payload: FitPayload) -> dict[s
     inst = config.instrument
     key = json.dumps({"particle": config.particle.as_dict(), "engine": config.engine},
                      sort_keys=True, default=str)
-    theory = _THEORIES.get_or_create(
-        key, lambda: config.particle.theory(config.engine, fixed_lattice_for=inst.optics))
+    def make_theory() -> ScatteringTheory:
+        theory = config.particle.theory(config.engine, fixed_lattice_for=inst.optics)
+        if config.tmatrix is not None:
+            theory.tmatrix(config.particle.model, inst.optics, path=config.tmatrix)
+        return theory
+
+    theory = _THEORIES.get_or_create(key + str(config.tmatrix), make_theory)
     start = payload.start
     result = fit_frame(payload.crop, payload.corner, inst.pixel_size_um, theory,
                        config.particle.model, inst.optics,
@@ -234,6 +249,9 @@ class FitRun:
     static: Path | None = None
     final: Path | None = None
     summaries: dict[str, BatchSummary] = field(default_factory=dict)
+    tmatrix: Path | None = None
+    tmatrix_s: float = 0.0
+    notes: list[str] = field(default_factory=list)
 
 
 def _check_library(meta: dict[str, Any], particle: ParticleConfig, path: Path) -> None:
@@ -279,6 +297,7 @@ def run_fit(
     options: FrameFitOptions | None = None,
     engine: str | None = None,
     fixed: tuple[str, ...] = (),
+    tmatrix: str = "auto",
     frames: list[int] | None = None,
     batch: BatchOptions | None = None,
     plot: bool = True,
@@ -316,6 +335,12 @@ def run_fit(
         Scattering engine (default: the particle config's).
     fixed : tuple of str
         Parameters held at their start values (the particle config's for static ones).
+    tmatrix : {"auto", "always", "never"}
+        Serve the final pass from the particle's T-matrix (built once in this process from DDA
+        solves, saved as ``OUT/tmatrix.npz`` and loaded by every worker; exact to the solver's
+        precision at every orientation). ``auto``: for the built-in engine when the final pass
+        has at least :data:`TMATRIX_MIN_FRAMES` frames (a rod's build costs about as much as
+        five frames fitted with direct solves).
     frames : list of int, optional
         Only these frames (both passes).
     batch : BatchOptions, optional
@@ -334,6 +359,8 @@ def run_fit(
     """
     if pass_name not in PASSES:
         raise ValueError(f"pass must be one of {', '.join(PASSES)}, got {pass_name!r}")
+    if tmatrix not in TMATRIX_CHOICES:
+        raise ValueError(f"tmatrix must be one of {', '.join(TMATRIX_CHOICES)}, got {tmatrix!r}")
     if initial_frames < 1:
         raise ValueError(f"initial_frames must be >= 1, got {initial_frames}")
     opts = options or FrameFitOptions()
@@ -384,8 +411,9 @@ def run_fit(
                               cands)
 
         def one_pass(name: str, cfg_particle: ParticleConfig, pass_frames: list[int],
-                     table_name: str, static_doc: dict[str, Any] | None = None) -> Path:
-            cfg = FitConfig(cfg_particle, inst, name, opts, engine, tuple(fixed))
+                     table_name: str, static_doc: dict[str, Any] | None = None,
+                     tmatrix_path: str | None = None) -> Path:
+            cfg = FitConfig(cfg_particle, inst, name, opts, engine, tuple(fixed), tmatrix_path)
             columns = fit_columns(model, cfg.free)
             units = {c: column_unit(c) for c in columns}
             units["status"] = describe(FIT_STATUS_MEANINGS)
@@ -433,8 +461,40 @@ def run_fit(
                                      particle.path)
             doc = json.loads(static_path.read_text())
             static_doc = {k: doc[k] for k in ("values", "spread", "n_frames") if k in doc}
-            run.final = one_pass("final", settled, todo, "fit.csv", static_doc)
+            tm_path = _final_tmatrix(settled, inst, engine, tmatrix, len(todo), out, run)
+            run.final = one_pass("final", settled, todo, "fit.csv", static_doc, tm_path)
     return run
+
+
+def _final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None,
+                   policy: str, n_frames: int, out: Path, run: FitRun) -> str | None:
+    """Build (or reuse) the final pass's T-matrix when the policy asks for one; its path."""
+    model = particle.model
+    if policy == "never" or not model.anisotropic:
+        return None
+    if policy == "auto" and n_frames < TMATRIX_MIN_FRAMES:
+        return None
+    theory = particle.theory(engine, fixed_lattice_for=inst.optics)
+    if not hasattr(theory, "tmatrix"):
+        if policy == "always":
+            raise FitStageError(f"the {theory.name} engine has no T-matrix (use --engine "
+                                "builtin or --tmatrix never)")
+        return None
+    path = out / "tmatrix.npz"
+    t0 = time.perf_counter()
+    try:
+        theory.tmatrix(model, inst.optics, path=str(path))
+        reused = True
+    except TMatrixMismatch:
+        # made for other static parameters or settings (an earlier run): build anew
+        path.unlink()
+        theory.tmatrix(model, inst.optics, path=str(path))
+        reused = False
+    run.tmatrix = path
+    run.tmatrix_s = time.perf_counter() - t0
+    run.notes.append(f"final pass served from the particle's T-matrix {path} "
+                     f"({'loaded' if reused else 'built'} in {run.tmatrix_s:.1f} s)")
+    return str(path)
 
 
 def _plots(path: Path, crops: CropSet, model: ParticleModel, theory: ScatteringTheory,

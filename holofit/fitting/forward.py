@@ -233,12 +233,17 @@ class HologramModel:
             return None
         cp, sp = self._pol
         a = base.state.alpha
+        axes = self.space.rotation_axes()
+        joint = getattr(wave, "field_and_rotation_derivatives", None)
+        if joint is not None and self.optics.numerical_aperture is None:
+            # field and derivatives share the pixels' geometry: one pass over the pixels
+            _, fields = joint(base.state.position, self.xs, self.ys, axes, self.far_field)
+        else:
+            fields = [recorded_field(derivative(axis), base.state.position, self.xs, self.ys,
+                                     self.far_field) for axis in axes]
+        ex, ey = base.ex, base.ey
         out = {}
-        for name, axis in zip(names, self.space.rotation_axes(), strict=False):
-            dwave = derivative(axis)
-            dx, dy = recorded_field(dwave, base.state.position, self.xs, self.ys,
-                                    self.far_field)
-            ex, ey = base.ex, base.ey
+        for name, (dx, dy) in zip(names, fields, strict=True):
             out[name] = 2.0 * a * (((cp + a * ex.real) * dx.real + a * ex.imag * dx.imag)
                                    + ((sp + a * ey.real) * dy.real + a * ey.imag * dy.imag))
         return out
