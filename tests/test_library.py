@@ -96,3 +96,21 @@ def test_candidates_are_distinct_local_maxima_best_first(engine):
     for i in range(len(u)):
         for k in range(i):
             assert math.degrees(math.acos(min(1.0, abs(float(u[i] @ u[k]))))) >= 20 - 1e-9
+
+
+def test_fields_are_reused_for_frames_at_nearly_the_same_height(engine):
+    lib = OrientationLibrary(engine, ROD, OPTICS, [Tilt(0.7)], z_step_um=0.05)
+    exact = OrientationLibrary(engine, ROD, OPTICS, [Tilt(0.7)], z_step_um=None)
+    grid = polar_grid(POS[:2], 4.2, PX, 64)
+    holo = calc_hologram(engine.solve(ROD, OPTICS, Orientation(1.1, 0.7)), POS, GRID, 0.9)
+    data, weights = sample_crop(holo, GRID.corner, PX, grid)
+    first = lib.scores(grid, data, weights, POS, 0.9)
+    cached = len(lib._fields)
+    near = (POS[0], POS[1], POS[2] + 0.02)  # rounds to the same height
+    again = lib.scores(grid, data, weights, near, 0.9)
+    assert len(lib._fields) == cached
+    np.testing.assert_array_equal(first, again)
+    # the rounding moves R^2 by little, and not which psi ranks first
+    own = exact.scores(grid, data, weights, near, 0.9)
+    assert np.abs(own - again).max() < 0.02
+    assert np.argmax(own[0]) == np.argmax(again[0])

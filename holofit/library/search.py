@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.cache import LRUCache
 from holofit.conventions import axis_from_angles, euler_zyz
 from holofit.library.polar import PolarGrid
 from holofit.models import ParticleModel
@@ -96,10 +97,16 @@ class OrientationLibrary:
         The instrument's illumination (its polarisation angle is beta above).
     tilts : list of Tilt
         The solved orientations (:func:`tilt_grid`).
+    z_step_um : float, optional
+        The tilts' fields on a polar grid depend on the particle's height only (the grid is
+        centred on the particle), so they are kept for heights rounded to this step and reused
+        by every frame within half a step (0.05 um: a fringe phase error of ~0.2 rad at the
+        edge of a 140-pixel crop 12 um from focus, immaterial to which orientation ranks
+        first); None computes them at every frame's own height.
     """
 
     def __init__(self, theory: ScatteringTheory, model: ParticleModel, optics: Optics,
-                 tilts: list[Tilt]) -> None:
+                 tilts: list[Tilt], z_step_um: float | None = 0.05) -> None:
         if not tilts:
             raise ValueError("the library needs at least one tilt")
         self.theory = theory
@@ -110,6 +117,8 @@ class OrientationLibrary:
         self._y = replace(optics, polarization_rad=math.pi / 2)
         self._waves: dict[int, tuple[ScatteredWave, ScatteredWave]] = {}
         self.n_solves = 0
+        self.z_step_um = z_step_um
+        self._fields: LRUCache[tuple, tuple[NDArray, ...]] = LRUCache(8 * len(self.tilts))
 
     def waves(self, i: int) -> tuple[ScatteredWave, ScatteredWave]:
         """The x- and y-polarised solutions of tilt ``i`` (solved on first use)."""
@@ -127,6 +136,27 @@ class OrientationLibrary:
         """Solve every tilt now (otherwise they are solved as frames need them)."""
         for i in range(len(self.tilts)):
             self.waves(i)
+
+    def polar_fields(self, i: int, grid: PolarGrid, position_um: tuple[float, float, float]
+                     ) -> tuple[NDArray, ...]:
+        """The recorded fields of tilt ``i``'s x- and y-polarised solutions on ``grid``
+        (``X_x, X_y, Y_x, Y_y``), at the particle's height rounded to :attr:`z_step_um`."""
+        z = float(position_um[2])
+        if self.z_step_um is not None:
+            z = round(z / self.z_step_um) * self.z_step_um
+        key = (i, round(z, 9), _grid_key(grid))
+        cached = self._fields.get(key)
+        if cached is not None:
+            return cached
+        # offsets from the grid's centre: the fields depend on them and on the height only
+        cx, cy = float(grid.xs_um[0].mean()), float(grid.ys_um[0].mean())
+        xs = (grid.xs_um - cx).ravel()
+        ys = (grid.ys_um - cy).ravel()
+        wx, wy = self.waves(i)
+        here = (0.0, 0.0, z)
+        fields = tuple(v.reshape(grid.shape) for w in (wx, wy)
+                       for v in recorded_field(w, here, xs, ys))
+        return self._fields.put(key, fields)
 
     def scores(self, grid: PolarGrid, data: NDArray, weights: NDArray,
                position_um: tuple[float, float, float], alpha: float) -> NDArray[np.float64]:
@@ -159,7 +189,6 @@ class OrientationLibrary:
         w_f = np.fft.rfft(w, axis=1)
         gamma = self.optics.polarization_rad - grid.phi
         coef = np.stack([np.ones(n_phi), np.cos(2 * gamma), np.sin(2 * gamma)])  # (3, n_phi)
-        xs, ys = grid.xs_um.ravel(), grid.ys_um.ravel()
         out = np.empty((len(self.tilts), n_phi))
 
         def corr(f_hat: NDArray, g: NDArray) -> NDArray:
@@ -167,9 +196,7 @@ class OrientationLibrary:
             return np.fft.irfft((f_hat * np.conj(np.fft.rfft(g, axis=1))).sum(axis=0), n=n_phi)
 
         for i in range(len(self.tilts)):
-            wx, wy = self.waves(i)
-            xx, xy = (v.reshape(grid.shape) for v in recorded_field(wx, position_um, xs, ys))
-            yx, yy = (v.reshape(grid.shape) for v in recorded_field(wy, position_um, xs, ys))
+            xx, xy, yx, yy = self.polar_fields(i, grid, position_um)
             mag_x = xx.real**2 + xx.imag**2 + xy.real**2 + xy.imag**2
             mag_y = yx.real**2 + yx.imag**2 + yy.real**2 + yy.imag**2
             cross = (xx * np.conj(yx) + xy * np.conj(yy)).real
@@ -183,6 +210,10 @@ class OrientationLibrary:
                        for k in range(3) for m in range(k, 3))
             out[i] = 1.0 - (s_dd - 2.0 * s_dm + s_mm) / ss_tot
         return out
+
+
+def _grid_key(grid: PolarGrid) -> tuple:
+    return (grid.rho_um.size, float(grid.rho_um[0]), float(grid.rho_um[-1]), grid.phi.size)
 
 
 def _axis_distance(a: Candidate, b: Candidate, head_tail: bool, axisymmetric: bool) -> float:

@@ -61,7 +61,7 @@ class LibrarySettings:
     min_separation_deg : float
         Candidates are at least this far apart (angle between axes), deg.
     rho_max_px : float, optional
-        Radius of the polar grid, pixels (default: the largest circle in the crop).
+        Radius of the polar grid, pixels (default: half the crop's smaller side, less one).
     """
 
     tilt_step_deg: float = 10.0
@@ -152,17 +152,15 @@ def library_frame(config: LibraryConfig, frame: int, payload: LibraryPayload) ->
     px = inst.pixel_size_um
     start = payload.start
     rows, cols = payload.crop.shape
-    if s.rho_max_px is not None:
-        rho_max = s.rho_max_px * px
-    else:
-        # the largest circle about the start that stays inside the crop
-        cx = start["x_um"] / px - payload.corner[1]
-        cy = start["y_um"] / px - payload.corner[0]
-        rho_max = (min(cx, cy, cols - 1 - cx, rows - 1 - cy) - 0.5) * px
-    if rho_max < 8 * px:
-        raise ValueError(f"the prefit position lies {rho_max / px:.1f} px from the crop's edge")
+    # one grid for every frame (the library's fields on it are reused between frames at
+    # nearly the same height); samples off the crop get no weight
+    rho_max_px = s.rho_max_px if s.rho_max_px is not None else min(rows, cols) / 2 - 1
+    rho_max = rho_max_px * px
     grid = polar_grid((start["x_um"], start["y_um"]), rho_max, px, s.n_phi)
     data, weights = sample_crop(payload.crop, payload.corner, px, grid)
+    if np.count_nonzero(weights) < 0.25 * weights.size:
+        raise ValueError("the prefit position leaves less than a quarter of the library's polar "
+                         "grid on the crop")
     position = (start["x_um"], start["y_um"], start["z_um"])
     scores = lib.scores(grid, data, weights, position, start["alpha"])
     cands = pick_candidates(scores, lib.tilts, grid.phi, config.particle.model,
