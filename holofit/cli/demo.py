@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from holofit.demo import run_demo
+from holofit.demo import DEMO_PARTICLES, run_demo
 
 
 @click.command()
@@ -18,6 +18,13 @@ from holofit.demo import run_demo
     show_default=True,
     help="Output folder.",
 )
-def demo(out: Path) -> None:
+@click.option("--particle", type=click.Choice(DEMO_PARTICLES), default="rod", show_default=True,
+              help="rod: the paper's rod through all five stages; sphere: a sphere through "
+                   "crop, prefit and analyze.")
+@click.option("--frames", type=click.IntRange(min=20), default=None,
+              help="Frames of the movie [default: rod 150, sphere 300].")
+@click.option("--workers", "-j", type=click.IntRange(min=0), default=2, show_default=True,
+              help="Worker processes per stage (0: in this process).")
+def demo(out: Path, particle: str, frames: int | None, workers: int) -> None:
     """Run the pipeline on a built-in synthetic movie and print what it measured."""
-    run_demo(out, echo=click.echo)
+    run_demo(out, particle=particle, echo=click.echo, workers=workers, n_frames=frames)
