@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 # one thread per process for numbers that are comparable across machines
 ONE_CORE := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 NUMBA_NUM_THREADS=1
 
-.PHONY: install test test-all demo bench lint clean
+.PHONY: install test test-all demo bench replicate lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,10 +16,10 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 test: install
-	$(BIN)/python -m pytest -m "not slow" -q
+	$(ONE_CORE) $(BIN)/python -m pytest -m "not slow" -q
 
 test-all: install
-	$(BIN)/python -m pytest -q
+	$(ONE_CORE) $(BIN)/python -m pytest -q
 
 demo: install
 	$(BIN)/holofit demo --out demo-out
@@ -27,8 +27,12 @@ demo: install
 bench: install
 	$(ONE_CORE) $(BIN)/python bench/run.py --out bench/results.json
 
+# the paper's two experiments on synthetic truth (long: about an hour on 2 cores)
+replicate: install
+	$(BIN)/python bench/replicate.py --out replicate --dask-check 200
+
 lint: install
 	$(BIN)/ruff check holofit tests bench
 
 clean:
-	rm -rf $(VENV) demo-out .pytest_cache .ruff_cache
+	rm -rf $(VENV) demo-out replicate .pytest_cache .ruff_cache

@@ -26,15 +26,15 @@ import pandas as pd
 from holofit.analysis import AnalysisSettings, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diffusion
 from holofit.batch import BatchOptions
-from holofit.config import load_instrument, load_particle, resolve_config
+from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit.stage import run_fit
 from holofit.fitting.parameters import static_values
 from holofit.library.stage import run_library
 from holofit.models import JanusSphere, Spherocylinder
 from holofit.prefit import run_prefit
-from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
-from holofit.simulate.holograms import simulate_movie
+from holofit.simulate.brownian import BrownianParameters
+from holofit.simulate.scenarios import diffusing_movie
 
 CASES = {
     # the paper's rod: a 501 nm, b 1079 nm, n 1.495; measured D_par 0.307, D_perp 0.293 um^2/s,
@@ -83,14 +83,12 @@ def main() -> None:
         n_frames=args.frames, frame_interval_s=1.0 / inst.frame_rate_hz, d_par_um2_s=d_par,
         d_perp_um2_s=d_perp, d_r_s=d_r, drift_um_s=case["drift"],
         start_position_um=(22.0, 22.0, case["z0"]))
-    traj = simulate_trajectory(params, seed=args.seed, out_dir=out / "traj")
-    truth = traj.truth
-    pos = truth[["x_um", "y_um", "z_um"]].to_numpy()
-    orient = truth[["psi_rad", "theta_rad", "phi_rad"]].to_numpy()
     t0 = time.perf_counter()
-    sim = simulate_movie(truth_model, inst, pos, (256, 256), orientations=orient, alpha=0.9,
-                         theory=cfg.theory(), seed=args.seed + 1, out_dir=out / "sim")
+    movie = diffusing_movie(ParticleConfig(truth_model, cfg.settings, cfg.path), inst, params,
+                            out, seed=args.seed)
     times["simulate_s"] = time.perf_counter() - t0
+    sim = movie.movie
+    truth = movie.trajectory.truth
     batch = BatchOptions(workers=args.workers, progress=False)
     t0 = time.perf_counter()
     run_crop(sim.movie, sim.background, inst, out / "crop", size=140, plot=False)
