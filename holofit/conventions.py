@@ -67,6 +67,7 @@ __all__ = [
     "pixel_centres",
     "polarization_vector",
     "r_squared",
+    "rotation_from_vector",
     "rotation_y",
     "rotation_z",
 ]
@@ -157,6 +158,31 @@ def euler_zyz_from_matrix(r: NDArray) -> tuple[NDArray, NDArray, NDArray]:
         phi = np.where(pole, 0.0, phi)
         psi = np.where(pole & (r[..., 2, 2] < 0), np.arctan2(-r[..., 0, 1], r[..., 1, 1]), psi)
     return psi, theta, phi
+
+
+def rotation_from_vector(w: ArrayLike) -> NDArray[np.float64]:
+    """The rotation ``exp([w]_x)`` by angle ``|w|`` (rad) about ``w`` (Rodrigues' formula).
+
+    Parameters
+    ----------
+    w : array_like, shape (..., 3)
+        Rotation vector(s), rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Rotation matrices (the identity where ``w = 0``).
+    """
+    w = np.asarray(w, dtype=float)
+    angle = np.linalg.norm(w, axis=-1)
+    k = w / np.where(angle > 0, angle, 1.0)[..., None]
+    kx = np.zeros((*w.shape[:-1], 3, 3))
+    kx[..., 0, 1], kx[..., 0, 2] = -k[..., 2], k[..., 1]
+    kx[..., 1, 0], kx[..., 1, 2] = k[..., 2], -k[..., 0]
+    kx[..., 2, 0], kx[..., 2, 1] = -k[..., 1], k[..., 0]
+    s = np.sin(angle)[..., None, None]
+    c = (1.0 - np.cos(angle))[..., None, None]
+    return np.eye(3) + s * kx + c * (kx @ kx)
 
 
 def axis_from_angles(theta: ArrayLike, psi: ArrayLike) -> NDArray[np.float64]:

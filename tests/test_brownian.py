@@ -8,14 +8,13 @@ import pytest
 from click.testing import CliRunner
 
 from holofit.cli import main
-from holofit.conventions import euler_zyz, euler_zyz_from_matrix
+from holofit.conventions import euler_zyz, euler_zyz_from_matrix, rotation_from_vector
 from holofit.fit_table import read_fit_table
 from holofit.simulate.brownian import (
     BrownianParameters,
     MeasurementNoise,
     propagate_rigid_body,
     random_rotation,
-    rotation_from_vector,
     simulate_trajectory,
 )
 

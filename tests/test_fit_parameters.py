@@ -7,13 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from holofit.conventions import axis_from_angles, euler_zyz
+from holofit.conventions import axis_from_angles, euler_zyz, rotation_from_vector
 from holofit.fitting.parameters import (
     ParameterSpace,
     State,
     index_column,
     particle_with,
-    rotation_from_vector,
     static_parameters,
     static_values,
 )

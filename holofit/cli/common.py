@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -91,10 +90,3 @@ def out_dir_option(default: str | None = None) -> Callable[[F], F]:
         help="Output folder (created if needed).",
     )
 
-
-def not_yet(stage: str, issue: str) -> None:
-    click.echo(
-        f"holofit {stage}: this stage is not implemented yet ({issue}); see README.md.",
-        err=True,
-    )
-    sys.exit(2)

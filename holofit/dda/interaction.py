@@ -34,7 +34,6 @@ asks the interaction for the tensor in its slab layout (:meth:`Interaction.slab_
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,11 +41,13 @@ import scipy.fft as sfft
 import scipy.special as ssp
 from numpy.typing import NDArray
 
+from holofit.cache import LRUCache
+
 __all__ = ["Interaction", "clear_cache", "fft_size", "get_interaction", "green_tensor",
            "grid_for_box"]
 
-_CACHE: OrderedDict[tuple, Interaction] = OrderedDict()
 CACHE_SIZE = 3
+_CACHE: LRUCache[tuple, Interaction] = LRUCache(CACHE_SIZE)
 #: interaction tensors: point dipoles (ADDA's default) and filtered coupled dipoles
 INTERACTIONS = ("poi", "fcd")
 #: component order of the stored tensor and, per component, its parity along (x, y, z):
@@ -242,13 +243,10 @@ def get_interaction(shape: tuple[int, int, int], d: float, k: float,
         not_wasteful = all(m <= 1.3 * mi for m, mi in zip(g, grid, strict=True))
         if (dd == d and kk == k and dt == np.dtype(dtype) and kd == kind and fits
                 and not_wasteful):
-            _CACHE.move_to_end(key)
+            _CACHE.get(key)  # marks it most recently used
             return inter
-    inter = Interaction.build(grid, d, k, dtype, kind)
-    _CACHE[(grid, d, k, np.dtype(dtype), kind)] = inter
-    while len(_CACHE) > CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return inter
+    return _CACHE.put((grid, d, k, np.dtype(dtype), kind),
+                      Interaction.build(grid, d, k, dtype, kind))
 
 
 def clear_cache() -> None:

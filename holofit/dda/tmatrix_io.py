@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 import holofit
+from holofit.cache import LRUCache
 from holofit.dda.lattice import Lattice
 from holofit.dda.settings import DDASettings
 from holofit.dda.tmatrix import TMatrix
@@ -46,7 +47,8 @@ __all__ = [
 FORMAT = "holofit-tmatrix/1"
 #: model parameters identified by the lattice fingerprint rather than by value
 _BY_FINGERPRINT = {"path"}
-_CACHE: dict[tuple, TMatrix] = {}
+#: loaded T-matrices kept per process (a worker serves one particle's, a study a few)
+_CACHE: LRUCache[tuple, TMatrix] = LRUCache(4)
 
 
 class TMatrixMismatch(ValueError):
@@ -182,8 +184,7 @@ def load_tmatrix(path: str | Path) -> TMatrix:
     if provenance.get("format") != FORMAT:
         raise TMatrixMismatch(f"{path}: not a holofit T-matrix file (format "
                               f"{provenance.get('format')!r}, expected {FORMAT!r})")
-    _CACHE[key] = tm
-    return tm
+    return _CACHE.put(key, tm)
 
 
 def clear_cache() -> None:

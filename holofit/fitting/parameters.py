@@ -29,7 +29,12 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.conventions import axis_from_angles, euler_zyz, euler_zyz_from_matrix
+from holofit.conventions import (
+    axis_from_angles,
+    euler_zyz,
+    euler_zyz_from_matrix,
+    rotation_from_vector,
+)
 from holofit.models import ParticleModel, VoxelShape
 from holofit.validation import INDEX_RANGE
 
@@ -41,7 +46,6 @@ __all__ = [
     "State",
     "index_column",
     "particle_with",
-    "rotation_from_vector",
     "static_parameters",
     "static_values",
 ]
@@ -126,17 +130,6 @@ def static_parameters(model: ParticleModel) -> tuple[Parameter, ...]:
     for f in model.index_fields:
         out.append(Parameter(index_column(f), "static", "1", INDEX_STEP, *INDEX_RANGE, field=f))
     return tuple(out)
-
-
-def rotation_from_vector(w: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``exp([w]x)``: rotation by ``|w|`` rad about ``w`` (Rodrigues)."""
-    w = np.asarray(w, dtype=float)
-    angle = float(np.linalg.norm(w))
-    if angle < 1e-300:
-        return np.eye(3)
-    k = w / angle
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * kx + (1.0 - math.cos(angle)) * (kx @ kx)
 
 
 def _perpendicular_basis(u: NDArray[np.float64]) -> tuple[NDArray, NDArray]:

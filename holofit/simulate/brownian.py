@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from holofit.conventions import euler_zyz, euler_zyz_from_matrix
+from holofit.conventions import euler_zyz, euler_zyz_from_matrix, rotation_from_vector
 from holofit.fit_table import FitTable, column_unit, validate_fit_table, write_fit_table
 from holofit.io.tables import write_table
 from holofit.provenance import sidecar
@@ -47,7 +47,6 @@ __all__ = [
     "SimulatedTrajectory",
     "propagate_rigid_body",
     "random_rotation",
-    "rotation_from_vector",
     "simulate_trajectory",
 ]
 
@@ -159,21 +158,6 @@ class SimulatedTrajectory:
     path: Path | None = None
     truth_path: Path | None = None
     fit: FitTable | None = field(default=None, repr=False)
-
-
-def rotation_from_vector(w: NDArray) -> NDArray[np.float64]:
-    """Exact rotation ``exp([w]_x)`` by angle ``|w|`` about ``w`` (Rodrigues), shape (..., 3, 3)."""
-    w = np.asarray(w, dtype=float)
-    theta = np.linalg.norm(w, axis=-1)
-    safe = np.where(theta > 0, theta, 1.0)
-    k = w / safe[..., None]
-    kx = np.zeros((*w.shape[:-1], 3, 3))
-    kx[..., 0, 1], kx[..., 0, 2] = -k[..., 2], k[..., 1]
-    kx[..., 1, 0], kx[..., 1, 2] = k[..., 2], -k[..., 0]
-    kx[..., 2, 0], kx[..., 2, 1] = -k[..., 1], k[..., 0]
-    s = np.sin(theta)[..., None, None]
-    c = (1 - np.cos(theta))[..., None, None]
-    return np.eye(3) + s * kx + c * (kx @ kx)
 
 
 def random_rotation(rng: np.random.Generator) -> NDArray[np.float64]:
