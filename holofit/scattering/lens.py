@@ -61,7 +61,7 @@ __all__ = ["LensImage", "lens_field_on_detector", "lens_field_on_pixels", "lens_
 #: aplanatic lenses with cos(th_max) below this integrate in the sqrt-regularised variable
 SQRT_SWITCH = 0.5
 #: azimuthal orders whose pupil field stays below this fraction of the largest are dropped
-MODE_FLOOR = 1e-12
+MODE_FLOOR = 1e-9
 #: apertures (pupil fields) and heights (tables) kept per image
 KEEP_PUPILS = 4
 KEEP_TABLES = 4
@@ -80,12 +80,13 @@ class _Pupil:
 
 @dataclass(frozen=True)
 class _Tables:
-    """Radial tables (sphere: ``a, b`` 1-D) or polar grid (``a, b`` = E_x, E_y) at one height."""
+    """What the pixels of one height are interpolated from: a sphere's two radial tables
+    (``a, b``, 1-D complex), or any image's polar grid (``a``, four real planes; ``b`` None)."""
 
     step: float
     n_rho: int
-    a: NDArray[np.complex128]
-    b: NDArray[np.complex128]
+    a: NDArray
+    b: NDArray[np.complex128] | None
 
 
 class LensImage:
@@ -164,7 +165,7 @@ class LensImage:
         if isinstance(self.source, SpherePupil):
             a, b = sphere_tables(*pupil.modes, base, x_step, n_rho, bkey)
         else:
-            a, b = polar_grid(*pupil.modes, base, x_step, n_rho, bkey)
+            a, b = polar_grid(*pupil.modes, base, x_step, n_rho, bkey), None
         tables = _Tables(step, n_rho, a, b)
         with self._lock:
             self._tables[key] = tables
@@ -221,11 +222,11 @@ class LensImage:
             sphere_pixels(t, c2 * cb + s2 * sb, s2 * cb - c2 * sb, cb, sb, tables.a, tables.b,
                           STENCIL, ex, ey)
         else:
-            n_phi = tables.a.shape[1] - 2 * STENCIL
+            n_phi = tables.a.shape[2] - 2 * STENCIL
             u = np.arctan2(dy, dx) * (n_phi / (2.0 * np.pi))
             u[u < 0] += n_phi
             u += STENCIL
-            polar_pixels(t, u, tables.a, tables.b, STENCIL, ex, ey)
+            polar_pixels(t, u, tables.a, ex, ey)
         return ex.reshape(shape), ey.reshape(shape)
 
     def field_on_detector(
