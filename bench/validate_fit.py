@@ -20,8 +20,8 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
+from truth_compare import compare_with_truth
 
 from holofit.analysis import AnalysisSettings, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diffusion
@@ -48,11 +48,6 @@ CASES = {
                   truth=JanusSphere(0.443, 0.047, 1.581, 2.74), d_par=None, d_perp=None,
                   d_r=None, drift=(0.0, 0.0, 0.0), z0=12.0, model="janus"),
 }
-
-
-def _axis(theta, psi):
-    return np.column_stack([np.sin(theta) * np.cos(psi), np.sin(theta) * np.sin(psi),
-                            np.cos(theta)])
 
 
 def main() -> None:
@@ -113,34 +108,8 @@ def main() -> None:
                             "error": static["values"][k] - v, "spread": static["spread"][k]}
                         for k, v in true_static.items()}
     fit = pd.read_csv(run.final).set_index("frame")
-    ok = (fit["status"] == "ok").to_numpy()
-    report["statuses"] = fit["status"].value_counts().to_dict()
-    report["ok_fraction"] = float(ok.mean())
-    f = fit[ok]
-    tr = truth.set_index("frame").loc[f.index]
-    err = {k: 1e3 * float(np.sqrt(np.mean((f[k] - tr[k]) ** 2))) for k in
-           ("x_um", "y_um", "z_um")}
-    report["rms_nm"] = err
-    u_fit = f[["ux", "uy", "uz"]].to_numpy()
-    u_true = _axis(tr["theta_rad"].to_numpy(), tr["psi_rad"].to_numpy())
-    dot = np.sum(u_fit * u_true, axis=1)
-    if truth_model.head_tail_symmetric:
-        dot = np.abs(dot)
-    ang = np.degrees(np.arccos(np.clip(dot, -1, 1)))
-    wrong = ang > 10.0
-    amb = f["ambiguous"].to_numpy().astype(bool)
-    good = ~wrong
-    report["axis_rms_deg"] = float(np.sqrt(np.mean(ang[good] ** 2))) if good.any() else None
-    report["wrong_branch_frames"] = int(wrong.sum())
-    report["wrong_branch_unflagged"] = int((wrong & ~amb).sum())
-    report["ambiguous_frames"] = int(amb.sum())
-    if args.case == "janus":
-        sin_t = np.sin(tr["theta_rad"].to_numpy())
-        sel = np.abs(sin_t) > 0.3
-        dpsi = (f["psi_rad"].to_numpy() - tr["psi_rad"].to_numpy() + np.pi) % (2 * np.pi) - np.pi
-        report["psi_rms_deg_sin_theta_gt_0.3"] = float(np.degrees(np.sqrt(np.mean(
-            dpsi[sel] ** 2)))) if sel.any() else None
-        report["xy_rms_nm"] = float(np.sqrt((err["x_um"] ** 2 + err["y_um"] ** 2) / 2))
+    report.update(compare_with_truth(fit, truth.set_index("frame"),
+                                     head_tail_symmetric=truth_model.head_tail_symmetric))
     if args.analyze:
         settings = AnalysisSettings(model=case["model"], temperature_c=21.0)
         result, _ = run_analysis(run.final, settings, out / "analysis")
