@@ -5,6 +5,13 @@ when the instrument has a ``numerical_aperture``, and uses the ideal model (the 
 focal plane itself) when it has none. A stage can replace that NA (another value, or none) and
 can fit it, starting from the NA in force. A fitted NA starts at most at the medium's index:
 beyond it the lens collects every propagating wave and the hologram no longer changes.
+
+The hologram does not change smoothly with the NA alone: the hard edge of the pupil sends a
+weak diffracted wave over the whole image (the rings of the objective's point-spread
+function), whose phase turns with the aperture angle, so the misfit as a function of NA has a
+local minimum every few hundredths of NA. A local optimiser started anywhere stays in the
+nearest one; :func:`scan_aperture` therefore looks over a grid of NAs (every other parameter
+held) for the best start of the fit.
 """
 
 from __future__ import annotations
@@ -12,7 +19,12 @@ from __future__ import annotations
 import math
 from typing import Literal
 
+import numpy as np
+from numpy.typing import NDArray
+
 from holofit.config import Instrument
+from holofit.fitting.forward import HologramModel, InvalidParameters
+from holofit.fitting.parameters import APERTURE
 from holofit.optics import Optics
 from holofit.validation import ConfigError
 
@@ -22,7 +34,13 @@ __all__ = [
     "aperture_start",
     "fit_instrument",
     "parse_numerical_aperture",
+    "scan_aperture",
 ]
+
+#: the grid :func:`scan_aperture` looks over: from this NA up to the medium's index
+SCAN_LOWEST = 0.2
+#: ... in steps of this (the misfit's local minima are 0.03-0.06 apart)
+SCAN_STEP = 0.01
 
 #: keep the instrument's NA (or its absence)
 FROM_INSTRUMENT: Literal["instrument"] = "instrument"
@@ -95,3 +113,49 @@ def aperture_start(optics: Optics) -> float:
         raise ValueError("fitting the numerical aperture needs a start value: the optics have "
                          "no numerical_aperture")
     return float(min(optics.numerical_aperture, optics.n_medium))
+
+
+def scan_aperture(model: HologramModel, data: NDArray[np.float64], vector: NDArray[np.float64],
+                  lowest: float = SCAN_LOWEST, step: float = SCAN_STEP
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The start vector with the NA of least misfit on a grid, every other parameter held.
+
+    Parameters
+    ----------
+    model : HologramModel
+        A forward model whose parameters include ``numerical_aperture``.
+    data : ndarray, shape (N,)
+        The data on the model's pixels.
+    vector : ndarray
+        The start (the other parameters' values are kept).
+    lowest, step : float
+        The grid: ``lowest, lowest + step, ...`` up to the medium's index, and the start's
+        own NA.
+
+    Returns
+    -------
+    best : ndarray
+        ``vector`` with the best NA of the grid.
+    grid, rss : ndarray
+        The NAs tried and their residual sums of squares (inf where invalid).
+    """
+    names = model.space.names
+    if APERTURE.name not in names:
+        return np.asarray(vector, dtype=float), np.empty(0), np.empty(0)
+    i = names.index(APERTURE.name)
+    v = np.asarray(vector, dtype=float)
+    top = model.optics.n_medium
+    grid = np.unique(np.concatenate([np.arange(lowest, top, step), [top, min(v[i], top)]]))
+    rss = np.full(grid.size, np.inf)
+    for j, na in enumerate(grid):
+        q = v.copy()
+        q[i] = na
+        try:
+            r = model.hologram(q) - data
+        except InvalidParameters:
+            continue
+        rss[j] = float(r @ r)
+    best = v.copy()
+    if np.isfinite(rss).any():
+        best[i] = grid[int(np.argmin(rss))]
+    return best, grid, rss

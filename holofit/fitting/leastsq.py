@@ -5,7 +5,8 @@ Levenberg-Marquardt (``scipy.optimize.least_squares``, MINPACK's ``lmder``) of a
 Jacobian and ``x_scale="jac"`` (the parameters differ in scale by orders of magnitude: um,
 rad, refractive index). A step that leaves the physical domain (negative size, detector inside
 the particle) gets a large constant residual, so the trust region rejects it instead of the fit
-aborting.
+aborting. A fit of the objective's numerical aperture starts from the best NA of a grid
+(:func:`holofit.fitting.aperture.scan_aperture`: the misfit is rugged in NA alone).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from holofit.fitting.aperture import scan_aperture
 from holofit.fitting.forward import HologramModel, InvalidParameters
 
 __all__ = ["CONVERGED_CODES", "Solution", "solve_least_squares"]
@@ -46,6 +48,9 @@ class Solution:
         The tolerances were met.
     message : str
         The optimiser's message.
+    aperture_scan : tuple of ndarray, optional
+        ``(grid, rss)`` of the numerical-aperture scan the fit started from (a fitted NA
+        only; :func:`holofit.fitting.aperture.scan_aperture`).
     """
 
     vector: NDArray[np.float64]
@@ -55,6 +60,7 @@ class Solution:
     n_eval: int
     converged: bool
     message: str
+    aperture_scan: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
 
 def solve_least_squares(
@@ -75,7 +81,8 @@ def solve_least_squares(
     data : ndarray, shape (N,)
         Normalised intensities.
     start : ndarray
-        Start vector (``model.space.initial_vector()`` or a screened one).
+        Start vector (``model.space.initial_vector()`` or a screened one); a fitted NA starts
+        from the best of a grid instead (:func:`holofit.fitting.aperture.scan_aperture`).
     max_nfev : int
         Most residual evaluations.
     ftol, xtol : float
@@ -87,6 +94,7 @@ def solve_least_squares(
     """
     data = np.asarray(data, dtype=float)
     before = model.n_holograms
+    start, grid, grid_rss = scan_aperture(model, data, np.asarray(start, dtype=float))
 
     def residuals(v: NDArray[np.float64]) -> NDArray[np.float64]:
         try:
@@ -111,4 +119,5 @@ def solve_least_squares(
         n_eval=model.n_holograms - before,
         converged=bool(sol.status in CONVERGED_CODES),
         message=str(sol.message),
+        aperture_scan=(grid, grid_rss) if grid.size else None,
     )
