@@ -134,6 +134,9 @@ CASES = [
 
 CONFIGS: list[tuple[str, Any, bool]] = [("ideal", None, False)] + [
     (f"NA {na:g}", na, False) for na in FIXED_NA] + [("NA fitted", 1.2, True)]
+#: for data whose published model has alpha = 1 (pylorenzmie): the same with alpha free too
+ALPHA_CONFIGS: list[tuple[str, Any, bool]] = [("ideal, alpha free", None, False),
+                                              ("NA fitted, alpha free", 1.2, True)]
 
 
 def _crop(case: Case, out: Path) -> Path:
@@ -148,9 +151,10 @@ def _crop(case: Case, out: Path) -> Path:
 
 def _prefit(case: Case, crops: Path, out: Path, label: str, na: Any, fit_na: bool
             ) -> dict[str, Any]:
-    folder = out / ("prefit_" + label.replace(" ", "_").replace(".", "p"))
+    folder = out / ("prefit_" + label.replace(" ", "_").replace(",", "").replace(".", "p"))
     t0 = time.perf_counter()
-    result = run_prefit(crops, folder, fit=FitOptions(fix_alpha=case.fix_alpha, fit_na=fit_na),
+    fix_alpha = None if "alpha free" in label else case.fix_alpha
+    result = run_prefit(crops, folder, fit=FitOptions(fix_alpha=fix_alpha, fit_na=fit_na),
                         batch=BatchOptions(workers=0, progress=False, overwrite=True),
                         numerical_aperture=na, plot=True, plot_frames=[0])
     row = pd.read_csv(result.table).iloc[0].to_dict()
@@ -216,7 +220,8 @@ def run_sphere(case: Case, out_root: Path) -> dict[str, Any]:
     out = out_root / case.name
     out.mkdir(parents=True, exist_ok=True)
     crops = _crop(case, out)
-    rows = [_prefit(case, crops, out, label, na, fit_na) for label, na, fit_na in CONFIGS]
+    configs = CONFIGS + (ALPHA_CONFIGS if case.fix_alpha is not None else [])
+    rows = [_prefit(case, crops, out, label, na, fit_na) for label, na, fit_na in configs]
     profile = _profile(case, crops)
     envelope = _figures(case, crops, rows, profile, out_root)
     return {"case": case.name, "source": case.source, "reference": case.reference,
@@ -370,7 +375,7 @@ def _sphere_table(result: dict[str, Any]) -> list[str]:
                  f"{_f(ref.get('alpha'), '.3f')} | | |")
     for r in result["rows"]:
         na = (f"{r['numerical_aperture']:.3f} ± {r['d_numerical_aperture']:.3f}"
-              if r["config"] == "NA fitted" else "")
+              if r["config"].startswith("NA fitted") else "")
         lines.append(f"| {r['config']} | {_f(r['r2'], '.5f')} | {_f(r['chi2_red'], '.3f')} | "
                      f"{_f(r['z_um'], '.3f')} | {_f(r['radius_um'], '.4f')} | "
                      f"{_f(r['n'], '.4f')} | {_f(r['alpha'], '.3f')} | {na} | {r['status']} |")
@@ -412,20 +417,29 @@ def main() -> None:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     report_json = out / "report.json"
-    results = json.loads(report_json.read_text()) if report_json.exists() else {}
+
+    def record(name: str, result: dict[str, Any]) -> dict[str, Any]:
+        # re-read first: another run (the dimer) may have written meanwhile
+        results = json.loads(report_json.read_text()) if report_json.exists() else {}
+        results[name] = result
+        report_json.write_text(json.dumps(results, indent=1, default=str))
+        return results
+
     if not args.dimer_only:
         for case in CASES:
             if args.only and case.name not in args.only:
                 continue
             t0 = time.perf_counter()
-            results[case.name] = run_sphere(case, out)
-            best = max(results[case.name]["rows"], key=lambda r: r["r2"])
+            result = run_sphere(case, out)
+            best = max(result["rows"], key=lambda r: r["r2"])
             print(f"{case.name}: done in {time.perf_counter() - t0:.0f} s; best R^2 "
                   f"{best['r2']:.4f} ({best['config']})", flush=True)
-            report_json.write_text(json.dumps(results, indent=1, default=str))
+            record(case.name, result)
     if not args.skip_dimer:
-        results["dimer2011"] = run_dimer(out, args.dimer_configs)
-        report_json.write_text(json.dumps(results, indent=1, default=str))
+        record("dimer2011", run_dimer(out, args.dimer_configs))
+    results = json.loads(report_json.read_text()) if report_json.exists() else {}
+    order = [c.name for c in CASES] + ["dimer2011"]
+    results = {k: results[k] for k in order if k in results}
     lines = ["# Measured holograms with and without the objective lens", ""]
     for name, result in results.items():
         lines += _dimer_table(result) if name == "dimer2011" else _sphere_table(result)

@@ -18,12 +18,12 @@ from click.testing import CliRunner
 
 from holofit.cli import main
 from holofit.config import load_instrument
-from holofit.conventions import DetectorGrid, hologram_intensity
+from holofit.conventions import DetectorGrid, euler_zyz, hologram_intensity
 from holofit.fitting.aperture import fit_instrument, parse_numerical_aperture, scan_aperture
 from holofit.fitting.forward import HologramModel, InvalidParameters
 from holofit.fitting.parameters import ParameterSpace, State
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
+from holofit.models import Sphere, Spherocylinder
 from holofit.optics import Optics
 from holofit.prefit.estimate import SearchSpace
 from holofit.prefit.profile import profile_terms
@@ -98,6 +98,27 @@ def test_aperture_is_an_optics_parameter_reported_only_when_fitted():
     assert held.state(held.initial_vector()).numerical_aperture == 1.1
     with pytest.raises(ValueError, match="needs a start value"):
         _space(None)
+
+
+def test_holding_the_aperture_keeps_the_meaning_of_the_other_components():
+    # a rod, its orientation already moved by the optimiser: the space without the NA must
+    # map its share of the vector onto the same particle state
+    rod = Spherocylinder(0.5, 1.0, 1.5)
+    start = State((5.0, 5.0, 8.0), euler_zyz(0.4, 1.1, 0.0), 0.9,
+                  (("a_um", 0.5), ("b_um", 1.0), ("n", 1.5)), 1.2)
+    space = ParameterSpace(rod, ("x_um", "z_um", "orientation", "alpha", "b_um",
+                                 "numerical_aperture"), start)
+    v = space.initial_vector()
+    v[space.names.index("rot_a")] = 0.2
+    v[space.names.index("rot_b")] = -0.1
+    v[space.names.index("numerical_aperture")] = 0.9
+    v[space.names.index("b_um")] = 1.1
+    held, index = space.holding("numerical_aperture", v)
+    assert "numerical_aperture" not in held.names and len(index) == len(v) - 1
+    a, b = space.state(v), held.state(v[index])
+    np.testing.assert_allclose(b.rotation, a.rotation, atol=1e-14)
+    assert b.position == a.position and b.statics == a.statics and b.alpha == a.alpha
+    assert b.numerical_aperture == 0.9
 
 
 def test_aperture_column_reimages_the_solved_wave():
@@ -259,3 +280,25 @@ def test_prefit_stage_keeps_the_instrument_aperture(lens_crops, tmp_path):
     table = pd.read_csv(result.table)
     assert (table["status"] == "ok").all()
     np.testing.assert_allclose(table["z_um"], [9.0, 12.0], atol=0.05)
+
+
+def test_fit_stage_fits_the_aperture_and_draws_it(lens_crops, tmp_path):
+    # the sphere's "DDA fit" stage with the exact Lorenz-Mie engine (the config has no [dda])
+    res = _invoke("prefit", lens_crops, "-o", tmp_path / "prefit", "-j", "0", "--no-plot")
+    assert res.exit_code == 0, res.output
+    args = ["fit", lens_crops, "--prefit", tmp_path / "prefit", "-p", "sphere_ps_1um", "-j", "0",
+            "--pass", "initial", "--initial-frames", "2"]
+    res = _invoke(*args, "-o", tmp_path / "fit", "--numerical-aperture", "1.3", "--fit-na",
+                  "--plot-frames", "0")
+    assert res.exit_code == 0, res.output
+    table = pd.read_csv(tmp_path / "fit" / "initial.csv")
+    assert {"numerical_aperture", "d_numerical_aperture"} <= set(table.columns)
+    assert (table["status"] == "ok").all()
+    np.testing.assert_allclose(table["z_um"], [9.0, 12.0], atol=0.05)
+    np.testing.assert_allclose(table["radius_um"], 0.6, atol=0.01)
+    side = json.loads((tmp_path / "fit" / "initial.csv.json").read_text())
+    assert "numerical_aperture" in side["config"]["free"]
+    assert side["config"]["instrument"]["numerical_aperture"] == 1.3
+    assert (tmp_path / "fit" / "frames_initial" / "frame_000000.png").exists()
+    res = _invoke(*args, "-o", tmp_path / "bad", "--numerical-aperture", "none", "--fit-na")
+    assert res.exit_code == 1 and "needs a start value" in res.output

@@ -5,8 +5,13 @@ Levenberg-Marquardt (``scipy.optimize.least_squares``, MINPACK's ``lmder``) of a
 Jacobian and ``x_scale="jac"`` (the parameters differ in scale by orders of magnitude: um,
 rad, refractive index). A step that leaves the physical domain (negative size, detector inside
 the particle) gets a large constant residual, so the trust region rejects it instead of the fit
-aborting. A fit of the objective's numerical aperture starts from the best NA of a grid
-(:func:`holofit.fitting.aperture.scan_aperture`: the misfit is rugged in NA alone).
+aborting.
+
+A fit of the objective's numerical aperture goes in three steps, because the misfit is rugged
+in NA alone (:mod:`holofit.fitting.aperture`) and a scan over NA is only as good as the other
+parameters it holds: every other parameter is fitted at the start NA, the NA of least misfit
+on a grid is found with those held (:func:`holofit.fitting.aperture.scan_aperture`), and
+everything is fitted from there.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from scipy.optimize import least_squares
 
 from holofit.fitting.aperture import scan_aperture
 from holofit.fitting.forward import HologramModel, InvalidParameters
+from holofit.fitting.parameters import APERTURE
 
 __all__ = ["CONVERGED_CODES", "Solution", "solve_least_squares"]
 
@@ -81,8 +87,8 @@ def solve_least_squares(
     data : ndarray, shape (N,)
         Normalised intensities.
     start : ndarray
-        Start vector (``model.space.initial_vector()`` or a screened one); a fitted NA starts
-        from the best of a grid instead (:func:`holofit.fitting.aperture.scan_aperture`).
+        Start vector (``model.space.initial_vector()`` or a screened one); with a fitted NA,
+        the start of the three steps of the module docstring.
     max_nfev : int
         Most residual evaluations.
     ftol, xtol : float
@@ -94,7 +100,40 @@ def solve_least_squares(
     """
     data = np.asarray(data, dtype=float)
     before = model.n_holograms
-    start, grid, grid_rss = scan_aperture(model, data, np.asarray(start, dtype=float))
+    start = np.asarray(start, dtype=float)
+    grid = np.empty(0)
+    grid_rss = np.empty(0)
+    if APERTURE.name in model.space.names:
+        start = _others_at_start_aperture(model, data, start, max_nfev, ftol, xtol)
+        start, grid, grid_rss = scan_aperture(model, data, start)
+    sol = _levenberg_marquardt(model, data, start, max_nfev, ftol, xtol)
+    sol.n_eval = model.n_holograms - before
+    sol.aperture_scan = (grid, grid_rss) if grid.size else None
+    return sol
+
+
+def _others_at_start_aperture(model: HologramModel, data: NDArray[np.float64],
+                              start: NDArray[np.float64], max_nfev: int, ftol: float,
+                              xtol: float) -> NDArray[np.float64]:
+    """``start`` with every parameter but the NA fitted at the start's NA."""
+    if len(model.space.names) == 1:
+        return start
+    held, index = model.space.holding(APERTURE.name, start)
+    sub = HologramModel(model.theory, held, model.optics, model.xs, model.ys,
+                        far_field=model.far_field, waves=model.waves)
+    sol = _levenberg_marquardt(sub, data, start[index], max_nfev, ftol, xtol)
+    model.n_holograms += sub.n_holograms
+    model.n_solves += sub.n_solves
+    out = start.copy()
+    out[index] = sol.vector
+    return out
+
+
+def _levenberg_marquardt(model: HologramModel, data: NDArray[np.float64],
+                         start: NDArray[np.float64], max_nfev: int, ftol: float,
+                         xtol: float) -> Solution:
+    """One Levenberg-Marquardt run (the module docstring)."""
+    before = model.n_holograms
 
     def residuals(v: NDArray[np.float64]) -> NDArray[np.float64]:
         try:
@@ -119,5 +158,4 @@ def solve_least_squares(
         n_eval=model.n_holograms - before,
         converged=bool(sol.status in CONVERGED_CODES),
         message=str(sol.message),
-        aperture_scan=(grid, grid_rss) if grid.size else None,
     )

@@ -317,6 +317,26 @@ class ParameterSpace:
             numerical_aperture=values.get(APERTURE.name),
         )
 
+    def holding(self, name: str, vector: Sequence[float]) -> tuple[ParameterSpace, list[int]]:
+        """This space with parameter ``name`` held at its value in ``vector``.
+
+        Returns
+        -------
+        space : ParameterSpace
+            The same start rotation (so the same rotation axes), the other values from
+            ``vector``: its vector's components mean what the same names mean here.
+        index : list of int
+            Where its components sit in this space's vector.
+        """
+        rotations = [p.name for p in self.parameters if p.kind == "orientation"]
+        names = [n for n in self.names if n != name and n not in rotations]
+        if rotations and name not in rotations:
+            names.append("orientation")
+        start = replace(self.state(vector), rotation=self.start.rotation)
+        held = ParameterSpace(self.model, names, start, fit_spin=self.fit_spin,
+                              step_overrides=self.step_overrides)
+        return held, [self.names.index(n) for n in held.names]
+
     # -- the particle -------------------------------------------------------------------
     def particle(self, state: State) -> ParticleModel:
         """The particle model with the state's static parameters."""

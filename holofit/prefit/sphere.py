@@ -242,14 +242,8 @@ def fit_sphere_crop(
             n_eval += sol.n_eval
             if np.isfinite(sol.rss) and sol.rss < best_cost:
                 best_cost, chosen, space, vector = sol.rss, s, cand, sol.vector
-    if opts.fit_na:
-        # fitted at the start NA first: the NA's own misfit is rugged, so the full fit scans it
-        # from a fitted state (holofit.fitting.aperture.scan_aperture), then varies it
-        held = HologramModel(theory, space, optics, pix.xs_um, pix.ys_um)
-        sol = solve_least_squares(held, d, vector, max_nfev=opts.max_nfev, ftol=1e-6,
-                                  xtol=1e-6)
-        n_eval += sol.n_eval
-        space = ParameterSpace(space.model, free, space.state(sol.vector),
+    if opts.fit_na:  # the screened state, the aperture free (holofit.fitting.leastsq)
+        space = ParameterSpace(space.model, free, space.state(vector),
                                step_overrides=EXACT_STEPS)
         vector = space.initial_vector()
     model = HologramModel(theory, space, optics, pix.xs_um, pix.ys_um)
