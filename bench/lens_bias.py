@@ -106,7 +106,8 @@ def fit_case(case: Case, lens_model: bool = False, z_um: float | None = None,
     """Prefit of the case's lens hologram with the ideal (or the lens) model."""
     holo, corner, centre, truth = lens_crop(case, z_um)
     optics = Optics(case.wavelength_um, case.n_medium, 0.0, case.na if lens_model else None)
-    opts = FitOptions(search=search) if search is not None else FitOptions()
+    # the status as for a frame with pixel noise NOISE (noise-free data would be poor_fit)
+    opts = FitOptions(noise_sd=NOISE, **({"search": search} if search is not None else {}))
     row: dict[str, float | str] = {"case": case.label, "z_true_um": float(truth[2]),
                                    "model": "lens" if lens_model else "ideal"}
     try:

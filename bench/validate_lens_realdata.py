@@ -12,6 +12,7 @@ guess) with
 - the ideal model (``--numerical-aperture none``),
 - the lens at NA 1.2, 1.3 and 1.45 (fixed; 1.45 collects every propagating wave in water),
 - the NA fitted (``--fit-na`` from 1.2),
+- the instrument's own NA where it has one (pylorenzmie's 0.86, measured from these data),
 
 and an NA profile (the prefit at fixed NAs from 0.3 up: does the misfit fall at low NA, i.e.
 do the data's fringes fade faster than the model's?). For every fit: R^2, reduced chi^2,
@@ -47,9 +48,11 @@ import numpy as np
 import pandas as pd
 
 from holofit.batch import BatchOptions
+from holofit.batch.errors import BatchError
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit.stage import run_fit
+from holofit.fitting.aperture import FROM_INSTRUMENT
 from holofit.fitting.crops import CropSet
 from holofit.fitting.pictures import model_image
 from holofit.library.stage import run_library
@@ -134,6 +137,8 @@ CASES = [
 
 CONFIGS: list[tuple[str, Any, bool]] = [("ideal", None, False)] + [
     (f"NA {na:g}", na, False) for na in FIXED_NA] + [("NA fitted", 1.2, True)]
+#: for instruments with an NA of their own (pylorenzmie's measured 0.86)
+INSTRUMENT_CONFIG: tuple[str, Any, bool] = ("instrument NA", FROM_INSTRUMENT, False)
 #: for data whose published model has alpha = 1 (pylorenzmie): the same with alpha free too
 ALPHA_CONFIGS: list[tuple[str, Any, bool]] = [("ideal, alpha free", None, False),
                                               ("NA fitted, alpha free", 1.2, True)]
@@ -154,9 +159,14 @@ def _prefit(case: Case, crops: Path, out: Path, label: str, na: Any, fit_na: boo
     folder = out / ("prefit_" + label.replace(" ", "_").replace(",", "").replace(".", "p"))
     t0 = time.perf_counter()
     fix_alpha = None if "alpha free" in label else case.fix_alpha
-    result = run_prefit(crops, folder, fit=FitOptions(fix_alpha=fix_alpha, fit_na=fit_na),
-                        batch=BatchOptions(workers=0, progress=False, overwrite=True),
-                        numerical_aperture=na, plot=True, plot_frames=[0])
+    fit = FitOptions(fix_alpha=fix_alpha, fit_na=fit_na)
+    try:  # the same settings as a finished earlier run: its table is kept
+        result = run_prefit(crops, folder, fit=fit, batch=SERIAL, numerical_aperture=na,
+                            plot=True, plot_frames=[0])
+    except BatchError:  # other settings: start again
+        result = run_prefit(crops, folder, fit=fit, numerical_aperture=na, plot=True,
+                            plot_frames=[0],
+                            batch=BatchOptions(workers=0, progress=False, overwrite=True))
     row = pd.read_csv(result.table).iloc[0].to_dict()
     row.update(config=label, na=na, wall_s=time.perf_counter() - t0, folder=str(folder))
     return row
@@ -220,7 +230,10 @@ def run_sphere(case: Case, out_root: Path) -> dict[str, Any]:
     out = out_root / case.name
     out.mkdir(parents=True, exist_ok=True)
     crops = _crop(case, out)
-    configs = CONFIGS + (ALPHA_CONFIGS if case.fix_alpha is not None else [])
+    configs = list(CONFIGS)
+    if load_instrument(resolve_config(case.instrument, "instruments")).optics.numerical_aperture:
+        configs.append(INSTRUMENT_CONFIG)
+    configs += ALPHA_CONFIGS if case.fix_alpha is not None else []
     rows = [_prefit(case, crops, out, label, na, fit_na) for label, na, fit_na in configs]
     profile = _profile(case, crops)
     envelope = _figures(case, crops, rows, profile, out_root)

@@ -199,8 +199,11 @@ def test_every_readme_instrument_key_is_a_real_one():
 
 def test_particle_in_the_focal_plane_names_the_option_and_frame(tmp_path):
     # an instrument without an objective NA: the ideal model, which needs z > radius
+    ideal = tmp_path / "ideal.toml"
+    ideal.write_text('[instrument]\nname = "ideal"\nwavelength_um = 0.66\nmedium_index = 1.33\n'
+                     'pixel_size_um = 0.1\npolarization_deg = 0.0\nbit_depth = 8\n')
     out = tmp_path / "sim"
-    res = _invoke(["simulate", "sphere", "-i", "holopy_image0001", "--position", "12,12,10",
+    res = _invoke(["simulate", "sphere", "-i", ideal, "--position", "12,12,10",
                    "--position", "12,12,0", "--shape", "32,32", "-o", out])  # fmt: skip
     assert res.exit_code == 2
     text = " ".join(res.output.split())
@@ -211,7 +214,7 @@ def test_particle_in_the_focal_plane_names_the_option_and_frame(tmp_path):
     assert not out.exists()
     table = tmp_path / "traj.csv"
     table.write_text("x_um,y_um,z_um\n1,1,5\n1,1,-4\n")
-    res = _invoke(["simulate", "hologram", "-p", "sphere_ps_1um", "-i", "holopy_image0001",
+    res = _invoke(["simulate", "hologram", "-p", "sphere_ps_1um", "-i", ideal,
                    "--trajectory", table, "--shape", "32,32", "-o", out])  # fmt: skip
     assert res.exit_code == 2
     assert "row 2 of the table: frame 1" in res.output and "below the focal plane" in res.output

@@ -143,6 +143,21 @@ def test_aperture_column_reimages_the_solved_wave():
         model.hologram(v)
 
 
+def test_focal_plane_through_the_particle_is_valid_only_through_the_lens():
+    grid = DetectorGrid((30, 30), 0.1)
+    x, y = (c.ravel() for c in grid.coordinates())
+    space = _space(None, SPHERE)
+    v = space.initial_vector()
+    v[2] = 0.2  # the focal plane cuts the 0.55 um sphere
+    ideal = HologramModel(LorenzMie(), space, Optics(0.66, 1.33, 0.0), x, y)
+    with pytest.raises(InvalidParameters, match="cuts the particle"):
+        ideal.hologram(v)
+    lens = HologramModel(LorenzMie(), space, LENS, x, y)
+    wave = MieWave(Sphere(0.55, 1.5), LENS)
+    direct = hologram_intensity(*lens_field_on_pixels(wave, (5.0, 5.0, 0.2), x, y), 0.0, 0.85)
+    np.testing.assert_allclose(lens.hologram(v), direct, rtol=0, atol=1e-12)
+
+
 def _lens_crop(z, na, size=100, a=0.5, n=1.59, alpha=0.9, noise=0.01, seed=0):
     optics = Optics(0.66, 1.33, 0.0, na)
     corner = (40, 60)
@@ -209,7 +224,9 @@ def test_prefit_through_the_lens_near_and_below_focus(z):
 
 def test_numerical_aperture_choices():
     inst = load_instrument(CONFIGS / "instruments" / "holopy_image0001.toml")
-    assert inst.optics.numerical_aperture is None
+    assert inst.optics.numerical_aperture == 1.4
+    inst = inst.with_numerical_aperture(None)
+    assert inst.optics.numerical_aperture is None and "numerical_aperture" not in inst.as_dict()
     assert fit_instrument(inst, 1.3).optics.numerical_aperture == 1.3
     assert fit_instrument(inst, 1.3).as_dict()["numerical_aperture"] == 1.3
     assert fit_instrument(fit_instrument(inst, 1.3), None).optics.numerical_aperture is None

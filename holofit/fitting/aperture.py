@@ -41,6 +41,8 @@ __all__ = [
 SCAN_LOWEST = 0.2
 #: ... in steps of this (the misfit's local minima are 0.03-0.06 apart)
 SCAN_STEP = 0.01
+#: the scan looks at most at this many pixels (an evenly spread subset of larger crops)
+SCAN_PIXELS = 20000
 
 #: keep the instrument's NA (or its absence)
 FROM_INSTRUMENT: Literal["instrument"] = "instrument"
@@ -116,7 +118,8 @@ def aperture_start(optics: Optics) -> float:
 
 
 def scan_aperture(model: HologramModel, data: NDArray[np.float64], vector: NDArray[np.float64],
-                  lowest: float = SCAN_LOWEST, step: float = SCAN_STEP
+                  lowest: float = SCAN_LOWEST, step: float = SCAN_STEP,
+                  max_pixels: int = SCAN_PIXELS
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The start vector with the NA of least misfit on a grid, every other parameter held.
 
@@ -131,13 +134,16 @@ def scan_aperture(model: HologramModel, data: NDArray[np.float64], vector: NDArr
     lowest, step : float
         The grid: ``lowest, lowest + step, ...`` up to the medium's index, and the start's
         own NA.
+    max_pixels : int
+        Larger pixel sets are scanned on every k-th pixel (at most this many).
 
     Returns
     -------
     best : ndarray
         ``vector`` with the best NA of the grid.
     grid, rss : ndarray
-        The NAs tried and their residual sums of squares (inf where invalid).
+        The NAs tried and their residual sums of squares (inf where invalid; scaled to all
+        pixels when a subset was scanned).
     """
     names = model.space.names
     if APERTURE.name not in names:
@@ -146,15 +152,21 @@ def scan_aperture(model: HologramModel, data: NDArray[np.float64], vector: NDArr
     v = np.asarray(vector, dtype=float)
     top = model.optics.n_medium
     grid = np.unique(np.concatenate([np.arange(lowest, top, step), [top, min(v[i], top)]]))
+    stride = -(-model.n_pixels // max_pixels)  # ceil
+    scan, d = model, np.asarray(data, dtype=float)
+    if stride > 1:
+        every = np.arange(0, model.n_pixels, stride)
+        scan, d = model.restricted(every), d[every]
     rss = np.full(grid.size, np.inf)
     for j, na in enumerate(grid):
         q = v.copy()
         q[i] = na
         try:
-            r = model.hologram(q) - data
+            r = scan.hologram(q) - d
         except InvalidParameters:
             continue
-        rss[j] = float(r @ r)
+        rss[j] = float(r @ r) * stride
+    model.n_holograms += scan.n_holograms if scan is not model else 0
     best = v.copy()
     if np.isfinite(rss).any():
         best[i] = grid[int(np.argmin(rss))]

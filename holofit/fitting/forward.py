@@ -115,10 +115,8 @@ class HologramModel:
 
     def restricted(self, index: NDArray[np.intp]) -> HologramModel:
         """The same model on a subset of its pixels, sharing the solved waves."""
-        sub = HologramModel(self.theory, self.space, self.optics, self.xs[index],
-                            self.ys[index], far_field=self.far_field)
-        sub._waves = self.waves
-        return sub
+        return HologramModel(self.theory, self.space, self.optics, self.xs[index],
+                             self.ys[index], far_field=self.far_field, waves=self.waves)
 
     # -- solves -------------------------------------------------------------------------
     def wave(self, state: State) -> ScatteredWave:
