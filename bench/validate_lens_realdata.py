@@ -415,7 +415,7 @@ def _dimer_table(result: dict[str, Any]) -> list[str]:
               if "numerical_aperture" in r else "")
         lines.append(f"| {r['config']} | {_f(r['r2'], '.4f')} | {_f(r['chi2_red'], '.3f')} | "
                      + " | ".join(_f(r.get(c), ".4f") for c in cols)
-                     + f" | {na} | {r['status']} | {_f(r['wall_s'], '.0f')} |")
+                     + f" | {na} | {r['status']} | {_f(r['fit_time_s'], '.0f')} |")
     return [*lines, ""]
 
 
