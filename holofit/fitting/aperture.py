@@ -11,7 +11,10 @@ weak diffracted wave over the whole image (the rings of the objective's point-sp
 function), whose phase turns with the aperture angle, so the misfit as a function of NA has a
 local minimum every few hundredths of NA. A local optimiser started anywhere stays in the
 nearest one; :func:`scan_aperture` therefore looks over a grid of NAs (every other parameter
-held) for the best start of the fit.
+held) for the best starts of the fit, and :func:`aperture_minima` picks its few deepest local
+minima: with the other parameters held the scan ranks them, but once those are fitted again
+the order can change (measured: pylorenzmie's image0400, the scan's third minimum, 0.85,
+ends 0.005 higher in R^2 than its first, 0.91), so each is fitted.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from holofit.validation import ConfigError
 __all__ = [
     "FROM_INSTRUMENT",
     "ApertureChoice",
+    "aperture_minima",
     "aperture_start",
     "fit_instrument",
     "parse_numerical_aperture",
@@ -43,6 +47,8 @@ SCAN_LOWEST = 0.2
 SCAN_STEP = 0.01
 #: the scan looks at most at this many pixels (an evenly spread subset of larger crops)
 SCAN_PIXELS = 20000
+#: the scan's deepest local minima that are each fitted
+MAX_STARTS = 3
 
 #: keep the instrument's NA (or its absence)
 FROM_INSTRUMENT: Literal["instrument"] = "instrument"
@@ -171,3 +177,25 @@ def scan_aperture(model: HologramModel, data: NDArray[np.float64], vector: NDArr
     if np.isfinite(rss).any():
         best[i] = grid[int(np.argmin(rss))]
     return best, grid, rss
+
+
+def aperture_minima(grid: NDArray[np.float64], rss: NDArray[np.float64],
+                    limit: int = MAX_STARTS) -> list[float]:
+    """The NAs of a scan's deepest local minima, best first (empty if none was valid).
+
+    Parameters
+    ----------
+    grid, rss : ndarray
+        The scan (:func:`scan_aperture`).
+    limit : int
+        Most minima returned.
+    """
+    ok = np.isfinite(rss)
+    if not ok.any():
+        return []
+    r = np.where(ok, rss, np.inf)
+    left = np.concatenate([[np.inf], r[:-1]])
+    right = np.concatenate([r[1:], [np.inf]])
+    minima = np.flatnonzero((r <= left) & (r <= right) & ok)
+    minima = minima[np.argsort(r[minima], kind="stable")]
+    return [float(grid[i]) for i in minima[:limit]]

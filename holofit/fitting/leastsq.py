@@ -11,7 +11,8 @@ A fit of the objective's numerical aperture goes in three steps, because the mis
 in NA alone (:mod:`holofit.fitting.aperture`) and a scan over NA is only as good as the other
 parameters it holds: every other parameter is fitted at the start NA, the NA of least misfit
 on a grid is found with those held (:func:`holofit.fitting.aperture.scan_aperture`), and
-everything is fitted from there.
+everything is fitted from each of the scan's three deepest minima
+(:func:`holofit.fitting.aperture.aperture_minima`), the best fit kept.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from holofit.fitting.aperture import scan_aperture
+from holofit.fitting.aperture import aperture_minima, scan_aperture
 from holofit.fitting.forward import HologramModel, InvalidParameters
 from holofit.fitting.parameters import APERTURE
 
@@ -103,10 +104,22 @@ def solve_least_squares(
     start = np.asarray(start, dtype=float)
     grid = np.empty(0)
     grid_rss = np.empty(0)
+    starts = [start]
     if APERTURE.name in model.space.names:
         start = _others_at_start_aperture(model, data, start, max_nfev, ftol, xtol)
-        start, grid, grid_rss = scan_aperture(model, data, start)
-    sol = _levenberg_marquardt(model, data, start, max_nfev, ftol, xtol)
+        _, grid, grid_rss = scan_aperture(model, data, start)
+        i = model.space.names.index(APERTURE.name)
+        starts = []
+        for na in aperture_minima(grid, grid_rss) or [start[i]]:
+            v = start.copy()
+            v[i] = na
+            starts.append(v)
+    sol: Solution | None = None
+    for v in starts:  # each of the scan's deepest minima, fitted; the best kept
+        s = _levenberg_marquardt(model, data, v, max_nfev, ftol, xtol)
+        if sol is None or (np.isfinite(s.rss) and not s.rss >= sol.rss):
+            sol = s
+    assert sol is not None
     sol.n_eval = model.n_holograms - before
     sol.aperture_scan = (grid, grid_rss) if grid.size else None
     return sol
