@@ -6,6 +6,13 @@ gives them. The estimator's table is built once per process (timed separately as
 ``prefit_table_build_s``); the per-frame time includes everything else: radial profile,
 table search, profile refinement, screening of ambiguous starts, the full fit and its
 statistics.
+
+The cost of the objective lens in a fit: ``prefit_frame_140px_s`` is the ideal model (no lens)
+on ideal holograms; ``prefit_frame_lens_140px_s`` the same frames (same particles and noise)
+made and fitted through the set-up's objective (NA 1.20, :mod:`holofit.scattering.lens`), and
+``prefit_frame_fit_na_140px_s`` with the NA fitted too (a scan over NA, then the full fit);
+``prefit_table_build_lens_140px_s`` is the estimator's table of lens profiles. The 390 px case
+(pylorenzmie, no NA) and the batch use the ideal model.
 """
 
 from __future__ import annotations
@@ -34,7 +41,9 @@ from holofit.scattering.mie import MieWave
 
 
 def _frames(inst, n, size, seed=0):
-    """n noisy normalised crops with the crop-stage centre; yields (crop, corner, centre, truth)."""
+    """n noisy normalised crops with the crop-stage centre; yields (crop, corner, centre, truth).
+
+    The holograms are made with ``inst.optics`` (through its objective if it has an NA)."""
     px = inst.pixel_size_um
     rng = np.random.default_rng(seed)
     cam = Camera(background_counts=0.47 * 255)
@@ -52,8 +61,8 @@ def _frames(inst, n, size, seed=0):
         yield crop, corner, centre, (c * px, r * px, z, a, m)
 
 
-def _one_core(inst, size, n):
-    opts = FitOptions()
+def _one_core(inst, size, n, opts=None):
+    opts = opts or FitOptions()
     t0 = time.perf_counter()
     n_bins = size // 2 - 1
     search = opts.search.for_crop(n_bins * inst.pixel_size_um, inst.optics.wavelength_medium_um)
@@ -69,14 +78,23 @@ def _one_core(inst, size, n):
 
 
 def bench_prefit_frame() -> dict[str, float]:
-    inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
-    t_table, t_frame, n_eval = _one_core(inst, 140, 30)
+    lens = load_instrument(resolve_config("paper_60x_water", "instruments"))
+    assert lens.optics.numerical_aperture == 1.2
+    ideal = lens.with_numerical_aperture(None)
+    t_table, t_frame, n_eval = _one_core(ideal, 140, 30)
+    t_table_lens, t_lens, n_eval_lens = _one_core(lens, 140, 30)
+    _, t_fit_na, n_eval_fit_na = _one_core(lens, 140, 10, FitOptions(fit_na=True))
     pyl = load_instrument(resolve_config("pylorenzmie", "instruments"))
     t_table_390, t_390, _ = _one_core(pyl, 390, 5)
     return {
         "prefit_frame_140px_s": t_frame,
         "prefit_frame_140px_evaluations": float(n_eval),
         "prefit_table_build_140px_s": t_table,
+        "prefit_frame_lens_140px_s": t_lens,
+        "prefit_frame_lens_140px_evaluations": float(n_eval_lens),
+        "prefit_table_build_lens_140px_s": t_table_lens,
+        "prefit_frame_fit_na_140px_s": t_fit_na,
+        "prefit_frame_fit_na_140px_evaluations": float(n_eval_fit_na),
         "prefit_frame_390px_s": t_390,
         "prefit_table_build_390px_s": t_table_390,
     }
@@ -84,6 +102,7 @@ def bench_prefit_frame() -> dict[str, float]:
 
 def bench_prefit_batch() -> dict[str, float]:
     inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
+    inst = inst.with_numerical_aperture(None)
     n = 150
     with tempfile.TemporaryDirectory() as tmp:
         crops_dir = Path(tmp) / "crops"

@@ -124,6 +124,21 @@ class Instrument:
         return Optics(self.wavelength_um, self.medium_index, self.polarization_rad,
                       self.extra.get("numerical_aperture"))
 
+    def with_numerical_aperture(self, numerical_aperture: float | None) -> Instrument:
+        """This instrument with another objective NA (None: the ideal model, no lens).
+
+        Raises
+        ------
+        ValueError
+            If the NA is not a positive number.
+        """
+        extra = {k: v for k, v in self.extra.items() if k != "numerical_aperture"}
+        if numerical_aperture is not None:
+            Optics(self.wavelength_um, self.medium_index, self.polarization_rad,
+                   float(numerical_aperture))  # checks the value
+            extra["numerical_aperture"] = float(numerical_aperture)
+        return dataclasses.replace(self, extra=extra)
+
     def as_dict(self) -> dict[str, Any]:
         """Plain dict for sidecar JSON files (units in the keys)."""
         return {

@@ -198,20 +198,30 @@ def test_every_readme_instrument_key_is_a_real_one():
 
 
 def test_particle_in_the_focal_plane_names_the_option_and_frame(tmp_path):
+    # an instrument without an objective NA: the ideal model, which needs z > radius
+    ideal = tmp_path / "ideal.toml"
+    ideal.write_text('[instrument]\nname = "ideal"\nwavelength_um = 0.66\nmedium_index = 1.33\n'
+                     'pixel_size_um = 0.1\npolarization_deg = 0.0\nbit_depth = 8\n')
     out = tmp_path / "sim"
-    res = _invoke(["simulate", "sphere", "--position", "12,12,10", "--position", "12,12,0",
-                   "--shape", "32,32", "-o", out])  # fmt: skip
+    res = _invoke(["simulate", "sphere", "-i", ideal, "--position", "12,12,10",
+                   "--position", "12,12,0", "--shape", "32,32", "-o", out])  # fmt: skip
     assert res.exit_code == 2
+    text = " ".join(res.output.split())
     assert ("Invalid value for --position: frame 1: the particle centred at (12, 12, 0) um is "
-            "cut by the focal plane") in " ".join(res.output.split())
-    assert "bounding radius, 0.5 um (--position 12,12,0)" in " ".join(res.output.split())
+            "cut by the focal plane") in text
+    assert "bounding radius, 0.5 um" in text and "(--position 12,12,0)" in text
+    assert "numerical_aperture" in text
     assert not out.exists()
     table = tmp_path / "traj.csv"
     table.write_text("x_um,y_um,z_um\n1,1,5\n1,1,-4\n")
-    res = _invoke(["simulate", "hologram", "-p", "sphere_ps_1um", "--trajectory", table,
-                   "--shape", "32,32", "-o", out])  # fmt: skip
+    res = _invoke(["simulate", "hologram", "-p", "sphere_ps_1um", "-i", ideal,
+                   "--trajectory", table, "--shape", "32,32", "-o", out])  # fmt: skip
     assert res.exit_code == 2
     assert "row 2 of the table: frame 1" in res.output and "below the focal plane" in res.output
+    # through the objective (the default instrument, NA 1.40) every height is imaged
+    res = _invoke(["simulate", "hologram", "-p", "sphere_ps_1um", "--trajectory", table,
+                   "--shape", "32,32", "-o", out, "--no-noise"])  # fmt: skip
+    assert res.exit_code == 0, res.output
 
 
 @pytest.mark.parametrize(

@@ -209,7 +209,10 @@ def test_calc_hologram_uses_the_lens_when_the_optics_has_an_aperture():
 
 def test_instrument_passes_its_aperture_to_the_optics():
     assert load_instrument(CONFIGS / "paper_60x_water.toml").optics.numerical_aperture == 1.2
-    assert load_instrument(CONFIGS / "holopy_image0001.toml").optics.numerical_aperture is None
+    assert load_instrument(CONFIGS / "pylorenzmie.toml").optics.numerical_aperture == 0.86
+    inst = load_instrument(CONFIGS / "holopy_image0001.toml")
+    assert inst.optics.numerical_aperture == 1.4
+    assert inst.with_numerical_aperture(None).optics.numerical_aperture is None
 
 
 def test_bad_apertures_and_apodisations_are_refused():

@@ -129,8 +129,15 @@ def test_z_grid_keeps_the_fringe_phase_step():
 def test_search_space_rejects_bad_ranges():
     with pytest.raises(ValueError, match="focal plane"):
         SearchSpace(z_range_um=(-5.0, 5.0))
+    # the ideal model needs the focal plane outside the spheres and above it; the lens does not
+    near = SearchSpace(z_range_um=(1.0, 5.0), radius_range_um=(0.2, 1.5))
     with pytest.raises(ValueError, match="reaches into"):
-        SearchSpace(z_range_um=(1.0, 5.0), radius_range_um=(0.2, 1.5))
+        near.check_heights(lens=False)
+    near.check_heights(lens=True)
+    below = SearchSpace(z_range_um=(-8.0, -2.0))
+    with pytest.raises(ValueError, match="below the focal plane"):
+        below.check_heights(lens=False)
+    below.check_heights(lens=True)
 
 
 def test_covariance_of_a_straight_line_fit():

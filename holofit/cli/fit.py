@@ -14,6 +14,8 @@ from holofit.cli.common import (
     particle_option,
 )
 from holofit.cli.stage_options import (
+    aperture_choice,
+    aperture_options,
     batch_options,
     frame_list,
     make_batch_options,
@@ -73,6 +75,7 @@ from holofit.scattering.select import ENGINE_CHOICES
               help="Pixel noise for chi^2 (default: estimated per crop).")
 @click.option("--far-field", is_flag=True,
               help="Asymptotic far-field scattered field (as ADDA and the paper), not the exact.")
+@aperture_options
 @quality_options
 @batch_options
 def fit(
@@ -95,6 +98,8 @@ def fit(
     saturation: float | None,
     noise_sd: float | None,
     far_field: bool,
+    numerical_aperture: str | None,
+    fit_na: bool,
     max_chi2_red: float,
     min_r2: float,
     outlier_factor: float,
@@ -135,7 +140,8 @@ def fit(
                   fixed=names, tmatrix=tmatrix,
                   frames=frame_list(crop_dir, frame_range), batch=batch, plot=plot,
                   plot_frames=parse_int_list(plot_frames, "--plot-frames"),
-                  outlier_factor=outlier_factor)
+                  outlier_factor=outlier_factor,
+                  numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na)
     for name, s in run.summaries.items():
         for note in s.notes:
             click.echo(f"note: {note}", err=True)

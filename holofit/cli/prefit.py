@@ -8,6 +8,8 @@ import click
 
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
 from holofit.cli.stage_options import (
+    aperture_choice,
+    aperture_options,
     batch_options,
     frame_list,
     make_batch_options,
@@ -49,11 +51,14 @@ def _range(value: str | None, name: str) -> tuple[float, float] | None:
               help="Pixel noise for chi^2 (normalised units; default: estimated per crop).")
 @click.option("--z-range", default=None, metavar="MIN,MAX",
               help="Heights searched by the automatic start, um [default: 2 um up to what the "
-                   "crop can show, at least 50 um].")
+                   "crop can show, at least 50 um]. Not crossing the focal plane; with the "
+                   "objective lens in the model, heights below it (e.g. --z-range=-10,-1) and "
+                   "near it are allowed.")
 @click.option("--radius-range", default=None, metavar="MIN,MAX",
               help="Radii searched by the automatic start, um [default: 0.2,1.6].")
 @click.option("--index-range", default=None, metavar="MIN,MAX",
               help="Absolute indices searched [default: 1.02 to 1.30 times the medium's].")
+@aperture_options
 @quality_options
 @batch_options
 def prefit(
@@ -68,6 +73,8 @@ def prefit(
     z_range: str | None,
     radius_range: str | None,
     index_range: str | None,
+    numerical_aperture: str | None,
+    fit_na: bool,
     max_chi2_red: float,
     min_r2: float,
     outlier_factor: float,
@@ -88,8 +95,10 @@ def prefit(
     writes OUT/prefit.csv (one row per frame: values, 1-sigma uncertainties d_*, chi2, chi2_red,
     R^2, evaluations, time, status), its sidecar JSON, OUT/prefit.png and data/model/residual
     pictures in OUT/frames/. x, y start from the crop table; z, radius, index and alpha from the
-    crop's radial profile. Frames run in parallel; an interrupted run resumes where it stopped
-    when the same command is run again.
+    crop's radial profile. With an objective NA (the instrument's numerical_aperture, or
+    --numerical-aperture) the model is the image through that lens; --fit-na fits the NA too.
+    Frames run in parallel; an interrupted run resumes where it stopped when the same command
+    is run again.
     """
     inst = load_instrument_arg(instrument) if instrument else None
     space_kw = {}
@@ -109,7 +118,7 @@ def prefit(
     try:
         fit = FitOptions(fix_alpha=fix_alpha, index_imag=index_imag, saturation=saturation,
                          pixel_fraction=pixel_fraction, noise_sd=noise_sd, search=search,
-                         quality=QualityLimits(max_chi2_red, min_r2))
+                         quality=QualityLimits(max_chi2_red, min_r2), fit_na=fit_na)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--fix-alpha") from None
     batch = make_batch_options(workers, scheduler, dask_local, retry_failed, overwrite, progress)
@@ -117,6 +126,7 @@ def prefit(
         crop_dir, out, instrument=inst, fit=fit, frames=frame_list(crop_dir, frame_range),
         batch=batch, plot=plot, plot_frames=parse_int_list(plot_frames, "--plot-frames"),
         override_instrument=override_instrument, outlier_factor=outlier_factor,
+        numerical_aperture=aperture_choice(numerical_aperture),
     )
     s = result.summary
     for note in s.notes:

@@ -50,8 +50,10 @@ def _positions(
     positions_file: Path | None,
     file_option: str,
     table: pd.DataFrame | None = None,
+    lens: bool = False,
 ) -> np.ndarray:
-    """Positions from ``--position`` or a table file, checked against ``model``."""
+    """Positions from ``--position`` or a table file, checked against ``model`` (any height
+    through an objective lens, ``lens``)."""
     if positions_file is not None:
         if position:
             raise click.UsageError(f"give --position or {file_option}, not both")
@@ -69,7 +71,7 @@ def _positions(
     else:
         pos = np.array([parse_triple(p, "--position") for p in position])
     try:
-        return check_positions(model, pos)
+        return check_positions(model, pos, lens)
     except SimulationError as exc:
         if positions_file is not None:
             where = f"{positions_file}" + (
@@ -106,7 +108,7 @@ def _positions(
     multiple=True,
     metavar="X,Y,Z",
     help="Full-frame particle centre in um (z: height above the focal plane, larger than the "
-    "radius); repeat for a movie.",
+    "radius; any height for an instrument with a numerical_aperture); repeat for a movie.",
 )
 @click.option(
     "--positions",
@@ -161,7 +163,8 @@ def simulate_sphere(
             model = Sphere(radius, complex(index_re, index_imag))
         except ValueError as exc:
             raise click.BadParameter(str(exc)) from None
-    pos = _positions(model, position, positions_file, "--positions")
+    pos = _positions(model, position, positions_file, "--positions",
+                     lens=inst.optics.numerical_aperture is not None)
     frame_shape = parse_pair(shape, "--shape")
     with progress_bar(len(pos), "simulate", unit="frame") as bar:
         result = simulate_movie(
@@ -206,7 +209,8 @@ def _orientations(orientation: tuple[str, ...], table: pd.DataFrame | None, n: i
               help="Scattering engine (auto: Lorenz-Mie for spheres, else the config's [dda]).")
 @click.option("--position", multiple=True, metavar="X,Y,Z",
               help="Full-frame particle centre in um (z: height above the focal plane, larger "
-                   "than the particle's bounding radius); repeat for a movie.")
+                   "than the particle's bounding radius; any height for an instrument with a "
+                   "numerical_aperture); repeat for a movie.")
 @click.option("--orientation", multiple=True, metavar="PSI,THETA,PHI",
               help="zyz Euler angles in degrees: one for all frames or one per --position.")
 @click.option("--trajectory", "trajectory_file", type=click.Path(exists=True, path_type=Path),
@@ -241,7 +245,8 @@ def simulate_hologram(
     except (ValueError, RuntimeError) as exc:
         raise click.BadParameter(str(exc), param_hint="--engine") from None
     table = _read_csv(trajectory_file, "--trajectory") if trajectory_file is not None else None
-    pos = _positions(cfg.model, position, trajectory_file, "--trajectory", table)
+    pos = _positions(cfg.model, position, trajectory_file, "--trajectory", table,
+                     lens=inst.optics.numerical_aperture is not None)
     orient = _orientations(orientation, table, len(pos))
     frame_shape = parse_pair(shape, "--shape")
     with progress_bar(len(pos), "simulate", unit="frame") as bar:

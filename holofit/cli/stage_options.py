@@ -10,8 +10,11 @@ from typing import Any, TypeVar
 import click
 
 from holofit.batch.runner import BatchOptions
+from holofit.fitting.aperture import FROM_INSTRUMENT, ApertureChoice, parse_numerical_aperture
 
 __all__ = [
+    "aperture_choice",
+    "aperture_options",
     "batch_options",
     "frame_list",
     "make_batch_options",
@@ -62,6 +65,35 @@ _QUALITY = [
                  help="Allow --instrument to contradict the instrument the crops were made "
                       "with."),
 ]
+
+
+_APERTURE = [
+    click.option("--numerical-aperture", "numerical_aperture", default=None, metavar="NA|none",
+                 help="The objective's NA the model is imaged with (the lens model), or 'none' "
+                      "for the ideal model (the field in the focal plane) [default: the "
+                      "instrument's numerical_aperture, the ideal model if it has none]."),
+    click.option("--fit-na", is_flag=True,
+                 help="Fit the numerical aperture too, starting from --numerical-aperture or "
+                      "the instrument's (at most the medium's index: beyond it nothing "
+                      "changes)."),
+]
+
+
+def aperture_options(func: F) -> F:
+    """Add ``--numerical-aperture`` and ``--fit-na`` to a command."""
+    for option in reversed(_APERTURE):
+        func = option(func)
+    return func
+
+
+def aperture_choice(value: str | None) -> ApertureChoice:
+    """``--numerical-aperture``: absent -> the instrument's, ``none`` -> None, else the NA."""
+    if value is None:
+        return FROM_INSTRUMENT
+    try:
+        return parse_numerical_aperture(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--numerical-aperture") from None
 
 
 def quality_options(func: F) -> F:

@@ -24,9 +24,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.conventions import euler_zyz
+from holofit.fitting.aperture import aperture_start
 from holofit.fitting.forward import HologramModel
 from holofit.fitting.leastsq import Solution, solve_least_squares
-from holofit.fitting.parameters import ParameterSpace, State, static_values
+from holofit.fitting.parameters import APERTURE, ParameterSpace, State, static_values
 from holofit.fitting.pixels import PixelSelection, select_pixels
 from holofit.fitting.result import FitResult, QualityLimits, fit_result
 from holofit.fitting.statistics import estimate_noise_sd
@@ -187,7 +188,8 @@ def fit_frame(
     candidates : sequence of Candidate
         Starting orientations, best first (the library's); ignored for isotropic particles.
     free : sequence of str
-        Fitted parameters: position and static names, ``alpha``, ``orientation``.
+        Fitted parameters: position and static names, ``alpha``, ``orientation``,
+        ``numerical_aperture`` (starting from the optics' NA).
     options : FrameFitOptions, optional
         Settings.
     seed : int
@@ -205,6 +207,7 @@ def fit_frame(
                         fraction=opts.pixel_fraction, rng=rng, min_pixels=200)
     noise = opts.noise_sd if opts.noise_sd is not None else estimate_noise_sd(crop, pix.valid)
     statics = static_values(model)
+    na_start = aperture_start(optics) if APERTURE.name in free else None
     if model.anisotropic:
         if not candidates:
             raise ValueError("no starting orientation for an anisotropic particle")
@@ -220,7 +223,8 @@ def fit_frame(
             state = start
         else:
             rot = None if start is None else euler_zyz(start.psi, start.theta, start.phi)
-            state = State(tuple(position_um), rot, alpha, statics)  # type: ignore[arg-type]
+            state = State(tuple(position_um), rot, alpha, statics,  # type: ignore[arg-type]
+                          na_start)
         return ParameterSpace(model, names, state)
 
     full = HologramModel(theory, space_for(starts[0], free), optics, pix.xs_um, pix.ys_um,

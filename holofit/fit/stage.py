@@ -35,10 +35,16 @@ from holofit.config import ConfigError, Instrument, ParticleConfig
 from holofit.dda.tmatrix_io import TMatrixMismatch
 from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitOptions, fit_frame
 from holofit.fit_table import column_unit
+from holofit.fitting.aperture import FROM_INSTRUMENT, ApertureChoice, fit_instrument
 from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
 from holofit.fitting.finish import outlier_rule, outlier_sidecar
 from holofit.fitting.inputs import StageInputError, read_stage_table, usable_start
-from holofit.fitting.parameters import particle_with, static_parameters, static_values
+from holofit.fitting.parameters import (
+    APERTURE,
+    particle_with,
+    static_parameters,
+    static_values,
+)
 from holofit.fitting.pictures import write_frame_pictures
 from holofit.fitting.result import result_columns, result_row
 from holofit.io.tables import read_table, write_json
@@ -72,10 +78,13 @@ class FitStageError(RuntimeError):
 MAD_TO_SIGMA = 1.4826
 
 
-def _free(model: ParticleModel, pass_name: str, fixed: tuple[str, ...] = ()) -> tuple[str, ...]:
+def _free(model: ParticleModel, pass_name: str, fixed: tuple[str, ...] = (),
+          fit_na: bool = False) -> tuple[str, ...]:
     names = ["x_um", "y_um", "z_um", "orientation", "alpha"]
     if pass_name == "initial":
         names += [p.name for p in static_parameters(model)]
+    if fit_na:
+        names.append(APERTURE.name)
     return tuple(n for n in names if n not in fixed)
 
 
@@ -96,8 +105,10 @@ def fit_columns(model: ParticleModel, free: tuple[str, ...]) -> tuple[str, ...]:
         orient = ("theta_rad", "psi_rad", *(() if model.axisymmetric else ("phi_rad",)),
                   "ux", "uy", "uz")
     statics = tuple(p.name for p in static_parameters(model))
-    values = ("x_um", "y_um", "z_um", *orient, "alpha", *statics)
-    errors = ("x_um", "y_um", "z_um", *orient, "alpha", *(s for s in statics if s in free))
+    optics = (APERTURE.name,) if APERTURE.name in free else ()
+    values = ("x_um", "y_um", "z_um", *orient, "alpha", *statics, *optics)
+    errors = ("x_um", "y_um", "z_um", *orient, "alpha", *(s for s in statics if s in free),
+              *optics)
     return result_columns(values, errors, (*RUNNER_UP_COLUMNS, "n_masked"))
 
 
@@ -123,6 +134,8 @@ class FitConfig:
     tmatrix : str, optional
         The particle's T-matrix file (final pass): every orientation is then served from it,
         with analytic orientation columns of the Jacobian, instead of a DDA solve.
+    fit_na : bool
+        Fit the objective's numerical aperture (from the instrument's) in every frame.
     """
 
     particle: ParticleConfig
@@ -132,10 +145,11 @@ class FitConfig:
     engine: str | None = None
     fixed: tuple[str, ...] = ()
     tmatrix: str | None = None
+    fit_na: bool = False
 
     @property
     def free(self) -> tuple[str, ...]:
-        return _free(self.particle.model, self.pass_name, self.fixed)
+        return _free(self.particle.model, self.pass_name, self.fixed, self.fit_na)
 
     def as_dict(self) -> dict[str, Any]:
         return {"particle": self.particle.as_dict(), "instrument": self.instrument.as_dict(),
@@ -303,6 +317,8 @@ def run_fit(
     plot: bool = True,
     plot_frames: list[int] | None = None,
     outlier_factor: float = 4.0,
+    numerical_aperture: ApertureChoice = FROM_INSTRUMENT,
+    fit_na: bool = False,
 ) -> FitRun:
     """The DDA fit of a crop folder (see the module docstring).
 
@@ -347,6 +363,11 @@ def run_fit(
         Parallel backend, resumption.
     plot, plot_frames, outlier_factor
         As for :func:`holofit.prefit.run_prefit`.
+    numerical_aperture : float, None or "instrument"
+        The objective's NA the model is imaged with (:mod:`holofit.fitting.aperture`): the
+        instrument's (default), another value, or None for the ideal model.
+    fit_na : bool
+        Fit the NA in every frame of both passes, starting from that one.
 
     Returns
     -------
@@ -369,7 +390,8 @@ def run_fit(
     run = FitRun()
     model = particle.model
     with CropSet(crop_dir) as crops:
-        inst = resolve_instrument(crops, instrument, override_instrument)
+        inst = fit_instrument(resolve_instrument(crops, instrument, override_instrument),
+                              numerical_aperture, fit_na)
         # one lattice for both passes, whatever the fitted index does to the dipole rule
         particle = particle.with_fixed_lattice(inst.optics)
         pre, _ = read_stage_table(prefit, crops, "prefit")
@@ -413,7 +435,8 @@ def run_fit(
         def one_pass(name: str, cfg_particle: ParticleConfig, pass_frames: list[int],
                      table_name: str, static_doc: dict[str, Any] | None = None,
                      tmatrix_path: str | None = None) -> Path:
-            cfg = FitConfig(cfg_particle, inst, name, opts, engine, tuple(fixed), tmatrix_path)
+            cfg = FitConfig(cfg_particle, inst, name, opts, engine, tuple(fixed),
+                            tmatrix=tmatrix_path, fit_na=fit_na)
             columns = fit_columns(model, cfg.free)
             units = {c: column_unit(c) for c in columns}
             units["status"] = describe(FIT_STATUS_MEANINGS)

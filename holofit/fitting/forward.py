@@ -8,6 +8,9 @@ what a solve depends on (the static parameters and the orientation), so that
 
 - a position change reuses the solved wave (a new field evaluation, no new solve);
 - the alpha column of the Jacobian is exact, ``dI/dalpha = 2 Re[(e_pol + alpha E) . E*]``;
+- the numerical-aperture column (an optics parameter) is a one-sided finite difference that
+  re-images the same solved wave through the new aperture (no new solve), stepping toward
+  smaller apertures where a larger one would collect nothing more (``NA >= n_medium``);
 - orientation and static columns are one-sided finite differences on the smooth
   discretisation, each one new solve, warm-started by the engine from its previous solutions
   (the built-in DDA keeps them per lattice); a wave that can differentiate itself with respect
@@ -19,8 +22,10 @@ what a solve depends on (the static parameters and the orientation), so that
   the residuals it minimises stay exact.)
 
 Parameters that describe no physical particle (a negative size, a detector plane inside the
-particle) raise :class:`InvalidParameters`; the optimiser wrapper turns that into a rejected
-step.
+particle in the ideal model, a non-positive aperture) raise :class:`InvalidParameters`; the
+optimiser wrapper turns that into a rejected step. With an objective in the model (an NA in the
+optics or in the state) the hologram is the lens image, defined at every height: a particle
+in, near or below the focal plane is valid.
 """
 
 from __future__ import annotations
@@ -110,10 +115,8 @@ class HologramModel:
 
     def restricted(self, index: NDArray[np.intp]) -> HologramModel:
         """The same model on a subset of its pixels, sharing the solved waves."""
-        sub = HologramModel(self.theory, self.space, self.optics, self.xs[index],
-                            self.ys[index], far_field=self.far_field)
-        sub._waves = self.waves
-        return sub
+        return HologramModel(self.theory, self.space, self.optics, self.xs[index],
+                             self.ys[index], far_field=self.far_field, waves=self.waves)
 
     # -- solves -------------------------------------------------------------------------
     def wave(self, state: State) -> ScatteredWave:
@@ -132,17 +135,25 @@ class HologramModel:
             self.waves.put(key, wave)
         return wave
 
+    def aperture(self, state: State) -> float | None:
+        """The objective's NA for ``state``: its own (a fitted one), else the optics'."""
+        na = state.numerical_aperture
+        return self.optics.numerical_aperture if na is None else na
+
     def fields(self, state: State) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
         """Transverse scattered field at the pixels."""
         z = state.position[2]
-        lens = self.optics.numerical_aperture is not None
-        if not lens and not abs(z) > 1.0001 * self._radius_for(state):
+        na = self.aperture(state)
+        if na is not None and not (na > 0 and np.isfinite(na)):
+            raise InvalidParameters(f"numerical aperture {na:.4g} is not positive")
+        if na is None and not abs(z) > 1.0001 * self._radius_for(state):
             raise InvalidParameters(
                 f"|z| = {abs(z):.4g} um: the detector plane cuts the particle "
                 f"({self._radius_for(state):.4g} um)")
         wave = self.wave(state)
         try:
-            ex, ey = recorded_field(wave, state.position, self.xs, self.ys, self.far_field)
+            ex, ey = recorded_field(wave, state.position, self.xs, self.ys, self.far_field,
+                                    state.numerical_aperture)
         except ValueError as exc:  # e.g. pixels too close to grazing for the plane grid
             raise InvalidParameters(str(exc)) from None
         self.n_holograms += 1
@@ -206,12 +217,16 @@ class HologramModel:
             if p.kind == "orientation" and analytic is not None:
                 cols[:, i] = analytic[p.name]
                 continue
-            cols[:, i] = self._difference(v, i, p.step, base)
+            h = p.step
+            if p.kind == "optics" and v[i] + h > self.optics.n_medium:
+                h = -h  # a larger aperture collects nothing more: look toward smaller ones
+            cols[:, i] = self._difference(v, i, h, base)
         return cols
 
     def _difference(self, v: NDArray, i: int, step: float, base: Evaluation) -> NDArray:
-        """One-sided difference along component ``i``, stepping away from invalid values."""
-        h = step if v[i] >= 0 else -step
+        """One-sided difference along component ``i``, stepping away from invalid values
+        (a positive ``step`` goes toward zero for negative values; a negative one is kept)."""
+        h = step if (v[i] >= 0 or step < 0) else -step
         for attempt in (h, -h):
             q = v.copy()
             q[i] += attempt
@@ -235,12 +250,13 @@ class HologramModel:
         a = base.state.alpha
         axes = self.space.rotation_axes()
         joint = getattr(wave, "field_and_rotation_derivatives", None)
-        if joint is not None and self.optics.numerical_aperture is None:
+        na = base.state.numerical_aperture
+        if joint is not None and self.aperture(base.state) is None:
             # field and derivatives share the pixels' geometry: one pass over the pixels
             _, fields = joint(base.state.position, self.xs, self.ys, axes, self.far_field)
         else:
             fields = [recorded_field(derivative(axis), base.state.position, self.xs, self.ys,
-                                     self.far_field) for axis in axes]
+                                     self.far_field, na) for axis in axes]
         ex, ey = base.ex, base.ey
         out = {}
         for name, (dx, dy) in zip(names, fields, strict=True):

@@ -6,6 +6,13 @@ Jacobian and ``x_scale="jac"`` (the parameters differ in scale by orders of magn
 rad, refractive index). A step that leaves the physical domain (negative size, detector inside
 the particle) gets a large constant residual, so the trust region rejects it instead of the fit
 aborting.
+
+A fit of the objective's numerical aperture goes in three steps, because the misfit is rugged
+in NA alone (:mod:`holofit.fitting.aperture`) and a scan over NA is only as good as the other
+parameters it holds: every other parameter is fitted at the start NA, the NA of least misfit
+on a grid is found with those held (:func:`holofit.fitting.aperture.scan_aperture`), and
+everything is fitted from each of the scan's three deepest minima
+(:func:`holofit.fitting.aperture.aperture_minima`), the best fit kept.
 """
 
 from __future__ import annotations
@@ -16,7 +23,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from holofit.fitting.aperture import aperture_minima, scan_aperture
 from holofit.fitting.forward import HologramModel, InvalidParameters
+from holofit.fitting.parameters import APERTURE
 
 __all__ = ["CONVERGED_CODES", "Solution", "solve_least_squares"]
 
@@ -46,6 +55,9 @@ class Solution:
         The tolerances were met.
     message : str
         The optimiser's message.
+    aperture_scan : tuple of ndarray, optional
+        ``(grid, rss)`` of the numerical-aperture scan the fit started from (a fitted NA
+        only; :func:`holofit.fitting.aperture.scan_aperture`).
     """
 
     vector: NDArray[np.float64]
@@ -55,6 +67,7 @@ class Solution:
     n_eval: int
     converged: bool
     message: str
+    aperture_scan: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
 
 def solve_least_squares(
@@ -75,7 +88,8 @@ def solve_least_squares(
     data : ndarray, shape (N,)
         Normalised intensities.
     start : ndarray
-        Start vector (``model.space.initial_vector()`` or a screened one).
+        Start vector (``model.space.initial_vector()`` or a screened one); with a fitted NA,
+        the start of the three steps of the module docstring.
     max_nfev : int
         Most residual evaluations.
     ftol, xtol : float
@@ -86,6 +100,52 @@ def solve_least_squares(
     Solution
     """
     data = np.asarray(data, dtype=float)
+    before = model.n_holograms
+    start = np.asarray(start, dtype=float)
+    grid = np.empty(0)
+    grid_rss = np.empty(0)
+    starts = [start]
+    if APERTURE.name in model.space.names:
+        start = _others_at_start_aperture(model, data, start, max_nfev, ftol, xtol)
+        _, grid, grid_rss = scan_aperture(model, data, start)
+        i = model.space.names.index(APERTURE.name)
+        starts = []
+        for na in aperture_minima(grid, grid_rss) or [start[i]]:
+            v = start.copy()
+            v[i] = na
+            starts.append(v)
+    sol: Solution | None = None
+    for v in starts:  # each of the scan's deepest minima, fitted; the best kept
+        s = _levenberg_marquardt(model, data, v, max_nfev, ftol, xtol)
+        if sol is None or (np.isfinite(s.rss) and not s.rss >= sol.rss):
+            sol = s
+    assert sol is not None
+    sol.n_eval = model.n_holograms - before
+    sol.aperture_scan = (grid, grid_rss) if grid.size else None
+    return sol
+
+
+def _others_at_start_aperture(model: HologramModel, data: NDArray[np.float64],
+                              start: NDArray[np.float64], max_nfev: int, ftol: float,
+                              xtol: float) -> NDArray[np.float64]:
+    """``start`` with every parameter but the NA fitted at the start's NA."""
+    if len(model.space.names) == 1:
+        return start
+    held, index = model.space.holding(APERTURE.name, start)
+    sub = HologramModel(model.theory, held, model.optics, model.xs, model.ys,
+                        far_field=model.far_field, waves=model.waves)
+    sol = _levenberg_marquardt(sub, data, start[index], max_nfev, ftol, xtol)
+    model.n_holograms += sub.n_holograms
+    model.n_solves += sub.n_solves
+    out = start.copy()
+    out[index] = sol.vector
+    return out
+
+
+def _levenberg_marquardt(model: HologramModel, data: NDArray[np.float64],
+                         start: NDArray[np.float64], max_nfev: int, ftol: float,
+                         xtol: float) -> Solution:
+    """One Levenberg-Marquardt run (the module docstring)."""
     before = model.n_holograms
 
     def residuals(v: NDArray[np.float64]) -> NDArray[np.float64]:

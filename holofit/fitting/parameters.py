@@ -6,6 +6,8 @@ A fit varies some of
 - the position ``x_um, y_um, z_um`` (full-frame, um; :mod:`holofit.conventions`),
 - the orientation (anisotropic particles),
 - the scattered-field scaling ``alpha``,
+- the objective's numerical aperture ``numerical_aperture`` (an optics parameter: it changes the
+  lens image of the solved particle, not the solve; :mod:`holofit.scattering.lens`),
 - the particle model's own ("static") parameters: its sizes (``a_um``, ``radius_um``, ...) and
   the real parts of its refractive indices, named ``n`` (one index), ``n_core``/``n_cap``
   (``index_core``/``index_cap``), ``n1``/``n2`` (``index1``/``index2``, or a voxel file's
@@ -39,6 +41,7 @@ from holofit.models import ParticleModel, VoxelShape
 from holofit.validation import INDEX_RANGE
 
 __all__ = [
+    "APERTURE",
     "ORIENTATION_COLUMNS",
     "POSITION",
     "Parameter",
@@ -56,6 +59,9 @@ ROTATION_STEP_RAD = 2e-3
 SIZE_STEP_UM = 2e-3
 INDEX_STEP = 1e-3
 ALPHA_STEP = 1e-5
+#: the lens image moves smoothly with the aperture; the quadrature's node count changes in
+#: steps, so the step is large enough that its ~1e-10 jumps do not matter
+APERTURE_STEP = 1e-3
 
 ORIENTATION_COLUMNS = ("theta_rad", "psi_rad", "phi_rad")
 
@@ -68,9 +74,10 @@ class Parameter:
     ----------
     name : str
         Its name in the fit tables (``z_um``, ``a_um``, ``n_cap``, ``alpha``, ``rot_a``).
-    kind : {"position", "orientation", "scale", "static"}
+    kind : {"position", "orientation", "scale", "static", "optics"}
         What it changes: position moves the solved field, orientation and static parameters
-        need a new solve, scale is ``alpha``.
+        need a new solve, scale is ``alpha``, optics (the numerical aperture) changes the lens
+        image of the solved field.
     unit : str
         ``um``, ``rad`` or ``1``.
     step : float
@@ -99,6 +106,9 @@ POSITION: tuple[Parameter, ...] = (
     Parameter("z_um", "position", "um", POSITION_STEP_UM),
 )
 ALPHA = Parameter("alpha", "scale", "1", ALPHA_STEP, 0.05, 5.0)
+#: the objective's NA: larger than 0; above the medium's index the lens collects every
+#: propagating wave and the hologram no longer changes with it
+APERTURE = Parameter("numerical_aperture", "optics", "1", APERTURE_STEP, 0.05, math.inf)
 ROTATIONS: tuple[Parameter, ...] = (
     Parameter("rot_a", "orientation", "rad", ROTATION_STEP_RAD),
     Parameter("rot_b", "orientation", "rad", ROTATION_STEP_RAD),
@@ -155,12 +165,16 @@ class State:
         Scattered-field scaling.
     statics : tuple of (str, float)
         Static parameters by name.
+    numerical_aperture : float, optional
+        The objective's NA the hologram is imaged with; None: the optics' own (a lens or
+        the ideal model, as the instrument says).
     """
 
     position: tuple[float, float, float]
     rotation: NDArray[np.float64] | None
     alpha: float
     statics: tuple[tuple[str, float], ...] = ()
+    numerical_aperture: float | None = None
 
     def angles(self) -> tuple[float, float, float]:
         """``(psi, theta, phi)`` of the rotation, rad (zeros for an isotropic particle)."""
@@ -179,9 +193,10 @@ class ParameterSpace:
     model : ParticleModel
         The particle (static parameters start from its values).
     free : iterable of str
-        Names of the varied parameters: position and static names, ``alpha``, and
-        ``"orientation"`` for the rotation (two or three components, see the module
-        docstring). Everything else stays at its start value.
+        Names of the varied parameters: position and static names, ``alpha``,
+        ``"numerical_aperture"`` (the start state must then hold one), and ``"orientation"``
+        for the rotation (two or three components, see the module docstring). Everything else
+        stays at its start value.
     start : State
         Start values of every parameter.
     fit_spin : bool, optional
@@ -204,7 +219,7 @@ class ParameterSpace:
     def __post_init__(self) -> None:
         free = set(self.free)
         statics = static_parameters(self.model)
-        known = {p.name for p in (*POSITION, ALPHA, *statics)} | {"orientation"}
+        known = {p.name for p in (*POSITION, ALPHA, APERTURE, *statics)} | {"orientation"}
         unknown = sorted(free - known)
         if unknown:
             raise ValueError(
@@ -221,6 +236,12 @@ class ParameterSpace:
         params += [p for p in statics if p.name in free]
         if "alpha" in free:
             params.append(ALPHA)
+        if APERTURE.name in free:
+            if self.start.numerical_aperture is None:
+                raise ValueError(
+                    "fitting the numerical aperture needs a start value: the instrument's "
+                    "numerical_aperture, or one given for the fit")
+            params.append(APERTURE)
         if self.step_overrides:
             params = [replace(p, step=self.step_overrides.get(p.name, p.step)) for p in params]
         self.parameters = tuple(params)
@@ -259,6 +280,8 @@ class ParameterSpace:
         out = dict(zip(("x_um", "y_um", "z_um"), state.position, strict=True))
         out["alpha"] = state.alpha
         out.update(state.statics)
+        if state.numerical_aperture is not None:
+            out[APERTURE.name] = state.numerical_aperture
         return out
 
     def state(self, vector: Sequence[float]) -> State:
@@ -284,7 +307,28 @@ class ParameterSpace:
             rotation=rotation,
             alpha=values["alpha"],
             statics=tuple((p.name, values[p.name]) for p in self._all_statics),
+            numerical_aperture=values.get(APERTURE.name),
         )
+
+    def holding(self, name: str, vector: Sequence[float]) -> tuple[ParameterSpace, list[int]]:
+        """This space with parameter ``name`` held at its value in ``vector``.
+
+        Returns
+        -------
+        space : ParameterSpace
+            The same start rotation (so the same rotation axes), the other values from
+            ``vector``: its vector's components mean what the same names mean here.
+        index : list of int
+            Where its components sit in this space's vector.
+        """
+        rotations = [p.name for p in self.parameters if p.kind == "orientation"]
+        names = [n for n in self.names if n != name and n not in rotations]
+        if rotations and name not in rotations:
+            names.append("orientation")
+        start = replace(self.state(vector), rotation=self.start.rotation)
+        held = ParameterSpace(self.model, names, start, fit_spin=self.fit_spin,
+                              step_overrides=self.step_overrides)
+        return held, [self.names.index(n) for n in held.names]
 
     # -- the particle -------------------------------------------------------------------
     def particle(self, state: State) -> ParticleModel:
@@ -296,12 +340,15 @@ class ParameterSpace:
                covariance: NDArray[np.float64] | None = None) -> tuple[dict, dict]:
         """Values and 1-sigma errors of every reported quantity at ``vector``.
 
-        Position, alpha and static parameters are reported as they are; the orientation as
+        Position, alpha and static parameters are reported as they are (the numerical
+        aperture only when it is fitted: a fixed one is the instrument's); the orientation as
         ``theta_rad, psi_rad`` (``phi_rad`` with spin) and the axis ``ux, uy, uz``, with errors
         propagated from the rotation-vector covariance (NaN for quantities held fixed).
         """
         state = self.state(vector)
         values: dict[str, float] = self._flat(state)
+        if APERTURE.name not in self.names:
+            values.pop(APERTURE.name, None)
         errors: dict[str, float] = {k: math.nan for k in values}
         var = np.full(len(self.parameters), np.nan) if covariance is None else np.diag(
             covariance)

@@ -8,6 +8,7 @@ and the first converged frame that is not ``ok`` (``poor_fit``), or the frames a
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -19,7 +20,7 @@ from numpy.typing import NDArray
 
 from holofit.conventions import DetectorGrid
 from holofit.fitting.crops import CropSet
-from holofit.fitting.parameters import particle_with, static_parameters
+from holofit.fitting.parameters import APERTURE, particle_with, static_parameters
 from holofit.fitting.plots import plot_frame_fit
 from holofit.hologram import hologram
 from holofit.models import ParticleModel
@@ -56,8 +57,12 @@ def model_image(
     """The model hologram of a fit row on a crop's pixels.
 
     Static parameters missing from the row keep ``model``'s values; orientation comes from
-    ``psi_rad, theta_rad[, phi_rad]`` when the row has them.
+    ``psi_rad, theta_rad[, phi_rad]`` when the row has them; a fitted ``numerical_aperture``
+    replaces the optics' (the model is then imaged through that objective).
     """
+    na = float(row.get(APERTURE.name, math.nan))
+    if math.isfinite(na):
+        optics = dataclasses.replace(optics, numerical_aperture=na)
     statics = {p.name: float(row[p.name]) for p in static_parameters(model)
                if p.name in row and math.isfinite(float(row[p.name]))}
     particle = particle_with(model, statics)
@@ -102,8 +107,19 @@ def write_frame_pictures(
             f"status {row['status']}" + (f": {row['message']}" if row.get("message") and
                                          isinstance(row["message"], str) else ""),
             f"R^2 {float(row['r2']):.4f}, reduced chi^2 {float(row['chi2_red']):.3g}, "
-            f"z {float(row['z_um']):.3f} um, alpha {float(row['alpha']):.3f}",
+            f"z {float(row['z_um']):.3f} um, alpha {float(row['alpha']):.3f}, "
+            + _aperture_note(row, optics),
         ]
         written.append(plot_frame_fit(data, image, out / f"frame_{frame:06d}.png",
                                       f"holofit {stage}: frame {frame}", notes))
     return written
+
+
+def _aperture_note(row: Mapping[str, Any], optics: Optics) -> str:
+    """How the model was imaged: the fitted NA, the optics' NA, or the ideal model."""
+    na = float(row.get(APERTURE.name, math.nan))
+    if math.isfinite(na):
+        return f"NA {na:.3f} (fitted)"
+    if optics.numerical_aperture is not None:
+        return f"NA {optics.numerical_aperture:g}"
+    return "ideal model (no lens)"

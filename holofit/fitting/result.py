@@ -30,20 +30,27 @@ from numpy.typing import NDArray
 
 from holofit.conventions import r_squared
 from holofit.fitting.leastsq import Solution
-from holofit.fitting.parameters import ParameterSpace
+from holofit.fitting.parameters import APERTURE, ParameterSpace
 from holofit.fitting.statistics import covariance_from_jacobian
 from holofit.status import FAILED, NOT_CONVERGED, OK, POOR_FIT
 
 __all__ = [
+    "APERTURE_CHI2",
     "GOODNESS_COLUMNS",
     "FitResult",
     "QualityLimits",
+    "aperture_spread",
     "fit_result",
     "flag_outliers",
     "result_columns",
     "result_row",
 ]
 
+#: a scanned NA whose misfit is within this many units of chi^2 (s^2) of the best one is
+#: not told apart from it. The misfit in NA has some 30 local minima between 0.6 and 1.33, and
+#: noise alone makes the best of ~30 look better than the true one by up to ~10 (the 95 %
+#: point of the largest of 30 chi^2 variables of one degree of freedom)
+APERTURE_CHI2 = 10.0
 #: columns every fit table has after the parameters (their units: holofit.fit_table)
 GOODNESS_COLUMNS = ("chi2", "chi2_red", "noise_sd", "r2", "n_pixels", "n_eval", "fit_time_s")
 
@@ -140,7 +147,11 @@ def fit_result(
     """Turn an optimiser solution into a :class:`FitResult` with its status.
 
     Uncertainties are ``s^2 (J^T J)^-1`` with ``s^2 = rss / (N - p)`` (as in the paper and
-    ``scipy.optimize.curve_fit``), propagated to the reported angles.
+    ``scipy.optimize.curve_fit``), propagated to the reported angles. A fitted numerical
+    aperture's misfit is rugged (local minima a few hundredths apart, often of nearly equal
+    depth), so its local curvature understates how well the data fix it: its error is at least
+    the half-width of the NAs of the fit's scan whose misfit is within
+    :data:`APERTURE_CHI2` units of chi^2 of the scan's best (:func:`aperture_spread`).
     """
     limits = limits or QualityLimits()
     n = int(data.size)
@@ -148,6 +159,10 @@ def fit_result(
     cov = covariance_from_jacobian(solution.jacobian, solution.rss, n)
     values, errors = space.report(solution.vector, cov)
     dof = max(n - p, 1)
+    if solution.aperture_scan is not None and APERTURE.name in errors:
+        spread = aperture_spread(*solution.aperture_scan, APERTURE_CHI2 * solution.rss / dof)
+        local = errors[APERTURE.name]
+        errors[APERTURE.name] = spread if not local >= spread else local
     model = data + solution.residuals
     chi2_red = solution.rss / (noise_sd**2 * dof) if noise_sd > 0 else math.nan
     r2 = float(r_squared(data, model))
@@ -158,6 +173,29 @@ def fit_result(
         n_pixels=n, n_eval=solution.n_eval, n_solves=n_solves, status=status, message=message,
         model=model,
     )
+
+
+def aperture_spread(grid: NDArray[np.float64], rss: NDArray[np.float64],
+                    variance: float) -> float:
+    """Half-width of the NAs of a scan whose misfit is within ``variance`` of its best.
+
+    Parameters
+    ----------
+    grid, rss : ndarray
+        The NAs scanned and their residual sums of squares.
+    variance : float
+        How far above the best misfit an NA is still as good (``APERTURE_CHI2 s^2``).
+
+    Returns
+    -------
+    float
+        ``(max - min) / 2`` of the NAs with ``rss <= min(rss) + variance`` (NaN if none).
+    """
+    ok = np.isfinite(rss)
+    if not ok.any() or not math.isfinite(variance):
+        return math.nan
+    near = grid[ok][rss[ok] <= rss[ok].min() + variance]
+    return float(0.5 * (near.max() - near.min()))
 
 
 def _assess(space: ParameterSpace, solution: Solution, values: dict[str, float],

@@ -29,6 +29,7 @@ from scipy.optimize import least_squares
 from holofit.models import Sphere
 from holofit.optics import Optics
 from holofit.prefit.profile import RadialProfile, annulus_mean_radius, profile_terms
+from holofit.scattering.lens_lines import SphereLensLines
 from holofit.scattering.mie import MieWave
 
 __all__ = [
@@ -54,8 +55,9 @@ class SearchSpace:
     ----------
     z_range_um : tuple of float, optional
         Lowest and highest height above the focal plane, um; both of the same sign (a
-        particle below the focus has z < 0). Default (None): from :data:`Z_MIN_UM` up to what
-        the crop can show (:meth:`for_crop`).
+        particle below the focus has z < 0: meaningful with the objective lens in the model,
+        :meth:`check_heights`). Default (None): from :data:`Z_MIN_UM` up to what the crop can
+        show (:meth:`for_crop`).
     radius_range_um : tuple of float
         Smallest and largest radius, um.
     relative_index_range : tuple of float
@@ -91,15 +93,38 @@ class SearchSpace:
             raise ValueError("n_radii, n_indices and phase_step_rad must be positive")
 
     def _check_z(self, z0: float, z1: float) -> None:
-        a1 = self.radius_range_um[1]
         if not (z0 < z1 and (z0 > 0 or z1 < 0)):
             raise ValueError(
                 f"z range must be increasing and not cross the focal plane, got ({z0}, {z1}) um"
             )
+
+    def check_heights(self, lens: bool) -> None:
+        """Refuse a z range the hologram model cannot describe.
+
+        The ideal model (no objective lens) records the field in the focal plane itself: the
+        plane must stay outside every sphere searched (``|z| > 1.05`` times the largest
+        radius), and a particle below the focus (``z < 0``) would need the field of a virtual
+        image, which only the lens model gives. Through the lens every height is meaningful.
+
+        Raises
+        ------
+        ValueError
+            Naming the range and why.
+        """
+        if lens or self.z_range_um is None:
+            return
+        z0, z1 = self.z_range_um
+        a1 = self.radius_range_um[1]
+        if z1 < 0:
+            raise ValueError(
+                f"z range ({z0:g}, {z1:g}) um lies below the focal plane: only the objective "
+                "lens model describes a particle there (give the instrument a "
+                "numerical_aperture)")
         if min(abs(z0), abs(z1)) <= 1.05 * a1:
             raise ValueError(
-                f"z range ({z0}, {z1}) um reaches into the largest sphere (radius {a1} um)"
-            )
+                f"z range ({z0:g}, {z1:g}) um reaches into the largest sphere (radius {a1:g} "
+                "um): the ideal model needs the focal plane outside it (or use the objective "
+                "lens model: give the instrument a numerical_aperture)")
 
     def for_crop(self, rho_max_um: float, wavelength_medium_um: float) -> SearchSpace:
         """This space with the z range filled in for a crop reaching ``rho_max_um`` from the
@@ -171,10 +196,15 @@ class ProfileTable:
         shape = (self.radius_um.size, self.index.size, self.z_um.size, n_bins)
         lin = np.empty(shape, dtype=np.float32)
         quad = np.empty(shape, dtype=np.float32)
+        lines = None
+        if optics.numerical_aperture is not None:  # the lens image: shared set-up
+            order = int(MieWave(Sphere(float(self.radius_um[-1]), float(self.index[-1])),
+                                optics).a.size)  # the series length grows with the size only
+            lines = SphereLensLines(optics, self.z_um, self.rho_um, order)
         for i, a in enumerate(self.radius_um):
             for j, n in enumerate(self.index):
                 wave = MieWave(Sphere(float(a), float(n)), optics)
-                lin[i, j], quad[i, j] = profile_terms(wave, self.z_um, self.rho_um)
+                lin[i, j], quad[i, j] = profile_terms(wave, self.z_um, self.rho_um, lines)
         flat = (-1, n_bins)
         self._l = lin.reshape(flat)
         self._q = quad.reshape(flat)
@@ -287,11 +317,13 @@ def _refine(
     free_alpha = fix_alpha is None
     optics = table.optics
     a_lo = 0.5 * table.space.radius_range_um[0]
+    # the ideal model needs the focal plane outside the sphere; the lens image is defined anywhere
+    z_clear = 0.0 if optics.numerical_aperture is not None else 1.05
 
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
         z, a, n = p[0], p[1], p[2]
         alpha = p[3] if free_alpha else fix_alpha
-        if not (a > a_lo and n > 0.5 and abs(z) > 1.05 * a):
+        if not (a > a_lo and n > 0.5 and abs(z) > z_clear * a):
             return np.full(d.size, 10.0) * sw
         wave = MieWave(Sphere(float(a), complex(n, index_imag)), optics)
         lin, quad = profile_terms(wave, [z], rho)

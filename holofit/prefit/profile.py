@@ -17,7 +17,9 @@ lab axes). Averaging ``|e_pol + alpha E|^2`` over phi gives
     Q = 3/8 |P|^2 + 3/8 |B|^2 + 1/4 Re(P B*) + 1/8 |P - B|^2,
 
 so two radial lines of field values give the exact average (checked in the tests against a
-dense numerical average).
+dense numerical average). The image through an objective lens (optics with a numerical aperture)
+has the same two azimuthal orders, so the same formula holds for it; its two lines come from
+:func:`holofit.scattering.lens_lines.sphere_lens_lines`, every height at once.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from holofit.scattering.lens_lines import SphereLensLines, sphere_lens_lines
 from holofit.scattering.mie import MieWave
 
 __all__ = [
@@ -96,18 +99,22 @@ def radial_profile(
 
 
 def profile_terms(
-    wave: MieWave, z_um: ArrayLike, rho_um: ArrayLike
+    wave: MieWave, z_um: ArrayLike, rho_um: ArrayLike, lines: SphereLensLines | None = None
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Terms ``L`` and ``Q`` of the exact azimuthally averaged hologram (module docstring).
 
     Parameters
     ----------
     wave : MieWave
-        The solved sphere.
+        The solved sphere; with a numerical aperture in its optics, the lens image.
     z_um : array_like, shape (n_z,)
-        Heights of the particle above the focal plane, um (``|z|`` > radius).
+        Heights of the particle above the focal plane, um (``|z|`` > radius in the ideal
+        model; any height through the lens).
     rho_um : array_like, shape (n_rho,)
         Distances from the particle's axis in the detector plane, um.
+    lines : SphereLensLines, optional
+        The lens lines already set up for these heights and radii (a table of many spheres
+        shares them); made here if the optics have an NA and none is given.
 
     Returns
     -------
@@ -116,19 +123,24 @@ def profile_terms(
     """
     z = np.atleast_1d(np.asarray(z_um, dtype=float))
     rho = np.atleast_1d(np.asarray(rho_um, dtype=float))
-    beta = wave.optics.polarization_rad
-    cb, sb = np.cos(beta), np.sin(beta)
-    # pixels along the polarisation, then across it, with the particle above the origin
-    xs = np.concatenate([rho * cb, -rho * sb])
-    ys = np.concatenate([rho * sb, rho * cb])
-    n = rho.size
-    p = np.empty((z.size, n), dtype=complex)
-    b = np.empty((z.size, n), dtype=complex)
-    for i, zi in enumerate(z):
-        ex, ey = wave.field_on_pixels((0.0, 0.0, zi), xs, ys)
-        e_par = ex * cb + ey * sb
-        p[i] = e_par[:n]
-        b[i] = e_par[n:]
+    if lines is not None:
+        p, b = lines(wave)
+    elif wave.optics.numerical_aperture is not None:
+        p, b = sphere_lens_lines(wave, z, rho)
+    else:
+        beta = wave.optics.polarization_rad
+        cb, sb = np.cos(beta), np.sin(beta)
+        # pixels along the polarisation, then across it, with the particle above the origin
+        xs = np.concatenate([rho * cb, -rho * sb])
+        ys = np.concatenate([rho * sb, rho * cb])
+        n = rho.size
+        p = np.empty((z.size, n), dtype=complex)
+        b = np.empty((z.size, n), dtype=complex)
+        for i, zi in enumerate(z):
+            ex, ey = wave.field_on_pixels((0.0, 0.0, zi), xs, ys)
+            e_par = ex * cb + ey * sb
+            p[i] = e_par[:n]
+            b[i] = e_par[n:]
     lin = 0.5 * (p + b).real
     quad = (
         0.375 * (p.real**2 + p.imag**2)

@@ -5,6 +5,12 @@ alpha from the radial-profile estimator (:mod:`holofit.prefit.estimate`). Where 
 is ambiguous (several heights explain the profile about equally well), each candidate is fitted
 briefly on a random subset of the pixels and the best one is fitted on all of them.
 
+With an objective lens in the optics (a numerical aperture), the model, the start estimator's
+profiles and the fit all use the lens image (:mod:`holofit.scattering.lens`), which is defined
+at every height, below the focal plane too; the NA can also be fitted (``fit_na``: an optics
+parameter, :mod:`holofit.fitting.parameters`), starting from the optics' NA (at most the
+medium's index).
+
 The fit is holofit's one least-squares fit (:func:`holofit.fitting.leastsq.solve_least_squares`)
 of the forward model (:class:`holofit.fitting.forward.HologramModel` with the exact Lorenz-Mie
 engine) to the unmasked pixels: NaN pixels (masked or saturated by the crop stage) and pixels at
@@ -23,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.fitting.aperture import aperture_start
 from holofit.fitting.forward import HologramModel
 from holofit.fitting.leastsq import solve_least_squares
 from holofit.fitting.parameters import ParameterSpace, State
@@ -78,6 +85,8 @@ class FitOptions:
     quality : QualityLimits
         When a converged fit is still not ``ok`` (reduced chi^2, R^2); radius and index must
         also end inside the search space (with 5 % margin).
+    fit_na : bool
+        Fit the objective's numerical aperture too (the optics must have one: the start).
     """
 
     fix_alpha: float | None = None
@@ -93,6 +102,7 @@ class FitOptions:
     ftol: float = 1e-8
     xtol: float = 1e-8
     quality: QualityLimits = field(default_factory=QualityLimits)
+    fit_na: bool = False
 
     def __post_init__(self) -> None:
         if not 0 < self.pixel_fraction <= 1:
@@ -152,19 +162,25 @@ def fit_sphere_crop(
     Returns
     -------
     FitResult
-        Values ``x_um, y_um, z_um, radius_um, n, alpha`` with errors; ``extra`` holds the
+        Values ``x_um, y_um, z_um, radius_um, n, alpha`` (and ``numerical_aperture`` if
+        fitted) with errors; ``extra`` holds the
         automatic start (``n_starts, start_z_um, start_radius_um, start_n, start_alpha``),
         ``n_masked`` and the one-time set-up this fit paid (``setup_time_s``).
 
     Raises
     ------
     ValueError
-        If too few pixels are left or no start can be found.
+        If too few pixels are left, no start can be found, the z range is one the model cannot
+        describe (:meth:`SearchSpace.check_heights`), or the NA is to be fitted and the optics
+        have none.
     """
     t0 = time.perf_counter()
     opts = options or FitOptions()
+    lens = optics.numerical_aperture is not None
+    opts.search.check_heights(lens)
+    na_start = aperture_start(optics) if opts.fit_na else None
     data = np.asarray(crop, dtype=float)
-    n_free = 6 - (opts.fix_alpha is not None)
+    n_free = 6 - (opts.fix_alpha is not None) + opts.fit_na
     rng = np.random.default_rng(seed)
     pix = select_pixels(
         data,
@@ -197,16 +213,18 @@ def fit_sphere_crop(
     if not starts:
         raise ValueError("no automatic start found (the radial profile has no minimum)")
 
-    free = ["x_um", "y_um", "z_um", "radius_um", "n"] + (["alpha"] if opts.fix_alpha is None
-                                                         else [])
+    # the candidates are screened at the start NA; the full fit varies it if asked
+    screen_free = ("x_um", "y_um", "z_um", "radius_um", "n") + (
+        ("alpha",) if opts.fix_alpha is None else ())
+    free = screen_free + (("numerical_aperture",) if opts.fit_na else ())
     theory = LorenzMie()
 
-    def space_from(s: ProfileStart) -> ParameterSpace:
+    def space_from(s: ProfileStart, names: tuple[str, ...] = screen_free) -> ParameterSpace:
         alpha = s.alpha if opts.fix_alpha is None else opts.fix_alpha
         sphere = Sphere(s.radius_um, complex(s.index, opts.index_imag))
         state = State((xc, yc, s.z_um), None, alpha,
-                      (("radius_um", s.radius_um), ("n", s.index)))
-        return ParameterSpace(sphere, free, state, step_overrides=EXACT_STEPS)
+                      (("radius_um", s.radius_um), ("n", s.index)), na_start)
+        return ParameterSpace(sphere, names, state, step_overrides=EXACT_STEPS)
 
     n_eval = 0
     chosen = starts[0]
@@ -225,6 +243,10 @@ def fit_sphere_crop(
             n_eval += sol.n_eval
             if np.isfinite(sol.rss) and sol.rss < best_cost:
                 best_cost, chosen, space, vector = sol.rss, s, cand, sol.vector
+    if opts.fit_na:  # the screened state, the aperture free (holofit.fitting.leastsq)
+        space = ParameterSpace(space.model, free, space.state(vector),
+                               step_overrides=EXACT_STEPS)
+        vector = space.initial_vector()
     model = HologramModel(theory, space, optics, pix.xs_um, pix.ys_um)
     sol = solve_least_squares(model, d, vector, max_nfev=opts.max_nfev, ftol=opts.ftol,
                               xtol=opts.xtol)

@@ -21,10 +21,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
-from holofit.config import Instrument
+from holofit.config import ConfigError, Instrument
 from holofit.fit_table import column_unit
+from holofit.fitting.aperture import FROM_INSTRUMENT, ApertureChoice, fit_instrument
 from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
 from holofit.fitting.finish import outlier_rule, outlier_sidecar
+from holofit.fitting.parameters import APERTURE
 from holofit.fitting.pictures import write_frame_pictures
 from holofit.fitting.result import result_columns, result_row
 from holofit.io.tables import read_table
@@ -40,15 +42,22 @@ __all__ = [
     "CropPayload",
     "PrefitConfig",
     "PrefitResult",
+    "prefit_columns",
     "prefit_frame",
     "run_prefit",
 ]
 
-#: columns of ``prefit.csv``, in order
-PREFIT_COLUMNS: tuple[str, ...] = result_columns(
-    SPHERE_COLUMNS, SPHERE_COLUMNS,
-    ("crop_status", "n_masked", *START_COLUMNS, "setup_time_s"),
-)
+
+def prefit_columns(fit_na: bool = False) -> tuple[str, ...]:
+    """Columns of ``prefit.csv``, in order (with ``numerical_aperture`` if it is fitted)."""
+    fitted = (*SPHERE_COLUMNS, *((APERTURE.name,) if fit_na else ()))
+    return result_columns(fitted, fitted,
+                          ("crop_status", "n_masked", *START_COLUMNS, "setup_time_s"))
+
+
+#: columns of ``prefit.csv``, in order (the NA held)
+PREFIT_COLUMNS: tuple[str, ...] = prefit_columns()
+
 _EXTRA_UNITS = {
     "time_s": "s (time of the frame: frame / the instrument's frame rate; NaN if unknown)",
     "status": describe(FIT_STATUS_MEANINGS),
@@ -60,9 +69,12 @@ _EXTRA_UNITS = {
     "start_n": "1 (automatic start)",
     "start_alpha": "1 (automatic start)",
     "setup_time_s": "s (one-time set-up paid by this frame in its worker: the estimator's table)",
+    APERTURE.name: "1 (the objective's numerical aperture, fitted)",
+    f"d_{APERTURE.name}": "1 (1-sigma uncertainty of numerical_aperture)",
 }
 #: unit of every column of ``prefit.csv``
-PREFIT_UNITS: dict[str, str] = {c: _EXTRA_UNITS.get(c, column_unit(c)) for c in PREFIT_COLUMNS}
+PREFIT_UNITS: dict[str, str] = {c: _EXTRA_UNITS.get(c, column_unit(c))
+                                for c in prefit_columns(fit_na=True)}
 
 
 @dataclass(frozen=True)
@@ -184,6 +196,7 @@ def run_prefit(
     plot_frames: list[int] | None = None,
     override_instrument: bool = False,
     outlier_factor: float = 4.0,
+    numerical_aperture: ApertureChoice = FROM_INSTRUMENT,
 ) -> PrefitResult:
     """Fit every crop of a crop folder; write ``OUT/prefit.csv`` (+ sidecar, + plot).
 
@@ -213,6 +226,10 @@ def run_prefit(
     outlier_factor : float
         An ok frame whose reduced chi^2 exceeds this times the movie's median becomes
         ``poor_fit`` (:func:`holofit.fitting.result.flag_outliers`).
+    numerical_aperture : float, None or "instrument"
+        The objective's NA the model is imaged with (:mod:`holofit.fitting.aperture`): the
+        instrument's (default), another value, or None for the ideal model (no lens). With
+        ``fit.fit_na`` it is the start of the fitted NA.
 
     Returns
     -------
@@ -223,21 +240,31 @@ def run_prefit(
     CropSetError
         If the crop folder is incomplete, no instrument is known, or ``instrument``
         contradicts the crops' own without ``override_instrument``.
+    ConfigError
+        If the NA is to be fitted with none to start from, or the search's z range is one the
+        model cannot describe (below the focal plane or into the sphere without a lens).
     holofit.batch.runner.BatchError
         If earlier results in ``out_dir`` came from other settings (see ``overwrite``).
     """
     out = Path(out_dir)
     with CropSet(crop_dir) as crops:
-        inst = resolve_instrument(crops, instrument, override_instrument)
-        config = PrefitConfig(inst, fit or FitOptions())
+        fit = fit or FitOptions()
+        inst = fit_instrument(resolve_instrument(crops, instrument, override_instrument),
+                              numerical_aperture, fit.fit_na)
+        try:
+            fit.search.check_heights(inst.optics.numerical_aperture is not None)
+        except ValueError as exc:
+            raise ConfigError(f"prefit search range: {exc}") from None
+        config = PrefitConfig(inst, fit)
         todo = crops.frames if frames is None else [int(f) for f in frames]
         unknown = sorted(set(todo) - set(crops.frames))
         if unknown:
             raise CropSetError(f"{crops.table_path}: no frame(s) {unknown[:5]}")
         inputs = crops.fingerprint()
+        columns = prefit_columns(fit.fit_na)
         meta = sidecar(
             kind="prefit table (Lorenz-Mie fit per frame)",
-            units=PREFIT_UNITS,
+            units={c: PREFIT_UNITS[c] for c in columns},
             config=config.as_dict(),
             inputs=[crops.table_path, crops.stack_path],
             extra={"crop_shape": list(crops.crop_shape), "crops": inputs,
@@ -251,7 +278,7 @@ def run_prefit(
             todo,
             _loader(crops),
             out / "prefit.csv",
-            PREFIT_COLUMNS,
+            columns,
             fingerprint=fingerprint_of(config, {**inputs, "outlier_factor": outlier_factor}),
             meta=meta,
             options=batch,

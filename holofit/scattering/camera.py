@@ -25,7 +25,7 @@ def has_lens(wave: ScatteredWave) -> bool:
 
 def recorded_field(
     wave: ScatteredWave, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
-    far_field: bool = False,
+    far_field: bool = False, numerical_aperture: float | None = None,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
     """Transverse field at pixel centres as the camera records it, incident phase included.
 
@@ -40,7 +40,10 @@ def recorded_field(
     far_field : bool
         Asymptotic far-field form of the scattered field (no lens only; the lens image is
         built from the far field exactly).
+    numerical_aperture : float, optional
+        Image through an objective of this NA, whatever the wave's optics say (a fit that
+        varies the NA); default: the optics' own (a lens if they have an NA).
     """
-    if has_lens(wave):
-        return lens_field_on_pixels(wave, position_um, xs_um, ys_um)
+    if numerical_aperture is not None or has_lens(wave):
+        return lens_field_on_pixels(wave, position_um, xs_um, ys_um, numerical_aperture)
     return wave.field_on_pixels(position_um, xs_um, ys_um, far_field)

@@ -58,14 +58,18 @@ class SimulationError(ValueError):
         self.frame = frame
 
 
-def check_positions(model: ParticleModel, positions_um: ArrayLike) -> NDArray[np.float64]:
-    """Check that every frame's particle lies wholly above the focal plane.
+def check_positions(model: ParticleModel, positions_um: ArrayLike,
+                    lens: bool = False) -> NDArray[np.float64]:
+    """Check that every frame's position can be imaged.
 
-    holofit's holograms are the field in the focal plane (``z = 0``) of a particle above it
-    (``z`` is the height of the centre, toward the light source): a plane that cuts the particle
-    has no exterior field to record, and a particle below the plane would need the field of a
-    virtual image. The test uses the model's bounding radius (the smallest sphere about its
-    centre that holds it), so it holds for every orientation.
+    The ideal model (no objective lens) records the field in the focal plane (``z = 0``) of a
+    particle above it (``z`` is the height of the centre, toward the light source): a plane that
+    cuts the particle has no exterior field to record, and a particle below the plane would
+    need the field of a virtual image, so the particle must lie wholly above the plane. The
+    test uses the model's bounding radius (the smallest sphere about its centre that holds
+    it), so it holds for every orientation. Through an objective lens
+    (:mod:`holofit.scattering.lens`) the hologram is the image of the scattered wave, defined
+    at every height: in, near and below the focal plane.
 
     Parameters
     ----------
@@ -73,6 +77,9 @@ def check_positions(model: ParticleModel, positions_um: ArrayLike) -> NDArray[np
         The particle.
     positions_um : array_like, shape (N, 3)
         ``(x, y, z)`` of the centre per frame, um.
+    lens : bool
+        The holograms are lens images (the instrument has a numerical aperture): any finite
+        height is allowed.
 
     Returns
     -------
@@ -94,6 +101,8 @@ def check_positions(model: ParticleModel, positions_um: ArrayLike) -> NDArray[np
     if bad.any():
         k = int(np.argmax(bad))
         raise SimulationError(f"frame {k}: position {tuple(pos[k])} is not finite", k)
+    if lens:
+        return pos
     radius = float(model.bounding_radius_um)
     low = pos[:, 2] <= radius
     if low.any():
@@ -103,7 +112,8 @@ def check_positions(model: ParticleModel, positions_um: ArrayLike) -> NDArray[np
         raise SimulationError(
             f"frame {k}: the particle centred at ({x:g}, {y:g}, {z:g}) um {where}: z, the "
             "height of the centre above the focal plane (toward the light source), must "
-            f"exceed the particle's bounding radius, {radius:.4g} um",
+            f"exceed the particle's bounding radius, {radius:.4g} um (or image through an "
+            "objective lens: give the instrument a numerical_aperture)",
             k,
         )
     return pos
@@ -192,10 +202,10 @@ def simulate_movie(
     Raises
     ------
     SimulationError
-        Positions that are not wholly above the focal plane (:func:`check_positions`), or
-        orientations of the wrong shape; nothing is written.
+        Positions that are not wholly above the focal plane without a lens
+        (:func:`check_positions`), or orientations of the wrong shape; nothing is written.
     """
-    pos = check_positions(model, positions_um)
+    pos = check_positions(model, positions_um, instrument.optics.numerical_aperture is not None)
     n = pos.shape[0]
     if orientations is None:
         orient = np.zeros((n, 3))
