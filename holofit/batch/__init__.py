@@ -1,5 +1,6 @@
-"""Per-frame batch processing shared by ``holofit prefit`` and ``holofit fit``: parallel
-(local processes or Dask), failure-isolating, resumable, writing results as they come.
+"""Per-frame batch processing shared by ``holofit prefit``, ``holofit library`` and ``holofit
+fit``: parallel (local processes or Dask), failure-isolating, resumable, writing results as they
+come.
 See :mod:`holofit.batch.runner`."""
 
 from holofit.batch.backends import DaskBackend, ProcessPoolBackend, SerialBackend

@@ -1,4 +1,4 @@
-"""The per-frame batch runner shared by ``holofit prefit`` and ``holofit fit``.
+"""The per-frame batch runner shared by ``holofit prefit``, ``holofit library`` and ``holofit fit``.
 
 A batch applies one *frame function* to many frames independently (frame k never waits for
 frame k-1). The frame function is a module-level function ``func(config, frame, payload) ->
