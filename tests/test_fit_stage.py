@@ -190,3 +190,21 @@ def test_final_pass_from_the_tmatrix_equals_direct_solves(movie, tmp_path):
     again = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "t",
                     tmatrix="always", **common)
     assert any("loaded" in n for n in again.notes)
+
+
+def test_a_polarizability_without_a_tmatrix(movie, tmp_path, monkeypatch):
+    """LDR's polarisability depends on the incident wave, so its lattice has no T-matrix:
+    ``--tmatrix always`` is refused before any frame is fitted, ``auto`` solves directly."""
+    root, _, _ = movie
+    (tmp_path / "ldr.toml").write_text(ROD_TOML + 'polarizability = "ldr"\n')
+    ldr = load_particle(tmp_path / "ldr.toml")
+    common = dict(pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False)
+    with pytest.raises(stage.FitStageError, match="polarizability 'ldr' depends on the inc"):
+        run_fit(root / "crop", root / "prefit", root / "lib", ldr, tmp_path / "a",
+                tmatrix="always", **common)
+    assert not (tmp_path / "a" / "fit.csv").exists()
+    monkeypatch.setattr(stage, "TMATRIX_MIN_FRAMES", 1)
+    run = run_fit(root / "crop", root / "prefit", root / "lib", ldr, tmp_path / "b",
+                  tmatrix="auto", frames=[0], **common)
+    assert run.tmatrix is None and any("direct DDA solves" in n for n in run.notes)
+    assert (pd.read_csv(run.final)["status"] == "ok").all()

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
 from holofit.cache import LRUCache
 from holofit.config import ConfigError, Instrument, ParticleConfig
+from holofit.dda.polarizability import INCIDENCE_INDEPENDENT
 from holofit.dda.tmatrix_io import TMatrixMismatch
 from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitOptions, fit_frame
 from holofit.fit_table import column_unit
@@ -386,6 +387,10 @@ def run_fit(
         raise ValueError(f"initial_frames must be >= 1, got {initial_frames}")
     opts = options or FrameFitOptions()
     check_fixed(particle.model, tuple(fixed))
+    if tmatrix == "always" and particle.model.anisotropic and pass_name != "initial":
+        why_not = _no_tmatrix_reason(particle.theory(engine))
+        if why_not:  # said before any frame is fitted
+            raise FitStageError(f"--tmatrix always: {why_not} (or use --tmatrix never)")
     out = Path(out_dir)
     run = FitRun()
     model = particle.model
@@ -498,16 +503,17 @@ def _final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | Non
     if policy == "auto" and n_frames < TMATRIX_MIN_FRAMES:
         return None
     theory = particle.theory(engine, fixed_lattice_for=inst.optics)
-    if not hasattr(theory, "tmatrix"):
+    why_not = _no_tmatrix_reason(theory)
+    if why_not:
         if policy == "always":
-            raise FitStageError(f"the {theory.name} engine has no T-matrix (use --engine "
-                                "builtin or --tmatrix never)")
+            raise FitStageError(f"--tmatrix always: {why_not} (or use --tmatrix never)")
+        run.notes.append(f"final pass by direct DDA solves: {why_not}")
         return None
     path = out / "tmatrix.npz"
     t0 = time.perf_counter()
+    reused = path.exists()
     try:
         theory.tmatrix(model, inst.optics, path=str(path))
-        reused = True
     except TMatrixMismatch:
         # made for other static parameters or settings (an earlier run): build anew
         path.unlink()
@@ -518,6 +524,19 @@ def _final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | Non
     run.notes.append(f"final pass served from the particle's T-matrix {path} "
                      f"({'loaded' if reused else 'built'} in {run.tmatrix_s:.1f} s)")
     return str(path)
+
+
+def _no_tmatrix_reason(theory: ScatteringTheory) -> str:
+    """Why ``theory`` cannot serve a T-matrix ('' if it can)."""
+    if not hasattr(theory, "tmatrix"):
+        return f"the {theory.name} engine has no T-matrix (use --engine builtin)"
+    settings = getattr(theory, "settings", None)
+    kind = getattr(settings, "polarizability", None)
+    if kind is not None and kind not in INCIDENCE_INDEPENDENT:
+        return (f"polarizability {kind!r} depends on the incident wave, so the lattice has no "
+                f"T-matrix (the particle config's [dda] polarizability: one of "
+                f"{', '.join(INCIDENCE_INDEPENDENT)})")
+    return ""
 
 
 def _plots(path: Path, crops: CropSet, model: ParticleModel, theory: ScatteringTheory,
