@@ -3,6 +3,7 @@
 The public API, by job (the command line is a thin layer over these functions)::
 
     stages         run_crop, run_prefit, run_library, run_fit, run_analysis
+                   (LibrarySettings, FrameFitOptions, AnalysisSettings)
     simulation     simulate_movie, simulate_trajectory, BrownianParameters
     configuration  Instrument, load_instrument, ParticleConfig, load_particle, DDASettings
     particles      Sphere, Spherocylinder, JanusSphere, Dimer, Spheroid, Ellipsoid, Cylinder,
@@ -37,6 +38,10 @@ _API: dict[str, str] = {
     # stages
     "run_crop": "holofit.crop.run",
     "run_prefit": "holofit.prefit.stage",
+    "run_library": "holofit.library.stage",
+    "LibrarySettings": "holofit.library.stage",
+    "run_fit": "holofit.fit.stage",
+    "FrameFitOptions": "holofit.fit.frame",
     "run_analysis": "holofit.analysis",
     "AnalysisSettings": "holofit.analysis",
     # simulation

@@ -240,9 +240,8 @@ def test_prefit_cli_names_the_scheduler_problem_without_traceback(tmp_path):
         assert time.monotonic() - t0 < 10
 
 
-@pytest.mark.slow
 def test_killed_prefit_leaves_no_workers(tmp_path):
-    # the same with the real command line (the default suite uses the toy batch above)
+    # the same with the real command line, `holofit prefit -j 2` killed -9 (~7 s)
     from tests.test_prefit_cli import _crop_folder as simulated_crops
     from tests.test_prefit_cli import _holofit_command
 

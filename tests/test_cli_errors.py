@@ -238,3 +238,13 @@ def test_trajectory_options_are_named(tmp_path, args, option):
     base = ["simulate", "trajectory", "--d-t", "0.3", "--d-r", "0.3", "-o", tmp_path / "t"]
     res = _invoke([*base, *args])
     assert res.exit_code == 2 and f"Invalid value for '{option}'" in res.output
+
+
+def test_analyze_failures_read_like_every_stage(tmp_path):
+    bad = tmp_path / "three.csv"
+    bad.write_text("frame,x_um\n0,1.0\n")
+    res = _invoke(["analyze", bad, "-m", "sphere", "-o", tmp_path / "a"])
+    assert res.exit_code == 1
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert lines[0].startswith("holofit analyze: error: ") and str(bad) in lines[0], res.output
+    assert res.output.count(str(bad)) == 1, res.output  # the file named once

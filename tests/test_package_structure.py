@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -129,3 +130,17 @@ def test_public_api_names_resolve() -> None:
         assert getattr(holofit, name) is not None, name
     with pytest.raises(AttributeError):
         holofit.no_such_thing  # noqa: B018
+
+
+def test_the_names_the_docs_promise_are_exported() -> None:
+    """Every name of the package docstring's API table and every ``holofit.<name>`` the
+    README's Python examples use is exported."""
+    doc = holofit.__doc__ or ""
+    table = doc[doc.index("The public API"):doc.index("Names are imported")]
+    promised = set(re.findall(r"\b([A-Za-z_][A-Za-z0-9_]*)\b", table.split("::", 1)[1]))
+    promised -= {"stages", "simulation", "configuration", "particles", "geometry", "engines",
+                 "holograms", "fitting", "tables"}
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    promised |= set(re.findall(r"\bholofit\.([A-Za-z_][A-Za-z0-9_]*)\(", readme))
+    missing = sorted(n for n in promised if n not in holofit.__all__)
+    assert not missing, missing

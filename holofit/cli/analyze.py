@@ -109,13 +109,11 @@ def analyze(
     (msd.png, orientation.png, trajectory.png), and prints a short report.
     """
     from holofit.analysis import (
-        AnalysisError,
         AnalysisSettings,
         SettingError,
         format_report,
         run_analysis,
     )
-    from holofit.fit_table import FitTableError
 
     try:
         settings = AnalysisSettings(
@@ -127,11 +125,10 @@ def analyze(
         )
     except SettingError as exc:
         raise click.BadParameter(exc.problem, param_hint=OPTION_OF_SETTING[exc.setting]) from None
-    try:
-        result, files = run_analysis(fit_table, settings, out, plots=plots,
-                                     frame_interval_s=frame_interval_s)
-    except (FitTableError, AnalysisError) as exc:  # their messages name the file
-        raise click.ClickException(str(exc)) from None
+    # FitTableError / AnalysisError name the file; the top-level handler shows them as
+    # "holofit analyze: error: ..." like every stage's
+    result, files = run_analysis(fit_table, settings, out, plots=plots,
+                                 frame_interval_s=frame_interval_s)
     click.echo(format_report(result))
     click.echo("")
     click.echo("wrote " + ", ".join(str(p) for p in files.values()))
