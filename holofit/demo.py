@@ -33,6 +33,7 @@ from holofit.models import Spherocylinder
 from holofit.prefit import run_prefit
 from holofit.simulate.brownian import BrownianParameters
 from holofit.simulate.scenarios import diffusing_movie
+from holofit.status import FITTABLE_CROP_STATUSES, OK, POOR_FIT
 
 __all__ = ["DEMO_PARTICLES", "run_demo", "run_rod_demo"]
 
@@ -98,7 +99,7 @@ def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: 
     t0 = time.perf_counter()
     crop = run_crop(sim.movie.movie, sim.movie.background, inst, out / "crop", size=140)
     table = pd.read_csv(crop.table).set_index("frame")
-    found = table["status"].isin(["ok", "edge"])
+    found = table["status"].isin(FITTABLE_CROP_STATUSES)
     err = np.hypot(table["x_um"] - truth["x_um"], table["y_um"] - truth["y_um"])[found]
     echo(f"2. crop: hologram found in {int(found.sum())}/{n_frames} frames, centre off the "
          f"rod's centre by {1e3 * np.median(err):.0f} nm (median)")
@@ -109,7 +110,7 @@ def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: 
     p = pd.read_csv(pre.table).set_index("frame")
     dz = (p["z_um"] - truth["z_um"]).dropna()
     echo(f"3. prefit (a sphere's model of a rod: a start, not a measurement): "
-         f"{int(p['status'].isin(['ok', 'poor_fit']).sum())}/{n_frames} converged, z off by "
+         f"{int(p['status'].isin([OK, POOR_FIT]).sum())}/{n_frames} converged, z off by "
          f"{1e3 * dz.median():+.0f} nm (median), sphere radius {p['radius_um'].median():.3f} um")
     times["prefit_s"] = _timed(echo, "prefit", t0)
 
@@ -129,7 +130,7 @@ def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: 
     times["fit_s"] = _timed(echo, "fit", t0)
     static = json.loads(run.static.read_text())["values"]
     fit = pd.read_csv(run.final).set_index("frame")
-    ok = fit["status"] == "ok"
+    ok = fit["status"] == OK
     f = fit[ok]
     tr = truth.loc[f.index]
     rms = {k: 1e3 * float(np.sqrt(np.mean((f[k] - tr[k]) ** 2))) for k in

@@ -25,6 +25,7 @@ from holofit.models import Sphere
 from holofit.prefit import run_prefit
 from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
 from holofit.simulate.holograms import simulate_movie
+from holofit.status import FITTABLE_CROP_STATUSES, OK
 
 __all__ = ["run_sphere_demo"]
 
@@ -66,7 +67,7 @@ def run_sphere_demo(out: Path, echo: Callable[[str], None] = print, workers: int
     t0 = time.perf_counter()
     crop = run_crop(sim.movie, sim.background, inst, out / "crop", size=140, plot=True)
     table = pd.read_csv(crop.table)
-    found = table["status"].isin(["ok", "edge"])
+    found = table["status"].isin(FITTABLE_CROP_STATUSES)
     err_px = np.hypot(table["x_px"] - pos[:, 0] / inst.pixel_size_um,
                       table["y_px"] - pos[:, 1] / inst.pixel_size_um)[found]
     echo(f"2. crop: hologram found in {int(found.sum())}/{n_frames} frames, centre error median "
@@ -76,7 +77,7 @@ def run_sphere_demo(out: Path, echo: Callable[[str], None] = print, workers: int
     pre = run_prefit(out / "crop", out / "prefit",
                      batch=BatchOptions(workers=workers, progress=False))
     fit = pd.read_csv(pre.table)
-    ok = (fit["status"] == "ok").to_numpy()
+    ok = (fit["status"] == OK).to_numpy()
     rms = {
         "x_nm": 1e3 * np.sqrt(np.mean((fit["x_um"][ok] - pos[ok, 0]) ** 2)),
         "y_nm": 1e3 * np.sqrt(np.mean((fit["y_um"][ok] - pos[ok, 1]) ** 2)),

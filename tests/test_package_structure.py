@@ -144,3 +144,39 @@ def test_the_names_the_docs_promise_are_exported() -> None:
     promised |= set(re.findall(r"\bholofit\.([A-Za-z_][A-Za-z0-9_]*)\(", readme))
     missing = sorted(n for n in promised if n not in holofit.__all__)
     assert not missing, missing
+
+
+def test_the_readme_layout_names_every_module() -> None:
+    """The README's package tree ("Repository layout") has a line for every module and
+    subpackage of holofit, and none that does not exist."""
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    section = readme[readme.index("## Repository layout"):]
+    tree = section[section.index("```") + 3:]
+    tree = tree[:tree.index("```")]
+    listed: set[str] = set()
+    stack: list[tuple[int, str]] = []  # (indent, folder)
+    for line in tree.splitlines():
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        indent = len(line) - len(line.lstrip())
+        name = stripped.split()[0]
+        while stack and stack[-1][0] >= indent:
+            stack.pop()
+        path = "/".join([f for _, f in stack] + [name.rstrip("/")])
+        if name.endswith("/"):
+            stack.append((indent, name.rstrip("/")))
+        if path.startswith("holofit"):
+            listed.add(path)
+    package = root / "holofit"
+    # a subpackage's __init__ is its folder's line
+    actual = {str(p.relative_to(root)) for p in package.rglob("*.py")
+              if "__pycache__" not in p.parts
+              and (p.name != "__init__.py" or p.parent == package)}
+    actual |= {str(p.relative_to(root)) for p in package.rglob("*")
+               if p.is_dir() and "__pycache__" not in p.parts and any(p.glob("*.py"))}
+    actual.add("holofit")
+    assert sorted(actual - listed) == [], "modules missing from the README's layout"
+    extra = {p for p in listed - actual if not (root / p).is_file()}  # an __init__ may be named
+    assert sorted(extra) == [], "README lists modules that do not exist"

@@ -191,6 +191,10 @@ class Recipe:
         with it.
     msd_panels : tuple of MsdPanel
         The MSD figure.
+    drop_ambiguous : bool
+        Leave out frames the fit flagged ``ambiguous`` by default: for a rod, a frame whose
+        mirrored orientation fits as well is a coin toss for its axis; a Janus particle's
+        analysis uses x, y and psi only, which the mirror keeps.
     """
 
     name: str
@@ -207,6 +211,7 @@ class Recipe:
     summary: tuple[Compared | Reported, ...]
     radius_is_hydrodynamic: bool
     msd_panels: tuple[MsdPanel, ...]
+    drop_ambiguous: bool = False
 
 
 def _eps_nm(f: FitResult) -> Measurement:
@@ -309,6 +314,7 @@ ROD = Recipe(
         MsdPanel("lab frame", (Curve("lab_x", "C0"), Curve("lab_y", "C1"), Curve("lab_z", "C2"),
                                Curve("lab_3d", "k", "D_t_lab", "D_t"))),
     ),
+    drop_ambiguous=True,
 )
 
 

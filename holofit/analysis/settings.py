@@ -135,9 +135,7 @@ class AnalysisSettings:
         if self.reject is None:
             self.reject = recipe.reject
         if self.drop_ambiguous is None:
-            # a frame whose mirrored orientation fits as well is a coin toss for a rod's axis;
-            # a Janus particle's analysis uses x, y and psi only, which the mirror keeps
-            self.drop_ambiguous = recipe.name == "rod"
+            self.drop_ambiguous = recipe.drop_ambiguous
         if not recipe.orientation:
             self.head_tail, self.reject = False, False
         for name, spec in SETTING_SPECS.items():

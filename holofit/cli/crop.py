@@ -13,6 +13,7 @@ from holofit.crop.follow import FOLLOW_MODES
 from holofit.crop.run import MIN_CROP_SIZE
 from holofit.io.movie import MovieError, open_movie
 from holofit.progress import progress_bar
+from holofit.status import CROP_ERROR
 
 
 def _parse_start(value: str | None) -> tuple[float, float] | None:
@@ -205,7 +206,7 @@ def crop(
     click.echo(f"wrote {result.crops} and {result.table} ({len(result.frames)} frames: {counts})")
     for problem in result.problems:
         click.echo(f"holofit crop: warning: {problem}", err=True)
-    errors = result.frames[result.frames["status"] == "error"]
+    errors = result.frames[result.frames["status"] == CROP_ERROR]
     for message in errors["message"].head(5):
         click.echo(f"  error: {message}", err=True)
     if len(errors) > 5:

@@ -10,11 +10,12 @@ import numpy as np
 import pandas as pd
 
 from holofit.io.atomic import atomic_path
+from holofit.status import CROP_EDGE, CROP_ERROR, CROP_NO_PARTICLE, CROP_OK, FITTABLE_CROP_STATUSES
 
 __all__ = ["plot_overview"]
 
-_STATUS_COLOURS = {"ok": "tab:blue", "edge": "tab:orange", "no_particle": "tab:grey",
-                   "error": "tab:red"}  # fmt: skip
+_STATUS_COLOURS = {CROP_OK: "tab:blue", CROP_EDGE: "tab:orange",
+                   CROP_NO_PARTICLE: "tab:grey", CROP_ERROR: "tab:red"}
 
 
 def plot_overview(
@@ -86,7 +87,8 @@ def plot_overview(
     for status, colour in _STATUS_COLOURS.items():
         part = frames[frames["status"] == status]
         if len(part):
-            y = part["score"].fillna(1.0) if status in ("ok", "edge") else np.ones(len(part))
+            scored = status in FITTABLE_CROP_STATUSES
+            y = part["score"].fillna(1.0) if scored else np.ones(len(part))
             ax.scatter(part["frame"], y, s=8, color=colour, label=f"{status} ({len(part)})")
     ax.set_yscale("log")
     ax.set_xlabel("frame")

@@ -27,12 +27,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from holofit.conventions import euler_zyz, euler_zyz_from_matrix, rotation_z
+from holofit.conventions import euler_zyz, euler_zyz_from_matrix
+from holofit.dda.adda.frames import lab_map
 from holofit.scattering.theory import Orientation
 
 __all__ = ["orientation_from_adda"]
-
-_RX_PI = np.diag([1.0, -1.0, -1.0])
 
 
 def orientation_from_adda(orient_deg: Sequence[float] = (0.0, 0.0, 0.0),
@@ -55,6 +54,6 @@ def orientation_from_adda(orient_deg: Sequence[float] = (0.0, 0.0, 0.0),
     if len(orient_deg) != 3:
         raise ValueError(f"ADDA -orient takes three angles (alpha beta gamma), got {orient_deg}")
     r_adda = euler_zyz(*np.radians(np.asarray(orient_deg, dtype=float)))
-    rot = rotation_z(polarization_rad) @ _RX_PI @ r_adda
+    rot = lab_map(polarization_rad).T @ r_adda  # ADDA's lab back to holofit's
     psi, theta, phi = (float(v) for v in euler_zyz_from_matrix(rot))
     return Orientation(psi, theta, phi)

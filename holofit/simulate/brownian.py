@@ -40,6 +40,7 @@ from holofit.conventions import euler_zyz, euler_zyz_from_matrix, rotation_from_
 from holofit.fit_table import FitTable, column_unit, validate_fit_table, write_fit_table
 from holofit.io.tables import write_table
 from holofit.provenance import sidecar
+from holofit.status import OK
 
 __all__ = [
     "BrownianParameters",
@@ -302,7 +303,7 @@ def _table(frames, dt, pos, rot, static) -> pd.DataFrame:
         df[name] = float(value)
     df["chi2"] = np.nan
     df["r2"] = np.nan
-    df["status"] = "ok"
+    df["status"] = OK
     df["message"] = ""
     return df
 
