@@ -97,3 +97,19 @@ def test_bicgstab_gives_the_same_dipoles():
         model, OPTICS, ori)
     scale = np.abs(qmr.solution.P).max()
     np.testing.assert_allclose(bicg.solution.P, qmr.solution.P, atol=1e-6 * scale)
+
+
+@pytest.mark.filterwarnings("error")
+def test_warm_starts_across_sizes_and_indices_stay_finite():
+    """A fit's initial pass changes sizes and index between solves: voxels whose
+    polarisability is zero (all medium) must not turn the carried-over start into NaN."""
+    warm_engine = BuiltinDDA(dipole_size_um=0.05, tolerance=1e-8)
+    o = Orientation(0.5, 1.0, 0.0)
+    for a, b, n in [(0.35, 0.8, 1.495), (0.36, 0.82, 1.5), (0.34, 0.78, 1.49),
+                    (0.35, 0.8, 1.3301), (0.35, 0.8, OPTICS.n_medium)]:
+        model = Spherocylinder(a, b, n)
+        warm = warm_engine.solve(model, OPTICS, o)
+        cold = BuiltinDDA(dipole_size_um=0.05, tolerance=1e-8).solve(model, OPTICS, o)
+        scale = max(np.abs(cold.solution.P).max(), 1e-300)
+        assert np.all(np.isfinite(warm.solution.P))
+        np.testing.assert_allclose(warm.solution.P, cold.solution.P, atol=1e-6 * scale)

@@ -431,7 +431,12 @@ class BuiltinDDA(ScatteringTheory):
             phase = np.exp(1j * k * (pos @ (a_p - s.propagation)))
             p0 = (s.P @ q.T) * phase[:, None]
         alpha = system.alpha(a_p, e_p)
-        return (p0 / np.sqrt(alpha if alpha.ndim == 2 else alpha[:, None])).ravel()
+        w = np.sqrt(alpha if alpha.ndim == 2 else alpha[:, None])
+        # the solver's unknown is alpha^(-1/2) P; a voxel that is all medium (alpha = 0, e.g.
+        # a new boundary voxel of a smaller particle) has no moment to carry over
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x0 = np.where(w != 0, p0 / np.where(w != 0, w, 1.0), 0.0).ravel()
+        return x0 if np.all(np.isfinite(x0)) else None
 
 
 def carry_over(solution: DipoleSolution, lattice: Lattice) -> DipoleSolution | None:
