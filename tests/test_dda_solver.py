@@ -113,3 +113,14 @@ def test_warm_starts_across_sizes_and_indices_stay_finite():
         scale = max(np.abs(cold.solution.P).max(), 1e-300)
         assert np.all(np.isfinite(warm.solution.P))
         np.testing.assert_allclose(warm.solution.P, cold.solution.P, atol=1e-6 * scale)
+
+
+def test_a_start_that_is_not_a_number_fails_at_once():
+    rng = np.random.default_rng(1)
+    n = 40
+    a = rng.normal(size=(n, n)) + 1j * rng.normal(size=(n, n))
+    a = a + a.T + 20 * np.eye(n)
+    b = rng.normal(size=n) + 0j
+    x0 = np.full(n, np.nan + 0j)
+    result = qmr_cs(lambda v: a @ v, b, tol=1e-10, maxiter=500, x0=x0)
+    assert not result.converged and result.iterations <= 1

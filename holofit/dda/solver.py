@@ -127,6 +127,8 @@ def qmr_cs(
     history = [res]
     if res < tol:
         return SolveResult(x, 0, res, True, history)
+    if not np.isfinite(res):  # a start that is not a number: fail now, not after maxiter
+        return SolveResult(x, 0, res, False, history)
 
     # Lanczos vectors in the bilinear form, weighted by omega_k = ||v_k|| (Freund's choice)
     beta = np.sqrt(_bilinear(r, r))
@@ -175,6 +177,8 @@ def qmr_cs(
         history.append(res)
         if res < tol or beta_next == 0.0:
             return SolveResult(x, it, res, res < tol or beta_next == 0.0, history)
+        if not np.isfinite(res):
+            return SolveResult(x, it, res, False, history)
         # shift (buffers rotate: p_prev2 now holds p_k; v_prev's buffer takes the next v_next)
         p_prev2, p_prev = p_prev, p_prev2
         v_prev, v, v_next = v, v_next, v_prev
