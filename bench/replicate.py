@@ -64,11 +64,11 @@ def _stage(times: dict[str, float], name: str, fn, *args, **kwargs):
 
 
 def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dynamics, *,
-              workers: int, initial_frames: int, model: str) -> dict:
+              workers: int, initial_frames: int, model: str, seed: int) -> dict:
     times: dict[str, float] = {}
     batch = BatchOptions(workers=workers, progress=False)
     sim = _stage(times, "simulate", diffusing_movie, truth, inst, dynamics, out,
-                 frame_shape=(192, 192), seed=11)
+                 frame_shape=(192, 192), seed=seed)
     _stage(times, "crop", run_crop, sim.movie.movie, sim.movie.background, inst, out / "crop",
            size=140)
     _stage(times, "prefit", run_prefit, out / "crop", out / "prefit", batch=batch)
@@ -109,7 +109,8 @@ def _fmt(v: float, e: float = math.nan, digits: int = 3) -> str:
     return f"{v:.{digits}f}" + (f" ± {e:.{digits}f}" if math.isfinite(e) else "")
 
 
-def rod(out: Path, frames: int, workers: int, initial_frames: int) -> tuple[list[str], dict]:
+def rod(out: Path, frames: int, workers: int, initial_frames: int,
+        seed: int) -> tuple[list[str], dict]:
     inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
     config = load_particle(resolve_config("rod_paper", "particles"))
     truth_model = Spherocylinder(0.501, 1.079, 1.495)
@@ -118,7 +119,7 @@ def rod(out: Path, frames: int, workers: int, initial_frames: int) -> tuple[list
     dyn = BrownianParameters(frames, 1 / inst.frame_rate_hz, d_par, d_perp, d_r,
                              drift_um_s=(0.0, 0.0, -0.9), start_position_um=(17.0, 17.0, 20.0))
     r = _pipeline(out, config, truth, inst, dyn, workers=workers,
-                  initial_frames=initial_frames, model="rod")
+                  initial_frames=initial_frames, model="rod", seed=seed)
     m, st = r["result"].measured, r["static"]
     t = _truth_column(r)
     pred = spherocylinder_diffusion(0.501, 1.079, T_C)
@@ -149,7 +150,8 @@ def rod(out: Path, frames: int, workers: int, initial_frames: int) -> tuple[list
     return _table("Rod (the paper's table 1)", rows, PAPER_ROD, r, pulls), r
 
 
-def janus(out: Path, frames: int, workers: int, initial_frames: int) -> tuple[list[str], dict]:
+def janus(out: Path, frames: int, workers: int, initial_frames: int,
+          seed: int) -> tuple[list[str], dict]:
     inst = load_instrument(resolve_config("paper_100x_oil", "instruments"))
     config = load_particle(resolve_config("janus_paper", "particles"))
     truth_model = JanusSphere(0.443, 0.047, 1.581, 2.74)
@@ -158,7 +160,7 @@ def janus(out: Path, frames: int, workers: int, initial_frames: int) -> tuple[li
     dyn = BrownianParameters(frames, 1 / inst.frame_rate_hz, float(d["D_t"]), float(d["D_t"]),
                              float(d["D_r"]), start_position_um=(10.2, 10.2, 12.0))
     r = _pipeline(out, config, truth, inst, dyn, workers=workers,
-                  initial_frames=initial_frames, model="janus")
+                  initial_frames=initial_frames, model="janus", seed=seed)
     m, st = r["result"].measured, r["static"]
     t = _truth_column(r)
     rows = [
@@ -286,6 +288,7 @@ def main() -> None:
                     help="override the initial pass's frames (rod 100, Janus 10)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--dask-check", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=11, help="the simulation's random seed")
     args = ap.parse_args()
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -295,8 +298,11 @@ def main() -> None:
         if args.only and args.only != name:
             continue
         print(f"{name}:", flush=True)
-        part, _ = fn(out / name, args.frames or n, args.workers, args.initial_frames or k)
+        part, _ = fn(out / name, args.frames or n, args.workers, args.initial_frames or k,
+                     args.seed)
         lines = list(part)
+        lines[2:2] = [f"Simulation seed {args.seed}, {args.frames or n} frames, the initial pass "
+                      f"on the first {args.initial_frames or k}.", ""]
         for png in ("msd.png", "orientation.png", "trajectory.png"):
             if (out / name / "analysis" / png).exists():
                 lines.append(f"![{name} {png}]({name}/analysis/{png})")
