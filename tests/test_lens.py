@@ -252,3 +252,25 @@ def test_images_are_reused_per_wave_and_released_with_it():
     del wave
     gc.collect()
     assert ref() is None  # the cache holds no reference to the wave
+
+
+def test_a_trial_step_far_off_is_refused_not_computed_for_minutes():
+    """A least-squares trial step can put a particle absurdly far from focus; the pupil's
+    node count grows with k z, and its eigenvalue problem would run for minutes (seen in a
+    replicate run: a prefit worker stuck on one frame). Such a height is refused at once and
+    the forward model turns the refusal into an invalid step."""
+    from holofit.fitting.forward import HologramModel, InvalidParameters
+    from holofit.fitting.parameters import ParameterSpace, State, static_values
+
+    optics = Optics(0.66, 1.33, 0.0, 1.2)
+    wave = LorenzMie().solve(Sphere(0.5, 1.59), optics)
+    xs, ys = pixels(50, seed=2)
+    assert node_count(optics.k, 50.0, 7.0, aperture_angle(1.2, 1.33), 20) < 400
+    with pytest.raises(ValueError, match="pupil nodes"):
+        lens_field_on_pixels(wave, (5.0, 5.0, 1e5), xs, ys)
+    sphere = Sphere(0.5, 1.59)
+    space = ParameterSpace(sphere, ("x_um", "y_um", "z_um"),
+                           State((5.0, 5.0, 1e5), None, 1.0, static_values(sphere)))
+    model = HologramModel(LorenzMie(), space, optics, xs, ys)
+    with pytest.raises(InvalidParameters, match="pupil nodes"):
+        model.hologram(space.initial_vector())

@@ -32,7 +32,8 @@ from scipy import special
 
 from holofit.scattering.lens_kernels import POLAR_STENCIL, bessel_table
 
-__all__ = ["STENCIL", "STEP", "node_count", "polar_grid", "radial_transform", "sphere_tables"]
+__all__ = ["MAX_NODES", "STENCIL", "STEP", "node_count", "polar_grid", "radial_transform",
+           "sphere_tables"]
 
 #: Lagrange stencil (points per axis; the compiled kernels' constant) and radial step times the
 #: band limit k sin(th_max)
@@ -51,6 +52,11 @@ BESSEL_CACHE_BYTES = 128 * 2**20
 BLOCK_BYTES = 32 * 2**20
 
 
+#: most Gauss-Legendre nodes over the pupil (~z = 2 mm at NA 1.2): beyond, a fit's trial step
+#: has wandered off, and the nodes' eigenvalue problem alone would take minutes
+MAX_NODES = 8192
+
+
 def node_count(k: float, z_um: float, rho_max_um: float, theta_max: float, order: int) -> int:
     """Gauss-Legendre nodes over the pupil for a height, a pixel reach and a far-field order.
 
@@ -60,6 +66,11 @@ def node_count(k: float, z_um: float, rho_max_um: float, theta_max: float, order
     variation = (k * abs(z_um) * (1.0 - np.cos(theta_max)) + k * rho_max_um * np.sin(theta_max)
                  + order * theta_max)
     n = NODES_PER_RAD * variation + NODES_EXTRA
+    if not n <= MAX_NODES:  # also NaN
+        raise ValueError(
+            f"the lens image at z = {z_um:.4g} um over {rho_max_um:.4g} um of pixels would need "
+            f"{n:.3g} pupil nodes (at most {MAX_NODES}): the particle is implausibly far from "
+            "the focal plane or from its pixels")
     return int(np.ceil(n / NODES_ROUND) * NODES_ROUND)
 
 
