@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.dda.legendre import legendre_tables
+from holofit.scattering.lens_kernels import stencil_sum
 
 __all__ = [
     "NEAR_ZONE",
@@ -541,19 +542,6 @@ def _lagrange_weights(t, n, c, w):  # pragma: no cover - compiled
         right *= t - a
 
 
-@numba.njit(cache=True, nogil=True, inline="always", fastmath=FASTMATH)
-def _stencil_sum(plane, i0, j0, wt, wp):  # pragma: no cover - compiled
-    """``sum_a wt[a] sum_b wp[b] plane[i0 + a, j0 + b]`` over the fixed 8 x 8 stencil (the
-    constant trip count lets the compiler unroll and vectorise the inner sum)."""
-    s = 0.0
-    for a in range(8):
-        r = 0.0
-        for b in range(8):
-            r += wp[b] * plane[i0 + a, j0 + b]
-        s += wt[a] * r
-    return s
-
-
 @numba.njit(cache=True, nogil=True, fastmath=FASTMATH)
 def _interp_points(gs, step, n_phi, n_ext, pad, delta, phi, fac, skip, ex,
                    ey):  # pragma: no cover - compiled
@@ -586,10 +574,10 @@ def _interp_points(gs, step, n_phi, n_ext, pad, delta, phi, fac, skip, ex,
         f_p = fac[p]
         for f in range(gs.shape[0]):
             g = gs[f]
-            ex[f, p] = complex(_stencil_sum(g[0], i0, j0, wt, wp),
-                               _stencil_sum(g[1], i0, j0, wt, wp)) * f_p
-            ey[f, p] = complex(_stencil_sum(g[2], i0, j0, wt, wp),
-                               _stencil_sum(g[3], i0, j0, wt, wp)) * f_p
+            ex[f, p] = complex(stencil_sum(g[0], i0, j0, wt, wp),
+                               stencil_sum(g[1], i0, j0, wt, wp)) * f_p
+            ey[f, p] = complex(stencil_sum(g[2], i0, j0, wt, wp),
+                               stencil_sum(g[3], i0, j0, wt, wp)) * f_p
 
 
 def evaluate_plane(

@@ -112,9 +112,10 @@ def sphere_pixels(t, cq, sq, cb, sb, g0, g2, stencil, ex, ey):  # pragma: no cov
 
 
 @numba.njit(cache=True, nogil=True, fastmath=FASTMATH, inline="always")
-def _stencil_sum(plane, i0, j0, wr, wp):  # pragma: no cover - compiled
+def stencil_sum(plane, i0, j0, wr, wp):  # pragma: no cover - compiled
     """``sum_a wr[a] sum_b wp[b] plane[i0 + a, j0 + b]`` over the fixed 8 x 8 stencil (a
-    constant trip count lets the compiler unroll and vectorise the inner sum)."""
+    constant trip count lets the compiler unroll and vectorise the inner sum); shared with the
+    multipole plane grid (:mod:`holofit.dda.multipole`)."""
     s = 0.0
     for a in range(8):
         r = 0.0
@@ -144,5 +145,5 @@ def polar_pixels(t, u, g, ex, ey):  # pragma: no cover - compiled
         _weights(t[q] - i0, POLAR_STENCIL, c, wr)
         j0 = int(u[q]) - 3
         _weights(u[q] - j0, POLAR_STENCIL, c, wp)
-        ex[q] = complex(_stencil_sum(g0, i0, j0, wr, wp), _stencil_sum(g1, i0, j0, wr, wp))
-        ey[q] = complex(_stencil_sum(g2, i0, j0, wr, wp), _stencil_sum(g3, i0, j0, wr, wp))
+        ex[q] = complex(stencil_sum(g0, i0, j0, wr, wp), stencil_sum(g1, i0, j0, wr, wp))
+        ey[q] = complex(stencil_sum(g2, i0, j0, wr, wp), stencil_sum(g3, i0, j0, wr, wp))
