@@ -84,8 +84,18 @@ def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dy
     truth_result = _analyse_truth(tr, run.final, settings, out / "analysis_truth")
     static = json.loads(run.static.read_text())
     score = compare_with_truth(fit, tr, head_tail_symmetric=truth.model.head_tail_symmetric)
-    return {"times": times, "result": result, "static": static, "score": score,
+    cont = json.loads(Path(str(run.final) + ".json").read_text()).get("continuity")
+    near_focus = (tr["z_um"] < NEAR_FOCUS_UM).to_numpy()
+    ok = (fit["status"] == "ok").to_numpy()
+    score["near_focus"] = {"frames": int(near_focus.sum()), "ok": int((ok & near_focus).sum()),
+                           "ok_elsewhere": float(ok[~near_focus].mean())
+                           if (~near_focus).any() else None}
+    return {"times": times, "continuity": cont, "result": result, "static": static, "score": score,
             "final": run.final, "files": files, "truth_result": truth_result}
+
+
+#: frames closer than this to the focal plane (true height, um) are counted apart
+NEAR_FOCUS_UM = 3.0
 
 
 def _analyse_truth(truth: pd.DataFrame, final: Path, settings: AnalysisSettings, out: Path):
@@ -203,7 +213,7 @@ def _table(title: str, rows, paper: dict, r: dict, pulls: dict) -> list[str]:
                      f"{truth} | {theory} |")
     lines += ["", "Pulls against the truth (measured − truth) / error: "
               + ", ".join(f"{k} {v:+.2f}" for k, v in pulls.items()), "",
-              _score_line(r["score"]), "",
+              _score_line(r["score"]), "", _continuity_line(r.get("continuity")), "",
               "Wall time (s): " + ", ".join(f"{k} {v:.0f}" for k, v in r["times"].items())
               + f"; total {sum(r['times'].values()):.0f}.", ""]
     notes = list(r["result"].notes)
@@ -223,7 +233,21 @@ def _score_line(sc: dict) -> str:
     if sc["psi_rms_deg"] is not None:
         text += (f"; azimuth psi {sc['psi_rms_deg']:.2f} deg rms over the "
                  f"{sc['psi_frames']} frames with |sin theta| > 0.3")
+    nf = sc.get("near_focus")
+    if nf and nf["frames"]:
+        text += (f". Within {NEAR_FOCUS_UM:g} um of the focal plane (true z; {nf['frames']} "
+                 f"frames) {nf['ok']} are ok; elsewhere {100 * nf['ok_elsewhere']:.1f} % are ok")
     return text + "."
+
+
+def _continuity_line(cont: dict | None) -> str:
+    """What the continuity sweeps did (from fit.csv's sidecar)."""
+    if not cont:
+        return "Continuity sweeps: not run."
+    return (f"Continuity sweeps (holofit.fit.continuity): {cont['sweeps']} sweep(s), "
+            f"{cont['refitted']} refit(s), {cont['replaced']} row(s) replaced by a better fit "
+            f"from a neighbour's orientation, {cont['flagged']} flagged poor_fit (reduced chi2 "
+            f"bar {cont['chi2_bar']:.3f}).")
 
 
 def dask_check(out: Path, n: int) -> list[str]:

@@ -3,7 +3,7 @@
 The public API, by job (the command line is a thin layer over these functions)::
 
     stages         run_crop, run_prefit, run_library, run_fit, run_analysis
-                   (LibrarySettings, FrameFitOptions, AnalysisSettings)
+                   (LibrarySettings, FrameFitOptions, ContinuityOptions, AnalysisSettings)
     simulation     simulate_movie, simulate_trajectory, BrownianParameters
     configuration  Instrument, load_instrument, ParticleConfig, load_particle, DDASettings
     particles      Sphere, Spherocylinder, JanusSphere, Dimer, Spheroid, Ellipsoid, Cylinder,
@@ -42,6 +42,7 @@ _API: dict[str, str] = {
     "LibrarySettings": "holofit.library.stage",
     "run_fit": "holofit.fit.stage",
     "FrameFitOptions": "holofit.fit.frame",
+    "ContinuityOptions": "holofit.fit.continuity",
     "run_analysis": "holofit.analysis",
     "AnalysisSettings": "holofit.analysis",
     # simulation

@@ -17,6 +17,7 @@ from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit import stage
+from holofit.fit.continuity import ContinuityOptions
 from holofit.fit.frame import FrameFitOptions
 from holofit.fit.stage import run_fit
 from holofit.fit_table import read_fit_table
@@ -208,3 +209,49 @@ def test_a_polarizability_without_a_tmatrix(movie, tmp_path, monkeypatch):
                   tmatrix="auto", frames=[0], **common)
     assert run.tmatrix is None and any("direct DDA solves" in n for n in run.notes)
     assert (pd.read_csv(run.final)["status"] == "ok").all()
+
+
+def test_continuity_refits_a_wrong_frame_from_its_neighbours(movie, tmp_path):
+    """Frame 1 of a finished final pass put into a wrong orientation (90 deg off the truth,
+    chi^2 far above the others, poor_fit), as a frame left in a wrong minimum is: the
+    continuity sweep refits it with the DDA from its neighbours' orientations into the true
+    one, records it, and a rerun changes nothing."""
+    root, particle, _ = movie
+    u_true = np.column_stack([np.sin(TRUTH_ANGLES[:, 1]) * np.cos(TRUTH_ANGLES[:, 0]),
+                              np.sin(TRUTH_ANGLES[:, 1]) * np.sin(TRUTH_ANGLES[:, 0]),
+                              np.cos(TRUTH_ANGLES[:, 1])])
+
+    def off_deg(t):
+        cos = np.abs(np.sum(t[["ux", "uy", "uz"]].to_numpy() * u_true, axis=1))
+        return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+    common = dict(pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False)
+    first = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "fit",
+                    continuity=ContinuityOptions(enabled=False), **common)
+    table = pd.read_csv(first.final)
+    assert off_deg(table).max() < 2
+    psi, theta = np.radians(124.0), np.radians(90.0)
+    wrong = {"psi_rad": psi, "theta_rad": theta, "ux": np.sin(theta) * np.cos(psi),
+             "uy": np.sin(theta) * np.sin(psi), "uz": np.cos(theta),
+             "chi2": 50 * table["chi2"][1], "chi2_red": 50 * table["chi2_red"][1],
+             "status": "poor_fit", "message": "far from the data"}
+    table["message"] = table["message"].astype(object)
+    for col, value in wrong.items():
+        table.loc[1, col] = value
+    table.to_csv(first.final, index=False)
+    assert off_deg(table)[1] > 80
+
+    run = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "fit",
+                  **common)
+    assert run.summaries["final"].n_run == 0  # the final pass itself was done
+    t = pd.read_csv(run.final).sort_values("frame")
+    assert off_deg(t).max() < 2 and (t["status"] == "ok").all(), t["message"].tolist()
+    assert "trajectory continuity" in t["message"].iloc[1]
+    assert t["chi2_red"].iloc[1] == pytest.approx(table["chi2_red"].iloc[1] / 50, rel=1e-3)
+    assert run.continuity.replaced == 1
+    doc = json.loads((tmp_path / "fit" / "fit.csv.json").read_text())
+    assert doc["continuity"]["replaced"] == 1
+    before = run.final.read_bytes()
+    again = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "fit",
+                    **common)
+    assert again.continuity.replaced == 1 and run.final.read_bytes() == before

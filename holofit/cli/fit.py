@@ -22,6 +22,7 @@ from holofit.cli.stage_options import (
     parse_int_list,
     quality_options,
 )
+from holofit.fit.continuity import ContinuityOptions
 from holofit.fit.frame import FrameFitOptions
 from holofit.fit.stage import PASSES, TMATRIX_CHOICES, check_fixed, run_fit
 from holofit.fitting.result import QualityLimits
@@ -62,6 +63,9 @@ from holofit.scattering.select import ENGINE_CHOICES
               help="Library candidates used as starts (plus the mirrored best).")
 @click.option("--no-mirror", is_flag=True,
               help="Do not also start from the best candidate mirrored through the x-y plane.")
+@click.option("--no-continuity", is_flag=True,
+              help="Skip the continuity sweeps (final-pass frames that look like a wrong "
+                   "minimum refitted from their neighbours' orientations).")
 @click.option("--ambiguity-chi2", type=click.FloatRange(min=0), default=9.0,
               show_default=True,
               help="A runner-up within this chi^2 (in pixel-noise units) flags the frame "
@@ -93,6 +97,7 @@ def fit(
     tmatrix: str,
     n_starts: int,
     no_mirror: bool,
+    no_continuity: bool,
     ambiguity_chi2: float,
     pixel_fraction: float,
     saturation: float | None,
@@ -141,7 +146,8 @@ def fit(
                   frames=frame_list(crop_dir, frame_range), batch=batch, plot=plot,
                   plot_frames=parse_int_list(plot_frames, "--plot-frames"),
                   outlier_factor=outlier_factor,
-                  numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na)
+                  numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na,
+                  continuity=ContinuityOptions(enabled=not no_continuity))
     for name, s in run.summaries.items():
         for note in s.notes:
             click.echo(f"note: {note}", err=True)
@@ -152,5 +158,9 @@ def fit(
         click.echo(f"note: {note}", err=True)
     if run.static is not None:
         click.echo(f"static parameters -> {run.static}")
+    if run.continuity is not None and run.continuity.sweeps:
+        c = run.continuity
+        click.echo(f"continuity: {c.sweeps} sweep(s), {c.refitted} refit(s), {c.replaced} "
+                   f"row(s) improved, {c.flagged} flagged poor_fit")
     if run.final is not None:
         click.echo(f"final fit table -> {run.final}")

@@ -8,6 +8,10 @@
   times the median absolute deviation) goes to ``static.json``.
 - **Final pass** (``fit.csv``): the static parameters fixed to those values (or to a
   ``static.json`` given), position, orientation and alpha fitted on every frame.
+- **Continuity sweeps** (:mod:`holofit.fit.continuity`): frames of the final pass that look
+  like a wrong local minimum are refitted from their good neighbours' orientations (each sweep
+  a batch of its own, ``continuity/sweep_K.csv``, resumable); better fits replace their rows
+  in ``fit.csv`` and frames still far from the data become ``poor_fit``.
 
 Both passes run through the batch runner (parallel, resumable, failures recorded, a worker
 keeps its engine and its caches across frames), write the fit-table schema
@@ -21,7 +25,7 @@ import hashlib
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,11 +33,17 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
+from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch, run_frame
 from holofit.cache import LRUCache
 from holofit.config import ConfigError, Instrument, ParticleConfig
 from holofit.dda.polarizability import INCIDENCE_INDEPENDENT
 from holofit.dda.tmatrix_io import TMatrixMismatch
+from holofit.fit.continuity import (
+    ContinuityOptions,
+    ContinuityReport,
+    NeighbourStart,
+    repair_by_continuity,
+)
 from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitOptions, fit_frame
 from holofit.fit_table import column_unit
 from holofit.fitting.aperture import FROM_INSTRUMENT, ApertureChoice, fit_instrument
@@ -47,8 +57,8 @@ from holofit.fitting.parameters import (
     static_values,
 )
 from holofit.fitting.pictures import write_frame_pictures
-from holofit.fitting.result import result_columns, result_row
-from holofit.io.tables import read_table, write_json
+from holofit.fitting.result import flag_outliers, result_columns, result_row
+from holofit.io.tables import read_table, sidecar_path, write_json, write_table
 from holofit.library.search import Candidate
 from holofit.models import ParticleModel
 from holofit.provenance import sidecar
@@ -267,6 +277,7 @@ class FitRun:
     tmatrix: Path | None = None
     tmatrix_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    continuity: ContinuityReport | None = None
 
 
 def _check_library(meta: dict[str, Any], particle: ParticleConfig, path: Path) -> None:
@@ -320,6 +331,7 @@ def run_fit(
     outlier_factor: float = 4.0,
     numerical_aperture: ApertureChoice = FROM_INSTRUMENT,
     fit_na: bool = False,
+    continuity: ContinuityOptions | None = None,
 ) -> FitRun:
     """The DDA fit of a crop folder (see the module docstring).
 
@@ -369,6 +381,8 @@ def run_fit(
         instrument's (default), another value, or None for the ideal model.
     fit_na : bool
         Fit the NA in every frame of both passes, starting from that one.
+    continuity : ContinuityOptions, optional
+        The continuity sweeps after the final pass (default: on).
 
     Returns
     -------
@@ -386,6 +400,7 @@ def run_fit(
     if initial_frames < 1:
         raise ValueError(f"initial_frames must be >= 1, got {initial_frames}")
     opts = options or FrameFitOptions()
+    cont = continuity or ContinuityOptions()
     check_fixed(particle.model, tuple(fixed))
     if tmatrix == "always" and particle.model.anisotropic and pass_name != "initial":
         why_not = _no_tmatrix_reason(particle.theory(engine))
@@ -442,6 +457,18 @@ def run_fit(
                      tmatrix_path: str | None = None) -> Path:
             cfg = FitConfig(cfg_particle, inst, name, opts, engine, tuple(fixed),
                             tmatrix=tmatrix_path, fit_na=fit_na)
+            path = batch_pass(cfg, pass_frames, table_name, static_doc)
+            if name == "final" and cont.enabled and model.anisotropic:
+                run.continuity = _continuity_sweeps(path, cfg, load, cont, batch,
+                                                    outlier_factor)
+            if plot:
+                _plots(path, crops, cfg_particle.model, cfg_particle.theory(engine), inst,
+                       out, name, plot_frames, opts.far_field)
+            return path
+
+        def batch_pass(cfg: FitConfig, pass_frames: list[int], table_name: str,
+                       static_doc: dict[str, Any] | None) -> Path:
+            name = cfg.pass_name
             columns = fit_columns(model, cfg.free)
             units = {c: column_unit(c) for c in columns}
             units["status"] = describe(FIT_STATUS_MEANINGS)
@@ -463,9 +490,6 @@ def run_fit(
                                             columns, fingerprint=fingerprint, meta=meta,
                                             options=batch, desc=f"fit ({name})",
                                             finish=outlier_rule(outlier_factor))
-            if plot:
-                _plots(path, crops, cfg_particle.model, cfg_particle.theory(engine), inst,
-                       out, name, plot_frames, opts.far_field)
             return path
 
         static_path = Path(static) if static is not None else out / "static.json"
@@ -492,6 +516,76 @@ def run_fit(
             tm_path = _final_tmatrix(settled, inst, engine, tmatrix, len(todo), out, run)
             run.final = one_pass("final", settled, todo, "fit.csv", static_doc, tm_path)
     return run
+
+
+#: the refits of a continuity sweep: at most two neighbour starts, no mirror
+_SWEEP_STARTS = 2
+#: a sweep with fewer frames runs in this process, in memory (its engine kept from sweep to
+#: sweep, no table written): the last sweeps, eating a long run of bad frames from its ends,
+#: have a few frames and a few seconds each
+_SERIAL_SWEEP_FRAMES = 8
+
+
+def _continuity_sweeps(path: Path, cfg: FitConfig, load: Any, cont: ContinuityOptions,
+                       batch: BatchOptions | None, outlier_factor: float) -> ContinuityReport:
+    """Run the continuity sweeps on the final pass's table and write it back (atomically).
+
+    Each sweep is a batch of its own (``continuity/sweep_K.csv`` beside ``fit.csv``, keyed on
+    the table it started from), so an interrupted run resumes where it stopped; a table whose
+    sidecar records sweeps with these settings is left as it is.
+    """
+    meta = json.loads(sidecar_path(path).read_text())
+    key = hashlib.sha256(json.dumps(
+        {"batch": meta.get("batch", {}).get("fingerprint"), "continuity": asdict(cont)},
+        sort_keys=True).encode()).hexdigest()[:16]
+    done = meta.get("continuity")
+    if isinstance(done, dict) and done.get("key") == key:
+        return ContinuityReport(**{k: done[k] for k in ContinuityReport.__dataclass_fields__
+                                   if k in done})
+    model = cfg.particle.model
+    columns = fit_columns(model, cfg.free)
+    sweep_cfg = replace(cfg, options=replace(cfg.options, n_starts=_SWEEP_STARTS, mirror=False))
+    folder = path.parent / "continuity"
+
+    def refit(sweep: int, starts: dict[int, NeighbourStart]) -> pd.DataFrame:
+        def load_sweep(frame: int) -> FitPayload | Precomputed:
+            payload = load(frame)
+            if isinstance(payload, Precomputed):
+                return payload
+            s = starts[frame]
+            return FitPayload(payload.crop, payload.corner,
+                              {**payload.start, "z_um": s.z_um, "alpha": s.alpha},
+                              s.candidates)
+
+        fingerprint = hashlib.sha256(json.dumps(
+            {"key": key, "sweep": sweep,
+             "starts": {f: [s.sources, [(c.psi, c.theta, c.phi) for c in s.candidates],
+                            s.z_um, s.alpha] for f, s in sorted(starts.items())}},
+            sort_keys=True, default=str).encode()).hexdigest()[:16]
+        sweep_meta = {**{k: v for k, v in meta.items() if k not in ("batch", "continuity")},
+                      "kind": f"DDA fit table (continuity sweep {sweep}: refits from the "
+                              "neighbours' orientations)"}
+        out = folder / f"sweep_{sweep}.csv"
+        if len(starts) < _SERIAL_SWEEP_FRAMES:
+            rows = []
+            for frame in sorted(starts):
+                payload = load_sweep(frame)
+                if not isinstance(payload, Precomputed):
+                    rows.append(run_frame(fit_frame_task, sweep_cfg, frame, payload))
+            return pd.DataFrame(rows, columns=list(columns))
+        run_batch(fit_frame_task, sweep_cfg, sorted(starts), load_sweep, out, columns,
+                  fingerprint=fingerprint, meta=sweep_meta, options=batch,
+                  desc=f"fit (continuity {sweep})")
+        return read_table(out)
+
+    table, report = repair_by_continuity(
+        read_table(path), refit, cont, head_tail=model.head_tail_symmetric,
+        ambiguity_chi2=cfg.options.ambiguity_chi2,
+        refinish=lambda t: flag_outliers(t, outlier_factor))
+    meta["continuity"] = {**report.as_dict(), "key": key, "settings": asdict(cont),
+                          "sweeps_folder": str(folder)}
+    write_table(path, table[list(columns)], meta)
+    return report
 
 
 def _final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None,

@@ -1,0 +1,184 @@
+"""The continuity sweeps (holofit.fit.continuity) on a simulated Brownian trajectory (known
+truth) whose fit table has frames knocked into wrong orientations, with a refit oracle that,
+like a least-squares fit, finds the true minimum only from a start inside its basin."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from holofit.fit.continuity import (
+    ContinuityOptions,
+    NeighbourStart,
+    chi2_bar,
+    repair_by_continuity,
+    suspects,
+)
+from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
+
+NOISE = 0.02
+N_PIX = 5000
+#: a start closer than this to the truth converges to it (the basin)
+BASIN_DEG = 25.0
+SINGLES = [17, 60, 61, 140, 222]
+RUN = list(range(100, 120))      # a run of twenty bad frames: longer than two max_gap
+SUBTLE = [180, 250]              # wrong, with a chi^2 inside the movie's spread
+
+
+def _axis(theta, psi):
+    return np.column_stack([np.sin(theta) * np.cos(psi), np.sin(theta) * np.sin(psi),
+                            np.cos(theta)])
+
+
+def _angles(u):
+    return np.arccos(np.clip(u[:, 2], -1, 1)), np.arctan2(u[:, 1], u[:, 0])
+
+
+@pytest.fixture(scope="module")
+def truth() -> pd.DataFrame:
+    # the paper's Janus particle: D_r 1.1 /s, 100 frames/s -> ~12 deg between frames
+    sim = simulate_trajectory(BrownianParameters(300, 0.01, 0.4, 0.4, 1.1), seed=5)
+    t = sim.truth.sort_values("frame").reset_index(drop=True)
+    t["theta_rad"], t["psi_rad"] = _angles(_axis(t["theta_rad"], t["psi_rad"]))
+    return t
+
+
+def _row(t: pd.Series, u: np.ndarray, chi2_red: float, start: tuple[float, float]) -> dict:
+    theta, psi = _angles(u[None, :])
+    return {"frame": int(t["frame"]), "x_um": t["x_um"], "y_um": t["y_um"], "z_um": t["z_um"],
+            "theta_rad": float(theta[0]), "psi_rad": float(psi[0]), "ux": u[0], "uy": u[1],
+            "uz": u[2], "alpha": 0.9, "chi2": chi2_red * NOISE**2, "chi2_red": chi2_red,
+            "noise_sd": NOISE, "n_pixels": N_PIX, "start_theta_rad": start[0],
+            "start_psi_rad": start[1], "chi2_runner_up": math.nan, "delta_chi2": math.nan,
+            "ambiguous": 0, "runner_up_theta_rad": math.nan, "runner_up_psi_rad": math.nan,
+            "runner_up_z_um": math.nan, "status": "ok", "message": ""}
+
+
+def _far_axis(u: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    while True:
+        v = rng.normal(size=3)
+        v /= np.linalg.norm(v)
+        if np.degrees(np.arccos(np.clip(v @ u, -1, 1))) > 60:
+            return v
+
+
+def _table(truth: pd.DataFrame, seed: int = 1) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
+    """The fit table, the true axes and each frame's chi^2 at its true minimum."""
+    rng = np.random.default_rng(seed)
+    u_true = _axis(truth["theta_rad"], truth["psi_rad"])
+    chi = 1.0 + 0.01 * rng.normal(size=len(truth))
+    rows = [_row(t, u_true[i], chi[i], (math.nan, math.nan)) for i, t in truth.iterrows()]
+    for f in SINGLES + RUN + SUBTLE:
+        bad = _far_axis(u_true[f], rng)
+        rows[f] = _row(truth.iloc[f], bad, chi[f] + (0.004 if f in SUBTLE else 0.6),
+                       (math.nan, math.nan))
+    return pd.DataFrame(rows), u_true, chi
+
+
+def _oracle(truth: pd.DataFrame, u_true: np.ndarray, chi: np.ndarray, helps: bool = True):
+    """``refit``: the true minimum from a start inside its basin, else a worse fit."""
+    calls: list[dict[int, NeighbourStart]] = []
+
+    def refit(sweep: int, starts: dict[int, NeighbourStart]) -> pd.DataFrame:
+        calls.append(starts)
+        rows = []
+        for f, s in starts.items():
+            t = truth.iloc[f]
+            for c in s.candidates:
+                uc = _axis(np.array([c.theta]), np.array([c.psi]))[0]
+                near = np.degrees(np.arccos(np.clip(uc @ u_true[f], -1, 1))) < BASIN_DEG
+                if near and helps:
+                    rows.append(_row(t, u_true[f], chi[f], (c.theta, c.psi)))
+                    break
+            else:
+                rows.append(_row(t, _axis(np.array([s.candidates[0].theta]),
+                                          np.array([s.candidates[0].psi]))[0], 5.0,
+                                 (s.candidates[0].theta, s.candidates[0].psi)))
+        return pd.DataFrame(rows)
+
+    return refit, calls
+
+
+def _off_deg(table: pd.DataFrame, u_true: np.ndarray) -> np.ndarray:
+    u = table[["ux", "uy", "uz"]].to_numpy()
+    return np.degrees(np.arccos(np.clip(np.sum(u * u_true, axis=1), -1, 1)))
+
+
+def test_the_bar_ignores_the_wrong_frames_tail(truth):
+    table, _, _ = _table(truth)
+    bar = chi2_bar(table, 4.0)
+    # the lower half's spread is the noise's 0.01: the bad frames (chi^2 1.6-2.6) cannot
+    # inflate it, so the bar sits near 1 + 4 * 0.01
+    assert 1.02 < bar < 1.07
+    flagged = suspects(table, ContinuityOptions(), head_tail=False)
+    assert flagged[SINGLES + RUN].all()
+
+
+def test_sweeps_bring_every_wrong_frame_back_from_its_neighbours(truth):
+    table, u_true, chi = _table(truth)
+    before = _off_deg(table, u_true)
+    assert (before[SINGLES + RUN + SUBTLE] > 60).all()
+    refit, calls = _oracle(truth, u_true, chi)
+    out, report = repair_by_continuity(table.copy(), refit, ContinuityOptions(),
+                                       head_tail=False, ambiguity_chi2=9.0)
+    after = _off_deg(out, u_true)
+    assert after.max() < 1e-3, np.flatnonzero(after > 1e-3)
+    assert (out["status"] == "ok").all()
+    # the run of twenty is eaten from both ends: more than one sweep, each one's frames fewer
+    assert report.sweeps >= 2 and report.replaced == len(SINGLES + RUN + SUBTLE)
+    assert len(calls[-1]) < len(calls[0])
+    fixed = out.set_index("frame").loc[SINGLES + RUN]
+    assert fixed["message"].str.contains("trajectory continuity").all()
+    # the replaced fit is now the runner-up, far worse than the noise allows: not ambiguous
+    assert (fixed["delta_chi2"] > 1000).all() and (fixed["ambiguous"] == 0).all()
+    np.testing.assert_allclose(fixed["chi2_runner_up"], table.set_index("frame").loc[
+        SINGLES + RUN, "chi2"])
+    # the subtle ones, whose chi^2 alone does not give them away, were found by their jump
+    assert set(SUBTLE) <= set().union(*calls)
+    # good frames are unchanged (a refit from a neighbour finds their own minimum, no better)
+    good = sorted(set(range(len(truth))) - set(SINGLES + RUN + SUBTLE))
+    pd.testing.assert_frame_equal(out.loc[good], table.loc[good], check_dtype=False)
+
+
+def test_frames_no_neighbour_helps_become_poor_fit(truth):
+    table, u_true, chi = _table(truth)
+    refit, calls = _oracle(truth, u_true, chi, helps=False)
+    out, report = repair_by_continuity(table.copy(), refit, ContinuityOptions(),
+                                       head_tail=False, ambiguity_chi2=9.0)
+    assert report.replaced == 0 and report.sweeps == 1 and len(calls) == 1
+    st = out.set_index("frame")["status"]
+    assert (st.loc[SINGLES + RUN] == "poor_fit").all()
+    assert st.drop(SINGLES + RUN + SUBTLE).eq("ok").all()
+    assert out.set_index("frame").loc[SINGLES, "message"].str.contains("wrong local").all()
+
+
+def test_disabled_sweeps_change_nothing(truth):
+    table, u_true, chi = _table(truth)
+    refit, calls = _oracle(truth, u_true, chi)
+    out, report = repair_by_continuity(table.copy(), refit,
+                                       ContinuityOptions(enabled=False), head_tail=False,
+                                       ambiguity_chi2=9.0)
+    assert not calls and report.sweeps == 0
+    pd.testing.assert_frame_equal(out, table, check_dtype=False)
+
+
+def test_options_are_checked():
+    with pytest.raises(ValueError, match="max_gap"):
+        ContinuityOptions(max_gap=0)
+    with pytest.raises(ValueError, match="chi2_sigmas"):
+        ContinuityOptions(chi2_sigmas=0)
+
+
+def test_a_refit_into_the_same_minimum_replaces_nothing(truth):
+    """A refit that finds a frame's own minimum again differs by solver precision: no row is
+    replaced, so no neighbour is set off, and the sweeps stop."""
+    table, u_true, chi = _table(truth)
+    refit, calls = _oracle(truth, u_true, chi - 1e-9)  # 1e-9 in chi^2 per pixel: << noise
+    out, report = repair_by_continuity(table.copy(), refit, ContinuityOptions(),
+                                       head_tail=False, ambiguity_chi2=9.0)
+    good = sorted(set(range(len(truth))) - set(SINGLES + RUN + SUBTLE))
+    pd.testing.assert_frame_equal(out.loc[good], table.loc[good], check_dtype=False)
+    assert report.replaced == len(SINGLES + RUN + SUBTLE)
