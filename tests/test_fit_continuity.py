@@ -176,7 +176,7 @@ def test_a_refit_into_the_same_minimum_replaces_nothing(truth):
     """A refit that finds a frame's own minimum again differs by solver precision: no row is
     replaced, so no neighbour is set off, and the sweeps stop."""
     table, u_true, chi = _table(truth)
-    refit, calls = _oracle(truth, u_true, chi - 1e-9)  # 1e-9 in chi^2 per pixel: << noise
+    refit, _ = _oracle(truth, u_true, chi - 1e-9)  # 1e-9 in chi^2 per pixel: << noise
     out, report = repair_by_continuity(table.copy(), refit, ContinuityOptions(),
                                        head_tail=False, ambiguity_chi2=9.0)
     good = sorted(set(range(len(truth))) - set(SINGLES + RUN + SUBTLE))
