@@ -27,7 +27,7 @@ demo: install
 bench: install
 	$(ONE_CORE) $(BIN)/python bench/run.py --out bench/results.json
 
-# the paper's two experiments on synthetic truth (long: about 80 min on 2 cores)
+# the paper's two experiments on synthetic truth (long: about 110 min on 2 cores)
 replicate: install
 	$(BIN)/python bench/replicate.py --out replicate --dask-check 200
 
