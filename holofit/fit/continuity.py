@@ -28,13 +28,14 @@ The table logic lives here; :mod:`holofit.fit.stage` runs the refits through the
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from holofit.fit.frame import SAME_BASIN_RAD, SAME_BASIN_Z_UM
 from holofit.library.search import Candidate
 from holofit.status import NOT_CONVERGED, OK, POOR_FIT
 
@@ -52,9 +53,6 @@ __all__ = [
 
 #: the lower-half spread is median minus this quantile (one normal sd below the median)
 _ONE_SIGMA_BELOW = 15.87
-#: two orientations closer than this (rad) are one basin (as in :mod:`holofit.fit.frame`)
-_SAME_BASIN_RAD = math.radians(5.0)
-_SAME_BASIN_Z_UM = 0.1
 _CONVERGED = (OK, POOR_FIT)
 #: statuses a refit may improve (failed, error and skipped frames have no fit to improve on)
 _REFITTABLE = (OK, POOR_FIT, NOT_CONVERGED)
@@ -321,8 +319,8 @@ def merge_refits(table: pd.DataFrame, refits: pd.DataFrame, starts: Mapping[int,
         u_new, z_new = _state_of(new)
         u_old, z_old = _state_of(old)
         other_basin = (np.all(np.isfinite(u_old)) and (
-            float(_angle(u_new, u_old, head_tail)) >= _SAME_BASIN_RAD
-            or abs(z_new - z_old) >= _SAME_BASIN_Z_UM))
+            float(_angle(u_new, u_old, head_tail)) >= SAME_BASIN_RAD
+            or abs(z_new - z_old) >= SAME_BASIN_Z_UM))
         runner = float(new.get("chi2_runner_up", math.nan))
         if other_basin and math.isfinite(chi_old) and not chi_old >= runner and noise > 0:
             delta = (chi_old - chi_new) * float(new["n_pixels"]) / noise**2
@@ -429,7 +427,3 @@ def repair_by_continuity(
         report.flagged = int(hit.sum())
     return table, report
 
-
-def frames_of(starts: Mapping[int, NeighbourStart]) -> Sequence[int]:
-    """The frames of a sweep, sorted."""
-    return sorted(starts)
