@@ -303,7 +303,7 @@ def test_nans_in_background_and_in_a_frame(small_movie):
 def test_empty_movie_and_every_frame_failing(small_movie):
     folder, shape = small_movie
     (folder / "empty").mkdir()
-    with pytest.raises(CropError, match=r"empty: folder contains no TIFF frames"):
+    with pytest.raises(CropError, match=r"empty: folder contains no TIFF or PNG frames"):
         _crop(folder, movie="empty")
     write_tiff_stack(folder / "dark.tif", [np.zeros(shape, np.uint8)] * 3)
     with pytest.raises(CropError, match=r"every frame failed.*frame 0.*dark level"):

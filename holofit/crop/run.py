@@ -106,6 +106,41 @@ def _saturation(movie: Movie, instrument: Instrument) -> float | None:
     return float(min(2**instrument.bit_depth - 1, type_max))
 
 
+def _check_full_scale(movie: Movie, saturation: float, instrument: Instrument) -> None:
+    """The movie's first readable frame within the instrument's full scale, else CropError.
+
+    Counts above ``2**bit_depth - 1`` mean the instrument's ``bit_depth`` is not the camera's
+    (a 16-bit movie with an 8-bit instrument): masking them as saturated would leave nothing
+    of the hologram, every frame ``no_particle``. Later frames are checked as they are read
+    (:func:`_detect`).
+    """
+    for k in range(min(len(movie), 5)):
+        try:
+            frame = movie[k]
+        except MovieError:
+            continue
+        peak = float(np.max(frame))
+        if peak > saturation:
+            raise CropError(
+                f"{movie.path}: frame {k} has counts up to {peak:g}, which exceed the full "
+                f"scale {saturation:g} of instrument {instrument.path or instrument.name} "
+                f"({_bit_depth_advice(movie, peak, instrument)})"
+            )
+        return
+
+
+def _bit_depth_advice(movie: Movie, peak: float, instrument: Instrument) -> str:
+    """Why counts exceed the full scale, and what to set."""
+    bits = movie.dtype.itemsize * 8
+    fits = next((b for b in (10, 12, 14, 16, 32) if b <= bits and 2**b - 1 >= peak), bits)
+    return (
+        f"bit_depth = {instrument.bit_depth}, full scale 2^{instrument.bit_depth} - 1; the "
+        f"movie's pixels are {bits}-bit integers ({movie.dtype}): set bit_depth in the "
+        f"instrument config to the camera's ({fits} or more holds these counts), or do not "
+        "mask saturated pixels (--keep-saturated)"
+    )
+
+
 References = str | Path | Sequence[str | Path]
 
 
@@ -284,6 +319,8 @@ def run_crop(
             normalizer, norm_info = _prepare(
                 movie, backgrounds, dark, min_background, saturation, inst.path or inst.name
             )
+        if saturation is not None:
+            _check_full_scale(movie, saturation, inst)
         crops_path = out / "crops.tif"
         table_path = out / "crops.csv"
         cand_path = out / "candidates.csv"
@@ -469,6 +506,13 @@ def _detect(
         raw = movie[k]
     except MovieError as exc:
         raise FrameError(str(exc)) from None
+    full = normalizer.saturation
+    if full is not None and raw.size and float(np.max(raw)) > full:
+        raise FrameError(
+            f"{source}: frame {k}: counts up to {float(np.max(raw)):g} exceed the full scale "
+            f"{full:g} of the instrument's bit_depth: correct bit_depth in the instrument "
+            "config, or do not mask saturated pixels (--keep-saturated)"
+        )
     try:
         image, mask = normalizer(raw)
     except ValueError as exc:

@@ -1,14 +1,17 @@
 """Lazy, frame-by-frame reading of hologram movies.
 
 A movie is a multi-page TIFF (plain, ImageJ, OME-TIFF, or one header per page as Pillow and
-many cameras write it) or a folder of single-frame TIFF files. Frames are read one at a time,
+many cameras write it) or a folder of single-frame TIFF files; video files (AVI, ...), folders of
+PNG frames and HDF5 datasets are read through the optional readers of
+:mod:`holofit.io.readers`. Frames are read one at a time,
 so a 2000-frame megapixel movie never sits in memory whole. 8- and 16-bit (and float) pixels
 are returned unchanged in their own dtype; compressed pages (LZW, deflate, ...) are decoded by
 tifffile, with the ``imagecodecs`` package for the codecs Python does not ship.
 
 Nothing a file claims is dropped silently: a movie is as long as the file says it is (its
-header's frame count, or the pages its directory chain points to), and a frame that cannot be
-read (a truncated file, a page whose pixel data lie past the end of the file) raises
+header's frame count, or the pages its directory chain points to: every page is a frame), and a
+frame that cannot be read (a truncated file, a page whose pixel data lie past the end of the
+file, a page of another shape than the first) raises
 :class:`MovieError` naming the file and the frame when it is read, so that a stage can record it
 and go on. What is wrong with the file as a whole is in :attr:`Movie.problems`.
 """
@@ -27,6 +30,19 @@ import tifffile
 from numpy.typing import NDArray
 
 from holofit.io.logcapture import capture_log
+from holofit.io.readers import (
+    HDF5_SUFFIXES,
+    IMAGE_SUFFIXES,
+    SUPPORTED,
+    VIDEO_SUFFIXES,
+    Hdf5Reader,
+    ImageFolderReader,
+    ReaderError,
+    VideoReader,
+    grey_frame,
+    sniff,
+    split_dataset,
+)
 
 __all__ = ["Movie", "MovieError", "open_movie"]
 
@@ -85,6 +101,13 @@ class _Block:
 
 
 @dataclass(frozen=True)
+class _Odd:
+    """A page of the file that is not a frame like the first (another shape or pixel type)."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
 class _Lost:
     """A frame the file claims but that cannot be read."""
 
@@ -100,7 +123,8 @@ class Movie:
     ----------
     path : str or Path
         A (multi-page / OME) TIFF file or a folder of TIFF frames (sorted in natural order:
-        ``frame2.tif`` before ``frame10.tif``).
+        ``frame2.tif`` before ``frame10.tif``); or, through :mod:`holofit.io.readers`, a video
+        file, a folder of PNG frames, or an HDF5 file (``FILE.h5:DATASET`` names its dataset).
 
     Attributes
     ----------
@@ -124,10 +148,11 @@ class Movie:
     """
 
     def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
+        self.path, dataset = split_dataset(Path(path))
         self._tif: tifffile.TiffFile | None = None
         self._files: list[Path] = []
-        self._sources: list[_Page | _Block | _Lost] = []
+        self._reader: VideoReader | ImageFolderReader | Hdf5Reader | None = None
+        self._sources: list[_Page | _Block | _Odd | _Lost] = []
         self.problems: list[str] = []
         self.notes: list[str] = []
         if not self.path.exists():
@@ -137,11 +162,36 @@ class Movie:
                 (p for p in self.path.iterdir() if p.suffix in TIFF_SUFFIXES), key=_natural_key
             )
             if not self._files:
-                raise MovieError(f"{self.path}: folder contains no TIFF frames (.tif/.tiff)")
+                images = sorted((p for p in self.path.iterdir()
+                                 if p.suffix.lower() in IMAGE_SUFFIXES), key=_natural_key)
+                if not images:
+                    raise MovieError(
+                        f"{self.path}: folder contains no TIFF or PNG frames; holofit reads "
+                        f"{SUPPORTED}"
+                    )
+                self._open_reader(lambda: ImageFolderReader(images))
+                return
             first = self._read_file(0)
             self.frame_shape = first.shape
             self.dtype = first.dtype
             self._n = len(self._files)
+            return
+        kind = sniff(self.path)
+        suffix = self.path.suffix.lower()
+        if kind == "video" or (not kind and suffix in VIDEO_SUFFIXES):
+            self._open_reader(lambda: VideoReader(self.path))
+        elif kind == "hdf5" or (not kind and suffix in HDF5_SUFFIXES):
+            self._open_reader(lambda: Hdf5Reader(self.path, dataset))
+        elif kind == "image":
+            raise MovieError(
+                f"{self.path}: a single image, not a movie: put the frames in a folder "
+                f"(holofit reads {SUPPORTED})"
+            )
+        elif kind != "tiff" and suffix not in TIFF_SUFFIXES:
+            raise MovieError(
+                f"{self.path}: not a movie format holofit reads (file starts with "
+                f"{_head(self.path)!r}); holofit reads {SUPPORTED}"
+            )
         else:
             try:
                 self._open_stack()
@@ -149,16 +199,57 @@ class Movie:
                 self.close()
                 raise
 
+    def _open_reader(self, make: Any) -> None:
+        """Open a non-TIFF movie; its first frame gives the frame shape and pixel type."""
+        try:
+            self._reader = make()
+            self._n = self._reader.n
+            first = self._read_other(0)
+        except ReaderError as exc:
+            self.close()
+            raise MovieError(str(exc)) from None
+        except BaseException:
+            self.close()
+            raise
+        self.frame_shape = first.shape
+        self.dtype = first.dtype
+
+    def _read_other(self, index: int) -> NDArray:
+        reader = self._reader
+        if reader is None:
+            raise MovieError(f"{self.path}: movie is closed")
+        where = (f"{reader.files[index]}: frame {index}" if isinstance(reader, ImageFolderReader)
+                 else f"{self.path}: frame {index}")
+        try:
+            img = reader.read(index)
+        except Exception as exc:  # the readers raise many types for a bad frame
+            raise MovieError(f"{where} cannot be read ({exc})") from None
+        try:
+            return grey_frame(img, where)
+        except ReaderError as exc:
+            raise MovieError(str(exc)) from None
+
     # -- stacks --------------------------------------------------------------------------
     def _open_stack(self) -> None:
         with capture_log("tifffile") as log:
             try:
                 self._tif = tif = tifffile.TiffFile(self.path)
-                s0 = tif.series[0]
-                shape, axes = tuple(s0.shape), s0.axes
-                first = s0.pages[0] if len(s0.pages) else tif.pages[0]
             except Exception as exc:  # tifffile raises many types for corrupt input
                 raise MovieError(f"{self.path}: not a readable TIFF file ({exc})") from None
+            try:
+                s0: Any = tif.series[0]
+                shape, axes = tuple(s0.shape), s0.axes
+                first = s0.pages[0] if len(s0.pages) else tif.pages[0]
+            except Exception as exc:
+                # tifffile could not make one series of the pages (pages of different shapes
+                # in a file that says they are alike, as Pillow writes them): read the pages
+                # one by one, each a frame like the first, or an error row saying why not
+                tif.pages.useframes = False  # full directories, not frames like a keyframe
+                pages, _ = _readable_pages(tif.pages, log)
+                if not pages:
+                    raise MovieError(f"{self.path}: not a readable TIFF file ({exc})") from None
+                s0, first = None, pages[0]
+                shape, axes = tuple(first.shape), first.axes
             self._size = self.path.stat().st_size
             if len(shape) < 2 or first is None:
                 raise MovieError(
@@ -172,14 +263,14 @@ class Movie:
                     "supported; convert to one grey channel"
                 )
             self.frame_shape = shape[-2:]
-            self.dtype = np.dtype(s0.dtype)
+            self.dtype = np.dtype(first.dtype if s0 is None else s0.dtype)
             self._frame_bytes = int(np.prod(self.frame_shape)) * self.dtype.itemsize
             codec = _codec_problem(self.path, first)
             if codec is not None:
                 raise MovieError(codec)
             n_series = int(np.prod(shape[:-2], dtype=int)) if len(shape) > 2 else 1
             declared = max(n_series, self._declared_frames())
-            offset = s0.dataoffset if _plain(first) else None
+            offset = s0.dataoffset if s0 is not None and _plain(first) else None
             if offset is not None and declared > 1:
                 # one uncompressed block of frames (tifffile's own contiguous layout, ImageJ):
                 # frame k lies at a known offset, whatever became of the directories
@@ -207,8 +298,10 @@ class Movie:
     def _pages_as_frames(self, tif: Any, s0: Any, n_series: int, declared: int,
                          log: list[str]) -> None:
         """Frames that are pages of their own (compressed, or one header per page)."""
-        pages, broken = _readable_pages(s0.pages, log)
-        if len(pages) == n_series > 1 and not broken:
+        pages, broken = _readable_pages(s0.pages, log) if s0 is not None else ([], False)
+        generic = not (tif.is_ome or tif.is_imagej)
+        if len(pages) == n_series > 1 and not broken and not (generic and
+                                                              len(tif.pages) > len(pages)):
             chain = pages  # the series is whole: its pages are the file's directories
         else:
             chain, broken = _readable_pages(tif.pages, log)  # every directory reached
@@ -222,24 +315,48 @@ class Movie:
                 and np.dtype(page.dtype) == self.dtype
             )
 
+        # every page of the file is a frame, except reduced-resolution copies: pages marked
+        # so, and pages after the last frame at most half its size each way (thumbnails)
+        full = [p for p in chain if not getattr(p, "is_reduced", False)]
+        while len(full) > 1 and self._thumbnail(full[-1]):
+            self.notes.append(f"page {full[-1].index} (shape {tuple(full[-1].shape)}) is "
+                              "taken for a thumbnail, not a frame")
+            full.pop()
         if len(pages) < n_series <= len(chain) and all(map(is_frame, chain)):
             pages = chain  # tifffile parsed fewer pages than the series has
-        elif n_series == 1 and len(chain) > 1 and all(map(is_frame, chain)):
-            # one series per page (tifffile's separately written pages, or a header that
-            # tifffile could not apply): every page of the file is a frame
-            pages = chain
-        self._sources = [_Page(p) for p in pages]
+        elif len(full) > len(pages) and (n_series == 1 or generic):
+            # pages that tifffile grouped into several series (separately written pages,
+            # a page of another shape among them, a header that tifffile could not apply):
+            # every page of the file is a frame, in file order; one that is not like the
+            # first is an error row. (An OME or ImageJ file's further series are other
+            # positions or channels, not frames.)
+            pages = full
+        self._sources = [_Page(p) if is_frame(p) else _Odd(self._odd(p)) for p in pages]
         found = len(self._sources)
         if declared > found:
             self._sources += [
                 _Lost(f"its header declares {declared} frames, the file holds the directories "
                       f"of {found}")
             ] * (declared - found)
-        elif found == len(chain):
+        elif pages and pages[-1] is chain[-1]:
             if broken:
                 self._sources.append(_Lost("its directory is corrupted", open_ended=True))
             else:
                 self._check_chain_end(chain[-1])
+
+    def _thumbnail(self, page: Any) -> bool:
+        shape = tuple(s for s in (page.shape or ()) if s != 1)
+        return len(shape) in (2, 3) and all(
+            2 * s <= f for s, f in zip(shape[:2], self.frame_shape, strict=True))
+
+    def _odd(self, page: Any) -> str:
+        """Why a page is not a frame like the first."""
+        shape = tuple(page.shape) if page.shape is not None else None
+        if shape is not None and len(shape) > 2 and shape[-1] in (3, 4):
+            return f"it is a colour image (shape {shape}); convert to one grey channel"
+        if shape is not None and tuple(s for s in shape if s != 1) != tuple(self.frame_shape):
+            return f"it has shape {shape}, the first frame has {tuple(self.frame_shape)}"
+        return f"its pixels are {np.dtype(page.dtype)}, the first frame's {self.dtype}"
 
     def _declared_frames(self) -> int:
         """Frames the file's own header declares (0 if it declares none)."""
@@ -285,10 +402,10 @@ class Movie:
         )
         self._sources.append(_Lost(f"its directory, at byte {following}, {what}", open_ended=True))
 
-    def _beyond_end(self, source: _Page | _Block | _Lost) -> bool:
+    def _beyond_end(self, source: _Page | _Block | _Odd | _Lost) -> bool:
         return self._data_end(source) > self._size
 
-    def _data_end(self, source: _Page | _Block | _Lost) -> int:
+    def _data_end(self, source: _Page | _Block | _Odd | _Lost) -> int:
         if isinstance(source, _Block):
             return source.offset + self._frame_bytes
         if isinstance(source, _Page):
@@ -327,6 +444,8 @@ class Movie:
             raise MovieError(
                 f"{prefix} cannot be read: the file is truncated: {source.reason}{later}"
             )
+        if isinstance(source, _Odd):
+            raise MovieError(f"{prefix} cannot be used: {source.reason}")
         end = self._data_end(source)
         if end > self._size:
             raise MovieError(
@@ -369,6 +488,14 @@ class Movie:
                     f"frame has {self.frame_shape}"
                 )
             return img
+        if self._reader is not None:
+            img = self._read_other(index)
+            if img.shape != tuple(self.frame_shape) or img.dtype != self.dtype:
+                raise MovieError(
+                    f"{self.frame_source(index)}: frame {index} has shape {img.shape} "
+                    f"({img.dtype}), the first frame {tuple(self.frame_shape)} ({self.dtype})"
+                )
+            return img
         return self._read_page(index)
 
     def __iter__(self) -> Iterator[NDArray]:
@@ -379,12 +506,17 @@ class Movie:
         """Human-readable origin of frame ``index`` (for error messages and tables)."""
         if self._files:
             return str(self._files[index])
+        if isinstance(self._reader, ImageFolderReader):
+            return str(self._reader.files[index])
         return f"{self.path}[{index}]"
 
     def close(self) -> None:
         if self._tif is not None:
             self._tif.close()
             self._tif = None
+        if self._reader is not None:
+            self._reader.close()
+            self._reader = None
 
     def __enter__(self) -> Movie:
         return self
@@ -426,6 +558,14 @@ def _readable_pages(pages: Any, log: list[str]) -> tuple[list[Any], bool]:
             log.append(message)
         return found, True
     return found, False
+
+
+def _head(path: Path) -> bytes:
+    try:
+        with path.open("rb") as fh:
+            return fh.read(8)
+    except OSError:
+        return b""
 
 
 def _frame_list(frames: list[int]) -> str:
