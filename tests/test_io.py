@@ -115,7 +115,7 @@ def test_not_a_tiff_and_missing_and_empty(tmp_path):
         open_movie(tmp_path / "missing.tif")
     empty = tmp_path / "empty"
     empty.mkdir()
-    with pytest.raises(MovieError, match="no TIFF or PNG frames.*holofit reads"):
+    with pytest.raises(MovieError, match=r"no TIFF or PNG frames.*holofit reads"):
         open_movie(empty)
 
 

@@ -76,8 +76,8 @@ def sniff(path: Path) -> str:
         return "tiff"
     if head[:8] == b"\x89HDF\r\n\x1a\n":
         return "hdf5"
-    if head[:4] == b"RIFF" and head[8:12] == b"AVI " or head[4:8] == b"ftyp" or \
-            head[:4] == b"\x1aE\xdf\xa3":
+    avi = head[:4] == b"RIFF" and head[8:12] == b"AVI "
+    if avi or head[4:8] == b"ftyp" or head[:4] == b"\x1aE\xdf\xa3":  # AVI, MP4/MOV, MKV
         return "video"
     if head[:8] == b"\x89PNG\r\n\x1a\n" or head[:2] == b"BM":
         return "image"
