@@ -180,12 +180,18 @@ def _instrument(v: dict[str, Any], path: str) -> Instrument:
 def load_instrument(path: str | Path) -> Instrument:
     """Load and validate an instrument TOML file.
 
+    Parameters
+    ----------
+    path : str or Path
+        The file, or the name of a shipped or installed one (``"paper_60x_water"``; see
+        :func:`resolve_config`).
+
     Raises
     ------
     ConfigError
         With the file, the key and what was expected.
     """
-    path = Path(path)
+    path = resolve_config(path, "instruments")
     doc = read_toml(path)
     if "instrument" not in doc or not isinstance(doc["instrument"], dict):
         raise ConfigError(f"{path}: expected an [instrument] table")
@@ -317,12 +323,18 @@ class ParticleConfig:
 def load_particle(path: str | Path) -> ParticleConfig:
     """Load and validate a particle-model TOML file.
 
+    Parameters
+    ----------
+    path : str or Path
+        The file, or the name of a shipped or installed one (``"rod_paper"``; see
+        :func:`resolve_config`).
+
     Raises
     ------
     ConfigError
         With the file, the key and what was expected.
     """
-    path = Path(path)
+    path = resolve_config(path, "particles")
     doc = read_toml(path)
     table = doc.get("particle")
     if not isinstance(table, dict):
@@ -360,8 +372,10 @@ def load_particle(path: str | Path) -> ParticleConfig:
 
 def config_search_path(kind: str) -> list[Path]:
     """Folders searched for a config given by name: ``$HOLOFIT_CONFIG_DIR/<kind>``,
-    ``./configs/<kind>`` and the ``configs/<kind>`` folder of a source checkout."""
+    ``./configs/<kind>``, the ``configs/<kind>`` folder of a source checkout, and the configs
+    installed with the package (``<prefix>/share/holofit/configs/<kind>``)."""
     import os
+    import sys
 
     dirs = []
     env = os.environ.get("HOLOFIT_CONFIG_DIR")
@@ -369,7 +383,21 @@ def config_search_path(kind: str) -> list[Path]:
         dirs.append(Path(env) / kind)
     dirs.append(Path.cwd() / "configs" / kind)
     dirs.append(Path(__file__).resolve().parents[1] / "configs" / kind)
-    return dirs
+    dirs.append(Path(sys.prefix) / "share" / "holofit" / "configs" / kind)
+    return list(dict.fromkeys(dirs))  # once each (the current folder may be the checkout)
+
+
+def config_names(kind: str) -> list[str]:
+    """The names of every config of ``kind`` in :func:`config_search_path`, sorted."""
+    return sorted({f.stem for d in config_search_path(kind) if d.is_dir()
+                   for f in d.glob("*.toml")})
+
+
+def _by_name(path: Path, kind: str) -> bool:
+    """A bare name, or a path into a ``configs/<kind>`` folder (the README's examples):
+    looked up by name when the file is not there."""
+    parts = path.parts[:-1]
+    return not parts or tuple(parts[-2:]) == ("configs", kind)
 
 
 def resolve_config(name_or_path: str | Path, kind: str) -> Path:
@@ -379,18 +407,35 @@ def resolve_config(name_or_path: str | Path, kind: str) -> Path:
     ----------
     name_or_path : str or Path
         Existing file, or a name looked up in :func:`config_search_path` (``.toml`` optional,
-        ``-`` and ``_`` interchangeable).
+        ``-`` and ``_`` interchangeable). A path into a ``configs/<kind>`` folder that does
+        not exist from here (``configs/instruments/paper_60x_water.toml`` run outside the
+        checkout) is looked up by its name.
     kind : str
         ``"instruments"`` or ``"particles"``.
+
+    Raises
+    ------
+    ConfigError
+        No such file or name; the message suggests the nearest names and lists those there are.
     """
     p = Path(name_or_path)
     if p.is_file():
         return p
+    if not _by_name(p, kind):
+        raise ConfigError(f"{p}: configuration file not found")
     stem = p.name.removesuffix(".toml")
     for folder in config_search_path(kind):
         for candidate in (stem, stem.replace("-", "_")):
             f = folder / f"{candidate}.toml"
             if f.is_file():
                 return f
+    import difflib
+
+    names = config_names(kind)
+    close = difflib.get_close_matches(stem.replace("-", "_"), names, n=3, cutoff=0.75)
+    guess = f" (did you mean {' or '.join(close)}?)" if close else ""
+    there = f"; the {kind}: {', '.join(names)}" if names else ""
     searched = ", ".join(str(d) for d in config_search_path(kind))
-    raise ConfigError(f"{name_or_path}: no such {kind[:-1]} config (searched {searched})")
+    raise ConfigError(
+        f"{name_or_path}: no such {kind[:-1]} config{guess}{there} (searched {searched})"
+    )

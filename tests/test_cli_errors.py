@@ -166,7 +166,8 @@ def test_misspelled_instrument_key_is_named_with_the_right_one(tmp_path):
     )
     assert "missing" not in str(info.value)  # the typo explains the missing key
     res = _invoke(["crop", tmp_path / "m.tif", "--normalized", "-i", path, "-o", tmp_path / "o"])
-    assert res.exit_code == 2 and "did you mean 'pixel_size_um'" in res.output
+    assert res.exit_code == 1 and "did you mean 'pixel_size_um'" in res.output
+    assert res.output.startswith("holofit crop: error: ") and "Usage:" not in res.output
 
 
 def test_every_missing_and_unknown_key_at_once(tmp_path):

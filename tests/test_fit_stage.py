@@ -117,6 +117,18 @@ def test_tables_made_from_other_crops_are_refused(movie, tmp_path):
     with pytest.raises(StageInputError, match="made from other crops"):
         run_fit(crop2, root / "prefit", root / "lib", particle, tmp_path / "fit",
                 batch=SERIAL, plot=False)
+    # the command line names the table, not an option (it blamed --particle)
+    from click.testing import CliRunner
+
+    from holofit.cli import main
+
+    res = CliRunner().invoke(main, ["library", str(crop2), "--prefit", str(root / "prefit"),
+                                    "-p", str(root / "rod.toml"), "-o", str(tmp_path / "l2"),
+                                    "-j", "0", "--no-progress"])
+    assert res.exit_code == 1, res.output
+    assert res.output.startswith("holofit library: error: ") and "made from other crops" in (
+        res.output)
+    assert "--particle" not in res.output and "Usage:" not in res.output
 
 
 def test_missing_prefit_rows_and_unfittable_frames_are_recorded_and_the_batch_goes_on(

@@ -9,7 +9,6 @@ from typing import Any, TypeVar
 import click
 
 from holofit.config import (
-    ConfigError,
     Instrument,
     ParticleConfig,
     load_instrument,
@@ -25,8 +24,8 @@ def instrument_option(required: bool = True) -> Callable[[F], F]:
         "--instrument",
         "-i",
         required=required,
-        help="Instrument TOML file, or the name of one in configs/instruments "
-        "(e.g. paper_100x_oil).",
+        help="Instrument TOML file, or the name of a shipped one (e.g. paper_100x_oil; "
+        "configs/instruments).",
     )
 
 
@@ -35,22 +34,24 @@ def particle_option(required: bool = True) -> Callable[[F], F]:
         "--particle",
         "-p",
         required=required,
-        help="Particle-model TOML file, or the name of one in configs/particles.",
+        help="Particle-model TOML file, or the name of a shipped one (e.g. rod_paper; "
+        "configs/particles).",
     )
 
 
 def load_instrument_arg(value: str) -> Instrument:
-    try:
-        return load_instrument(resolve_config(value, "instruments"))
-    except ConfigError as exc:
-        raise click.BadParameter(str(exc), param_hint="--instrument") from None
+    """The instrument of ``--instrument``.
+
+    A bad config (missing, misspelt, a key typo, a value out of range) is a
+    :class:`ConfigError`, reported like every input failure (``holofit STAGE: error: ...``,
+    exit status 1; :mod:`holofit.cli.errors`): the message names the file and the key.
+    """
+    return load_instrument(resolve_config(value, "instruments"))
 
 
 def load_particle_arg(value: str) -> ParticleConfig:
-    try:
-        return load_particle(resolve_config(value, "particles"))
-    except ConfigError as exc:
-        raise click.BadParameter(str(exc), param_hint="--particle") from None
+    """The particle model of ``--particle`` (errors as for :func:`load_instrument_arg`)."""
+    return load_particle(resolve_config(value, "particles"))
 
 
 def parse_triple(value: str, name: str) -> tuple[float, float, float]:

@@ -69,13 +69,10 @@ def library(
     inst = load_instrument_arg(instrument) if instrument else None
     settings = LibrarySettings(tilt_step_deg=tilt_step, n_phi=n_phi, n_candidates=n_candidates)
     batch = make_batch_options(workers, scheduler, dask_local, retry_failed, overwrite, progress)
-    try:
-        result = run_library(crop_dir, prefit_dir, cfg, out, instrument=inst,
-                             override_instrument=override_instrument, settings=settings,
-                             engine=engine, frames=frame_list(crop_dir, frame_range), batch=batch,
-                             plot=plot)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--particle") from None
+    result = run_library(crop_dir, prefit_dir, cfg, out, instrument=inst,
+                         override_instrument=override_instrument, settings=settings,
+                         engine=engine, frames=frame_list(crop_dir, frame_range), batch=batch,
+                         plot=plot)
     s = result.summary
     for note in s.notes:
         click.echo(f"note: {note}", err=True)

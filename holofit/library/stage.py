@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
 from holofit.cache import LRUCache
-from holofit.config import Instrument, ParticleConfig
+from holofit.config import ConfigError, Instrument, ParticleConfig
 from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
 from holofit.fitting.inputs import read_stage_table, usable_start
 from holofit.library.polar import polar_grid, sample_crop
@@ -227,11 +227,11 @@ def run_library(
     ------
     CropSetError, StageInputError
         Incomplete crop folder; prefit table missing or made from other crops.
-    ValueError
+    ConfigError
         An isotropic particle (a sphere needs no library).
     """
     if not particle.model.anisotropic:
-        raise ValueError(f"{particle.path}: a {particle.model.kind} looks the same in every "
+        raise ConfigError(f"{particle.path}: a {particle.model.kind} looks the same in every "
                          "orientation; it needs no library")
     settings = settings or LibrarySettings()
     out = Path(out_dir)
