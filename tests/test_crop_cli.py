@@ -70,4 +70,5 @@ def test_crop_command_errors(tmp_path):
     res = runner.invoke(main, [*base, "--size", "400"])
     assert res.exit_code == 1 and "does not fit" in res.output
     res = runner.invoke(main, [*base[:4], "-i", "no_such_scope", "-o", str(tmp_path / "o")])
-    assert res.exit_code == 1 and "holofit crop: error: no_such_scope: no such instrument" in res.output
+    assert res.exit_code == 1
+    assert "holofit crop: error: no_such_scope: no such instrument" in res.output
