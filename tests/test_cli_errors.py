@@ -228,7 +228,7 @@ def test_particle_in_the_focal_plane_names_the_option_and_frame(tmp_path):
 @pytest.mark.parametrize(
     "args,option",
     [
-        (["--frames", "1"], "--frames"),
+        (["--frames", "1"], "--n-frames' / '--frames"),
         (["--frame-rate", "0"], "--frame-rate"),
         (["--d-r", "-1"], "--d-r"),
         (["--flip-fraction", "1"], "--flip-fraction"),

@@ -231,19 +231,27 @@ class _OutputFiles:
         The sidecar document; a ``batch`` entry is added on every write.
     finish : callable, optional
         Applied to the final table (in place) before it is written.
+    before_publish : callable, optional
+        Called with the complete table, written under the partial table's name, before it is
+        published under its own (see :func:`run_batch`).
     """
 
     def __init__(self, output: Path, columns: list[str], meta: dict[str, Any],
-                 finish: Callable[[pd.DataFrame], Any] | None = None) -> None:
+                 finish: Callable[[pd.DataFrame], Any] | None = None,
+                 before_publish: Callable[[Path], Any] | None = None) -> None:
         self.output = output
         self.columns = columns
         self.meta = meta
         self.finish_table = finish
+        self.before_publish = before_publish
         self.journal = journal_path(output)
         self.partial = partial_path(output)
+        self._staged = False
 
-    def write(self, rows: dict[int, dict[str, Any]], info: dict[str, Any], *, final: bool) -> None:
-        """Write the rows (sorted by frame) as the final or the partial table, atomically."""
+    def write(self, rows: dict[int, dict[str, Any]], info: dict[str, Any], *, final: bool,
+              staged: bool = False) -> None:
+        """Write the rows (sorted by frame) as the final or the partial table, atomically
+        (``staged``: the final table under the partial table's name)."""
         frames = sorted(rows)
         table = pd.DataFrame([rows[f] for f in frames], columns=self.columns)
         if final and self.finish_table is not None:
@@ -252,13 +260,29 @@ class _OutputFiles:
                 rows[int(rec["frame"])].update(status=rec["status"], message=rec["message"])
         doc = dict(self.meta)
         doc["batch"] = info | {"frames_done": len(frames)}
-        write_table(self.output if final else self.partial, table, doc)
+        write_table(self.output if final and not staged else self.partial, table, doc)
 
     def finish(self, rows: dict[int, dict[str, Any]], info: dict[str, Any]) -> None:
-        """Write the final table, then remove the journal and the partial table."""
-        self.write(rows, info | {"complete": True}, final=True)
+        """Write the final table, then remove the journal and the partial table; with
+        ``before_publish``, only stage it (:meth:`publish` completes)."""
+        staged = self.before_publish is not None
+        self.write(rows, info | {"complete": True}, final=True, staged=staged)
+        if not staged:
+            self.remove(self.journal)
+            self.remove_partial()
+        self._staged = staged
+
+    def publish(self) -> bool:
+        """With ``before_publish``: call it on the staged table, then rename the table (its
+        sidecar first) into place and remove the journal. Returns whether it published."""
+        if self.before_publish is None or not self._staged:
+            return False
+        self.before_publish(self.partial)
+        os.replace(sidecar_path(self.partial), sidecar_path(self.output))
+        os.replace(self.partial, self.output)  # the last file written: the run is complete
+        os.utime(self.output)  # and the newest
         self.remove(self.journal)
-        self.remove_partial()
+        return True
 
     def remove_partial(self) -> None:
         self.remove(self.partial, sidecar_path(self.partial))
@@ -541,6 +565,7 @@ def run_batch(
     backend: Backend | None = None,
     desc: str = "batch",
     finish: Callable[[pd.DataFrame], Any] | None = None,
+    before_publish: Callable[[Path], Any] | None = None,
 ) -> BatchSummary:
     """Run ``func`` on every frame, in parallel, resumably, writing a table keyed by frame.
 
@@ -575,6 +600,12 @@ def run_batch(
     finish : callable, optional
         Applied (in place) to the complete table just before it is written, with the whole
         movie at hand (e.g. flagging outlier frames); changed statuses and messages are kept.
+    before_publish : callable, optional
+        ``before_publish(table_path)`` is called with the complete table, written under the
+        partial table's name (sidecar beside it), after the backend has closed and before the
+        table is renamed to ``output``: a stage draws its pictures (or rewrites the table)
+        there, so that ``output``, the file ``make`` waits for, is the last one written. An
+        interruption in it keeps the journal; a rerun calls it again, without refitting.
 
     Returns
     -------
@@ -592,7 +623,7 @@ def run_batch(
     output = Path(output)
     columns = list(columns)
     frames = _checked_frames(frames, columns)
-    files = _OutputFiles(output, columns, dict(meta or {}), finish)
+    files = _OutputFiles(output, columns, dict(meta or {}), finish, before_publish)
     with output_lock(output.parent, stage=desc) as lock:
         rows = _earlier_rows(files, fingerprint, opts.overwrite)
         if opts.retry_failed:
@@ -617,6 +648,7 @@ def run_batch(
         elif not output.exists() or files.journal.exists():
             # finished in the journal but never consolidated: write the table now
             files.finish(rows, info)
+        files.publish()
     summary.statuses = dict(collections.Counter(rows[f]["status"] for f in frames if f in rows))
     summary.elapsed_s = time.perf_counter() - t0
     return summary

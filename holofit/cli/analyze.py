@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
 
 import click
 
 from holofit.analysis.recipes import MODELS
 from holofit.cli.common import out_dir_option
+from holofit.io.tables import sidecar_path
 
 #: the option that sets each field of AnalysisSettings (to name it in messages)
 OPTION_OF_SETTING = {
@@ -27,6 +30,38 @@ OPTION_OF_SETTING = {
 }
 
 
+#: analysis model of each particle model whose kind decides it (a dimer: by its two spheres)
+_MODEL_OF_KIND = {"sphere": "sphere", "janus": "janus", "spherocylinder": "rod",
+                  "cylinder": "rod", "spheroid": "rod", "ellipsoid": "rod"}
+
+
+def model_from_sidecar(fit_table: Path) -> tuple[str | None, str]:
+    """The analysis model of a fit table, from its sidecar's particle; or None and why not.
+
+    A prefit table is a sphere's; a fit table records ``particle_model`` and the particle's
+    parameters (``config.particle``): rods, spheroids, ellipsoids, cylinders and a dimer of two
+    equal spheres are head-tail symmetric (``rod``), a Janus particle is ``janus``.
+    """
+    side = sidecar_path(fit_table)
+    try:
+        doc: dict[str, Any] = json.loads(side.read_text())
+    except (OSError, ValueError):
+        return None, f"{side} is missing or unreadable"
+    if str(doc.get("kind", "")).startswith("prefit table"):
+        return "sphere", "a prefit table (Lorenz-Mie spheres)"
+    particle = (doc.get("config") or {}).get("particle") or {}
+    kind = doc.get("particle_model") or particle.get("model")
+    if kind in _MODEL_OF_KIND:
+        return _MODEL_OF_KIND[kind], f"the fit's particle, a {kind}"
+    if kind == "dimer":
+        same = (particle.get("radius1_um") == particle.get("radius2_um")
+                and particle.get("index1") == particle.get("index2"))
+        if same:
+            return "rod", "the fit's particle, a dimer of two equal spheres"
+        return None, "its particle is a dimer of two different spheres"
+    return None, (f"its particle is a {kind}" if kind else f"{side} names no particle")
+
+
 def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
     if value is None:
         return None
@@ -43,9 +78,10 @@ def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
 
 @click.command()
 @click.argument("fit_table", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--model", "-m", type=click.Choice(MODELS), required=True,
+@click.option("--model", "-m", type=click.Choice(MODELS), default=None,
               help="rod: any head-tail symmetric particle (rods, dimers); janus: capped "
-              "sphere (x, y and psi only); sphere: translation only.")
+              "sphere (x, y and psi only); sphere: translation only [default: from the "
+              "particle the fit table's sidecar records].")
 @click.option("--temperature-c", type=float, default=21.0, show_default=True,
               help="Sample temperature, C.")
 @click.option("--temperature-err-c", type=float, default=2.0, show_default=True,
@@ -79,11 +115,12 @@ def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
               help="Longest lag computed for the plots, frames [default: a quarter of the run].")
 @click.option("--frame-interval-s", type=float, default=None,
               help="Override the time between frames, s.")
-@click.option("--plots/--no-plots", default=True, show_default=True, help="Write PNG plots.")
+@click.option("--plot/--no-plot", "--plots/--no-plots", "plots", default=True, show_default=True,
+              help="Write PNG plots (--plots/--no-plots: the old spelling, deprecated).")
 @out_dir_option()
 def analyze(
     fit_table: Path,
-    model: str,
+    model: str | None,
     temperature_c: float,
     temperature_err_c: float,
     a_um: float | None,
@@ -114,6 +151,12 @@ def analyze(
         format_report,
         run_analysis,
     )
+
+    if model is None:
+        model, why = model_from_sidecar(fit_table)
+        if model is None:
+            raise click.UsageError(f"give --model ({', '.join(MODELS)}): {fit_table}: {why}")
+        click.echo(f"model: {model} ({why})", err=True)
 
     try:
         settings = AnalysisSettings(

@@ -92,10 +92,13 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
     help="Largest move between frames with --follow nearest, pixels [default: size/4].",
 )
 @click.option(
+    "--vote-radius",
     "--radius",
+    "radius",
     type=click.FloatRange(min=MIN_RADIUS_PX),
     default=None,
-    help="Vote radius of the centre finder, pixels [default: size/2].",
+    help="Vote radius of the centre finder, pixels [default: size/2] (--radius: the old "
+    "name, deprecated).",
 )
 @click.option(
     "--min-score",

@@ -10,6 +10,10 @@ and exit status 1, so no command needs its own ``try``/``except`` for them. ``--
 ``HOLOFIT_DEBUG=1``) shows the traceback instead. Any other exception is a bug and keeps its
 traceback.
 
+Ctrl-C (SIGINT) ends a command with one line saying that what is done is kept and that the
+same command (or ``make``) resumes it, and exit status 130 (128 + SIGINT, as a shell reports
+it), instead of click's "Aborted!" with status 1.
+
 While a command runs, warnings (Python's ``warnings``) are printed as one line each, without the
 source line they were raised from, and third-party log records (tifffile's) are held back and
 printed after holofit's own output, or appended to its error, instead of before it.
@@ -28,7 +32,10 @@ from typing import Any
 
 import click
 
-__all__ = ["DEBUG_ENV", "HolofitGroup", "StageFailure", "foreseeable_types"]
+__all__ = ["DEBUG_ENV", "INTERRUPTED_EXIT", "HolofitGroup", "StageFailure", "foreseeable_types"]
+
+#: exit status of a command stopped by Ctrl-C: 128 + SIGINT, as shells report it
+INTERRUPTED_EXIT = 130
 
 #: environment variable that turns on tracebacks, as ``--debug`` does
 DEBUG_ENV = "HOLOFIT_DEBUG"
@@ -166,6 +173,13 @@ class HolofitGroup(click.Group):
                 result = super().invoke(ctx)
             except click.exceptions.Exit:
                 raise
+            except (KeyboardInterrupt, click.exceptions.Abort) as exc:
+                if debug and isinstance(exc, KeyboardInterrupt):
+                    raise
+                stage = ctx.meta.get(_STAGE_KEY, _stage(ctx))
+                click.echo(f"\nholofit {stage}: interrupted: what is done is kept; run the "
+                           "same command again (or make, in a run folder) to resume", err=True)
+                raise click.exceptions.Exit(INTERRUPTED_EXIT) from None
             except click.ClickException as exc:
                 if held.lines and not debug:
                     exc.message += "".join(f"\n  ({line})" for line in held.lines)

@@ -24,7 +24,7 @@ from holofit.cli.stage_options import (
 )
 from holofit.fit.continuity import ContinuityOptions
 from holofit.fit.frame import FrameFitOptions
-from holofit.fit.stage import PASSES, TMATRIX_CHOICES, check_fixed, run_fit
+from holofit.fit.stage import PASSES, TMATRIX_CHOICES, check_fixed, fixable_names, run_fit
 from holofit.fitting.result import QualityLimits
 from holofit.scattering.select import ENGINE_CHOICES
 
@@ -54,7 +54,11 @@ from holofit.scattering.select import ENGINE_CHOICES
 @click.option("--engine", type=click.Choice(ENGINE_CHOICES), default=None,
               help="Scattering engine [default: the particle config's].")
 @click.option("--fix", "fixed", default="", metavar="NAME,NAME",
-              help="Hold these parameters at the particle config's values (e.g. gap_um, n2).")
+              help="Hold these parameters at the particle config's values: x_um, y_um, z_um, "
+                   "orientation, alpha, or the model's own, "
+                   + "; ".join(f"{kind}: {', '.join(names)}"
+                               for kind, names in fixable_names().items())
+                   + " (a voxel file: n1, n2, ... of its domains).")
 @click.option("--tmatrix", type=click.Choice(TMATRIX_CHOICES), default="auto",
               show_default=True,
               help="Serve the final pass from the particle's T-matrix (built once, saved as "
@@ -74,7 +78,8 @@ from holofit.scattering.select import ENGINE_CHOICES
               default=1.0, show_default=True,
               help="Fit a random subset with this fraction of the pixels (seeded by frame).")
 @click.option("--saturation", type=float, default=None, metavar="LEVEL",
-              help="Leave out pixels whose normalised value is >= LEVEL.")
+              help="Leave out pixels whose normalised value is >= LEVEL [default: none; "
+                   "pixels masked by crop (NaN) are always left out].")
 @click.option("--noise-sd", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Pixel noise for chi^2 (default: estimated per crop).")
 @click.option("--far-field", is_flag=True,

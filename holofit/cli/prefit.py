@@ -43,7 +43,8 @@ def _range(value: str | None, name: str) -> tuple[float, float] | None:
 @click.option("--index-imag", type=click.FloatRange(min=0), default=0.0, show_default=True,
               help="Imaginary part of the particle index (held fixed).")
 @click.option("--saturation", type=float, default=None, metavar="LEVEL",
-              help="Leave out pixels whose normalised value is >= LEVEL (NaN pixels always are).")
+              help="Leave out pixels whose normalised value is >= LEVEL [default: none; "
+                   "pixels masked by crop (NaN) are always left out].")
 @click.option("--pixel-fraction", type=click.FloatRange(min=0, max=1, min_open=True),
               default=1.0, show_default=True,
               help="Fit a random subset with this fraction of the pixels (seeded by frame).")

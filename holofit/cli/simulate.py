@@ -132,7 +132,8 @@ def _positions(
     show_default=True,
     help="Poisson shot noise and read noise (quantisation always applies).",
 )
-@click.option("--seed", type=SEED, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True,
+              help="Random seed of the camera noise: the same seed gives the same movie.")
 @out_dir_option()
 def simulate_sphere(
     instrument: str | None,
@@ -216,10 +217,14 @@ def _orientations(orientation: tuple[str, ...], table: pd.DataFrame | None, n: i
 @click.option("--trajectory", "trajectory_file", type=click.Path(exists=True, path_type=Path),
               help="CSV with x_um, y_um, z_um (and psi_rad, theta_rad[, phi_rad]) per frame, "
                    "e.g. from `holofit simulate trajectory`.")
-@click.option("--shape", default="256,256", show_default=True, metavar="ROWS,COLS")
-@click.option("--alpha", type=float, default=1.0, show_default=True)
-@click.option("--noise/--no-noise", default=True, show_default=True)
-@click.option("--seed", type=SEED, default=0, show_default=True)
+@click.option("--shape", default="256,256", show_default=True, metavar="ROWS,COLS",
+              help="Frame size in pixels.")
+@click.option("--alpha", type=float, default=1.0, show_default=True,
+              help="Scattered-field scaling (the fits' alpha; 1: the exact field).")
+@click.option("--noise/--no-noise", default=True, show_default=True,
+              help="Poisson shot noise and read noise (quantisation always applies).")
+@click.option("--seed", type=SEED, default=0, show_default=True,
+              help="Random seed of the camera noise: the same seed gives the same movie.")
 @out_dir_option()
 def simulate_hologram(
     particle: str,

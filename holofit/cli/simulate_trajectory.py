@@ -14,8 +14,10 @@ FRACTION = click.FloatRange(min=0, max=1, max_open=True)
 
 
 @click.command("trajectory")
-@click.option("--frames", "n_frames", type=click.IntRange(min=2), default=2000,
-              show_default=True, help="Number of frames.")
+@click.option("--n-frames", "--frames", "n_frames", type=click.IntRange(min=2), default=2000,
+              show_default=True,
+              help="Number of frames (--frames: the old name, deprecated; elsewhere --frames "
+                   "is a START:STOP range).")
 @click.option("--frame-rate", type=POSITIVE, default=100.0, show_default=True,
               help="Frames per second.")
 @click.option("--d-par", type=NONNEGATIVE, default=None,
@@ -51,7 +53,8 @@ FRACTION = click.FloatRange(min=0, max=1, max_open=True)
 @click.option("--a-um", type=float, default=None, help="Static column a_um to write, um.")
 @click.option("--b-um", type=float, default=None, help="Static column b_um to write, um.")
 @click.option("--n", "index", type=float, default=None, help="Static column n to write.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Random seed: the same seed gives the same trajectory.")
 @out_dir_option()
 def simulate_trajectory_cmd(
     n_frames: int, frame_rate: float, d_par: float | None, d_perp: float | None,

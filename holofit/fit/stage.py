@@ -25,6 +25,7 @@ import hashlib
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -97,6 +98,17 @@ def _free(model: ParticleModel, pass_name: str, fixed: tuple[str, ...] = (),
     if fit_na:
         names.append(APERTURE.name)
     return tuple(n for n in names if n not in fixed)
+
+
+def fixable_names() -> dict[str, tuple[str, ...]]:
+    """The static fit parameters of each particle model (``--fix`` can hold them), by kind;
+    a voxel file's are ``n1, n2, ...`` (one per domain)."""
+    from holofit.fitting.parameters import index_column
+    from holofit.models import MODEL_TYPES
+
+    return {kind: (*cls.size_fields, *cls.nonnegative_fields,
+                   *(index_column(f) for f in cls.index_fields))
+            for kind, cls in MODEL_TYPES.items() if kind != "voxels"}
 
 
 def check_fixed(model: ParticleModel, fixed: tuple[str, ...]) -> None:
@@ -457,17 +469,27 @@ def run_fit(
                      tmatrix_path: str | None = None) -> Path:
             cfg = FitConfig(cfg_particle, inst, name, opts, engine, tuple(fixed),
                             tmatrix=tmatrix_path, fit_na=fit_na)
-            path = batch_pass(cfg, pass_frames, table_name, static_doc)
-            if name == "final" and cont.enabled and model.anisotropic:
-                run.continuity = _continuity_sweeps(path, cfg, load, cont, batch,
-                                                    outlier_factor)
-            if plot:
-                _plots(path, crops, cfg_particle.model, cfg_particle.theory(engine), inst,
-                       out, name, plot_frames, opts.far_field)
+            completed: list[Path] = []
+
+            def complete(table: Path) -> None:
+                """Continuity sweeps and pictures on the complete table, before it is
+                published under its name (the last file written: make waits for it)."""
+                if name == "final" and cont.enabled and model.anisotropic:
+                    run.continuity = _continuity_sweeps(table, cfg, load, cont, batch,
+                                                        outlier_factor)
+                if plot:
+                    _plots(table, crops, cfg_particle.model, cfg_particle.theory(engine), inst,
+                           out, name, plot_frames, opts.far_field, Path(table_name).stem)
+                completed.append(table)
+
+            path = batch_pass(cfg, pass_frames, table_name, static_doc, complete)
+            if not completed:  # the table was complete before this run: as before, from it
+                complete(path)
             return path
 
         def batch_pass(cfg: FitConfig, pass_frames: list[int], table_name: str,
-                       static_doc: dict[str, Any] | None) -> Path:
+                       static_doc: dict[str, Any] | None,
+                       complete: Callable[[Path], None]) -> Path:
             name = cfg.pass_name
             columns = fit_columns(model, cfg.free)
             units = {c: column_unit(c) for c in columns}
@@ -489,7 +511,8 @@ def run_fit(
             run.summaries[name] = run_batch(fit_frame_task, cfg, pass_frames, load, path,
                                             columns, fingerprint=fingerprint, meta=meta,
                                             options=batch, desc=f"fit ({name})",
-                                            finish=outlier_rule(outlier_factor))
+                                            finish=outlier_rule(outlier_factor),
+                                            before_publish=complete)
             return path
 
         static_path = Path(static) if static is not None else out / "static.json"
@@ -635,7 +658,7 @@ def _no_tmatrix_reason(theory: ScatteringTheory) -> str:
 
 def _plots(path: Path, crops: CropSet, model: ParticleModel, theory: ScatteringTheory,
            inst: Instrument, out: Path, name: str, frames: list[int] | None,
-           far_field: bool) -> None:
+           far_field: bool, stem: str) -> None:
     from holofit.fitting.plots import plot_table
 
     panels = [("x_um", "x (um)"), ("y_um", "y (um)"), ("z_um", "z (um)")]
@@ -645,7 +668,7 @@ def _plots(path: Path, crops: CropSet, model: ParticleModel, theory: ScatteringT
     panels += [(p.name, f"{p.name} ({p.unit})") for p in static_parameters(model)]
     panels += [("r2", "R^2"), ("delta_chi2", "runner-up delta chi^2"),
                ("fit_time_s", "fit time (s)")]
-    plot_table(path, out / f"{path.stem}.png", panels, f"holofit fit ({name} pass)")
+    plot_table(path, out / f"{stem}.png", panels, f"holofit fit ({name} pass)", f"{stem}.csv")
     write_frame_pictures(read_table(path), crops, model, theory, inst.optics,
                          inst.pixel_size_um, out / f"frames_{name}", f"fit ({name} pass)",
                          frames, far_field)

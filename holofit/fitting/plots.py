@@ -34,7 +34,8 @@ def _save(fig, png_path: str | Path, dpi: int = 90) -> Path:
 
 
 def plot_table(table_path: str | Path, png_path: str | Path,
-               panels: Sequence[tuple[str, str]], title: str) -> Path:
+               panels: Sequence[tuple[str, str]], title: str, table_name: str | None = None
+               ) -> Path:
     """Plot columns of a fit table against frame, ``ok`` rows in blue, the others as red x.
 
     Parameters
@@ -47,6 +48,9 @@ def plot_table(table_path: str | Path, png_path: str | Path,
         What to plot; columns missing from the table are skipped.
     title : str
         Figure title (the counts of ok and other rows are appended).
+    table_name : str, optional
+        The table's name in the title (default: ``table_path``'s; a stage drawing from the
+        table before it is published gives the name it will have).
     """
     plt = _pyplot()
     table = read_table(table_path)
@@ -68,7 +72,7 @@ def plot_table(table_path: str | Path, png_path: str | Path,
     for ax in axes[-1]:
         ax.set_xlabel("frame")
     fig.suptitle(f"{title}: {int(ok.sum())} frame(s) ok, {int((~ok).sum())} not ok "
-                 f"({Path(table_path).name})")
+                 f"({table_name or Path(table_path).name})")
     fig.tight_layout()
     return _save(fig, png_path)
 

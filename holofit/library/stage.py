@@ -271,17 +271,26 @@ def run_library(
         fingerprint = hashlib.sha256(json.dumps(
             {"config": config.as_dict(), "crops": crops.fingerprint()}, sort_keys=True,
             default=str).encode()).hexdigest()[:16]
+        drawn: list[Path] = []
+
+        def pictures(table_path: Path) -> None:
+            """``library.png``, drawn before the table is published (``library.csv`` is the
+            last file written: make waits for it)."""
+            from holofit.fitting.plots import plot_table
+
+            drawn.append(plot_table(
+                table_path, out / "library.png",
+                (("c1_theta_rad", "best theta (rad)"), ("c1_psi_rad", "best psi (rad)"),
+                 ("c1_r2", "best R^2"), ("c2_r2", "second R^2"),
+                 ("z_um", "prefit z (um)"), ("fit_time_s", "time per frame (s)")),
+                "holofit library", "library.csv"))
+
         summary = run_batch(library_frame, config, todo, load, out / "library.csv",
                             _columns(settings), fingerprint=fingerprint, meta=meta,
-                            options=batch, desc="library")
-    png = None
-    if plot:
-        from holofit.fitting.plots import plot_table
-
-        png = plot_table(out / "library.csv", out / "library.png",
-                         (("c1_theta_rad", "best theta (rad)"), ("c1_psi_rad", "best psi (rad)"),
-                          ("c1_r2", "best R^2"), ("c2_r2", "second R^2"),
-                          ("z_um", "prefit z (um)"), ("fit_time_s", "time per frame (s)")),
-                         "holofit library")
+                            options=batch, desc="library",
+                            before_publish=pictures if plot else None)
+        if plot and not drawn:  # the table was complete before this run: draw from it
+            pictures(out / "library.csv")
+    png = drawn[0] if drawn else None
     return LibraryResult(out / "library.csv", summary, png)
 

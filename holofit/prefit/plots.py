@@ -22,4 +22,4 @@ PREFIT_PANELS = (
 
 def plot_prefit(table_path: str | Path, png_path: str | Path) -> Path:
     """Plot x, y, z, radius, index, alpha, R^2 and fit time against frame (``prefit.png``)."""
-    return plot_table(table_path, png_path, PREFIT_PANELS, "holofit prefit")
+    return plot_table(table_path, png_path, PREFIT_PANELS, "holofit prefit", "prefit.csv")

@@ -272,6 +272,20 @@ def run_prefit(
                    **({"frame_interval_s": 1.0 / inst.frame_rate_hz}
                       if inst.frame_rate_hz else {})},
         )
+        drawn: list[Path] = []
+
+        def pictures(table_path: Path) -> None:
+            """The summary plot and frame pictures, drawn before the table is published
+            (``prefit.csv`` is the last file written: make waits for it)."""
+            from holofit.prefit.plots import plot_prefit
+
+            png = plot_prefit(table_path, out / "prefit.png")
+            write_frame_pictures(
+                read_table(table_path), crops, Sphere(1.0, complex(1.5, config.fit.index_imag)),
+                LorenzMie(), inst.optics, inst.pixel_size_um, out / "frames", "prefit",
+                plot_frames)
+            drawn.append(png)
+
         summary = run_batch(
             prefit_frame,
             config,
@@ -284,14 +298,8 @@ def run_prefit(
             options=batch,
             desc="prefit",
             finish=outlier_rule(outlier_factor),
+            before_publish=pictures if plot else None,
         )
-        png = None
-        if plot:
-            from holofit.prefit.plots import plot_prefit
-
-            png = plot_prefit(out / "prefit.csv", out / "prefit.png")
-            table = read_table(out / "prefit.csv")
-            write_frame_pictures(
-                table, crops, Sphere(1.0, complex(1.5, config.fit.index_imag)), LorenzMie(),
-                inst.optics, inst.pixel_size_um, out / "frames", "prefit", plot_frames)
-    return PrefitResult(out / "prefit.csv", summary, png)
+        if plot and not drawn:  # the table was complete before this run: draw from it
+            pictures(out / "prefit.csv")
+    return PrefitResult(out / "prefit.csv", summary, drawn[0] if drawn else None)
