@@ -80,3 +80,18 @@ def test_ctrl_c_says_how_to_resume_and_exits_130(tmp_path, monkeypatch):
     png, table = out / "prefit.png", out / "prefit.csv"
     assert png.exists() and table.exists()
     assert os.stat(png).st_mtime_ns <= os.stat(table).st_mtime_ns
+
+
+def test_analyze_writes_summary_csv_last(tmp_path):
+    res = CliRunner().invoke(main, ["simulate", "trajectory", "--n-frames", "150", "--d-t",
+                                    "0.3", "--d-r", "0.5", "--a-um", "0.3", "--b-um", "1.0",
+                                    "-o", str(tmp_path / "traj")])
+    assert res.exit_code == 0, res.output
+    out = tmp_path / "analysis"
+    res = CliRunner().invoke(main, ["analyze", str(tmp_path / "traj" / "trajectory.csv"),
+                                    "-m", "rod", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    last = os.stat(out / "summary.csv").st_mtime_ns
+    others = [p for p in out.iterdir() if p.name != "summary.csv"]
+    assert any(p.suffix == ".png" for p in others)
+    assert all(os.stat(p).st_mtime_ns <= last for p in others)

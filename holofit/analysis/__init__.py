@@ -52,12 +52,16 @@ def run_analysis(
     plots: bool = True,
     frame_interval_s: float | None = None,
 ) -> tuple[AnalysisResult, dict[str, Path]]:
-    """Analyse a fit table and write ``summary.csv``/``.json``, ``msd.csv`` and the PNG plots."""
+    """Analyse a fit table and write the PNG plots, ``msd.csv`` and ``summary.json``/``.csv``
+    (``summary.csv`` last: make waits for it, so a run interrupted while drawing is rerun)."""
     result = analyze_table(path, settings, frame_interval_s)
-    files = write_summary(result, out_dir, inputs=[path])
+    pngs: list[Path] = []
     if plots:
         from holofit.analysis.plots import write_plots
 
-        for p in write_plots(result, out_dir):
-            files[p.stem + "_png"] = p
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        pngs = list(write_plots(result, out_dir))
+    files = write_summary(result, out_dir, inputs=[path])
+    for p in pngs:
+        files[p.stem + "_png"] = p
     return result, files

@@ -190,8 +190,6 @@ def write_summary(
     doc = result.summary()
     meta = sidecar(kind="diffusion analysis summary", units=SUMMARY_UNITS,
                    config=doc["settings"], inputs=inputs)
-    csv = write_table(out / "summary.csv", pd.DataFrame(result.rows, columns=SUMMARY_COLUMNS),
-                      meta)
     write_json(out / "summary.json", {**meta, "analysis": doc})
     frames = []
     for name, st in result.stats.items():
@@ -205,4 +203,7 @@ def write_summary(
                  "pairs": "count", "rejected_pairs": "count", "error_plateau": "bool"}
     msd = write_table(out / "msd.csv", pd.concat(frames, ignore_index=True),
                       sidecar(kind="lag statistics", units=msd_units, inputs=inputs))
+    # the last file written: make waits for it
+    csv = write_table(out / "summary.csv", pd.DataFrame(result.rows, columns=SUMMARY_COLUMNS),
+                      meta)
     return {"summary_csv": csv, "summary_json": out / "summary.json", "msd_csv": msd}
