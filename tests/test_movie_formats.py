@@ -209,3 +209,23 @@ def test_a_later_frame_beyond_full_scale_is_an_error_row(tmp_path):
     assert "frame 2: counts up to" in table.loc[2, "message"]
     assert "exceed the full scale 255" in table.loc[2, "message"]
     assert (table.drop(index=2)["status"] == "ok").all()
+
+
+def test_sixteen_bit_grey_video_keeps_its_counts(tmp_path):
+    av = pytest.importorskip("av")
+    frames = [(np.arange(64 * 80).reshape(64, 80) * 13 + 100 * k).astype(np.uint16)
+              for k in range(4)]
+    path = tmp_path / "g16.avi"
+    container = av.open(str(path), "w")
+    stream = container.add_stream("ffv1", rate=10)
+    stream.width, stream.height, stream.pix_fmt = 80, 64, "gray16le"
+    for frame in frames:
+        for packet in stream.encode(av.VideoFrame.from_ndarray(frame, format="gray16le")):
+            container.mux(packet)
+    for packet in stream.encode():
+        container.mux(packet)
+    container.close()
+    with open_movie(path) as movie:
+        assert len(movie) == 4 and movie.dtype == np.uint16
+        for k, frame in enumerate(frames):
+            np.testing.assert_array_equal(movie[k], frame)
