@@ -232,7 +232,8 @@ def run_crop(
     Parameters
     ----------
     movie_path : str or Path
-        Raw movie: multi-page (or OME-) TIFF, or a folder of TIFF frames; 8 or 16 bit.
+        Raw movie: multi-page (or OME-) TIFF, or a folder of TIFF frames; 8 or 16 bit; or a
+        video, a folder of PNG frames, an HDF5 dataset (:class:`holofit.io.movie.Movie`).
     background_path : str, Path, a sequence of them, or None
         Background: one frame, or a stack / folder, or several of these; all their frames are
         reduced by the per-pixel median. None with ``normalized``.
