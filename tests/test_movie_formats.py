@@ -229,3 +229,11 @@ def test_sixteen_bit_grey_video_keeps_its_counts(tmp_path):
         assert len(movie) == 4 and movie.dtype == np.uint16
         for k, frame in enumerate(frames):
             np.testing.assert_array_equal(movie[k], frame)
+
+
+def test_planar_rgb_is_colour_not_a_frame_of_another_shape(tmp_path):
+    path = tmp_path / "planar.tif"
+    tifffile.imwrite(path, np.stack(_frames()[:3]), photometric="rgb", planarconfig="separate")
+    with pytest.raises(MovieError, match=r"planar\.tif: colour images \(axes 'SYX'.*"
+                                         "photometric='minisblack'"):
+        open_movie(path)

@@ -153,11 +153,11 @@ def crop(
 
     MOVIE is a multi-page (or OME-) TIFF or a folder of TIFF frames, 8 or 16 bit (or float);
     LZW- and deflate-compressed TIFFs are read too; with holofit[movies] installed also a video
-    (AVI, MP4, MOV, MKV), a folder of PNG frames or an HDF5 file (FILE.h5:DATASET). Writes OUT/crops.tif (float32 normalised
-    crops, one page per frame; NaN = masked or no particle), OUT/crops.csv (+ crops.csv.json:
-    per-frame centre in pixels and um, crop corner, score, status), OUT/candidates.csv and
-    OUT/crops.png. Every frame the movie file claims gets a row: one that cannot be read (a
-    truncated file) has status error.
+    (AVI, MP4, MOV, MKV), a folder of PNG frames or an HDF5 file (FILE.h5:DATASET).
+    Writes OUT/crops.tif (float32 normalised crops, one page per frame; NaN = masked or no
+    particle), OUT/crops.csv (+ crops.csv.json: per-frame centre in pixels and um, crop corner,
+    score, status), OUT/candidates.csv and OUT/crops.png. Every frame the movie file claims
+    gets a row: one that cannot be read (a truncated file) has status error.
     """
     if darks and dark_count is not None:
         raise click.UsageError("give either --dark or --dark-count, not both")

@@ -255,12 +255,15 @@ class Movie:
                 raise MovieError(
                     f"{self.path}: TIFF series has shape {shape}, expected 2-D frames"
                 )
-            if axes.endswith("S"):
+            if "S" in axes:
                 # every other leading axis (T, Z, C, I, Q: ImageJ and tifffile label plain
                 # stacks variously) is read as frames, page after page
+                planar = (" (3 or 4 grey frames written as one array without "
+                          "photometric='minisblack' are stored as one planar RGB image)"
+                          if axes.startswith("S") else "")
                 raise MovieError(
                     f"{self.path}: colour images (axes {axes!r}, shape {shape}) are not "
-                    "supported; convert to one grey channel"
+                    f"supported; convert to one grey channel{planar}"
                 )
             self.frame_shape = shape[-2:]
             self.dtype = np.dtype(first.dtype if s0 is None else s0.dtype)
