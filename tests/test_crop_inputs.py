@@ -128,7 +128,9 @@ def test_normalised_and_background_exclude_each_other(tmp_path):
     "option,value,expected",
     [
         ("--size", "0", "Invalid value for '--size': 0 is not in the range x>=8"),
-        ("--radius", "2", "Invalid value for '--radius': 2.0 is not in the range x>=4"),
+        ("--vote-radius", "2",
+         "Invalid value for '--vote-radius' / '--radius': 2.0 is not in the range x>=4"),
+        ("--radius", "2", "Invalid value for '--vote-radius' / '--radius'"),  # the old name
         ("--max-particles", "0", "Invalid value for '--max-particles'"),
         ("--min-symmetry", "1.5", "Invalid value for '--min-symmetry'"),
         ("--max-jump", "0", "Invalid value for '--max-jump'"),
