@@ -31,7 +31,8 @@ SUMMARY_UNITS = {
     "quantity": "text",
     "unit": "text (unit of measured, expected and their errors)",
     "measured": "see unit",
-    "measured_err": "1-sigma statistical error (block-decorrelated), see unit",
+    "measured_err": "1-sigma statistical error (correlations between lags included; empty "
+                    "for an upper limit), see unit",
     "expected": "see unit",
     "expected_err": "1-sigma, from temperature and size uncertainties, see unit",
     "source": "text",
@@ -99,8 +100,11 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
             with_pred(line.measured, line.label, line.prediction, line.unit)
         elif line.measured in meas:
             m = meas[line.measured]
-            rows.append(_row(line.label, m.unit, m.value, m.error, line.expected,
-                             source=line.source))
+            src = line.source
+            if m.upper_limit:
+                src += ": not resolved from zero, 95 % upper limit"
+            rows.append(_row(line.label, m.unit, m.value, m.error, line.expected, source=src))
+            rows[-1]["upper_limit"] = m.upper_limit
     radius = result.sizes.get("a_um")
     for key, label, src in (
         ("a_eff_t", "a_eff from D_t", "Stokes-Einstein radius of the measured D_t"),
@@ -117,9 +121,11 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
     return rows
 
 
-def _fmt(value: float, err: float) -> str:
+def _fmt(value: float, err: float, upper_limit: bool = False) -> str:
     if not math.isfinite(value):
         return "--"
+    if upper_limit:
+        return f"< {value:.2g}"
     if not math.isfinite(err) or err <= 1e-9 * abs(value):
         return f"{value:.4g}"
     digits = min(max(0, 1 - math.floor(math.log10(err))), 6)
@@ -138,8 +144,9 @@ def format_report(result: AnalysisResult) -> str:
         f"{int(result.valid.sum())} used; frame interval {traj.frame_interval_s:g} s",
     ]
     if s.subtract_drift:
-        v = result.drift_um_s
-        lines.append(f"  drift removed: ({v[0]:.3g}, {v[1]:.3g}, {v[2]:.3g}) um/s")
+        v, dv = result.drift_um_s, result.drift_err_um_s
+        lines.append("  drift removed: (" + ", ".join(_fmt(a, b) for a, b in zip(v, dv, strict=True))
+                     + ") um/s (end to end; the MSD fits allow for its removal)")
     cl = result.cleaning
     if cl is not None:
         parts = []
@@ -165,7 +172,7 @@ def format_report(result: AnalysisResult) -> str:
     lines.append("  " + "-" * (len(header) + 10))
     for r in result.rows:
         lines.append(
-            f"  {r['quantity']:<30} {r['unit']:<7} {_fmt(r['measured'], r['measured_err']):>22}"
+            f"  {r['quantity']:<30} {r['unit']:<7} {_fmt(r['measured'], r['measured_err'], r.get('upper_limit', False)):>22}"
             f" {_fmt(r['expected'], r['expected_err']):>22}  {r['source']}"
         )
     sens = {k: m for k, m in result.measured.items() if m.sensitivity}
