@@ -1,160 +1,120 @@
 """Calibration of the analysis's error bars: pulls over many simulated trajectories.
 
-For each particle (rod, Janus sphere, sphere), each trajectory length and each noise level, the
-script simulates independent Brownian trajectories with known truth
-(:func:`holofit.simulate.brownian.propagate_rigid_body` plus Gaussian localisation and angular
-noise), analyses each with the default settings of ``holofit analyze``
-(:func:`holofit.analysis.pipeline.analyze_trajectory`) and collects the pulls
-``(measured - truth) / reported error``. Calibrated errors give pulls of mean 0 and standard
-deviation 1; over ``n`` trajectories the sample mean has a standard error ``1 / sqrt(n)`` and
-the sample standard deviation ``1 / sqrt(2 (n - 1))``.
+For each particle (the paper's rod, sedimenting; the paper's Janus sphere; a sphere of the same
+size), each trajectory length and each noise level (what the fits reach on the replicate, 2 nm
+and 0.2 deg; the paper's real data, 35 nm and 1.5 deg), the script simulates independent
+Brownian trajectories with known truth, analyses each with the default settings of
+``holofit analyze`` and collects the pulls ``(measured - truth) / error``
+(:func:`holofit.analysis.validation.calibration_case`). Calibrated errors give pulls of mean 0
+and standard deviation 1; over ``n`` trajectories the sample mean has a standard error
+``1 / sqrt(n)`` and the sample s.d. ``1 / sqrt(2 (n - 1))``.
 
 Usage::
 
     python bench/calibration.py [--seeds 200] [--lengths 30 150 300 1000 2000]
+                                [--models rod janus sphere] [--noises replicate paper]
                                 [--out bench/results/calibration]
 
-It writes ``calibration.csv`` (one row per particle, noise, length, quantity) and
-``calibration.png`` (pull mean and s.d. against length) in ``--out``, and prints the table.
+Writes ``calibration.csv`` (one row per model, noise, length and quantity; the table of the
+README's analysis section) and ``calibration.png`` (pull mean and s.d. against length) in
+``--out``, and prints the table as it goes.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
+import pandas as pd
 
-from holofit.analysis.hydrodynamics import sphere_diffusion
-from holofit.analysis.pipeline import analyze_trajectory
-from holofit.analysis.settings import AnalysisSettings
-from holofit.analysis.trajectory import Trajectory
-from holofit.conventions import rotation_from_vector
-from holofit.simulate.brownian import BrownianParameters, propagate_rigid_body
-
-#: the replicate's temperature, C
-T_C = 21.0
-#: the paper's rod (bench/replicate.py), um^2/s and 1/s; sedimenting at 0.9 um/s
-ROD = {"d_par": 0.307, "d_perp": 0.293, "d_r": 0.311, "drift": (0.0, 0.0, -0.9)}
-#: the paper's Janus sphere (hydrodynamic radius 524 nm) and a sphere of the same size
-_SPH = sphere_diffusion(0.524, T_C)
-JANUS = {"d_par": float(_SPH["D_t"]), "d_perp": float(_SPH["D_t"]), "d_r": float(_SPH["D_r"]),
-         "drift": (0.0, 0.0, 0.0)}
-#: noise levels: what the fits reach on the replicate, and the paper's real data
-NOISE = {"replicate": (0.002, math.radians(0.2)), "paper": (0.035, math.radians(1.5))}
-FRAME_INTERVAL_S = 0.01
-MODELS = ("rod", "janus", "sphere")
-QUANTITIES = {"rod": ("D_par", "D_perp", "D_t", "D_r"), "janus": ("D_t", "D_r"),
-              "sphere": ("D_t",)}
-
-
-@dataclass
-class Case:
-    """One particle, noise level and trajectory length."""
-
-    model: str
-    noise: str
-    n_frames: int
-
-
-def truth_of(model: str) -> dict[str, float]:
-    """True values of the quantities a model measures."""
-    p = ROD if model == "rod" else JANUS
-    return {"D_par": p["d_par"], "D_perp": p["d_perp"],
-            "D_t": (p["d_par"] + 2 * p["d_perp"]) / 3, "D_r": p["d_r"]}
-
-
-def simulate(case: Case, seed: int) -> Trajectory:
-    """A simulated measured trajectory (positions with noise, axis with angular noise)."""
-    p = ROD if case.model == "rod" else JANUS
-    eps, eps_r = NOISE[case.noise]
-    rng = np.random.default_rng(seed)
-    params = BrownianParameters(case.n_frames, FRAME_INTERVAL_S, p["d_par"], p["d_perp"],
-                                p["d_r"], drift_um_s=p["drift"])
-    pos, rot = propagate_rigid_body(params, rng)
-    pos = pos + eps * rng.standard_normal(pos.shape)
-    w = rng.standard_normal((case.n_frames, 3)) * (eps_r / math.sqrt(2.0))
-    w[:, 2] = 0.0  # a spin about the axis does not move it
-    axis = np.einsum("nij,nj->ni", rot, rotation_from_vector(w)[:, :, 2])
-    return Trajectory.from_arrays(pos, None if case.model == "sphere" else axis,
-                                  FRAME_INTERVAL_S, source=f"seed {seed}")
-
-
-def run_case(case: Case, seeds: int) -> dict[str, dict[str, np.ndarray]]:
-    """Values, errors and pulls (:meth:`holofit.analysis.measurement.Measurement.pull`: the
-    error on the side of the truth) of each quantity over ``seeds`` trajectories (NaN where
-    the analysis failed)."""
-    keys = QUANTITIES[case.model]
-    truth = truth_of(case.model)
-    out = {k: {"value": np.full(seeds, np.nan), "error": np.full(seeds, np.nan),
-               "pull": np.full(seeds, np.nan)} for k in keys}
-    settings = AnalysisSettings(case.model, temperature_c=T_C)
-    for s in range(seeds):
-        traj = simulate(case, 100_000 * MODELS.index(case.model) + 10 * case.n_frames + s)
-        try:
-            res = analyze_trajectory(traj, settings)
-        except ValueError as exc:  # an AnalysisError: counted as a failure
-            print(f"  {case}: seed {s}: {exc}", file=sys.stderr)
-            continue
-        for k in keys:
-            m = res.measured[k]
-            out[k]["value"][s] = m.value
-            out[k]["error"][s] = m.error
-            out[k]["pull"][s] = m.pull(truth[k])
-    return out
-
-
-def summarise(case: Case, data: dict[str, dict[str, np.ndarray]]) -> list[dict]:
-    """Pull statistics per quantity."""
-    truth = truth_of(case.model)
-    rows = []
-    for k, d in data.items():
-        ok = np.isfinite(d["pull"])
-        pull = d["pull"][ok]
-        n = int(ok.sum())
-        rows.append({
-            "model": case.model, "noise": case.noise, "frames": case.n_frames,
-            "quantity": k, "n": n, "failed": int(ok.size - n),
-            "pull_mean": float(np.mean(pull)) if n else math.nan,
-            "pull_sd": float(np.std(pull, ddof=1)) if n > 1 else math.nan,
-            "pull_median": float(np.median(pull)) if n else math.nan,
-            "bias_rel": float(np.mean(d["value"][ok]) / truth[k] - 1) if n else math.nan,
-            "rel_error": float(np.median(d["error"][ok]) / truth[k]) if n else math.nan,
-            "scatter_rel": float(np.std(d["value"][ok], ddof=1) / truth[k]) if n > 1 else
-            math.nan,
-        })
-    return rows
+from holofit.analysis.validation import (
+    CALIBRATION_NOISE,
+    CALIBRATION_QUANTITIES,
+    calibration_case,
+    pull_bounds,
+)
 
 
 def fmt_row(r: dict) -> str:
+    """One line of the printed table."""
     return (f"{r['model']:<7}{r['noise']:<10}{r['frames']:>6}  {r['quantity']:<7}"
             f"{r['n']:>5}{r['failed']:>4}  mean {r['pull_mean']:+6.2f}  sd {r['pull_sd']:5.2f}"
-            f"  bias {100 * r['bias_rel']:+6.1f} %  err {100 * r['rel_error']:6.1f} %"
-            f"  scatter {100 * r['scatter_rel']:6.1f} %")
+            f"  |pull|<=1 {100 * r['within_1_sigma']:5.1f} %  bias {100 * r['bias_rel']:+6.1f} %"
+            f"  err {100 * r['rel_error']:6.1f} %  scatter {100 * r['scatter_rel']:6.1f} %")
+
+
+def plot(table: pd.DataFrame, path: Path) -> None:
+    """Pull mean and s.d. against trajectory length, one line per model and quantity."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    noises = list(dict.fromkeys(table["noise"]))
+    fig, axes = plt.subplots(2, len(noises), figsize=(5.5 * len(noises), 7), squeeze=False,
+                             sharex=True)
+    for j, noise in enumerate(noises):
+        sub = table[table["noise"] == noise]
+        for (model, q), g in sub.groupby(["model", "quantity"], sort=False):
+            g = g.sort_values("frames")
+            label = f"{model} {q}"
+            axes[0, j].errorbar(g["frames"], g["pull_mean"], g["pull_mean_se"], marker="o",
+                                ms=3, capsize=2, label=label)
+            axes[1, j].errorbar(g["frames"], g["pull_sd"], g["pull_sd_se"], marker="o", ms=3,
+                                capsize=2, label=label)
+        eps, eps_r = CALIBRATION_NOISE[noise]
+        axes[0, j].set_title(f"noise '{noise}': {1e3 * eps:g} nm, {eps_r * 57.2958:.2g} deg")
+        axes[0, j].axhspan(-0.15, 0.15, color="0.9")
+        axes[1, j].axhspan(0.9, 1.1, color="0.9")
+        axes[0, j].axhline(0, color="k", lw=0.5)
+        axes[1, j].axhline(1, color="k", lw=0.5)
+        axes[0, j].set_ylabel("pull mean")
+        axes[1, j].set_ylabel("pull s.d.")
+        axes[1, j].set_xlabel("trajectory length (frames)")
+        axes[1, j].set_xscale("log")
+    axes[0, -1].legend(fontsize=7, ncol=2)
+    fig.suptitle("pulls (measured - truth) / error; grey: the target band")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=200)
     ap.add_argument("--lengths", type=int, nargs="+", default=[30, 150, 300, 1000, 2000])
-    ap.add_argument("--models", nargs="+", default=["rod", "janus", "sphere"])
-    ap.add_argument("--noises", nargs="+", default=list(NOISE))
+    ap.add_argument("--models", nargs="+", default=list(CALIBRATION_QUANTITIES))
+    ap.add_argument("--noises", nargs="+", default=list(CALIBRATION_NOISE))
     ap.add_argument("--out", type=Path, default=Path("bench/results/calibration"))
     args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
     rows = []
+    t_all = time.perf_counter()
     for noise in args.noises:
         for model in args.models:
             for n in args.lengths:
-                case = Case(model, noise, n)
                 t0 = time.perf_counter()
-                rows += (new := summarise(case, run_case(case, args.seeds)))
-                for r in new:
-                    print(fmt_row(r), flush=True)
+                for summary in calibration_case(model, noise, n, args.seeds).values():
+                    rows.append(summary.row())
+                    print(fmt_row(rows[-1]), flush=True)
                 print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
+    table = pd.DataFrame(rows)
+    mean_bound, (sd_lo, sd_hi) = pull_bounds(args.seeds)
+    table["meets_target"] = ((table["pull_mean"].abs() <= 0.15)
+                             & table["pull_sd"].between(0.9, 1.1))
+    table["within_seed_bounds"] = ((table["pull_mean"].abs() <= mean_bound)
+                                   & table["pull_sd"].between(sd_lo, sd_hi))
+    tmp = args.out / "calibration.csv.tmp"
+    table.to_csv(tmp, index=False, float_format="%.4g")
+    tmp.replace(args.out / "calibration.csv")
+    plot(table, args.out / "calibration.png")
+    print(f"{int(table['meets_target'].sum())} of {len(table)} rows meet the target "
+          f"(|mean| <= 0.15, s.d. in [0.9, 1.1]); {int(table['within_seed_bounds'].sum())} are "
+          f"within it widened by 3 standard errors of {args.seeds} seeds "
+          f"(|mean| <= {mean_bound:.2f}, s.d. in [{sd_lo:.2f}, {sd_hi:.2f}]); "
+          f"{time.perf_counter() - t_all:.0f} s; wrote {args.out}")
     return 0
 
 

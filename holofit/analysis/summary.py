@@ -50,6 +50,14 @@ def _row(quantity: str, unit: str, measured=NAN, err=NAN, expected=NAN, expected
                     strict=True))
 
 
+def _static_source(col: str, st: dict[str, float]) -> str:
+    """Where a static parameter's value and spread come from (FitTable.static_summary)."""
+    if st.get("held"):
+        return (f"fit table '{col}' (held fixed in the final pass): the initial pass's robust "
+                f"average +- robust spread (1.4826 MAD) over {int(st['count'])} frames")
+    return f"fit table '{col}': median +- s.d. over {int(st['count'])} frames"
+
+
 def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
     """Rows of the summary table for the analysed model."""
     s = result.settings
@@ -76,12 +84,11 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
                 col = src.split("'")[1]
                 st = static[col]
                 rows.append(_row(label, "nm", 1e3 * st["median"], 1e3 * st["std"],
-                                 source=f"fit table '{col}': median +- s.d. over frames"))
+                                 source=_static_source(col, st)))
     for col in ("n", "index", "n_core", "n_cap"):
         if col in static:
             st = static[col]
-            rows.append(_row(col, "1", st["median"], st["std"],
-                             source=f"fit table '{col}': median +- s.d. over frames"))
+            rows.append(_row(col, "1", st["median"], st["std"], source=_static_source(col, st)))
 
     def with_pred(key: str, label: str, pkey: str | None, unit: str) -> None:
         m = meas.get(key)
