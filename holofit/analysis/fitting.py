@@ -45,7 +45,7 @@ from holofit.analysis.msd import (
     influence_series,
     pair_mask,
 )
-from holofit.analysis.msd_covariance import msd_covariance
+from holofit.analysis.msd_covariance import MsdCovarianceBasis
 from holofit.analysis.projection import (
     projection_correlation,
     projection_correlation_derivative,
@@ -64,9 +64,10 @@ __all__ = [
 ]
 
 
-#: ``covariance(theta, lags, masks, frame_interval_s)``: covariance matrix of the lag averages
+#: ``covariance(lags, masks, frame_interval_s)(theta)``: covariance matrix of the lag averages
 #: at ``lags`` (frames) whose usable pairs are ``masks`` (one per lag), for parameters ``theta``
-Covariance = Callable[[NDArray, NDArray, Sequence[NDArray], float], NDArray]
+#: (a factory, so that what does not depend on ``theta`` is computed once per fit)
+Covariance = Callable[[NDArray, Sequence[NDArray], float], Callable[[NDArray], NDArray]]
 
 
 @dataclass(frozen=True)
@@ -119,9 +120,14 @@ def linear_msd_model(k: float, label: str, duration_s: float | None = None) -> C
     def jac(p: NDArray, tau: NDArray) -> NDArray:
         return np.stack([k * tau * shrink(tau), np.full_like(tau, k)], axis=1)
 
-    def covariance(p: NDArray, lags: NDArray, masks: Sequence[NDArray], dt: float) -> NDArray:
-        d = max(p[0], _TINY * max(abs(p[1]), 1e-12) / dt, 0.0)
-        return msd_covariance(lags, masks, 2.0 * d * dt, max(p[1], 0.0), k / 2.0)
+    def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
+        basis = MsdCovarianceBasis(lags, masks)
+
+        def at(p: NDArray) -> NDArray:
+            d = max(p[0], _TINY * max(abs(p[1]), 1e-12) / dt, 0.0)
+            return basis.covariance(2.0 * d * dt, max(p[1], 0.0), k / 2.0)
+
+        return at
 
     def guess(tau: NDArray, m: NDArray) -> NDArray:
         if tau.size >= 2:
@@ -146,9 +152,14 @@ def orientation_msd_model() -> CurveModel:
     range keeps).
     """
 
-    def covariance(p: NDArray, lags: NDArray, masks: Sequence[NDArray], dt: float) -> NDArray:
-        d = max(p[0], _TINY * max(abs(p[1]), 1e-12) / dt, 0.0)
-        return msd_covariance(lags, masks, 2.0 * d * dt, max(p[1], 0.0) / 2.0, 2.0)
+    def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
+        basis = MsdCovarianceBasis(lags, masks)
+
+        def at(p: NDArray) -> NDArray:
+            d = max(p[0], _TINY * max(abs(p[1]), 1e-12) / dt, 0.0)
+            return basis.covariance(2.0 * d * dt, max(p[1], 0.0) / 2.0, 2.0)
+
+        return at
 
     def f(p: NDArray, tau: NDArray) -> NDArray:
         return 2.0 * (1.0 - np.exp(-2.0 * p[0] * tau)) + 2.0 * p[1]
@@ -195,8 +206,8 @@ def projection_model(amplitude: bool = True, n_odd: int | None = None) -> CurveM
             d = 1.0 / tau[-1]
         return np.array([d, 1.0]) if amplitude else np.array([d])
 
-    def covariance(p: NDArray, lags: NDArray, masks: Sequence[NDArray], dt: float) -> NDArray:
-        return projection_covariance(max(p[0], 0.0), dt, lags, masks)
+    def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
+        return lambda p: projection_covariance(max(p[0], 0.0), dt, lags, masks)
 
     label = "projection" if n_odd is None else f"projection_l{2 * n_odd - 1}"
     params = ("D", "A") if amplitude else ("D",)
@@ -282,7 +293,7 @@ def _sum_error(y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.
 #: rounds of generalised least squares, each with the covariance at the previous optimum
 GLS_ROUNDS = 3
 #: fixed-point rounds of the sided errors (GLS; sandwich, whose covariance is simulated)
-SIDED_ROUNDS = (4, 2)
+SIDED_ROUNDS = (4, 1)
 
 
 def _sided_errors(
@@ -376,10 +387,11 @@ def fit_lag_statistics(
     d_errors = (float("nan"), float("nan"))
     if model.covariance is not None and model.params[0] == "D":
         masks = [pair_mask(obs.valid, int(k), pair_filter) for k in st.lags]
+        cov_at = model.covariance(st.lags, masks, dt)
         if model.gls:
             method = "gls"
             for _ in range(GLS_ROUNDS):
-                w = _whitener(model.covariance(p, st.lags, masks, dt))
+                w = _whitener(cov_at(p))
 
                 def gresid(q: NDArray, w: NDArray = w) -> NDArray:
                     return w @ (model.f(q, tau) - m)
@@ -390,22 +402,20 @@ def fit_lag_statistics(
                 sol = _solve(gresid, gjac, p, tau.size, n_par)
                 p, success = sol.x, bool(sol.success)
             def gls_pcov(q: NDArray) -> NDArray:
-                wq = _whitener(model.covariance(q, st.lags, masks, dt))
+                wq = _whitener(cov_at(q))
                 jw = wq @ model.jac(q, tau)
                 return np.linalg.pinv(jw.T @ jw)
 
-            cov_m = model.covariance(p, st.lags, masks, dt)
+            cov_m = cov_at(p)
             w = _whitener(cov_m)
             pcov = gls_pcov(p)
             chi2 = float(np.sum((w @ (model.f(p, tau) - m)) ** 2) / dof)
             d_errors = _sided_errors(p, pcov, gls_pcov, SIDED_ROUNDS[0])
         else:
             method = "sandwich"
-            cov_m = model.covariance(p, st.lags, masks, dt)
+            cov_m = cov_at(p)
             pcov = a @ cov_m @ a.T
-            d_errors = _sided_errors(
-                p, pcov, lambda q: a @ model.covariance(q, st.lags, masks, dt) @ a.T,
-                SIDED_ROUNDS[1])
+            d_errors = _sided_errors(p, pcov, lambda q: a @ cov_at(q) @ a.T, SIDED_ROUNDS[1])
         sigma = np.sqrt(np.clip(np.diag(cov_m), 0, None))
     else:
         method = "influence"

@@ -29,42 +29,71 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["msd_covariance", "pair_overlap_counts"]
-
-#: above this many offsets per pair of lags the pair counts are computed by FFT
-_DIRECT_OFFSETS = 256
+__all__ = ["MsdCovarianceBasis", "msd_covariance"]
 
 
-def pair_overlap_counts(
-    mask_k: NDArray[np.bool_], mask_l: NDArray[np.bool_], offsets: NDArray[np.int64]
-) -> NDArray[np.float64]:
-    """``#{t : mask_k[t] and mask_l[t + d]}`` for each offset ``d``.
+class MsdCovarianceBasis:
+    """The parameter-free parts of :func:`msd_covariance` for one set of lags and pairs.
+
+    With ``c = s ov + e delta`` (``s = 2 D dt``, ``e`` the noise variance, ``ov`` the overlap
+    and ``delta`` the shared-frame term of the module docstring), ``sum_d c^2 n(d)`` is
+    ``s^2 A + s e B + e^2 E`` with ``A = sum ov^2 n``, ``B = 2 sum ov delta n``,
+    ``E = sum delta^2 n``: computed once, any ``(D, eps)`` costs a few array operations (a fit
+    evaluates the covariance many times).
 
     Parameters
     ----------
-    mask_k, mask_l : ndarray of bool
-        Pairs used at lags ``k`` and ``l`` (indexed by their first frame).
-    offsets : ndarray of int
-        Offsets ``d`` (frames).
+    lags : sequence of int
+        Lags, frames.
+    masks : sequence of ndarray of bool
+        For each lag ``k``, the pairs ``(t, t + k)`` used (length ``N - k``).
     """
-    a = mask_k.astype(float)
-    b = mask_l.astype(float)
-    if a.all() and b.all():
-        lo = np.maximum(0, -offsets)
-        hi = np.minimum(a.size, b.size - offsets)
-        return np.maximum(hi - lo, 0).astype(float)
-    if offsets.size > _DIRECT_OFFSETS:
-        size = 1 << int(np.ceil(np.log2(a.size + b.size)))
-        corr = np.fft.irfft(np.conj(np.fft.rfft(a, size)) * np.fft.rfft(b, size), size)
-        return np.round(corr[offsets % size])
-    out = np.empty(offsets.size)
-    for i, d in enumerate(offsets):
-        if d >= 0:
-            n = min(a.size, b.size - d)
-            out[i] = a[:n] @ b[d:d + n] if n > 0 else 0.0
-        else:
-            n = min(a.size + d, b.size)
-            out[i] = a[-d:-d + n] @ b[:n] if n > 0 else 0.0
+
+    def __init__(self, lags: Sequence[int] | NDArray[np.int64],
+                 masks: Sequence[NDArray[np.bool_]]) -> None:
+        lags = np.asarray(lags, dtype=np.int64)
+        n_frames = int(lags[0]) + masks[0].size
+        kmax = int(lags.max())
+        d = np.arange(-kmax, kmax + 1)
+        k = lags[:, None, None]
+        l = lags[None, :, None]
+        dd = d[None, None, :]
+        ov = np.clip(np.minimum(k, dd + l) - np.maximum(0, dd), 0, None).astype(float)
+        delta = ((dd == k - l).astype(float) - (dd == k) - (dd == -l) + (dd == 0))
+        counts = _pair_counts(lags, masks, n_frames, d)
+        n = np.array([float(np.count_nonzero(m)) for m in masks])
+        norm = np.outer(n, n)
+        norm[norm == 0] = np.inf
+        self.a = np.sum(ov**2 * counts, axis=2) / norm
+        self.b = 2.0 * np.sum(ov * delta * counts, axis=2) / norm
+        self.e = np.sum(delta**2 * counts, axis=2) / norm
+
+    def covariance(self, step_var: float, noise_var: float,
+                   components: float = 1.0) -> NDArray[np.float64]:
+        """Covariance matrix for one-frame step variance ``step_var`` (``2 D dt``) and noise
+        variance ``noise_var`` per coordinate, ``components`` coordinates."""
+        return 2.0 * components * (step_var**2 * self.a + step_var * noise_var * self.b
+                                   + noise_var**2 * self.e)
+
+
+def _pair_counts(lags: NDArray[np.int64], masks: Sequence[NDArray[np.bool_]], n_frames: int,
+                 d: NDArray[np.int64]) -> NDArray[np.float64]:
+    """``#{t : masks[i][t] and masks[j][t + d]}`` for all ``i, j`` and offsets ``d``."""
+    m = lags.size
+    if all(mk.all() for mk in masks):
+        size = (n_frames - lags).astype(float)
+        lo = np.maximum(0, -d)[None, None, :]
+        hi = np.minimum(size[:, None, None], size[None, :, None] - d[None, None, :])
+        return np.maximum(hi - lo, 0.0)
+    nfft = 1 << int(np.ceil(np.log2(2 * n_frames)))
+    padded = np.zeros((m, n_frames))
+    for i, mk in enumerate(masks):
+        padded[i, : mk.size] = mk
+    f = np.fft.rfft(padded, nfft, axis=1)
+    out = np.empty((m, m, d.size))
+    for i in range(m):
+        corr = np.fft.irfft(np.conj(f[i])[None, :] * f, nfft, axis=1)
+        out[i] = np.round(corr[:, d % nfft])
     return out
 
 
@@ -94,22 +123,4 @@ def msd_covariance(
     -------
     ndarray, shape (L, L)
     """
-    lags = np.asarray(lags, dtype=np.int64)
-    counts = np.array([float(np.count_nonzero(m)) for m in masks])
-    m = lags.size
-    cov = np.zeros((m, m))
-    for i in range(m):
-        k = int(lags[i])
-        for j in range(i, m):
-            l = int(lags[j])
-            d = np.arange(-l, k + 1)
-            overlap = np.maximum(np.minimum(k, d + l) - np.maximum(0, d), 0).astype(float)
-            c = step_var * overlap
-            c[d == k - l] += noise_var
-            c[d == k] -= noise_var
-            c[d == -l] -= noise_var
-            c[d == 0] += noise_var
-            n = pair_overlap_counts(masks[i], masks[j], d)
-            denom = counts[i] * counts[j]
-            cov[i, j] = cov[j, i] = 2.0 * components * float(c**2 @ n) / denom if denom else 0.0
-    return cov
+    return MsdCovarianceBasis(lags, masks).covariance(step_var, noise_var, components)
