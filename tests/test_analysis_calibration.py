@@ -45,7 +45,7 @@ def test_errors_calibrated_at_every_length(model, noise, n_frames):
 def test_rod_with_artefacts_calibrated_over_20_seeds():
     # the paper's rod with flips and mirrored outliers (the cleaning in the loop): 2000 frames
     rows = rod_study(n_seeds=20, n_frames=2000, first_seed=0)
-    mean_bound, (sd_lo, sd_hi) = pull_bounds(20)
+    _, (sd_lo, sd_hi) = pull_bounds(20)
     print()
     for row in rows.values():
         print(row.line())

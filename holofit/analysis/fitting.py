@@ -84,6 +84,8 @@ class CurveModel:
     bridged : callable, optional
         ``bridged(duration_s)``: the model for a trajectory whose end-to-end drift was
         subtracted (:func:`linear_msd_model`).
+    lower : tuple of float, optional
+        Lower bounds of the parameters (where the model is undefined below them).
     """
 
     name: str
@@ -95,8 +97,11 @@ class CurveModel:
     covariance: Covariance | None = None
     gls: bool = True
     bridged: Callable[[float], CurveModel] | None = None
+    lower: tuple[float, ...] | None = None
 
 
+#: smallest ``D_r T`` (T the run's duration) at which the projection covariance is simulated
+PROJECTION_D_FLOOR = 0.1
 #: smallest ``D dt`` relative to the data's scale used in a covariance (a fit may end at 0)
 _TINY = 1e-9
 
@@ -207,12 +212,16 @@ def projection_model(amplitude: bool = True, n_odd: int | None = None) -> CurveM
         return np.array([d, 1.0]) if amplitude else np.array([d])
 
     def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
-        return lambda p: projection_covariance(max(p[0], 0.0), dt, lags, masks)
+        # the simulation has no angular noise: a D_r at 0 would give no scatter at all, so the
+        # covariance is taken at D_r T >= 0.1 at least (T the run's duration)
+        floor = PROJECTION_D_FLOOR / ((int(lags[0]) + masks[0].size) * dt)
+        return lambda p: projection_covariance(max(p[0], floor), dt, lags, masks)
 
     label = "projection" if n_odd is None else f"projection_l{2 * n_odd - 1}"
     params = ("D", "A") if amplitude else ("D",)
+    lower = (0.0, -np.inf) if amplitude else (0.0,)
     return CurveModel(label, params, "A/4 sum_l odd ... exp(-l(l+1) D_r tau)", f, jac, guess,
-                      covariance, gls=False)
+                      covariance, gls=False, lower=lower)
 
 
 def single_exponential_model(amplitude: bool = True) -> CurveModel:
@@ -293,7 +302,7 @@ def _sum_error(y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.
 #: rounds of generalised least squares, each with the covariance at the previous optimum
 GLS_ROUNDS = 3
 #: fixed-point rounds of the sided errors (GLS; sandwich, whose covariance is simulated)
-SIDED_ROUNDS = (4, 1)
+SIDED_ROUNDS = (4, 2)
 
 
 def _sided_errors(
@@ -328,7 +337,14 @@ def _sided_errors(
     return out[0], out[1]
 
 
-def _solve(resid: Callable, jac: Callable, p0: NDArray, n_points: int, n_par: int):
+def _solve(resid: Callable, jac: Callable, p0: NDArray, n_points: int, n_par: int,
+           lower: tuple[float, ...] | None = None):
+    if lower is not None:
+        lo = np.asarray(lower, dtype=float)
+        fin = np.isfinite(lo)
+        p0 = np.where(fin, np.maximum(p0, np.where(fin, lo, 0.0) + 1e-12), p0)
+        return least_squares(resid, p0, jac=jac, method="trf", bounds=(lo, np.inf),
+                             xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200 * (n_par + 1))
     return least_squares(resid, p0, jac=jac, method="lm" if n_points > n_par else "trf",
                          xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200 * (n_par + 1))
 
@@ -375,7 +391,7 @@ def fit_lag_statistics(
     def jac(p: NDArray) -> NDArray:
         return model.jac(p, tau) / sigma[:, None]
 
-    sol = _solve(resid, jac, model.guess(tau, m), tau.size, n_par)
+    sol = _solve(resid, jac, model.guess(tau, m), tau.size, n_par, model.lower)
     p, success = sol.x, bool(sol.success)
     j = jac(p)
     jtj_inv = np.linalg.pinv(j.T @ j)
@@ -413,6 +429,20 @@ def fit_lag_statistics(
             d_errors = _sided_errors(p, pcov, gls_pcov, SIDED_ROUNDS[0])
         else:
             method = "sandwich"
+            # refit weighted by the model's own point errors: the block errors of a short run
+            # are noisy, and weights that follow the data's fluctuations bias the fit
+            sig_m = np.maximum(np.sqrt(np.clip(np.diag(cov_at(p)), 0, None)), floor)
+
+            def wresid(q: NDArray) -> NDArray:
+                return (model.f(q, tau) - m) / sig_m
+
+            def wjac(q: NDArray) -> NDArray:
+                return model.jac(q, tau) / sig_m[:, None]
+
+            sol = _solve(wresid, wjac, p, tau.size, n_par, model.lower)
+            p, success = sol.x, bool(sol.success)
+            j = wjac(p)
+            a = np.linalg.pinv(j.T @ j) @ j.T / sig_m[None, :]
             cov_m = cov_at(p)
             pcov = a @ cov_m @ a.T
             d_errors = _sided_errors(p, pcov, lambda q: a @ cov_at(q) @ a.T, SIDED_ROUNDS[1])

@@ -6,8 +6,8 @@ correlated, and the four-point functions of isotropic rotational diffusion that 
 their covariance in closed form are unwieldy. Instead we simulate: ``n_sim`` independent
 axes diffusing with the fitted ``D_r`` (exact finite rotations of a Gaussian rotation
 vector, ``D_r h <= 1e-2`` per substep: the effective coefficient ``D_r (1 + D_r h / 6)`` is
-0.2 % high at most, which changes a covariance negligibly), sampled on the trajectory's frame grid with its gaps, give the lag averages' sample
-covariance. Fixed seeds make it reproducible. A run longer than :data:`MAX_SIM_FRAMES` is
+0.2 % high at most, which changes a covariance negligibly), sampled on the trajectory's
+frame grid with its gaps, give the lag averages' sample covariance. Fixed seeds make it reproducible. A run longer than :data:`MAX_SIM_FRAMES` is
 simulated that long (without gaps) and the covariance scaled by the ratio of usable frames
 (a time average's variance falls as one over its length once the run is much longer than the
 correlation time ``1 / (2 D_r)``).
@@ -34,7 +34,8 @@ _MAX_STEP = 1e-2
 
 @numba.njit(cache=True)
 def _axes(u0: np.ndarray, n: int, sigma: float, substeps: int, seed: int) -> np.ndarray:
-    np.random.seed(seed)
+    # numba's own generator (a Generator cannot be drawn from inside this loop), seeded
+    np.random.seed(seed)  # noqa: NPY002
     k = u0.shape[0]
     out = np.empty((k, n, 3))
     u = np.empty(3)
@@ -43,9 +44,9 @@ def _axes(u0: np.ndarray, n: int, sigma: float, substeps: int, seed: int) -> np.
         out[i, 0] = u
         for f in range(1, n):
             for _ in range(substeps):
-                wx = sigma * np.random.standard_normal()
-                wy = sigma * np.random.standard_normal()
-                wz = sigma * np.random.standard_normal()
+                wx = sigma * np.random.standard_normal()  # noqa: NPY002
+                wy = sigma * np.random.standard_normal()  # noqa: NPY002
+                wz = sigma * np.random.standard_normal()  # noqa: NPY002
                 ang = math.sqrt(wx * wx + wy * wy + wz * wz)
                 if ang > 0.0:
                     kx, ky, kz = wx / ang, wy / ang, wz / ang

@@ -25,6 +25,8 @@ SUMMARY_COLUMNS = (
     "source",
     "measured_d_est_low",
     "measured_d_est_high",
+    "measured_err_below",
+    "measured_err_above",
 )
 
 SUMMARY_UNITS = {
@@ -38,16 +40,23 @@ SUMMARY_UNITS = {
     "source": "text",
     "measured_d_est_low": "measured value with the rejection's D_est x 2/3, see unit",
     "measured_d_est_high": "measured value with the rejection's D_est x 4/3, see unit",
+    "measured_err_below": "1-sigma error below the measured value (score interval: a "
+                          "diffusion coefficient's error grows with it), see unit",
+    "measured_err_above": "1-sigma error above the measured value, see unit",
 }
 
 NAN = float("nan")
 
 
 def _row(quantity: str, unit: str, measured=NAN, err=NAN, expected=NAN, expected_err=NAN,
-         source: str = "", low=NAN, high=NAN) -> dict[str, Any]:
+         source: str = "", low=NAN, high=NAN, below=NAN, above=NAN) -> dict[str, Any]:
+    if not math.isfinite(below):
+        below = err
+    if not math.isfinite(above):
+        above = err
     return dict(zip(SUMMARY_COLUMNS,
-                    (quantity, unit, measured, err, expected, expected_err, source, low, high),
-                    strict=True))
+                    (quantity, unit, measured, err, expected, expected_err, source, low, high,
+                     below, above), strict=True))
 
 
 def _static_source(col: str, st: dict[str, float]) -> str:
@@ -95,11 +104,14 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
         if m is None:
             return
         lo, hi = sens(key)
+        below, above = m.sides()
         if pkey is not None and pkey in pred:
             p, _, src = pred[pkey]
-            rows.append(_row(label, unit, m.value, m.error, p.value, p.error, src, lo, hi))
+            rows.append(_row(label, unit, m.value, m.error, p.value, p.error, src, lo, hi,
+                             below, above))
         else:
-            rows.append(_row(label, unit, m.value, m.error, source="", low=lo, high=hi))
+            rows.append(_row(label, unit, m.value, m.error, source="", low=lo, high=hi,
+                             below=below, above=above))
 
     recipe = recipe_for(s.model)
     for line in recipe.summary:
@@ -128,7 +140,12 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
     return rows
 
 
-def _fmt(value: float, err: float, upper_limit: bool = False) -> str:
+#: sided errors are printed apart when they differ by more than this fraction
+SIDED_SHOWN = 0.1
+
+
+def _fmt(value: float, err: float, upper_limit: bool = False, below: float = NAN,
+         above: float = NAN) -> str:
     if not math.isfinite(value):
         return "--"
     if upper_limit:
@@ -136,6 +153,9 @@ def _fmt(value: float, err: float, upper_limit: bool = False) -> str:
     if not math.isfinite(err) or err <= 1e-9 * abs(value):
         return f"{value:.4g}"
     digits = min(max(0, 1 - math.floor(math.log10(err))), 6)
+    if (math.isfinite(below) and math.isfinite(above)
+            and abs(above - below) > SIDED_SHOWN * err):
+        return f"{value:.{digits}f} -{below:.{digits}f} +{above:.{digits}f}"
     return f"{value:.{digits}f} +- {err:.{digits}f}"
 
 
@@ -152,8 +172,9 @@ def format_report(result: AnalysisResult) -> str:
     ]
     if s.subtract_drift:
         v, dv = result.drift_um_s, result.drift_err_um_s
-        lines.append("  drift removed: (" + ", ".join(_fmt(a, b) for a, b in zip(v, dv, strict=True))
-                     + ") um/s (end to end; the MSD fits allow for its removal)")
+        parts = ", ".join(_fmt(a, b) for a, b in zip(v, dv, strict=True))
+        lines.append(f"  drift removed: ({parts}) um/s (end to end; the MSD fits allow for "
+                     "its removal)")
     cl = result.cleaning
     if cl is not None:
         parts = []
@@ -178,8 +199,10 @@ def format_report(result: AnalysisResult) -> str:
     lines.append(header)
     lines.append("  " + "-" * (len(header) + 10))
     for r in result.rows:
+        measured = _fmt(r["measured"], r["measured_err"], r.get("upper_limit", False),
+                        r["measured_err_below"], r["measured_err_above"])
         lines.append(
-            f"  {r['quantity']:<30} {r['unit']:<7} {_fmt(r['measured'], r['measured_err'], r.get('upper_limit', False)):>22}"
+            f"  {r['quantity']:<30} {r['unit']:<7} {measured:>22}"
             f" {_fmt(r['expected'], r['expected_err']):>22}  {r['source']}"
         )
     sens = {k: m for k, m in result.measured.items() if m.sensitivity}
