@@ -9,7 +9,8 @@ vector, ``D_r h <= 1e-2`` per substep: the effective coefficient ``D_r (1 + D_r 
 0.2 % high at most, which changes a covariance negligibly), sampled on the trajectory's
 frame grid with its gaps, give the lag averages' sample covariance. Fixed seeds make it
 reproducible. A run longer than :data:`MAX_SIM_FRAMES` is simulated that long (without
-gaps) and the covariance scaled by the ratio of usable frames (a time average's variance falls as one over its length once the run is much longer than the
+gaps) and the covariance scaled by the ratio of usable frames (a time average's variance
+falls as one over its length once the run is much longer than the
 correlation time ``1 / (2 D_r)``).
 """
 
