@@ -129,3 +129,15 @@ def test_ten_frames_are_enough_and_fewer_pairs_say_how_many_are_needed():
     text = str(err.value)
     assert "rod.csv" in text and "at least 8 pairs" in text and "lag 1: " in text
     assert "--d-est" in text
+
+
+def test_a_rotation_the_run_cannot_resolve_gives_no_radius_and_no_crash():
+    # a Janus particle that does not turn over 30 frames: the projection fit ends at its bound
+    # D_r = 0, which used to divide by zero in the Stokes-Einstein-Debye radius
+    traj = calibration_trajectory("janus", "replicate", 30, 1)
+    traj.axis[:] = traj.axis[0]
+    res = analyze_trajectory(traj, AnalysisSettings("janus"))
+    m = res.measured["D_r"]
+    assert m.value == pytest.approx(0.0, abs=1e-6)
+    assert "a_eff_r" not in res.measured and "a_eff_t" in res.measured
+    assert any("no effective radius" in n for n in res.notes)

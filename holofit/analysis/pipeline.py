@@ -368,6 +368,10 @@ def _effective_radii(result: AnalysisResult) -> None:
         m = result.measured.get(key)
         if m is None:
             continue
+        if not m.value > 1e-6 * m.sides()[1]:  # zero, or at the fit's bound
+            result.notes.append(f"{key} = {m.value:.3g} is not positive (the run is too short "
+                                "to resolve it): no effective radius from it")
+            continue
         val = fn(m.value, t)
         below, above = m.sides()
         up, dn = fn(m.value + above, t), fn(max(m.value - below, 1e-12), t)
