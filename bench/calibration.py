@@ -88,11 +88,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", nargs="+", default=list(CALIBRATION_QUANTITIES))
     ap.add_argument("--noises", nargs="+", default=list(CALIBRATION_NOISE))
     ap.add_argument("--out", type=Path, default=Path("bench/results/calibration"))
+    ap.add_argument("--merge", type=Path, nargs="+", default=None, metavar="CSV",
+                    help="no study: merge these calibration.csv files (e.g. one per noise "
+                         "level, run apart) into --out's table and plot")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     t_all = time.perf_counter()
-    for noise in args.noises:
+    if args.merge:
+        rows = pd.concat([pd.read_csv(p) for p in args.merge]).to_dict("records")
+        args.seeds = int(min(r["n"] for r in rows))
+    for noise in [] if args.merge else args.noises:
         for model in args.models:
             for n in args.lengths:
                 t0 = time.perf_counter()
