@@ -141,3 +141,12 @@ def test_a_rotation_the_run_cannot_resolve_gives_no_radius_and_no_crash():
     assert m.value == pytest.approx(0.0, abs=1e-6)
     assert "a_eff_r" not in res.measured and "a_eff_t" in res.measured
     assert any("no effective radius" in n for n in res.notes)
+
+
+def test_a_long_adaptive_fit_range_on_a_short_run_is_computed():
+    # 30 noisy frames whose probe finds a large reduced noise: the range 1..p ran past the
+    # lags computed for the plots ("requested lags were not computed")
+    traj = calibration_trajectory("janus", "paper", 30, 1_003_024)
+    res = analyze_trajectory(traj, AnalysisSettings("janus"))
+    assert res.fits["xy"].lags[-1] > 10
+    assert math.isfinite(res.measured["D_t"].value)

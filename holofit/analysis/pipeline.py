@@ -237,6 +237,7 @@ class _Pass:
         self.stats = lag_statistics(self.obs, list(self.recipe.observables),
                                     self._lags(lags), self.dt, self.pair_filter)
         t_lags = _range(self._translation_range(), self.n, "translation")
+        self._ensure(t_lags)
         r_lags = self._rotation_lags()
         measured = self.recipe.measure(self.fit, t_lags, r_lags, self.settings)
         return _Core(self.cleaning, self.valid, self.stats, self.fits, measured)
@@ -318,11 +319,16 @@ class _Pass:
                                                 "rotation")
                     self.ranges["r"] = (1, min(last, limit[1]))
         r_lags = _range(self.ranges["r"], self.n, "rotation", sparse=True)
-        missing = np.setdiff1d(r_lags, self.stats[rot.observable].lags)
+        self._ensure(r_lags)
+        return r_lags
+
+    def _ensure(self, lags: NDArray[np.int64]) -> None:
+        """Compute the lag statistics at ``lags`` where they are missing (a fit range the
+        probe chose longer than the lags computed for the plots)."""
+        missing = np.setdiff1d(lags, next(iter(self.stats.values())).lags)
         if missing.size:
             _merge(self.stats, lag_statistics(self.obs, list(self.recipe.observables), missing,
                                               self.dt, self.pair_filter))
-        return r_lags
 
 
 def _sensitivity(
