@@ -90,13 +90,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("bench/results/calibration"))
     ap.add_argument("--merge", type=Path, nargs="+", default=None, metavar="CSV",
                     help="no study: merge these calibration.csv files (e.g. one per noise "
-                         "level, run apart) into --out's table and plot")
+                         "level, run apart; a later file's row replaces an earlier one's) "
+                         "into --out's table and plot")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     t_all = time.perf_counter()
     if args.merge:
-        rows = pd.concat([pd.read_csv(p) for p in args.merge]).to_dict("records")
+        merged = pd.concat([pd.read_csv(p) for p in args.merge])  # a later file's row wins
+        rows = merged.drop_duplicates(["model", "noise", "frames", "quantity"],
+                                      keep="last").to_dict("records")
         args.seeds = int(min(r["n"] for r in rows))
     for noise in [] if args.merge else args.noises:
         for model in args.models:
