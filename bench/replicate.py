@@ -113,6 +113,17 @@ def _analyse_truth(truth: pd.DataFrame, final: Path, settings: AnalysisSettings,
     return result
 
 
+def _fm(m, digits: int = 3) -> str:
+    """A measurement: ``v ± e``, ``v -below +above`` where the sides differ by > 10 %, or
+    ``< v`` for an upper limit (holofit.analysis.measurement)."""
+    if m.upper_limit:
+        return f"< {m.value:.{digits}f}"
+    below, above = m.sides()
+    if math.isfinite(below) and math.isfinite(above) and abs(above - below) > 0.1 * m.error:
+        return f"{m.value:.{digits}f} -{below:.{digits}f} +{above:.{digits}f}"
+    return _fmt(m.value, m.error, digits)
+
+
 def _fmt(v: float, e: float = math.nan, digits: int = 3) -> str:
     if not math.isfinite(v):
         return "--"
@@ -138,23 +149,23 @@ def rod(out: Path, frames: int, workers: int, initial_frames: int,
         ("a (nm)", _fmt(1e3 * st["values"]["a_um"], 1e3 * st["spread"]["a_um"], 1), "501", "--"),
         ("b (nm)", _fmt(1e3 * st["values"]["b_um"], 1e3 * st["spread"]["b_um"], 1), "1079", "--"),
         ("n", _fmt(st["values"]["n"], st["spread"]["n"], 4), "1.495", "--"),
-        ("D_par (um^2/s)", _fmt(m["D_par"].value, m["D_par"].error), t("D_par"), f"{d_par}",
+        ("D_par (um^2/s)", _fm(m["D_par"]), t("D_par"), f"{d_par}",
          _fmt(sp["cyl D_par"][0].value) + " (cylinder)" if "cyl D_par" in sp else "--"),
-        ("D_perp (um^2/s)", _fmt(m["D_perp"].value, m["D_perp"].error), t("D_perp"),
+        ("D_perp (um^2/s)", _fm(m["D_perp"]), t("D_perp"),
          f"{d_perp}",
          _fmt(sp["cyl D_perp"][0].value) + " (cylinder)" if "cyl D_perp" in sp else "--"),
-        ("D_t (um^2/s)", _fmt(m["D_t"].value, m["D_t"].error), t("D_t"),
+        ("D_t (um^2/s)", _fm(m["D_t"]), t("D_t"),
          f"{(d_par + 2 * d_perp) / 3:.3f}",
          _fmt(pred["D_t"]) + " (spherocylinder)"),
-        ("D_r (1/s)", _fmt(m["D_r"].value, m["D_r"].error), t("D_r"), f"{d_r}",
+        ("D_r (1/s)", _fm(m["D_r"]), t("D_r"), f"{d_r}",
          _fmt(pred["D_r"]) + " (spherocylinder)"),
-        ("D_par/D_perp", _fmt(m["D_par/D_perp"].value, m["D_par/D_perp"].error),
+        ("D_par/D_perp", _fm(m["D_par/D_perp"]),
          t("D_par/D_perp"), f"{d_par / d_perp:.3f}", "--"),
-        ("eps_par (nm)", _fmt(m["eps_par"].value, m["eps_par"].error, 1), "--", "--"),
-        ("eps_perp (nm)", _fmt(m["eps_perp"].value, m["eps_perp"].error, 1), "--", "--"),
-        ("eps_r (deg)", _fmt(m["eps_r"].value, m["eps_r"].error, 2), "--", "--"),
+        ("eps_par (nm)", _fm(m["eps_par"], 1), "--", "--"),
+        ("eps_perp (nm)", _fm(m["eps_perp"], 1), "--", "--"),
+        ("eps_r (deg)", _fm(m["eps_r"], 2), "--", "--"),
     ]
-    pulls = {k: (m[k].value - v) / m[k].error for k, v in
+    pulls = {k: m[k].pull(v) for k, v in
              (("D_par", d_par), ("D_perp", d_perp), ("D_t", (d_par + 2 * d_perp) / 3),
               ("D_r", d_r))}
     return _table("Rod (the paper's table 1)", rows, PAPER_ROD, r, pulls), r
@@ -180,14 +191,13 @@ def janus(out: Path, frames: int, workers: int, initial_frames: int,
                         1e3 * st["spread"]["cap_thickness_um"], 1), "47", "--"),
         ("n_TiO2", _fmt(st["values"]["n_cap"], st["spread"]["n_cap"], 3), "2.74", "--"),
         ("n_PS", _fmt(st["values"]["n_core"], st["spread"]["n_core"], 4), "1.581", "--"),
-        ("a_eff from D_t (nm)", _fmt(m["a_eff_t"].value, m["a_eff_t"].error, 0),
+        ("a_eff from D_t (nm)", _fm(m["a_eff_t"], 0),
          t("a_eff_t", 0), "524", "--"),
-        ("a_eff from D_r (nm)", _fmt(m["a_eff_r"].value, m["a_eff_r"].error, 0),
+        ("a_eff from D_r (nm)", _fm(m["a_eff_r"], 0),
          t("a_eff_r", 0), "524", "--"),
-        ("eps (nm)", _fmt(m["eps"].value, m["eps"].error, 1), "--", "--"),
+        ("eps (nm)", _fm(m["eps"], 1), "--", "--"),
     ]
-    pulls = {"a_eff_t": (m["a_eff_t"].value - 524) / m["a_eff_t"].error,
-             "a_eff_r": (m["a_eff_r"].value - 524) / m["a_eff_r"].error}
+    pulls = {"a_eff_t": m["a_eff_t"].pull(524), "a_eff_r": m["a_eff_r"].pull(524)}
     return _table("Janus particle (the paper's table 2)", rows, PAPER_JANUS, r, pulls), r
 
 
@@ -197,7 +207,7 @@ def _truth_column(r: dict):
 
     def cell(key: str, digits: int = 3) -> str:
         m = measured.get(key)
-        return _fmt(m.value, m.error, digits) if m is not None else "--"
+        return _fm(m, digits) if m is not None else "--"
     return cell
 
 

@@ -159,11 +159,15 @@ def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: 
                       ("D_r", "1/s")):
         pred = theory.get(key)
         extra = f", spherocylinder {pred:.3f}" if pred is not None else ""
-        echo(f"   {key:<7} {m[key].value:.3f} +- {m[key].error:.3f} {unit} (truth "
-             f"{truth_d[key]:.3f}{extra}; {(m[key].value - truth_d[key]) / m[key].error:+.1f} "
-             "sigma)")
+        below, above = m[key].sides()
+        echo(f"   {key:<7} {m[key].value:.3f} -{below:.3f} +{above:.3f} {unit} (truth "
+             f"{truth_d[key]:.3f}{extra}; {m[key].pull(truth_d[key]):+.1f} sigma)")
     for key in ("eps_par", "eps_perp", "eps_r"):
-        echo(f"   {key:<7} {m[key].value:.2f} +- {m[key].error:.2f} {m[key].unit}")
+        if m[key].upper_limit:
+            echo(f"   {key:<7} < {m[key].value:.2g} {m[key].unit} (95 % upper limit: the MSD "
+                 "intercept is not resolved from zero)")
+        else:
+            echo(f"   {key:<7} {m[key].value:.2f} +- {m[key].error:.2f} {m[key].unit}")
     total = time.perf_counter() - t_start
     echo(f"Outputs in {out}/ (plots: prefit/prefit.png, fit/fit.png, fit/frames_final/, "
          f"analysis/*.png); total {total:.0f} s on {workers} worker(s).")

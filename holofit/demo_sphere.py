@@ -96,19 +96,18 @@ def run_sphere_demo(out: Path, echo: Callable[[str], None] = print, workers: int
     echo(f"4. analyze ({time.perf_counter() - t0:.1f} s):")
     for line in format_report(result).splitlines():
         echo("   " + line)
-    measured = _translational_d(result)
-    if measured is not None:
-        value, error = measured
-        echo(f"Measured D = {value:.4f} +- {error:.4f} um^2/s against the true {d_true:.4f} "
-             f"um^2/s ({(value - d_true) / error:+.1f} standard errors). Outputs in {out}/; "
+    m = _translational_d(result)
+    if m is not None:
+        below, above = m.sides()
+        echo(f"Measured D = {m.value:.4f} -{below:.4f} +{above:.4f} um^2/s against the true "
+             f"{d_true:.4f} um^2/s ({m.pull(d_true):+.1f} standard errors). Outputs in {out}/; "
              f"total {time.perf_counter() - t_start:.0f} s.")
     return {**{f"rms_{k}": float(v) for k, v in rms.items()}, "d_true": d_true,
-            "d_measured": measured[0] if measured else float("nan")}
+            "d_measured": float(m.value) if m is not None else float("nan")}
 
 
-def _translational_d(result) -> tuple[float, float] | None:
+def _translational_d(result):
     for name in ("D", "D_t", "D_xy"):
         if name in result.measured:
-            m = result.measured[name]
-            return float(m.value), float(m.error)
+            return result.measured[name]
     return None

@@ -190,7 +190,9 @@ class FitTable:
 
         A parameter the fit held fixed (constant in the table) takes its spread and count from
         where its value came from when the sidecar says (``static``: the initial pass's robust
-        average, written by ``holofit fit``), so its uncertainty is not lost.
+        average, written by ``holofit fit``), so its uncertainty is not lost; its ``held`` is
+        then 1 (the ``std`` is the initial pass's robust spread, 1.4826 MAD over ``count``
+        frames, not a spread of this table), else 0.
         """
         out: dict[str, dict[str, float]] = {}
         rows = self.table[self.ok]
@@ -204,10 +206,11 @@ class FitTable:
                     "median": float(np.median(values)),
                     "std": float(np.std(values, ddof=1)) if spread else 0.0,
                     "count": int(values.size),
+                    "held": 0,
                 }
                 held = (source.get("spread", {}).get(c), source.get("n_frames"))
                 if not spread and all(isinstance(v, int | float) for v in held):
-                    out[c].update(std=float(held[0]), count=int(held[1]))
+                    out[c].update(std=float(held[0]), count=int(held[1]), held=1)
         return out
 
 

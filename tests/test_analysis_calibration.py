@@ -1,6 +1,7 @@
-"""Full validation studies (slow): error calibration over 20 rods, long projection runs.
+"""Full validation studies (slow): error calibration at every length, long projection runs.
 
-Run with ``pytest -m slow -s tests/test_analysis_calibration.py`` to see the numbers.
+Run with ``pytest -m slow -s tests/test_analysis_calibration.py`` to see the numbers; the full
+study (200 trajectories per case) is ``bench/calibration.py``.
 """
 
 import math
@@ -10,24 +11,54 @@ import pytest
 
 from holofit.analysis.validation import (
     L1_AMPLITUDE,
+    calibration_case,
     projection_study,
+    pull_bounds,
     rod_study,
     single_exponential_bias,
 )
 
 pytestmark = pytest.mark.slow
 
+#: trajectories per case: the bounds widen with 3 standard errors of this count
+#: (pull_bounds(100): |mean| <= 0.45, s.d. in [0.71, 1.33])
+N_SEEDS = 100
 
-def test_rod_errors_calibrated_over_20_seeds():
-    # the issue's study: 2000 frames at 100 frames/s, seeds 0-19
+
+@pytest.mark.parametrize("noise", ["replicate", "paper"])
+@pytest.mark.parametrize("model", ["rod", "janus", "sphere"])
+@pytest.mark.parametrize("n_frames", [30, 300, 2000])
+def test_errors_calibrated_at_every_length(model, noise, n_frames):
+    # the issue's target: pull mean within 0.15 of 0 and s.d. within [0.9, 1.1], here on fewer
+    # trajectories than bench/calibration.py with the bounds their number allows
+    mean_bound, (sd_lo, sd_hi) = pull_bounds(N_SEEDS)
+    print()
+    for row in calibration_case(model, noise, n_frames, N_SEEDS, first_seed=50).values():
+        r = row.row()
+        print(f"{model} {noise} {n_frames} {r['quantity']}: pull mean {r['pull_mean']:+.2f} "
+              f"s.d. {r['pull_sd']:.2f} (bias {100 * r['bias_rel']:+.1f} %)")
+        assert row.failed == 0
+        if model == "janus" and r["quantity"] == "D_r" and n_frames == 30:
+            # D_r T = 0.35: not resolved (errors ~110 %, the fit often at its bound 0); what
+            # can be asked is that it says so, and that its errors are not too small
+            assert r["rel_error"] > 0.5 and row.sd <= sd_hi, r
+            continue
+        assert abs(row.mean) <= mean_bound, r
+        assert sd_lo <= row.sd <= sd_hi, r
+
+
+def test_rod_with_artefacts_calibrated_over_20_seeds():
+    # the paper's rod with flips and mirrored outliers (the cleaning in the loop): 2000 frames
     rows = rod_study(n_seeds=20, n_frames=2000, first_seed=0)
+    _, (sd_lo, sd_hi) = pull_bounds(20)
     print()
     for row in rows.values():
         print(row.line())
-    for key in ("D_par", "D_perp", "D_t", "D_r", "D_par/D_perp", "eps_par", "eps_perp"):
+    for key in ("D_par", "D_perp", "D_t", "D_r", "D_par/D_perp"):
         row = rows[key]
-        assert abs(row.bias_in_se) < 2, row.line()
-        assert 1 / 1.5 < row.error_ratio < 1.5, row.line()
+        assert abs(row.bias_in_se) < 3, row.line()
+        # rms error / scatter: a ratio of two estimates; its spread is that of the scatter
+        assert sd_lo <= 1 / row.error_ratio <= sd_hi, row.line()
 
 
 @pytest.mark.parametrize(

@@ -51,6 +51,9 @@ __all__ = [
 MAX_RUN = 3
 #: lags (frames) used to estimate D_est
 ESTIMATE_LAGS = (1, 2, 3, 4, 5)
+#: the estimate needs this many valid pairs at each of at least MIN_ESTIMATE_LAGS lags
+MIN_ESTIMATE_PAIRS = 8
+MIN_ESTIMATE_LAGS = 2
 
 
 def axis_angles(u1: NDArray, u2: NDArray, head_tail: bool = False) -> NDArray[np.float64]:
@@ -78,18 +81,24 @@ def estimate_rotational_diffusion(
     Raises
     ------
     AnalysisError
-        Fewer than 10 valid pairs at some of the lags used.
+        Fewer than :data:`MIN_ESTIMATE_PAIRS` valid pairs at all but one of the lags
+        :data:`ESTIMATE_LAGS`.
     """
-    lags, msd = [], []
+    lags, msd, found = [], [], []
     for lag in ESTIMATE_LAGS:
         ok = valid[:-lag] & valid[lag:]
-        if ok.sum() < 10:
+        found.append(f"lag {lag}: {int(ok.sum())}")
+        if ok.sum() < MIN_ESTIMATE_PAIRS:
             continue
         th = axis_angles(axis[:-lag][ok], axis[lag:][ok], head_tail)
         lags.append(lag)
         msd.append(np.median(th**2) / math.log(2.0))
-    if len(lags) < 2:
-        raise AnalysisError("too few valid frame pairs to estimate the rotational diffusion")
+    if len(lags) < MIN_ESTIMATE_LAGS:
+        raise AnalysisError(
+            "too few valid frame pairs to estimate the rotational diffusion for the rejection of "
+            f"improbable jumps: it needs at least {MIN_ESTIMATE_PAIRS} pairs at each of "
+            f"{MIN_ESTIMATE_LAGS} of the lags 1-{ESTIMATE_LAGS[-1]} frames (found "
+            f"{', '.join(found)}); give D_est (--d-est) or turn the rejection off (--no-reject)")
     tau = np.array(lags) * frame_interval_s
     slope, intercept = np.polyfit(tau, np.array(msd), 1)
     d_est = slope / 4.0

@@ -1,20 +1,34 @@
-"""Weighted fits of lag statistics, with errors that account for the correlations between lags.
+"""Fits of lag statistics, with errors that account for the correlations between lags.
 
-The fit minimises ``sum_k ((f(tau_k; theta) - m_k) / sigma_k)^2`` over the lags of the fit
-range, ``sigma_k`` being the block-decorrelated error bar of ``m_k``. The averages at
-neighbouring lags come from overlapping pairs of the same trajectory and are strongly
-correlated, so ``(J^T J)^-1`` (which assumes independent points) understates the parameter
-errors. We linearise the fit at the optimum, ``theta - theta_hat = A (m - m_hat)`` with
-``A = (J^T J)^-1 J^T diag(1/sigma)``; since every ``m_k`` is a time average, ``theta`` is then a
-sum over time origins of per-origin contributions (its *influence series*), and the
-Flyvbjerg-Petersen error of that single series is the parameter's error with every
-correlation, between lags and in time, included. Derived quantities (``D_t``, ratios) combine
-the influence series of their ingredients linearly (delta method) before blocking, so their
-covariances are included too. ``naive_errors`` keeps ``sqrt(diag((J^T J)^-1))`` for comparison.
+The averages at neighbouring lags come from overlapping pairs of the same trajectory and are
+strongly correlated, so a fit that treats them as independent points understates the
+parameter errors (and weighs the lags badly). Three cases:
+
+* **Generalised least squares** (models with an analytic ``covariance`` and ``gls``: the
+  MSDs, :mod:`holofit.analysis.msd_covariance`): the fit minimises
+  ``(f(theta) - m)^T C(theta)^-1 (f(theta) - m)`` with the covariance ``C`` of the lag
+  averages evaluated at the current parameters (three rounds from a weighted fit), and the
+  parameter covariance is ``(J^T C^-1 J)^-1``. This is the best linear unbiased estimator
+  for the MSD of diffusion with localisation noise (Michalet, Phys. Rev. E 82, 041914, 2010)
+  and its error is exact to first order: no blocking plateau is needed, so short runs get
+  errors as right as long ones.
+* **Sandwich** (a ``covariance`` but not ``gls``: the projection correlation, whose covariance
+  is simulated, :mod:`holofit.analysis.projection_covariance`, and too noisy to invert): the
+  fit is weighted by the block errors ``sigma_k`` of the points, and the parameter covariance
+  is ``A C A^T`` with ``A = (J^T W J)^-1 J^T W`` the fit's linear response to the data.
+* **Influence series** (no covariance model): the linearised fit ``theta - theta_hat =
+  A (m - m_hat)`` is a sum over time origins of per-origin contributions, and the
+  Flyvbjerg-Petersen error of that single series is the parameter's error (it needs the
+  blocking plateau, i.e. runs much longer than the lags' correlation time).
+
+``naive_errors`` keeps ``sqrt(diag((J^T W J)^-1))``, which ignores the correlations, for
+comparison. Derived quantities (``D_t``, ratios) combine the parameters of independent fits by
+the delta method (:func:`combine`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -24,11 +38,19 @@ from scipy.optimize import least_squares
 
 from holofit.analysis.blocking import block_standard_errors
 from holofit.analysis.errors import AnalysisError
-from holofit.analysis.msd import LagStatistics, Observables, PairFilter, influence_series
+from holofit.analysis.msd import (
+    LagStatistics,
+    Observables,
+    PairFilter,
+    influence_series,
+    pair_mask,
+)
+from holofit.analysis.msd_covariance import MsdCovarianceBasis
 from holofit.analysis.projection import (
     projection_correlation,
     projection_correlation_derivative,
 )
+from holofit.analysis.projection_covariance import projection_covariance
 
 __all__ = [
     "CurveModel",
@@ -42,9 +64,29 @@ __all__ = [
 ]
 
 
+#: ``covariance(lags, masks, frame_interval_s)(theta)``: covariance matrix of the lag averages
+#: at ``lags`` (frames) whose usable pairs are ``masks`` (one per lag), for parameters ``theta``
+#: (a factory, so that what does not depend on ``theta`` is computed once per fit)
+Covariance = Callable[[NDArray, Sequence[NDArray], float], Callable[[NDArray], NDArray]]
+
+
 @dataclass(frozen=True)
 class CurveModel:
-    """A model ``f(tau; theta)`` with its Jacobian and a starting guess."""
+    """A model ``f(tau; theta)`` with its Jacobian and a starting guess.
+
+    Attributes
+    ----------
+    covariance : callable, optional
+        Covariance of the lag averages the model describes (:data:`Covariance`).
+    gls : bool
+        Fit by generalised least squares with ``covariance`` (else: weighted fit, sandwich
+        error).
+    bridged : callable, optional
+        ``bridged(duration_s)``: the model for a trajectory whose end-to-end drift was
+        subtracted (:func:`linear_msd_model`).
+    lower : tuple of float, optional
+        Lower bounds of the parameters (where the model is undefined below them).
+    """
 
     name: str
     params: tuple[str, ...]
@@ -52,16 +94,45 @@ class CurveModel:
     f: Callable[[NDArray, NDArray], NDArray]
     jac: Callable[[NDArray, NDArray], NDArray]
     guess: Callable[[NDArray, NDArray], NDArray]
+    covariance: Covariance | None = None
+    gls: bool = True
+    bridged: Callable[[float], CurveModel] | None = None
+    lower: tuple[float, ...] | None = None
 
 
-def linear_msd_model(k: float, label: str) -> CurveModel:
-    """``k (D tau + eps^2)``: the MSD of ``k/2`` Brownian degrees of freedom with noise ``eps``."""
+#: smallest ``D_r T`` (T the run's duration) at which the projection covariance is simulated
+PROJECTION_D_FLOOR = 0.1
+#: smallest ``D dt`` relative to the data's scale used in a covariance (a fit may end at 0)
+_TINY = 1e-9
+
+
+def linear_msd_model(k: float, label: str, duration_s: float | None = None) -> CurveModel:
+    """``k (D tau + eps^2)``: the MSD of ``k/2`` Brownian degrees of freedom with noise ``eps``.
+
+    With ``duration_s = T`` (the time between the first and last frame), the MSD of the same
+    motion after the end-to-end drift ``(r(T) - r(0)) / T`` was subtracted:
+    ``k (D tau (1 - tau / T) + eps^2)``. Subtracting the estimated drift turns a Brownian path
+    into a Brownian bridge, whose increments are smaller by that factor, exactly, whatever the
+    true drift; without the factor a run of 30 frames fitted to lag 3 comes out 10 % low. The
+    covariance is that of :func:`holofit.analysis.msd_covariance.msd_covariance` for ``k/2``
+    coordinates (the bridge's correction to it is of the same small order and left out).
+    """
+    shrink = (lambda tau: 1.0 - tau / duration_s) if duration_s else (lambda tau: 1.0)
 
     def f(p: NDArray, tau: NDArray) -> NDArray:
-        return k * (p[0] * tau + p[1])
+        return k * (p[0] * tau * shrink(tau) + p[1])
 
     def jac(p: NDArray, tau: NDArray) -> NDArray:
-        return np.stack([k * tau, np.full_like(tau, k)], axis=1)
+        return np.stack([k * tau * shrink(tau), np.full_like(tau, k)], axis=1)
+
+    def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
+        basis = MsdCovarianceBasis(lags, masks)
+
+        def at(p: NDArray) -> NDArray:
+            d = max(p[0], _TINY * max(abs(p[1]), 1e-12) / dt, 0.0)
+            return basis.covariance(2.0 * d * dt, max(p[1], 0.0), k / 2.0)
+
+        return at
 
     def guess(tau: NDArray, m: NDArray) -> NDArray:
         if tau.size >= 2:
@@ -69,11 +140,31 @@ def linear_msd_model(k: float, label: str) -> CurveModel:
             return np.array([slope / k, icpt / k])
         return np.array([m[0] / (k * tau[0]), 0.0])
 
-    return CurveModel(label, ("D", "eps2"), f"{k:g} D tau + {k:g} eps^2", f, jac, guess)
+    if duration_s:
+        formula = f"{k:g} D tau (1 - tau/T) + {k:g} eps^2, T = {duration_s:.4g} s"
+    else:
+        formula = f"{k:g} D tau + {k:g} eps^2"
+    return CurveModel(label, ("D", "eps2"), formula, f, jac, guess, covariance, True,
+                      lambda t: linear_msd_model(k, label, t))
 
 
 def orientation_msd_model() -> CurveModel:
-    """``2 (1 - exp(-2 D_r tau)) + 2 eps_r^2``: MSD of the unit axis."""
+    """``2 (1 - exp(-2 D_r tau)) + 2 eps_r^2``: MSD of the unit axis.
+
+    Its covariance is that of two coordinates diffusing with ``D_r`` in the plane tangent to
+    the axis, each with noise ``eps_r^2 / 2`` (:mod:`holofit.analysis.msd_covariance`): right
+    while the axis turns little within the fit range (``D_r tau << 1``, which the default
+    range keeps).
+    """
+
+    def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
+        basis = MsdCovarianceBasis(lags, masks)
+
+        def at(p: NDArray) -> NDArray:
+            d = max(p[0], _TINY * max(abs(p[1]), 1e-12) / dt, 0.0)
+            return basis.covariance(2.0 * d * dt, max(p[1], 0.0) / 2.0, 2.0)
+
+        return at
 
     def f(p: NDArray, tau: NDArray) -> NDArray:
         return 2.0 * (1.0 - np.exp(-2.0 * p[0] * tau)) + 2.0 * p[1]
@@ -88,7 +179,8 @@ def orientation_msd_model() -> CurveModel:
         return np.array([m[0] / (4 * tau[0]), 0.0])
 
     return CurveModel(
-        "orientation", ("D", "eps2"), "2 (1 - exp(-2 D_r tau)) + 2 eps_r^2", f, jac, guess
+        "orientation", ("D", "eps2"), "2 (1 - exp(-2 D_r tau)) + 2 eps_r^2", f, jac, guess,
+        covariance,
     )
 
 
@@ -119,9 +211,17 @@ def projection_model(amplitude: bool = True, n_odd: int | None = None) -> CurveM
             d = 1.0 / tau[-1]
         return np.array([d, 1.0]) if amplitude else np.array([d])
 
+    def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
+        # the simulation has no angular noise: a D_r at 0 would give no scatter at all, so the
+        # covariance is taken at D_r T >= 0.1 at least (T the run's duration)
+        floor = PROJECTION_D_FLOOR / ((int(lags[0]) + masks[0].size) * dt)
+        return lambda p: projection_covariance(max(p[0], floor), dt, lags, masks)
+
     label = "projection" if n_odd is None else f"projection_l{2 * n_odd - 1}"
     params = ("D", "A") if amplitude else ("D",)
-    return CurveModel(label, params, "A/4 sum_l odd ... exp(-l(l+1) D_r tau)", f, jac, guess)
+    lower = (0.0, -np.inf) if amplitude else (0.0,)
+    return CurveModel(label, params, "A/4 sum_l odd ... exp(-l(l+1) D_r tau)", f, jac, guess,
+                      covariance, gls=False, lower=lower)
 
 
 def single_exponential_model(amplitude: bool = True) -> CurveModel:
@@ -148,7 +248,14 @@ def single_exponential_model(amplitude: bool = True) -> CurveModel:
 
 @dataclass
 class FitResult:
-    """A weighted fit of one observable over a lag range."""
+    """A fit of one observable over a lag range.
+
+    ``covariance`` is the parameters' covariance matrix (``errors`` its diagonal's square
+    root); ``method`` says how it was found (``gls``, ``sandwich`` or ``influence``, see the
+    module docstring). ``sigma`` are the points' error bars (from the covariance model where
+    there is one, else the block errors); ``chi2_reduced`` is the generalised chi-square per
+    degree of freedom for a GLS fit.
+    """
 
     observable: str
     model: CurveModel
@@ -160,21 +267,26 @@ class FitResult:
     data: NDArray[np.float64]
     sigma: NDArray[np.float64]
     chi2_reduced: float
-    influence: NDArray[np.float64] = field(repr=False)
+    covariance: NDArray[np.float64] = field(repr=False)
+    method: str = "gls"
     error_converged: bool = True
     success: bool = True
+    d_errors: tuple[float, float] = (float("nan"), float("nan"))
+
+    def d_error_sides(self) -> tuple[float, float]:
+        """Errors of ``D`` below and above the value (:func:`_sided_errors`; both equal to
+        the symmetric error where they were not computed)."""
+        e = self.error("D")
+        lo, hi = self.d_errors
+        return (lo if math.isfinite(lo) else e, hi if math.isfinite(hi) else e)
 
     def value(self, name: str) -> float:
         """Fitted value of parameter ``name``."""
         return float(self.values[self.model.params.index(name)])
 
     def error(self, name: str) -> float:
-        """Block-decorrelated 1-sigma error of parameter ``name``."""
+        """1-sigma error of parameter ``name``."""
         return float(self.errors[self.model.params.index(name)])
-
-    def influence_of(self, name: str) -> NDArray[np.float64]:
-        """Influence series of parameter ``name``."""
-        return self.influence[self.model.params.index(name)]
 
     def curve(self, tau: NDArray) -> NDArray[np.float64]:
         """The fitted model at lags ``tau`` (s)."""
@@ -187,13 +299,71 @@ def _sum_error(y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.
     return sem * y.shape[1], conv
 
 
+#: rounds of generalised least squares, each with the covariance at the previous optimum
+GLS_ROUNDS = 3
+#: fixed-point rounds of the sided errors (GLS; sandwich, whose covariance is simulated)
+SIDED_ROUNDS = (4, 2)
+
+
+def _sided_errors(
+    p: NDArray[np.float64], pcov: NDArray[np.float64],
+    pcov_at: Callable[[NDArray[np.float64]], NDArray[np.float64]], rounds: int,
+) -> tuple[float, float]:
+    """Errors of the first parameter ``D`` below and above its value.
+
+    The error of a diffusion coefficient grows with the coefficient (an MSD's scatter is
+    proportional to it), so the error at the estimate is too small when the estimate came out
+    low and too large when it came out high: on short runs pulls against the truth are
+    skewed. The interval ``{D : |D_hat - D| <= sigma(D)}`` has the right coverage instead;
+    its ends solve ``D_+ - D_hat = sigma(D_+)`` and ``D_hat - D_- = sigma(D_-)`` (a score or
+    Wilson interval), found by fixed-point iteration with the other parameters moved along
+    their regression on ``D``. Quote ``D_hat -sigma_- +sigma_+``; a pull is
+    ``(D_hat - D_true) / sigma_+`` when the estimate is below the truth and ``/ sigma_-``
+    above.
+    """
+    var = float(pcov[0, 0])
+    if not var > 0:
+        return float("nan"), float("nan")
+    direction = np.concatenate([[1.0], pcov[1:, 0] / var])
+    out = []
+    for sign in (-1.0, 1.0):
+        sig = math.sqrt(var)
+        for _ in range(rounds):
+            v = float(pcov_at(p + sign * sig * direction)[0, 0])
+            if not v > 0:
+                break
+            sig = math.sqrt(v)
+        out.append(sig)
+    return out[0], out[1]
+
+
+def _solve(resid: Callable, jac: Callable, p0: NDArray, n_points: int, n_par: int,
+           lower: tuple[float, ...] | None = None):
+    if lower is not None:
+        lo = np.asarray(lower, dtype=float)
+        fin = np.isfinite(lo)
+        p0 = np.where(fin, np.maximum(p0, np.where(fin, lo, 0.0) + 1e-12), p0)
+        return least_squares(resid, p0, jac=jac, method="trf", bounds=(lo, np.inf),
+                             xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200 * (n_par + 1))
+    return least_squares(resid, p0, jac=jac, method="lm" if n_points > n_par else "trf",
+                         xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200 * (n_par + 1))
+
+
+def _whitener(cov: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``L^-1`` with ``L L^T = cov`` (a tiny ridge keeps a nearly singular covariance usable)."""
+    scale = float(np.mean(np.diag(cov))) if cov.size else 1.0
+    ridge = 1e-12 * (scale if scale > 0 else 1.0)
+    chol = np.linalg.cholesky(cov + ridge * np.eye(cov.shape[0]))
+    return np.linalg.inv(chol)
+
+
 def fit_lag_statistics(
     stats: LagStatistics,
     model: CurveModel,
     obs: Observables,
     pair_filter: PairFilter | None = None,
 ) -> FitResult:
-    """Weighted least-squares fit of ``stats`` (already restricted to the fit range).
+    """Fit ``stats`` (already restricted to the fit range) with ``model``.
 
     Raises
     ------
@@ -211,6 +381,7 @@ def fit_lag_statistics(
             f"fit of {stats.name}: {st.lags.size} usable lag(s) for {n_par} parameters"
         )
     tau, m = st.tau_s, st.mean
+    dt = float(tau[0] / st.lags[0])
     floor = 1e-12 * max(float(np.max(np.abs(m))), 1e-300)
     sigma = np.maximum(st.sem, floor)
 
@@ -220,42 +391,115 @@ def fit_lag_statistics(
     def jac(p: NDArray) -> NDArray:
         return model.jac(p, tau) / sigma[:, None]
 
-    p0 = model.guess(tau, m)
-    sol = least_squares(resid, p0, jac=jac, method="lm" if tau.size > n_par else "trf",
-                        xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200 * (n_par + 1))
-    p = sol.x
+    sol = _solve(resid, jac, model.guess(tau, m), tau.size, n_par, model.lower)
+    p, success = sol.x, bool(sol.success)
     j = jac(p)
     jtj_inv = np.linalg.pinv(j.T @ j)
     naive = np.sqrt(np.clip(np.diag(jtj_inv), 0, None))
-    a = jtj_inv @ j.T / sigma[None, :]  # d theta / d m
-    infl = influence_series(obs, st.name, st, a, pair_filter)
-    err, conv = _sum_error(infl)
+    a = jtj_inv @ j.T / sigma[None, :]  # d theta / d m of the weighted fit
     dof = max(tau.size - n_par, 1)
     chi2 = float(np.sum(resid(p) ** 2) / dof)
+    conv = True
+    d_errors = (float("nan"), float("nan"))
+    if model.covariance is not None and model.params[0] == "D":
+        masks = [pair_mask(obs.valid, int(k), pair_filter) for k in st.lags]
+        cov_at = model.covariance(st.lags, masks, dt)
+        if model.gls:
+            method = "gls"
+            for _ in range(GLS_ROUNDS):
+                w = _whitener(cov_at(p))
+
+                def gresid(q: NDArray, w: NDArray = w) -> NDArray:
+                    return w @ (model.f(q, tau) - m)
+
+                def gjac(q: NDArray, w: NDArray = w) -> NDArray:
+                    return w @ model.jac(q, tau)
+
+                sol = _solve(gresid, gjac, p, tau.size, n_par)
+                p, success = sol.x, bool(sol.success)
+            def gls_pcov(q: NDArray) -> NDArray:
+                wq = _whitener(cov_at(q))
+                jw = wq @ model.jac(q, tau)
+                return np.linalg.pinv(jw.T @ jw)
+
+            cov_m = cov_at(p)
+            w = _whitener(cov_m)
+            pcov = gls_pcov(p)
+            chi2 = float(np.sum((w @ (model.f(p, tau) - m)) ** 2) / dof)
+            d_errors = _sided_errors(p, pcov, gls_pcov, SIDED_ROUNDS[0])
+        else:
+            method = "sandwich"
+            # refit weighted by the model's own point errors: the block errors of a short run
+            # are noisy, and weights that follow the data's fluctuations bias the fit
+            sig_m = np.maximum(np.sqrt(np.clip(np.diag(cov_at(p)), 0, None)), floor)
+
+            def wresid(q: NDArray) -> NDArray:
+                return (model.f(q, tau) - m) / sig_m
+
+            def wjac(q: NDArray) -> NDArray:
+                return model.jac(q, tau) / sig_m[:, None]
+
+            sol = _solve(wresid, wjac, p, tau.size, n_par, model.lower)
+            p, success = sol.x, bool(sol.success)
+            j = wjac(p)
+            a = np.linalg.pinv(j.T @ j) @ j.T / sig_m[None, :]
+            cov_m = cov_at(p)
+            pcov = a @ cov_m @ a.T
+            d_errors = _sided_errors(p, pcov, lambda q: a @ cov_at(q) @ a.T, SIDED_ROUNDS[1])
+        sigma = np.sqrt(np.clip(np.diag(cov_m), 0, None))
+    else:
+        method = "influence"
+        infl = influence_series(obs, st.name, st, a, pair_filter)
+        err, conv_rows = _sum_error(infl)
+        pcov = np.diag(err**2)
+        for i in range(n_par):  # covariances from the errors of pairwise sums
+            for k in range(i + 1, n_par):
+                e_sum, c_sum = _sum_error((infl[i] + infl[k])[None, :])
+                pcov[i, k] = pcov[k, i] = 0.5 * (e_sum[0] ** 2 - err[i] ** 2 - err[k] ** 2)
+                conv_rows = np.append(conv_rows, c_sum)
+        conv = bool(np.all(conv_rows))
+    errors = np.sqrt(np.clip(np.diag(pcov), 0, None))
     return FitResult(
-        st.name, model, p, err, naive, st.lags, tau, m, sigma, chi2, infl, bool(np.all(conv)),
-        bool(sol.success),
+        st.name, model, p, errors, naive, st.lags, tau, m, sigma, chi2,
+        np.atleast_2d(pcov), method, conv, success, d_errors,
     )
 
 
 def combine(
-    parts: Sequence[tuple[float, NDArray[np.float64]]], value: float
-) -> tuple[float, float]:
+    parts: Sequence[tuple[float, FitResult, str]], value: float
+) -> tuple[float, float, float, float]:
     """Error of a derived quantity ``q(theta_1, theta_2, ...)`` by the delta method.
+
+    Parameters of the same fit are combined with their covariance; different fits are taken
+    as independent (the recipes combine fits of independent coordinates, e.g. the MSDs along
+    and across a rod's axis, which are independent for Gaussian steps and isotropic noise).
+    The sided errors scale each fit's contribution by its ``D``'s sided error (the side that
+    moves ``q`` the same way).
 
     Parameters
     ----------
-    parts : sequence of (gradient, influence series)
-        ``dq/dtheta_i`` and the influence series of ``theta_i``.
+    parts : sequence of (gradient, fit, parameter name)
+        ``dq/dtheta_i`` and where ``theta_i`` comes from.
     value : float
         ``q`` at the fitted values (returned unchanged).
 
     Returns
     -------
-    value, error : float
+    value, error, error_below, error_above : float
     """
-    y = np.zeros_like(parts[0][1])
-    for grad, series in parts:
-        y = y + grad * series
-    err, _ = _sum_error(y[None, :])
-    return value, float(err[0])
+    var = np.zeros(3)
+    fits: dict[int, tuple[FitResult, NDArray[np.float64]]] = {}
+    for grad, fit, name in parts:
+        g = fits.setdefault(id(fit), (fit, np.zeros(len(fit.model.params))))[1]
+        g[fit.model.params.index(name)] += grad
+    for fit, g in fits.values():
+        v = float(g @ fit.covariance @ g)
+        e = fit.error("D") if "D" in fit.model.params else 0.0
+        lo, hi = fit.d_error_sides() if "D" in fit.model.params else (e, e)
+        rising = g[fit.model.params.index("D")] >= 0 if "D" in fit.model.params else True
+        below, above = (lo, hi) if rising else (hi, lo)
+        f_lo = (below / e) ** 2 if e > 0 else 1.0
+        f_hi = (above / e) ** 2 if e > 0 else 1.0
+        var += v * np.array([1.0, f_lo, f_hi])
+    err = np.sqrt(np.clip(var, 0.0, None))
+    return value, float(err[0]), float(err[1]), float(err[2])

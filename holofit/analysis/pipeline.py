@@ -5,13 +5,16 @@ is the model's recipe (:mod:`holofit.analysis.recipes`):
 
 1. the fit table becomes a regular time series with gaps (missing or failed frames);
 2. an optional constant drift (sedimentation) is removed: ``v = (r_last - r_first) / T``, the
-   maximum-likelihood drift of Brownian motion (it lowers the MSD by a factor ``1 - tau / T``,
-   below 0.5 % in the default fit range of a 2000-frame run);
+   maximum-likelihood drift of Brownian motion, reported with its Brownian error. Removing it
+   turns the path into a Brownian bridge, whose MSD is lower by exactly ``1 - tau / T``; the
+   translational MSD models carry that factor (:func:`holofit.analysis.fitting.linear_msd_model`),
+   so the subtraction leaves the coefficients unbiased at any length, drift or no drift;
 3. orientation cleaning (:mod:`holofit.analysis.cleaning`): head-tail flips (rods), dropped
    excursions and rejected pairs (probability < 1e-4 under rotational diffusion with ``D_est``);
-4. lag statistics of the recipe's observables with block-decorrelated errors
-   (:mod:`holofit.analysis.msd`) and weighted fits with influence-series errors
-   (:mod:`holofit.analysis.fitting`), over a fit range that grows with the measured
+4. lag statistics of the recipe's observables (:mod:`holofit.analysis.msd`) and fits whose
+   errors include the correlations between lags (:mod:`holofit.analysis.fitting`: generalised
+   least squares with the MSDs' analytic covariance; for the projection correlation a weighted
+   fit with a simulated covariance), over a fit range that grows with the measured
    localisation error (:func:`_adaptive_last_lag`);
 5. the rejection is redone with ``D_est`` times 2/3 and 4/3 and the coefficients reported for
    each (sensitivity, not folded into the statistical error);
@@ -27,7 +30,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 import holofit.analysis.hydrodynamics as hd
-from holofit.analysis.cleaning import OrientationCleaning, RotationEstimate, clean_orientations
+from holofit.analysis.cleaning import (
+    MIN_ESTIMATE_PAIRS,
+    OrientationCleaning,
+    RotationEstimate,
+    clean_orientations,
+)
 from holofit.analysis.errors import AnalysisError
 from holofit.analysis.fitting import CurveModel, FitResult, fit_lag_statistics
 from holofit.analysis.measurement import Measurement
@@ -62,11 +70,14 @@ MIN_FIT_LAGS = 3
 #: a long rotational fit range uses every lag up to FIT_DENSE, then FIT_LOG log-spaced lags
 FIT_DENSE = 20
 FIT_LOG = 40
-#: fewer frames with a fit than this cannot be analysed
-MIN_FRAMES = 10
-#: fewer frames than this get a note: the estimates are biased low (measured with
-#: :func:`holofit.analysis.validation.rod_study`: -20 % in D_t at 30 frames, within errors at 100)
+#: fewer frames with a fit than this cannot be analysed (the rotational-diffusion estimate of
+#: the rejection needs MIN_ESTIMATE_PAIRS pairs at lags 1 and 2: 10 consecutive frames)
+MIN_FRAMES = MIN_ESTIMATE_PAIRS + 2
+#: fewer frames than this get a note (bench/calibration.py: errors calibrated, but large, and
+#: the estimates skewed)
 SHORT_FRAMES = 100
+#: observables whose positions were drift-corrected (their models get the bridge factor)
+POSITIONAL = ("par", "perp", "lab_x", "lab_y", "lab_z", "lab_3d", "xy")
 
 SIZE_ALIASES = {
     "a_um": ("a_um", "radius_um", "core_radius_um", "cap_radius_um"),
@@ -77,12 +88,23 @@ SIZE_ALIASES = {
 SENSITIVE = ("D_par", "D_perp", "D_t", "D_t_lab", "D_par/D_perp", "D_r")
 
 
-def _drift(traj: Trajectory) -> NDArray[np.float64]:
+def _drift(traj: Trajectory) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """End-to-end drift velocity, its Brownian error (um/s) and the span ``T`` (s).
+
+    The error of ``(r_last - r_first) / T`` per coordinate is ``sqrt(span * m1) / T``, with
+    ``m1`` the mean squared one-frame step after the drift's removal and ``span`` the frames
+    between the ends (the steps are independent for Brownian motion; the noise adds a little).
+    """
     v = np.flatnonzero(traj.valid)
     if v.size < 2:
-        return np.zeros(3)
-    span = (v[-1] - v[0]) * traj.frame_interval_s
-    return (traj.position_um[v[-1]] - traj.position_um[v[0]]) / span
+        return np.zeros(3), np.full(3, np.nan), 0.0
+    frames = int(v[-1] - v[0])
+    span = frames * traj.frame_interval_s
+    vel = (traj.position_um[v[-1]] - traj.position_um[v[0]]) / span
+    step = np.diff(traj.position_um, axis=0) - vel * traj.frame_interval_s
+    ok = traj.valid[1:] & traj.valid[:-1]
+    m1 = np.mean(step[ok] ** 2, axis=0) if ok.any() else np.full(3, np.nan)
+    return vel, np.sqrt(frames * m1) / span, span
 
 
 def _range(
@@ -185,9 +207,10 @@ class _Pass:
 
     def __init__(
         self, traj: Trajectory, settings: AnalysisSettings, recipe: Recipe, pos: NDArray,
-        ranges: dict[str, tuple[int, int]],
+        ranges: dict[str, tuple[int, int]], bridge_s: float | None = None,
     ) -> None:
         self.traj = traj
+        self.bridge_s = bridge_s
         self.settings = settings
         self.recipe = recipe
         self.pos = pos
@@ -214,6 +237,7 @@ class _Pass:
         self.stats = lag_statistics(self.obs, list(self.recipe.observables),
                                     self._lags(lags), self.dt, self.pair_filter)
         t_lags = _range(self._translation_range(), self.n, "translation")
+        self._ensure(t_lags)
         r_lags = self._rotation_lags()
         measured = self.recipe.measure(self.fit, t_lags, r_lags, self.settings)
         return _Core(self.cleaning, self.valid, self.stats, self.fits, measured)
@@ -248,17 +272,24 @@ class _Pass:
             lags = np.union1d(lags, _range(s.fit_lags_rotation, n, "rotation", sparse=True))
         return lags
 
+    def _model(self, name: str, model: CurveModel) -> CurveModel:
+        """``model``, with the bridge factor where the drift was removed from ``name``."""
+        if self.bridge_s and name in POSITIONAL and model.bridged is not None:
+            return model.bridged(self.bridge_s)
+        return model
+
     def fit(self, key: str, name: str, model: CurveModel, lags: NDArray) -> FitResult:
         """Fit observable ``name`` at ``lags`` and keep the result as ``key``."""
-        f = fit_lag_statistics(self.stats[name].at(lags), model, self.obs, self.pair_filter)
+        f = fit_lag_statistics(self.stats[name].at(lags), self._model(name, model), self.obs,
+                               self.pair_filter)
         self.fits[key] = f
         return f
 
     def _probe_last_lag(self, probe: Probe, last: int, what: str) -> int:
         """The adaptive last lag from a preliminary fit of lags 1..``last``."""
         pre = fit_lag_statistics(
-            self.stats[probe.observable].at(_range((1, last), self.n, what)), probe.model(),
-            self.obs, self.pair_filter,
+            self.stats[probe.observable].at(_range((1, last), self.n, what)),
+            self._model(probe.observable, probe.model()), self.obs, self.pair_filter,
         )
         noise = probe.noise_factor * pre.value("eps2")
         return _adaptive_last_lag(noise, pre.value("D") * self.dt, self.n)
@@ -288,16 +319,21 @@ class _Pass:
                                                 "rotation")
                     self.ranges["r"] = (1, min(last, limit[1]))
         r_lags = _range(self.ranges["r"], self.n, "rotation", sparse=True)
-        missing = np.setdiff1d(r_lags, self.stats[rot.observable].lags)
+        self._ensure(r_lags)
+        return r_lags
+
+    def _ensure(self, lags: NDArray[np.int64]) -> None:
+        """Compute the lag statistics at ``lags`` where they are missing (a fit range the
+        probe chose longer than the lags computed for the plots)."""
+        missing = np.setdiff1d(lags, next(iter(self.stats.values())).lags)
         if missing.size:
             _merge(self.stats, lag_statistics(self.obs, list(self.recipe.observables), missing,
                                               self.dt, self.pair_filter))
-        return r_lags
 
 
 def _sensitivity(
     core: _Core, traj: Trajectory, s: AnalysisSettings, recipe: Recipe, pos: NDArray,
-    ranges: dict[str, tuple[int, int]],
+    ranges: dict[str, tuple[int, int]], bridge_s: float | None,
 ) -> None:
     """Redo the measurement with the rejection's ``D_est`` scaled by each sensitivity factor
     (same fit ranges) and record the values in the measurements' ``sensitivity``."""
@@ -305,7 +341,7 @@ def _sensitivity(
     fit_lags = np.union1d(_range(ranges["t"], traj.n_frames, "translation"),
                           _range(ranges["r"], traj.n_frames, "rotation", sparse=True))
     for factor in s.sensitivity_factors:
-        alt = _Pass(traj, s, recipe, pos, dict(ranges)).run(
+        alt = _Pass(traj, s, recipe, pos, dict(ranges), bridge_s).run(
             est.d_est * factor, est.eps_r, est, fit_lags)
         for key in SENSITIVE:
             if key in core.measured and key in alt.measured:
@@ -338,8 +374,13 @@ def _effective_radii(result: AnalysisResult) -> None:
         m = result.measured.get(key)
         if m is None:
             continue
+        if not m.value > 1e-6 * m.sides()[1]:  # zero, or at the fit's bound
+            result.notes.append(f"{key} = {m.value:.3g} is not positive (the run is too short "
+                                "to resolve it): no effective radius from it")
+            continue
         val = fn(m.value, t)
-        up, dn = fn(m.value + m.error, t), fn(max(m.value - m.error, 1e-12), t)
+        below, above = m.sides()
+        up, dn = fn(m.value + above, t), fn(max(m.value - below, 1e-12), t)
         err_d = abs(dn - up) / 2 if math.isfinite(up) and math.isfinite(dn) else float("nan")
         err_t = abs(fn(m.value, t + dt_c) - fn(m.value, t - dt_c)) / 2 if dt_c > 0 else 0.0
         result.measured[name] = Measurement(1e3 * val, 1e3 * math.hypot(err_d, err_t), "nm")
@@ -350,18 +391,21 @@ def _analyze(traj: Trajectory, s: AnalysisSettings) -> AnalysisResult:
     if traj.valid.sum() < MIN_FRAMES:
         raise AnalysisError(f"only {int(traj.valid.sum())} frames with a fit "
                             f"(the analysis needs at least {MIN_FRAMES})")
-    drift = _drift(traj) if s.subtract_drift else np.zeros(3)
+    drift, drift_err, span = _drift(traj)
+    if not s.subtract_drift:
+        drift = np.zeros(3)
+    bridge_s = span if s.subtract_drift and span > 0 else None
     pos = traj.position_um - np.outer(traj.time_s, drift)
     ranges: dict[str, tuple[int, int]] = {}
-    core = _Pass(traj, s, recipe, pos, ranges).run(s.d_est, s.eps_r_est, None, None)
+    core = _Pass(traj, s, recipe, pos, ranges, bridge_s).run(s.d_est, s.eps_r_est, None, None)
     if core.cleaning is not None and core.cleaning.estimate is not None and s.reject:
-        _sensitivity(core, traj, s, recipe, pos, ranges)
+        _sensitivity(core, traj, s, recipe, pos, ranges, bridge_s)
     notes = _fit_notes(core.fits)
     if traj.valid.sum() < SHORT_FRAMES:
         notes.append(
-            f"only {int(traj.valid.sum())} frames: below about {SHORT_FRAMES} frames the "
-            "diffusion coefficients come out biased low (about 20 % at 30 frames in simulations "
-            "with known truth, analysis.validation) and their errors too small")
+            f"only {int(traj.valid.sum())} frames: the errors are large and, below about "
+            f"{SHORT_FRAMES} frames, skewed (a low estimate gets a smaller error than a high "
+            "one); see the README's calibration table")
     if traj.n_ambiguous:
         notes.append(f"{traj.n_ambiguous} frame(s) the fit flagged ambiguous (the mirrored "
                      "orientation fits as well) left out")
@@ -374,7 +418,7 @@ def _analyze(traj: Trajectory, s: AnalysisSettings) -> AnalysisResult:
     predictions = recipe.predict(sizes, s.temperature_c, s.temperature_err_c, notes)
     result = AnalysisResult(
         s, traj, core.valid, drift, core.cleaning, core.stats, core.fits, core.measured,
-        predictions, sizes, [], notes,
+        predictions, sizes, [], notes, drift_err,
     )
     _effective_radii(result)
     result.rows = summary_rows(result)

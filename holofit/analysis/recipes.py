@@ -214,16 +214,43 @@ class Recipe:
     drop_ambiguous: bool = False
 
 
-def _eps_nm(f: FitResult) -> Measurement:
-    """The localisation error ``sqrt(eps2)`` of a fit's intercept, nm."""
+#: the intercept ``eps^2`` counts as resolved when it lies this many errors above zero ...
+RESOLVED_SIGMA = 2.0
+#: ... else ``eps`` is reported as the one-sided 95 % upper limit ``sqrt(max(eps^2, 0) + z de2)``
+UPPER_LIMIT_Z = 1.645
+
+
+def _eps(f: FitResult, scale: float, unit: str) -> Measurement:
+    """The localisation error ``sqrt(eps2)`` of a fit's intercept, times ``scale``.
+
+    ``sqrt`` of an intercept that is not resolved from zero would report the noise of the fit
+    as a localisation error (a true 1 nm came out as 10 nm): then the result is an upper limit.
+    """
     e2, de2 = f.value("eps2"), f.error("eps2")
-    if e2 <= 0:
-        return Measurement(0.0, 1e3 * math.sqrt(max(de2, 0.0)), "nm")
-    e = math.sqrt(e2)
-    return Measurement(1e3 * e, 1e3 * de2 / (2 * e), "nm")
+    if not math.isfinite(de2) or e2 > RESOLVED_SIGMA * de2:
+        e = math.sqrt(max(e2, 0.0))
+        return Measurement(scale * e, scale * de2 / (2 * e) if e > 0 else math.nan, unit)
+    limit = math.sqrt(max(e2, 0.0) + UPPER_LIMIT_Z * de2)
+    return Measurement(scale * limit, math.nan, unit, upper_limit=True)
+
+
+def _eps_nm(f: FitResult) -> Measurement:
+    """The localisation error of a positional fit's intercept, nm."""
+    return _eps(f, 1e3, "nm")
 
 
 # ---------------------------------------------------------------------------------- rod
+
+
+def _d(f: FitResult, unit: str) -> Measurement:
+    """A fit's diffusion coefficient with its sided errors."""
+    lo, hi = f.d_error_sides()
+    return Measurement(f.value("D"), f.error("D"), unit, error_below=lo, error_above=hi)
+
+
+def _combined(parts: list, value: float, unit: str) -> Measurement:
+    v, e, lo, hi = combine(parts, value)
+    return Measurement(v, e, unit, error_below=lo, error_above=hi)
 
 
 def _measure_rod(
@@ -236,24 +263,17 @@ def _measure_rod(
     fl = fit("lab_3d", "lab_3d", linear_msd_model(6, "lab_3d"), t_lags)
     fr = fit("orient", "orient", orientation_msd_model(), r_lags)
     dpar, dperp = fp.value("D"), fq.value("D")
-    meas["D_par"] = Measurement(dpar, fp.error("D"), "um^2/s")
-    meas["D_perp"] = Measurement(dperp, fq.error("D"), "um^2/s")
-    dt_val, dt_err = combine(
-        [(1 / 3, fp.influence_of("D")), (2 / 3, fq.influence_of("D"))], (dpar + 2 * dperp) / 3
-    )
-    meas["D_t"] = Measurement(dt_val, dt_err, "um^2/s")
-    meas["D_t_lab"] = Measurement(fl.value("D"), fl.error("D"), "um^2/s")
-    ratio, ratio_err = combine(
-        [(1 / dperp, fp.influence_of("D")), (-dpar / dperp**2, fq.influence_of("D"))],
-        dpar / dperp,
-    )
-    meas["D_par/D_perp"] = Measurement(ratio, ratio_err, "1")
-    meas["D_r"] = Measurement(fr.value("D"), fr.error("D"), "1/s")
+    meas["D_par"] = _d(fp, "um^2/s")
+    meas["D_perp"] = _d(fq, "um^2/s")
+    meas["D_t"] = _combined([(1 / 3, fp, "D"), (2 / 3, fq, "D")], (dpar + 2 * dperp) / 3,
+                            "um^2/s")
+    meas["D_t_lab"] = _d(fl, "um^2/s")
+    meas["D_par/D_perp"] = _combined([(1 / dperp, fp, "D"), (-dpar / dperp**2, fq, "D")],
+                                     dpar / dperp, "1")
+    meas["D_r"] = _d(fr, "1/s")
     meas["eps_par"] = _eps_nm(fp)
     meas["eps_perp"] = _eps_nm(fq)
-    er = _eps_nm(fr)
-    meas["eps_r"] = Measurement(math.degrees(er.value / 1e3), math.degrees(er.error / 1e3),
-                                "deg")
+    meas["eps_r"] = _eps(fr, math.degrees(1.0), "deg")
     return meas
 
 
@@ -326,7 +346,7 @@ def _measure_xy(
     options: MeasureOptions,
 ) -> dict[str, Measurement]:
     fx = fit("xy", "xy", linear_msd_model(4, "xy"), t_lags)
-    return {"D_t": Measurement(fx.value("D"), fx.error("D"), "um^2/s"), "eps": _eps_nm(fx)}
+    return {"D_t": _d(fx, "um^2/s"), "eps": _eps_nm(fx)}
 
 
 def _measure_janus(
@@ -336,7 +356,7 @@ def _measure_janus(
     meas = _measure_xy(fit, t_lags, r_lags, options)
     amplitude = options.projection_amplitude
     fj = fit("proj", "proj", projection_model(amplitude), r_lags)
-    meas["D_r"] = Measurement(fj.value("D"), fj.error("D"), "1/s")
+    meas["D_r"] = _d(fj, "1/s")
     if amplitude:
         meas["A"] = Measurement(fj.value("A"), fj.error("A"), "1")
     try:  # for comparison only (biased at short lags)

@@ -52,6 +52,8 @@ class AnalysisResult:
         The summary table (:func:`holofit.analysis.summary.summary_rows`).
     notes : list of str
         What the user should know.
+    drift_err_um_s : ndarray, shape (3,)
+        The Brownian 1-sigma error of the end-to-end drift velocity, um/s (NaN if unknown).
     """
 
     settings: AnalysisSettings
@@ -66,6 +68,7 @@ class AnalysisResult:
     sizes: dict[str, tuple[float, float, str]]
     rows: list[dict[str, Any]]
     notes: list[str] = field(default_factory=list)
+    drift_err_um_s: NDArray[np.float64] = field(default_factory=lambda: np.full(3, np.nan))
 
     def summary(self) -> dict[str, Any]:
         """A JSON-ready description of the analysis."""
@@ -83,6 +86,7 @@ class AnalysisResult:
                 "used": int(self.valid.sum()),
             },
             "drift_um_s": self.drift_um_s.tolist(),
+            "drift_err_um_s": self.drift_err_um_s.tolist(),
             "measured": {k: asdict(v) for k, v in self.measured.items()},
             "predictions": {
                 k: {**asdict(p), "unit": unit, "source": src}
@@ -122,6 +126,7 @@ def _fit_summary(f: FitResult) -> dict[str, Any]:
         "model": f.model.formula,
         "parameters": dict(zip(f.model.params, f.values.tolist(), strict=True)),
         "errors": dict(zip(f.model.params, f.errors.tolist(), strict=True)),
+        "error_method": f.method,
         "errors_if_lags_independent": dict(
             zip(f.model.params, f.naive_errors.tolist(), strict=True)
         ),

@@ -84,7 +84,8 @@ class AnalysisSettings:
     sensitivity_factors : tuple of float
         Factors applied to ``D_est`` for the sensitivity report.
     subtract_drift : bool
-        Remove a constant drift velocity.
+        Remove a constant drift velocity (the end-to-end one; the translational MSD models then
+        carry the Brownian bridge's factor ``1 - tau / T``, so this costs no bias).
     fit_lags_translation, fit_lags_rotation : tuple of int, optional
         Inclusive fit ranges in frames. Defaults: lags 1..p with ``p = 2 + 2.5 sqrt(x)``
         (3 <= p <= 20) for translation and for the rod's orientation MSD, ``x`` being the

@@ -25,28 +25,46 @@ SUMMARY_COLUMNS = (
     "source",
     "measured_d_est_low",
     "measured_d_est_high",
+    "measured_err_below",
+    "measured_err_above",
 )
 
 SUMMARY_UNITS = {
     "quantity": "text",
     "unit": "text (unit of measured, expected and their errors)",
     "measured": "see unit",
-    "measured_err": "1-sigma statistical error (block-decorrelated), see unit",
+    "measured_err": "1-sigma statistical error (correlations between lags included; empty "
+                    "for an upper limit), see unit",
     "expected": "see unit",
     "expected_err": "1-sigma, from temperature and size uncertainties, see unit",
     "source": "text",
     "measured_d_est_low": "measured value with the rejection's D_est x 2/3, see unit",
     "measured_d_est_high": "measured value with the rejection's D_est x 4/3, see unit",
+    "measured_err_below": "1-sigma error below the measured value (score interval: a "
+                          "diffusion coefficient's error grows with it), see unit",
+    "measured_err_above": "1-sigma error above the measured value, see unit",
 }
 
 NAN = float("nan")
 
 
 def _row(quantity: str, unit: str, measured=NAN, err=NAN, expected=NAN, expected_err=NAN,
-         source: str = "", low=NAN, high=NAN) -> dict[str, Any]:
+         source: str = "", low=NAN, high=NAN, below=NAN, above=NAN) -> dict[str, Any]:
+    if not math.isfinite(below):
+        below = err
+    if not math.isfinite(above):
+        above = err
     return dict(zip(SUMMARY_COLUMNS,
-                    (quantity, unit, measured, err, expected, expected_err, source, low, high),
-                    strict=True))
+                    (quantity, unit, measured, err, expected, expected_err, source, low, high,
+                     below, above), strict=True))
+
+
+def _static_source(col: str, st: dict[str, float]) -> str:
+    """Where a static parameter's value and spread come from (FitTable.static_summary)."""
+    if st.get("held"):
+        return (f"fit table '{col}' (held fixed in the final pass): the initial pass's robust "
+                f"average +- robust spread (1.4826 MAD) over {int(st['count'])} frames")
+    return f"fit table '{col}': median +- s.d. over {int(st['count'])} frames"
 
 
 def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
@@ -75,23 +93,25 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
                 col = src.split("'")[1]
                 st = static[col]
                 rows.append(_row(label, "nm", 1e3 * st["median"], 1e3 * st["std"],
-                                 source=f"fit table '{col}': median +- s.d. over frames"))
+                                 source=_static_source(col, st)))
     for col in ("n", "index", "n_core", "n_cap"):
         if col in static:
             st = static[col]
-            rows.append(_row(col, "1", st["median"], st["std"],
-                             source=f"fit table '{col}': median +- s.d. over frames"))
+            rows.append(_row(col, "1", st["median"], st["std"], source=_static_source(col, st)))
 
     def with_pred(key: str, label: str, pkey: str | None, unit: str) -> None:
         m = meas.get(key)
         if m is None:
             return
         lo, hi = sens(key)
+        below, above = m.sides()
         if pkey is not None and pkey in pred:
             p, _, src = pred[pkey]
-            rows.append(_row(label, unit, m.value, m.error, p.value, p.error, src, lo, hi))
+            rows.append(_row(label, unit, m.value, m.error, p.value, p.error, src, lo, hi,
+                             below, above))
         else:
-            rows.append(_row(label, unit, m.value, m.error, source="", low=lo, high=hi))
+            rows.append(_row(label, unit, m.value, m.error, source="", low=lo, high=hi,
+                             below=below, above=above))
 
     recipe = recipe_for(s.model)
     for line in recipe.summary:
@@ -99,8 +119,11 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
             with_pred(line.measured, line.label, line.prediction, line.unit)
         elif line.measured in meas:
             m = meas[line.measured]
-            rows.append(_row(line.label, m.unit, m.value, m.error, line.expected,
-                             source=line.source))
+            src = line.source
+            if m.upper_limit:
+                src += ": not resolved from zero, 95 % upper limit"
+            rows.append(_row(line.label, m.unit, m.value, m.error, line.expected, source=src))
+            rows[-1]["upper_limit"] = m.upper_limit
     radius = result.sizes.get("a_um")
     for key, label, src in (
         ("a_eff_t", "a_eff from D_t", "Stokes-Einstein radius of the measured D_t"),
@@ -117,12 +140,22 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
     return rows
 
 
-def _fmt(value: float, err: float) -> str:
+#: sided errors are printed apart when they differ by more than this fraction
+SIDED_SHOWN = 0.1
+
+
+def _fmt(value: float, err: float, upper_limit: bool = False, below: float = NAN,
+         above: float = NAN) -> str:
     if not math.isfinite(value):
         return "--"
+    if upper_limit:
+        return f"< {value:.2g}"
     if not math.isfinite(err) or err <= 1e-9 * abs(value):
         return f"{value:.4g}"
     digits = min(max(0, 1 - math.floor(math.log10(err))), 6)
+    if (math.isfinite(below) and math.isfinite(above)
+            and abs(above - below) > SIDED_SHOWN * err):
+        return f"{value:.{digits}f} -{below:.{digits}f} +{above:.{digits}f}"
     return f"{value:.{digits}f} +- {err:.{digits}f}"
 
 
@@ -138,8 +171,10 @@ def format_report(result: AnalysisResult) -> str:
         f"{int(result.valid.sum())} used; frame interval {traj.frame_interval_s:g} s",
     ]
     if s.subtract_drift:
-        v = result.drift_um_s
-        lines.append(f"  drift removed: ({v[0]:.3g}, {v[1]:.3g}, {v[2]:.3g}) um/s")
+        v, dv = result.drift_um_s, result.drift_err_um_s
+        parts = ", ".join(_fmt(a, b) for a, b in zip(v, dv, strict=True))
+        lines.append(f"  drift removed: ({parts}) um/s (end to end; the MSD fits allow for "
+                     "its removal)")
     cl = result.cleaning
     if cl is not None:
         parts = []
@@ -164,8 +199,10 @@ def format_report(result: AnalysisResult) -> str:
     lines.append(header)
     lines.append("  " + "-" * (len(header) + 10))
     for r in result.rows:
+        measured = _fmt(r["measured"], r["measured_err"], r.get("upper_limit", False),
+                        r["measured_err_below"], r["measured_err_above"])
         lines.append(
-            f"  {r['quantity']:<30} {r['unit']:<7} {_fmt(r['measured'], r['measured_err']):>22}"
+            f"  {r['quantity']:<30} {r['unit']:<7} {measured:>22}"
             f" {_fmt(r['expected'], r['expected_err']):>22}  {r['source']}"
         )
     sens = {k: m for k, m in result.measured.items() if m.sensitivity}
