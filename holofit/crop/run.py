@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from holofit.batch.mainguard import refuse_while_worker_starts
 from holofit.config import ConfigError, Instrument, load_instrument, resolve_config
 from holofit.crop.centerfind import CenterFinder
 from holofit.crop.cropping import crop_corner, extract_crop
@@ -242,6 +243,7 @@ def run_crop(
     CropError
         Unusable input (the message names the file, and the frame where one is at fault).
     """
+    refuse_while_worker_starts("run_crop")
     out = Path(out_dir)
     inst = _resolve_instrument(instrument)
     size = int(size)
