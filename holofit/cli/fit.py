@@ -45,8 +45,10 @@ from holofit.scattering.select import ENGINE_CHOICES
               show_default=True,
               help="initial: everything free on the first frames, writes static.json; final: "
                    "static parameters fixed, every frame; both: one then the other.")
-@click.option("--initial-frames", type=click.IntRange(min=1), default=500, show_default=True,
-              help="Frames of the initial pass (1 for a single hologram: everything free).")
+@click.option("--initial-frames", type=click.IntRange(min=1), default=None,
+              help="Frames of the initial pass (1 for a single hologram: everything free) "
+                   "[default: 1 in 20 of the frames that can be fitted, at least 8, at most "
+                   "500; the choice is printed].")
 @click.option("--static", "static_file", default=None,
               type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="static.json with the static parameters of the final pass [default: "
@@ -96,7 +98,7 @@ def fit(
     out: Path,
     instrument: str | None,
     pass_name: str,
-    initial_frames: int,
+    initial_frames: int | None,
     static_file: Path | None,
     engine: str | None,
     fixed: str,

@@ -40,7 +40,7 @@ from holofit.config import ConfigError, Instrument, load_instrument, resolve_con
 from holofit.crop.centerfind import CenterFinder
 from holofit.crop.cropping import crop_corner, extract_crop
 from holofit.crop.errors import CropError, FrameError
-from holofit.crop.follow import Follower
+from holofit.crop.follow import FOLLOW_MODES, Follower
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
 from holofit.crop.table import CANDIDATE_UNITS, CROP_COLUMNS, CROP_UNITS
@@ -50,10 +50,50 @@ from holofit.io.tiffstack import TiffStackWriter
 from holofit.provenance import sidecar
 from holofit.status import CROP_EDGE, CROP_ERROR, CROP_NO_PARTICLE, CROP_OK, CROP_STATUSES
 
-__all__ = ["MIN_CROP_SIZE", "CropResult", "run_crop"]
+__all__ = ["DEFAULT_CROP_SIZE", "MIN_CROP_SIZE", "CropResult", "check_crop_settings",
+           "run_crop"]
 
 #: smallest crop side, pixels
 MIN_CROP_SIZE = 8
+#: the paper's crop side, pixels
+DEFAULT_CROP_SIZE = 140
+
+
+def check_crop_settings(
+    frame_shape: tuple[int, int],
+    size: int = DEFAULT_CROP_SIZE,
+    follow: str = "strongest",
+    start: tuple[float, float] | None = None,
+) -> None:
+    """Refuse crop settings that cannot work on frames of ``frame_shape`` (rows, cols).
+
+    The rules of :func:`run_crop`, also checked by ``holofit init`` before a run folder is
+    written. Messages name the crop's options (``--size``, ``--follow``, ``--start``).
+
+    Raises
+    ------
+    CropError
+        A crop side below :data:`MIN_CROP_SIZE` or larger than the frame, an unknown follow
+        mode, a start point without ``follow="nearest"`` or outside the frame.
+    """
+    rows, cols = int(frame_shape[0]), int(frame_shape[1])
+    if size < MIN_CROP_SIZE:
+        raise CropError(f"crop size (--size) must be at least {MIN_CROP_SIZE} pixels, got {size}")
+    if size > min(rows, cols):
+        raise CropError(f"crop size (--size) {size} does not fit in frames of {rows} x {cols} "
+                        f"pixels: give at most {min(rows, cols)}")
+    if follow not in FOLLOW_MODES:
+        raise CropError(f"--follow {follow!r}: expected one of {', '.join(FOLLOW_MODES)} "
+                        "(several particles at once: one run per particle with --follow "
+                        "nearest --start X,Y)")
+    if start is not None:
+        if follow != "nearest":
+            raise CropError("--start X,Y needs --follow nearest (the default, strongest, takes "
+                            "the strongest hologram of every frame)")
+        x, y = float(start[0]), float(start[1])
+        if not (0 <= x < cols and 0 <= y < rows):
+            raise CropError(f"--start {x:g},{y:g} lies outside the frames ({cols} columns x, "
+                            f"{rows} rows y, pixels)")
 
 
 @dataclass
@@ -183,7 +223,7 @@ def run_crop(
     *,
     normalized: bool = False,
     dark: References | float | None = None,
-    size: int = 140,
+    size: int = DEFAULT_CROP_SIZE,
     follow: str = "strongest",
     start: tuple[float, float] | None = None,
     max_jump_px: float | None = None,
@@ -267,11 +307,10 @@ def run_crop(
     except MovieError as exc:
         raise CropError(str(exc)) from None
     with movie:
-        if size > min(movie.frame_shape):
-            raise CropError(
-                f"{movie_path}: crop size {size} does not fit in frames of "
-                f"{movie.frame_shape[0]} x {movie.frame_shape[1]} pixels; use a smaller --size"
-            )
+        try:
+            check_crop_settings(tuple(movie.frame_shape), size, follow, start)
+        except CropError as exc:
+            raise CropError(f"{movie_path}: {exc}") from None
         saturation = _saturation(movie, inst) if mask_saturated else None
         if normalized:
             normalizer = Normalizer(np.ones(movie.frame_shape), saturation=saturation)
