@@ -40,7 +40,7 @@ from holofit.config import ConfigError, Instrument, load_instrument, resolve_con
 from holofit.crop.centerfind import CenterFinder
 from holofit.crop.cropping import crop_corner, extract_crop
 from holofit.crop.errors import CropError, FrameError
-from holofit.crop.follow import FOLLOW_MODES, Follower
+from holofit.crop.follow import FOLLOW_MODES, Follower, off_track
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
 from holofit.crop.table import CANDIDATE_UNITS, CROP_COLUMNS, CROP_UNITS
@@ -48,7 +48,15 @@ from holofit.io.movie import Movie, MovieError, open_movie
 from holofit.io.tables import sidecar_path, write_json, write_table
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.provenance import sidecar
-from holofit.status import CROP_EDGE, CROP_ERROR, CROP_NO_PARTICLE, CROP_OK, CROP_STATUSES
+from holofit.status import (
+    CROP_EDGE,
+    CROP_ERROR,
+    CROP_NO_PARTICLE,
+    CROP_OFF_TRACK,
+    CROP_OK,
+    CROP_STATUSES,
+    FITTABLE_CROP_STATUSES,
+)
 
 __all__ = ["DEFAULT_CROP_SIZE", "MIN_CROP_SIZE", "CropResult", "check_crop_settings",
            "run_crop"]
@@ -118,6 +126,9 @@ class CropResult:
         Frames per status.
     problems : list of str
         What is wrong with the movie file as a whole (e.g. truncation), also in the sidecars.
+    warnings : list of str
+        What is doubtful about the result as a whole (e.g. the strongest hologram jumping to
+        another particle), also in the sidecars.
     """
 
     out_dir: Path
@@ -128,6 +139,7 @@ class CropResult:
     frames: pd.DataFrame
     counts: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
 def _resolve_instrument(instrument: Instrument | str | Path) -> Instrument:
@@ -340,6 +352,8 @@ def run_crop(
             rows, candidates, preview = _crop_frames(
                 movie, normalizer, finder, follower, size, inst.pixel_size_um, writer, progress
             )
+            warnings = (_mark_off_track(rows, follower.max_jump_px)
+                        if follow == "strongest" else [])
             frames = pd.DataFrame(rows, columns=list(CROP_COLUMNS))
             for column in ("corner_row", "corner_col"):
                 frames[column] = frames[column].astype("Int64")
@@ -402,6 +416,7 @@ def run_crop(
                 "[corner_row + i, corner_col + j] (corner_* in the table)",
             },
             "status_counts": counts,
+            "warnings": warnings,
         }
         config = {"instrument": inst.as_dict()}
         write_json(
@@ -417,7 +432,38 @@ def run_crop(
                     extra=extra),
         )  # fmt: skip
     return CropResult(out, crops_path, table_path, cand_path, made_plot, frames, counts,
-                      list(movie.problems))
+                      list(movie.problems), warnings)
+
+
+def _frame_list(frames: list[int], most: int = 8) -> str:
+    shown = ", ".join(map(str, frames[:most]))
+    return shown + (f", ... ({len(frames)} in all)" if len(frames) > most else "")
+
+
+def _mark_off_track(rows: list[dict[str, Any]], max_jump_px: float) -> list[str]:
+    """``follow="strongest"``: mark the frames whose centre left the main track
+    (:func:`holofit.crop.follow.off_track`) ``off_track``, in place; the warning, if any."""
+    fitted = [r["status"] in FITTABLE_CROP_STATUSES for r in rows]
+    x = [r["x_px"] if f else math.nan for r, f in zip(rows, fitted, strict=True)]
+    y = [r["y_px"] if f else math.nan for r, f in zip(rows, fitted, strict=True)]
+    tracks = off_track(x, y, max_jump_px)
+    off = [int(k) for k in np.flatnonzero(tracks.off)]
+    if not off:
+        return []
+    main = int(np.flatnonzero(tracks.label == 0)[0])
+    for k in off:
+        row = rows[k]
+        row["status"] = CROP_OFF_TRACK
+        row["message"] = (f"centre ({row['x_px']:.0f}, {row['y_px']:.0f}) px is off the movie's "
+                          f"main track (a jump of more than {max_jump_px:g} px): another "
+                          "particle, or a false detection; not fitted")
+    r0 = rows[main]
+    return [f"the strongest hologram jumped by more than {max_jump_px:g} px (the max jump) "
+            f"in frame(s) {_frame_list(tracks.jumps)}: {tracks.n_tracks} tracks, likely "
+            f"another particle in view; {len(off)} frame(s) off the main track are marked "
+            f"off_track and not fitted ({_frame_list(off)}). To follow the main track's "
+            f"particle instead: --follow nearest --start {r0['x_px']:.0f},{r0['y_px']:.0f} "
+            f"(where it is in frame {main}; another's start point follows that one)"]
 
 
 def _crop_frames(
