@@ -255,7 +255,8 @@ def test_a_voxel_particle_brings_its_shape_file(tmp_path, inputs):
     ((), 1, "holofit init: error: the movie's frames (96 x 96 pixels) are smaller than the "
             "default crop (140 x 140): give --crop-opts '--size N' with N <= 96"),
     (("--crop-opts", "--size 120"), 1, "holofit init: error: --crop-opts '--size 120': crop "
-                                       "size (--size) 120 does not fit in frames of 96 x 96"),
+                                       "size 120 does not fit in frames of 96 x 96 pixels: "
+                                       "give a smaller --size (at most 96)"),
     (("--crop-opts", "--size 64 --follow all"), 2, "'all' is not one of 'strongest', "
                                                    "'nearest'"),
     (("--crop-opts", "--size 64 --start 40,50"), 1, "--start X,Y needs --follow nearest"),

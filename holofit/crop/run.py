@@ -88,8 +88,8 @@ def check_crop_settings(
     if size < MIN_CROP_SIZE:
         raise CropError(f"crop size (--size) must be at least {MIN_CROP_SIZE} pixels, got {size}")
     if size > min(rows, cols):
-        raise CropError(f"crop size (--size) {size} does not fit in frames of {rows} x {cols} "
-                        f"pixels: give at most {min(rows, cols)}")
+        raise CropError(f"crop size {size} does not fit in frames of {rows} x {cols} pixels: "
+                        f"give a smaller --size (at most {min(rows, cols)})")
     if follow not in FOLLOW_MODES:
         raise CropError(f"--follow {follow!r}: expected one of {', '.join(FOLLOW_MODES)} "
                         "(several particles at once: one run per particle with --follow "
@@ -442,28 +442,42 @@ def _frame_list(frames: list[int], most: int = 8) -> str:
 
 def _mark_off_track(rows: list[dict[str, Any]], max_jump_px: float) -> list[str]:
     """``follow="strongest"``: mark the frames whose centre left the main track
-    (:func:`holofit.crop.follow.off_track`) ``off_track``, in place; the warning, if any."""
+    (:func:`holofit.crop.follow.off_track`) while another hologram was in view ``off_track``,
+    in place; the warning, if any.
+
+    A frame off the main track with a single hologram found is kept as it is (a set of
+    unrelated holograms, one particle per image, jumps too; so does a movie with false
+    detections), but the warning names it."""
     fitted = [r["status"] in FITTABLE_CROP_STATUSES for r in rows]
     x = [r["x_px"] if f else math.nan for r, f in zip(rows, fitted, strict=True)]
     y = [r["y_px"] if f else math.nan for r, f in zip(rows, fitted, strict=True)]
     tracks = off_track(x, y, max_jump_px)
-    off = [int(k) for k in np.flatnonzero(tracks.off)]
-    if not off:
+    if not tracks.jumps:
         return []
-    main = int(np.flatnonzero(tracks.label == 0)[0])
+    away = [int(k) for k in np.flatnonzero(tracks.off)]
+    off = [k for k in away if int(rows[k]["n_candidates"]) >= 2]
+    alone = [k for k in away if k not in off]
     for k in off:
         row = rows[k]
         row["status"] = CROP_OFF_TRACK
         row["message"] = (f"centre ({row['x_px']:.0f}, {row['y_px']:.0f}) px is off the movie's "
-                          f"main track (a jump of more than {max_jump_px:g} px): another "
-                          "particle, or a false detection; not fitted")
+                          f"main track (a jump of more than {max_jump_px:g} px) while another "
+                          "hologram is in view: likely another particle; not fitted")
+    main = int(np.flatnonzero(tracks.label == 0)[0])
     r0 = rows[main]
-    return [f"the strongest hologram jumped by more than {max_jump_px:g} px (the max jump) "
-            f"in frame(s) {_frame_list(tracks.jumps)}: {tracks.n_tracks} tracks, likely "
-            f"another particle in view; {len(off)} frame(s) off the main track are marked "
-            f"off_track and not fitted ({_frame_list(off)}). To follow the main track's "
-            f"particle instead: --follow nearest --start {r0['x_px']:.0f},{r0['y_px']:.0f} "
-            f"(where it is in frame {main}; another's start point follows that one)"]
+    text = (f"the strongest hologram jumped by more than {max_jump_px:g} px (the max jump) in "
+            f"frame(s) {_frame_list(tracks.jumps)}: {tracks.n_tracks} tracks")
+    if off:
+        text += (f", likely another particle in view; {len(off)} frame(s) off the main track "
+                 f"with another hologram in view are marked off_track and not fitted "
+                 f"({_frame_list(off)})")
+    if alone:
+        text += (f"; {len(alone)} frame(s) off the main track with a single hologram found are "
+                 f"kept ({_frame_list(alone)}): one particle cannot move that far between "
+                 "frames, so in a movie these are false detections or another particle")
+    text += (f". To follow the main track's particle: --follow nearest --start "
+             f"{r0['x_px']:.0f},{r0['y_px']:.0f} (where it is in frame {main})")
+    return [text]
 
 
 def _crop_frames(
