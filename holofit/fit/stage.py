@@ -419,7 +419,11 @@ def run_fit(
     out = Path(out_dir)
     run = FitRun()
     model = particle.model
-    with CropSet(crop_dir) as crops:
+    # this process on one BLAS thread, as the workers are: OpenBLAS's pool spends 4-6x the
+    # CPU on the small dense solves of a T-matrix build, the in-memory continuity refits and
+    # the pictures (a rod's T-matrix: 7 s on one thread; 32-40 s of CPU and 39-60 s of wall
+    # time on two busy cores)
+    with threadpool_limits(limits=1, user_api="blas"), CropSet(crop_dir) as crops:
         inst = fit_instrument(resolve_instrument(crops, instrument, override_instrument),
                               numerical_aperture, fit_na)
         # one lattice for both passes, whatever the fitted index does to the dipole rule
@@ -623,17 +627,13 @@ def _final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | Non
     path = out / "tmatrix.npz"
     t0 = time.perf_counter()
     reused = path.exists()
-    # one BLAS thread: OpenBLAS's pool spends 4x the CPU on these small solves for nothing
-    # (a rod's build: 7 s on one thread, 32 s of CPU and 39 s of wall time on two, on two
-    # busy cores)
-    with threadpool_limits(limits=1, user_api="blas"):
-        try:
-            theory.tmatrix(model, inst.optics, path=str(path))
-        except TMatrixMismatch:
-            # made for other static parameters or settings (an earlier run): build anew
-            path.unlink()
-            theory.tmatrix(model, inst.optics, path=str(path))
-            reused = False
+    try:
+        theory.tmatrix(model, inst.optics, path=str(path))
+    except TMatrixMismatch:
+        # made for other static parameters or settings (an earlier run): build anew
+        path.unlink()
+        theory.tmatrix(model, inst.optics, path=str(path))
+        reused = False
     run.tmatrix = path
     run.tmatrix_s = time.perf_counter() - t0
     run.notes.append(f"final pass served from the particle's T-matrix {path} "
