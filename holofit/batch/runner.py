@@ -400,7 +400,8 @@ class _BatchRun:
 
     def run(self, todo: collections.deque[int], load: Callable[[int], Any]) -> None:
         """Run every frame of ``todo``; on success write the final table; on any
-        interruption keep what is done (journal, partial table) and re-raise."""
+        interruption keep what is done (journal, partial table) and re-raise; if every
+        frame ended in ``error``, write the partial table only and raise :class:`BatchError`."""
         try:
             while todo or self.in_flight or self.retry:
                 self.feed(todo, load)
@@ -409,7 +410,7 @@ class _BatchRun:
                 self.collect(WAIT_S)
                 self.flush()
             self.journal.close()
-            failure = total_failure(self.rows, self.files)
+            failure = _total_failure(self.rows, self.files)
             if failure:  # no table: the journal and the partial table keep the rows
                 self.files.write(self.rows, self.info, final=False)
             else:
@@ -509,7 +510,7 @@ class _BatchRun:
 _WORKER_DIED = ("a worker process died", "Dask workers died")
 
 
-def total_failure(rows: dict[int, dict[str, Any]], files: _OutputFiles) -> str:
+def _total_failure(rows: dict[int, dict[str, Any]], files: _OutputFiles) -> str:
     """Why a batch failed as a whole ('' if it did not): every frame tried (not ``skipped``)
     ended in ``error``."""
     tried = [r for r in rows.values() if r["status"] != SKIPPED]
@@ -622,7 +623,12 @@ def run_batch(
     holofit.io.lock.OutputLocked
         If another run is writing into the output folder.
     BatchError
-        If earlier results came from other settings, or the backend cannot start.
+        If earlier results came from other settings, the backend cannot start, or every
+        frame tried ended in ``error`` (no table is written then; the partial table and the
+        journal hold the rows).
+    SystemExit
+        Called by a spawned worker process re-running a script without the main guard
+        (:func:`holofit.batch.mainguard.refuse_while_worker_starts`).
     """
     refuse_while_worker_starts(f"the {desc} stage")
     t0 = time.perf_counter()
