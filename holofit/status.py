@@ -10,6 +10,7 @@ __all__ = [
     "CROP_EDGE",
     "CROP_ERROR",
     "CROP_NO_PARTICLE",
+    "CROP_OFF_TRACK",
     "CROP_OK",
     "CROP_STATUSES",
     "CROP_STATUS_MEANINGS",
@@ -31,10 +32,13 @@ CROP_OK = "ok"
 CROP_EDGE = "edge"
 CROP_NO_PARTICLE = "no_particle"
 CROP_ERROR = "error"
+CROP_OFF_TRACK = "off_track"
 CROP_STATUS_MEANINGS: dict[str, str] = {
     CROP_OK: "hologram found and cropped",
     CROP_EDGE: "hologram found; the crop was shifted to stay inside the frame",
     CROP_NO_PARTICLE: "no hologram found (all-NaN crop)",
+    CROP_OFF_TRACK: "hologram found and cropped, but away from the movie's main track (another "
+                    "particle taking over, or a false detection): not fitted",
     CROP_ERROR: "the frame could not be read or normalised (all-NaN crop)",
 }
 CROP_STATUSES: tuple[str, ...] = tuple(CROP_STATUS_MEANINGS)

@@ -88,7 +88,7 @@ def test_outputs_follow_the_contract(simulated, tmp_path):
     assert table["status"].tolist() == [
         "ok", "edge", "edge", "ok", "no_particle", "ok", "ok", "ok", "ok", "ok"
     ]  # fmt: skip
-    assert result.counts == {"ok": 7, "edge": 2, "no_particle": 1, "error": 0}
+    assert result.counts == {"ok": 7, "edge": 2, "no_particle": 1, "off_track": 0, "error": 0}
     found = table["status"].isin(["ok", "edge"])
     err = np.hypot(table["x_px"] - truth["x_px"], table["y_px"] - truth["y_px"])[found]
     assert err.max() < 0.5

@@ -14,6 +14,7 @@ from holofit.fit.continuity import (
     ContinuityOptions,
     NeighbourStart,
     chi2_bar,
+    flag_bars,
     repair_by_continuity,
     suspects,
 )
@@ -182,3 +183,104 @@ def test_a_refit_into_the_same_minimum_replaces_nothing(truth):
     good = sorted(set(range(len(truth))) - set(SINGLES + RUN + SUBTLE))
     pd.testing.assert_frame_equal(out.loc[good], table.loc[good], check_dtype=False)
     assert report.replaced == len(SINGLES + RUN + SUBTLE)
+
+
+# -- the flag bar: a frame in the right minimum is flagged with probability <= p ------------
+
+def _right_minimum_chi2(rng: np.random.Generator, n_frames: int, n_pix: int,
+                        noise_error: float) -> np.ndarray:
+    """Reduced chi^2 of frames in their right minimum, as a fit computes it: the residual
+    sum of squares of ``n_pix`` pixels of pure noise (chi^2 with n_pix degrees of freedom)
+    over each frame's *estimated* noise^2, the estimate off by a relative normal error of sd
+    ``noise_error``; 0.98: the estimator's bias, common to the movie."""
+    rss = rng.chisquare(n_pix, n_frames) / n_pix
+    return 0.98 * rss / (1.0 + noise_error * rng.normal(size=n_frames)) ** 2
+
+
+def _ok_table(chi2_red: np.ndarray, n_pix: int) -> pd.DataFrame:
+    return pd.DataFrame({"status": "ok", "chi2_red": chi2_red, "n_pixels": n_pix})
+
+
+@pytest.mark.parametrize(("n_frames", "trials", "noise_error"),
+                         [(30, 2000, 0.01), (300, 500, 0.01), (300, 500, 0.0)])
+def test_right_minimum_frames_are_flagged_with_the_probability_asked(n_frames, trials,
+                                                                    noise_error):
+    """Monte Carlo with known truth: every frame is in its right minimum, so each flag is a
+    false one; their share must stay at or under the probability asked (here 1e-3, to count
+    enough). The old bar (median + 4 lower-half spreads) flagged 3e-3 of a 30-frame movie's
+    good frames: ~1 in every 10 such movies lost a good frame, a 2000-frame movie a dozen."""
+    p = 1e-3
+    rng = np.random.default_rng(n_frames + int(1000 * noise_error))
+    flagged = total = 0
+    for _ in range(trials):
+        chi = _right_minimum_chi2(rng, n_frames, 19600, noise_error)
+        flagged += int((chi > flag_bars(_ok_table(chi, 19600), p).bars).sum())
+        total += n_frames
+    # a binomial count at rate p exceeds p * total + 3 sd with probability ~1e-3
+    assert flagged <= p * total + 3 * math.sqrt(p * total), (flagged, total)
+
+
+def test_the_flag_bar_follows_each_frames_pixel_count():
+    """Fewer pixels, a wider chi^2: with the excess measured, the bar of a frame with 1/16 of
+    the pixels is the chi^2 distribution's own at least (exactly, when no excess is seen)."""
+    rng = np.random.default_rng(3)
+    nu = np.full(200, 19600)
+    nu[:5] = 1225
+    chi = rng.chisquare(nu) / nu
+    bars = flag_bars(pd.DataFrame({"status": "ok", "chi2_red": chi, "n_pixels": nu}), 1e-4)
+    from scipy import stats
+    med = np.median(chi)
+    assert bars.bars[0] >= med * stats.chi2.isf(1e-4, 1225) / 1225 - 1e-12
+    assert bars.bars[0] > bars.bars[10] > med * stats.chi2.isf(1e-4, 19600) / 19600 - 1e-12
+    assert bars.typical == pytest.approx(bars.bars[10])
+
+
+def test_30_frame_movies_no_longer_lose_good_frames():
+    """The reported case, a 30-frame rod movie (19600 pixels a frame, reduced chi^2 spread
+    ~1.5 %) whose frame 26, in its right minimum, was flagged at 1.049 against the old bar
+    1.047: of 200 such simulated movies (every frame in its right minimum) the old bar flags
+    a good frame in about one in twenty; the flag bar in none."""
+    old = new = 0
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        table = _ok_table(_right_minimum_chi2(rng, 30, 19600, 0.005), 19600)
+        chi = table["chi2_red"].to_numpy()
+        old += bool((chi > chi2_bar(table, 4.0)).any())
+        new += bool((chi > flag_bars(table, 1e-4).bars).any())
+    assert old >= 5 and new == 0, (old, new)
+
+
+def test_a_frame_is_demoted_only_for_an_improbable_chi2(truth):
+    """A movie where the old bar flagged a good frame (seed 18: its largest reduced chi^2,
+    1.027, over the old bar 1.023). A refit from a neighbour finds each suspect's own minimum
+    again (no better): the good frame stays ok; a frame in a wrong minimum (chi^2 1.5) is
+    flagged, and its message says with which probability a right one would be."""
+    rng = np.random.default_rng(18)
+    chi = _right_minimum_chi2(rng, 30, 19600, 0.005)
+    u = _axis(truth["theta_rad"][:30].to_numpy(), truth["psi_rad"][:30].to_numpy())
+    table = pd.DataFrame([_row(truth.iloc[i], u[i], float(c), (math.nan, math.nan))
+                          for i, c in enumerate(chi)])
+    table["n_pixels"] = 19600
+    top = int(np.argmax(chi))
+    assert chi2_bar(table, 4.0) < chi[top]  # what flagged it before
+    wrong = (top + 9) % 30
+    table.loc[wrong, ["chi2_red", "chi2"]] = 1.5, 1.5 * NOISE**2
+
+    def same_minimum(sweep, starts):
+        return table.loc[table["frame"].isin(list(starts))].copy()
+
+    out, report = repair_by_continuity(table.copy(), same_minimum, ContinuityOptions(),
+                                       head_tail=True, ambiguity_chi2=9.0)
+    st = out["status"].to_numpy()
+    assert st[top] == "ok"
+    assert st[wrong] == "poor_fit" and report.flagged == 1
+    assert chi[top] < report.flag_bar < 1.5
+    assert "probability 0.0001" in out["message"].iat[wrong]
+
+
+def test_the_flag_probability_is_the_users():
+    with pytest.raises(ValueError, match="flag_probability"):
+        ContinuityOptions(flag_probability=0.0)
+    rng = np.random.default_rng(4)
+    table = _ok_table(_right_minimum_chi2(rng, 100, 19600, 0.01), 19600)
+    assert flag_bars(table, 1e-2).typical < flag_bars(table, 1e-4).typical

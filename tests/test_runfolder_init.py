@@ -16,14 +16,15 @@ from tests.runfolder_helpers import holofit_command, names, needs_make, run_make
 
 @pytest.fixture
 def inputs(tmp_path):
-    """A 3-frame 8-bit movie, its background and a dark frame (only read, never fitted)."""
+    """A 3-frame 8-bit movie, its background and a dark frame (only read, never fitted; as
+    large as the default crop)."""
     rng = np.random.default_rng(0)
     data = tmp_path / "data"
     data.mkdir()
     paths = {}
     for name, frames in (("movie", 3), ("bg", 2), ("dark", 1)):
         paths[name] = data / f"{name}.tif"
-        tifffile.imwrite(paths[name], rng.integers(10, 200, (frames, 32, 32), dtype=np.uint8),
+        tifffile.imwrite(paths[name], rng.integers(10, 200, (frames, 144, 144), dtype=np.uint8),
                          photometric="minisblack")
     return paths
 
@@ -247,3 +248,58 @@ def test_a_voxel_particle_brings_its_shape_file(tmp_path, inputs):
     original.pop("path")
     assert copy == original
     assert made.spec.anisotropic and made.spec.analysis_model == "janus"
+
+
+@pytest.mark.parametrize(("opts", "code", "message"), [
+    # issue 24, item 6: each was accepted and failed only in make
+    ((), 1, "holofit init: error: the movie's frames (96 x 96 pixels) are smaller than the "
+            "default crop (140 x 140): give --crop-opts '--size N' with N <= 96"),
+    (("--crop-opts", "--size 120"), 1, "holofit init: error: --crop-opts '--size 120': crop "
+                                       "size 120 does not fit in frames of 96 x 96 pixels: "
+                                       "give a smaller --size (at most 96)"),
+    (("--crop-opts", "--size 64 --follow all"), 2, "'all' is not one of 'strongest', "
+                                                   "'nearest'"),
+    (("--crop-opts", "--size 64 --start 40,50"), 1, "--start X,Y needs --follow nearest"),
+    (("--crop-opts", "--size 64 --follow nearest --start 40,150"), 1,
+     "--start 40,150 lies outside the frames"),
+    (("--crop-opts", "--size=64 --follow nearest --start 40"), 1, "expected X,Y in pixels"),
+    (("--crop-opts", "--size 64", "--fit-opts", "--fix b_um,radius_um"), 1,
+     "cannot fix radius_um: a spherocylinder's fit parameters are"),
+    (("--crop-opts", "--size 64", "--fit-opts", "--initial-frames 0"), 2,
+     "Invalid value for '--initial-frames'"),
+    (("--crop-opts", "--size 64", "--prefit-opts", "--max-chi2-red lots"), 2,
+     "Invalid value for '--max-chi2-red'"),
+])
+def test_stage_settings_that_cannot_work_are_refused_at_init(tmp_path, opts, code, message):
+    """A 96 x 96 movie: the crop's size against its frames (the default 140 too), the follow
+    mode and start point, the parameters --fix may name, option values of the right type."""
+    movie, bg = tmp_path / "movie.tif", tmp_path / "bg.tif"
+    rng = np.random.default_rng(1)
+    for path, n in ((movie, 4), (bg, 1)):
+        tifffile.imwrite(path, rng.integers(10, 200, (n, 96, 96), dtype=np.uint8),
+                         photometric="minisblack")
+    res = CliRunner().invoke(main, ["init", str(tmp_path / "run"), "--movie", str(movie), "-b",
+                                    str(bg), "-i", "paper_60x_water", "-p", "rod_paper", *opts])
+    assert res.exit_code == code, res.output
+    assert message in res.stderr, res.stderr
+    assert "Traceback" not in res.output
+    assert not (tmp_path / "run").exists()
+    # the same settings that do work are accepted
+    good = CliRunner().invoke(main, ["init", str(tmp_path / "ok"), "--movie", str(movie), "-b",
+                                     str(bg), "-i", "paper_60x_water", "-p", "rod_paper",
+                                     "--crop-opts", "--size 64 --follow nearest --start 40,50",
+                                     "--fit-opts", "--fix b_um"])
+    assert good.exit_code == 0, good.output
+
+
+def test_init_says_what_the_fit_initial_pass_will_take(tmp_path, inputs):
+    """Issue 24, item 14: the initial pass's default follows the movie's length, and init
+    says what it will be (this movie: 3 frames)."""
+    res = _init(tmp_path, inputs)
+    assert res.exit_code == 0, res.output
+    assert "the initial pass (every parameter free" in res.stderr
+    assert "first 3 of the movie's 3 frames" in res.stderr
+    res = _init(tmp_path, inputs, "--fit-opts", "--initial-frames 2", run="run02")
+    assert res.exit_code == 0 and "initial pass" not in res.stderr
+    sphere = _init(tmp_path, inputs, run="run03", particle="sphere_ps_1um")
+    assert sphere.exit_code == 0 and "initial pass" in sphere.stderr

@@ -28,6 +28,7 @@ from typing import Any
 
 from holofit.batch.errors import BatchError, SchedulerError, WorkerLost
 from holofit.batch.lifeline import die_with_parent
+from holofit.batch.mainguard import main_hidden_from_workers
 from holofit.batch.threads import (
     limit_threads_in_this_process,
     single_thread_environment,
@@ -117,8 +118,10 @@ class ProcessPoolBackend(Backend):
 
     Processes are started with the ``spawn`` method (a clean interpreter: no inherited
     threads or locks) while the single-thread environment is set, so their BLAS and numba
-    pools have one thread. They end when this process ends, even by SIGKILL
-    (:mod:`holofit.batch.lifeline`).
+    pools have one thread, and without running the parent's ``__main__`` script again
+    (:mod:`holofit.batch.mainguard`: a script that calls the stages without
+    ``if __name__ == "__main__":`` works as pasted). They end when this process ends, even
+    by SIGKILL (:mod:`holofit.batch.lifeline`).
     """
 
     name = "processes"
@@ -139,8 +142,9 @@ class ProcessPoolBackend(Backend):
         )
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> cf.Future:
-        # workers start lazily on submit: keep the environment single-threaded meanwhile
-        with single_thread_environment():
+        # workers start lazily on submit: keep the environment single-threaded and the
+        # user's script out of their reach meanwhile
+        with single_thread_environment(), main_hidden_from_workers((fn, *args)):
             return self._pool.submit(fn, *args)
 
     def wait(self, futures: Iterable[Any], timeout: float) -> set[Any]:

@@ -25,9 +25,15 @@ What the runner guarantees:
   table (CSV + sidecar JSON, sorted by frame) appears under its own name only when every frame
   is done, so a Makefile target never mistakes an interrupted run for a finished one.
 - **Resumable**: a rerun of the same batch (same fingerprint) reads the journal (or the
-  finished table) and runs only the frames that are missing, so a run killed at any point
-  (even by SIGKILL) finishes with the same table as an uninterrupted run. A rerun with other
-  settings refuses to mix results unless told to overwrite.
+  finished table) and runs only the frames that are missing or recorded as ``error`` (an
+  exception or a dead worker: a cause the user may have fixed since; ``ok``, ``poor_fit`` and
+  the other outcomes of a fit are kept, ``not_converged`` too unless ``retry_failed``), so a
+  run killed at any point (even by SIGKILL) finishes with the same table as an uninterrupted
+  run. A rerun with other settings refuses to mix results unless told to overwrite.
+- **No silent total failure**: a batch in which every frame that was tried ended in
+  ``error`` raises :class:`BatchError` naming the most common message (and, for workers that
+  died, the most common cause) instead of writing its table; the journal and the partial
+  table keep the rows, and a rerun tries them all again.
 
 The pieces: :func:`run_batch` checks its arguments, takes the folder lock and finds the rows of
 earlier runs (:func:`_earlier_rows`); :class:`_OutputFiles` knows the files of one output
@@ -61,10 +67,11 @@ from holofit.batch.backends import (
 )
 from holofit.batch.errors import BatchError, WorkerLost
 from holofit.batch.journal import Journal, JournalError, read_journal
+from holofit.batch.mainguard import GUARD_ADVICE, refuse_while_worker_starts
 from holofit.io.lock import output_lock
 from holofit.io.tables import read_table, sidecar_path, write_table
 from holofit.progress import progress_bar
-from holofit.status import ERROR, FAILED_STATUSES
+from holofit.status import ERROR, FAILED_STATUSES, SKIPPED
 
 __all__ = [
     "FAILED_STATUSES",
@@ -105,7 +112,8 @@ class BatchOptions:
     dask_local : bool
         Run on a Dask ``LocalCluster`` on 127.0.0.1 (mostly to check a Dask set-up).
     retry_failed : bool
-        On a rerun, run again the frames recorded as ``error`` or ``not_converged``.
+        On a rerun, run again the frames recorded as ``not_converged`` too (those recorded
+        as ``error`` are always run again).
     overwrite : bool
         Discard earlier results of the same output even if they came from other settings.
     progress : bool, optional
@@ -416,7 +424,8 @@ class _BatchRun:
 
     def run(self, todo: collections.deque[int], load: Callable[[int], Any]) -> None:
         """Run every frame of ``todo``; on success write the final table; on any
-        interruption keep what is done (journal, partial table) and re-raise."""
+        interruption keep what is done (journal, partial table) and re-raise; if every
+        frame ended in ``error``, write the partial table only and raise :class:`BatchError`."""
         try:
             while todo or self.in_flight or self.retry:
                 self.feed(todo, load)
@@ -425,10 +434,16 @@ class _BatchRun:
                 self.collect(WAIT_S)
                 self.flush()
             self.journal.close()
-            self.files.finish(self.rows, self.info)
+            failure = _total_failure(self.rows, self.files)
+            if failure:  # no table: the journal and the partial table keep the rows
+                self.files.write(self.rows, self.info, final=False)
+            else:
+                self.files.finish(self.rows, self.info)
         except BaseException:
             self.salvage()
             raise
+        if failure:
+            raise BatchError(failure)
 
     def record(self, row: dict[str, Any]) -> None:
         """File one finished frame: rows, journal, progress."""
@@ -513,6 +528,29 @@ class _BatchRun:
         self.journal.close()
         with contextlib.suppress(Exception):
             self.files.write(self.rows, self.info, final=False)
+
+
+#: messages of frames whose worker died (holofit.batch.backends)
+_WORKER_DIED = ("a worker process died", "Dask workers died")
+
+
+def _total_failure(rows: dict[int, dict[str, Any]], files: _OutputFiles) -> str:
+    """Why a batch failed as a whole ('' if it did not): every frame tried (not ``skipped``)
+    ended in ``error``."""
+    tried = [r for r in rows.values() if r["status"] != SKIPPED]
+    if not tried or any(r["status"] != ERROR for r in tried):
+        return ""
+    messages = collections.Counter(str(r.get("message") or "(no message)") for r in tried)
+    message, count = messages.most_common(1)[0]
+    if any(message.startswith(w) for w in _WORKER_DIED):
+        cause = ("workers that die on every frame are most often started by a script that "
+                 "calls holofit's stages without the main guard, which they run again: "
+                 f"{GUARD_ADVICE}; or they lack memory: use fewer (-j, JOBS=)")
+    else:
+        cause = "fix the cause and rerun: frames in error are run again"
+    return (f"every frame failed: {len(tried)} of {len(tried)} in error; the most common "
+            f"message ({count} frame(s)): {message}. {cause[0].upper()}{cause[1:]}; each "
+            f"frame's message is in {files.partial}")
 
 
 def _open_journal(
@@ -616,8 +654,14 @@ def run_batch(
     holofit.io.lock.OutputLocked
         If another run is writing into the output folder.
     BatchError
-        If earlier results came from other settings, or the backend cannot start.
+        If earlier results came from other settings, the backend cannot start, or every
+        frame tried ended in ``error`` (no table is written then; the partial table and the
+        journal hold the rows).
+    SystemExit
+        Called by a spawned worker process re-running a script without the main guard
+        (:func:`holofit.batch.mainguard.refuse_while_worker_starts`).
     """
+    refuse_while_worker_starts(f"the {desc} stage")
     t0 = time.perf_counter()
     opts = options or BatchOptions()
     output = Path(output)
@@ -626,8 +670,8 @@ def run_batch(
     files = _OutputFiles(output, columns, dict(meta or {}), finish, before_publish)
     with output_lock(output.parent, stage=desc) as lock:
         rows = _earlier_rows(files, fingerprint, opts.overwrite)
-        if opts.retry_failed:
-            rows = {k: r for k, r in rows.items() if r["status"] not in FAILED_STATUSES}
+        again = (ERROR, *FAILED_STATUSES) if opts.retry_failed else (ERROR,)
+        rows = {k: r for k, r in rows.items() if r["status"] not in again}
         todo = collections.deque(f for f in frames if f not in rows)
         summary = BatchSummary(output, len(frames), len(frames) - len(todo), 0)
         if lock.note:

@@ -89,7 +89,9 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
     "--max-jump",
     type=click.FloatRange(min=0, min_open=True),
     default=None,
-    help="Largest move between frames with --follow nearest, pixels [default: size/4].",
+    help="Largest move between frames, pixels [default: size/4]: with --follow nearest, a "
+    "farther candidate is no particle; with strongest, frames off the main track (another "
+    "particle) are marked off_track.",
 )
 @click.option(
     "--vote-radius",
@@ -208,7 +210,7 @@ def crop(
         )
     counts = ", ".join(f"{v} {k}" for k, v in result.counts.items() if v)
     click.echo(f"wrote {result.crops} and {result.table} ({len(result.frames)} frames: {counts})")
-    for problem in result.problems:
+    for problem in [*result.problems, *result.warnings]:
         click.echo(f"holofit crop: warning: {problem}", err=True)
     errors = result.frames[result.frames["status"] == CROP_ERROR]
     for message in errors["message"].head(5):

@@ -45,8 +45,10 @@ from holofit.scattering.select import ENGINE_CHOICES
               show_default=True,
               help="initial: everything free on the first frames, writes static.json; final: "
                    "static parameters fixed, every frame; both: one then the other.")
-@click.option("--initial-frames", type=click.IntRange(min=1), default=500, show_default=True,
-              help="Frames of the initial pass (1 for a single hologram: everything free).")
+@click.option("--initial-frames", type=click.IntRange(min=1), default=None,
+              help="Frames of the initial pass (1 for a single hologram: everything free) "
+                   "[default: 1 in 20 of the frames that can be fitted, at least 8, at most "
+                   "500; the choice is printed].")
 @click.option("--static", "static_file", default=None,
               type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="static.json with the static parameters of the final pass [default: "
@@ -70,6 +72,12 @@ from holofit.scattering.select import ENGINE_CHOICES
 @click.option("--no-continuity", is_flag=True,
               help="Skip the continuity sweeps (final-pass frames that look like a wrong "
                    "minimum refitted from their neighbours' orientations).")
+@click.option("--flag-probability", type=click.FloatRange(min=0, max=0.5, min_open=True,
+                                                          max_open=True),
+              default=1e-4, show_default=True,
+              help="After the continuity sweeps, an ok frame becomes poor_fit when its chi^2 "
+                   "is improbable: a frame in the right minimum is flagged with this "
+                   "probability (chi^2 of its pixels and the movie's measured excess scatter).")
 @click.option("--ambiguity-chi2", type=click.FloatRange(min=0), default=9.0,
               show_default=True,
               help="A runner-up within this chi^2 (in pixel-noise units) flags the frame "
@@ -95,7 +103,7 @@ def fit(
     out: Path,
     instrument: str | None,
     pass_name: str,
-    initial_frames: int,
+    initial_frames: int | None,
     static_file: Path | None,
     engine: str | None,
     fixed: str,
@@ -103,6 +111,7 @@ def fit(
     n_starts: int,
     no_mirror: bool,
     no_continuity: bool,
+    flag_probability: float,
     ambiguity_chi2: float,
     pixel_fraction: float,
     saturation: float | None,
@@ -152,7 +161,8 @@ def fit(
                   plot_frames=parse_int_list(plot_frames, "--plot-frames"),
                   outlier_factor=outlier_factor,
                   numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na,
-                  continuity=ContinuityOptions(enabled=not no_continuity))
+                  continuity=ContinuityOptions(enabled=not no_continuity,
+                                                flag_probability=flag_probability))
     for name, s in run.summaries.items():
         for note in s.notes:
             click.echo(f"note: {note}", err=True)

@@ -39,6 +39,17 @@ def _check_parses(stage: str, text: str) -> None:
     if rest or any(isinstance(v, str) or (isinstance(v, tuple) and v) for v in positional):
         raise click.BadParameter(f"{text!r}: options only (the run folder gives the inputs)",
                                  param_hint=hint)
+    # every value as the command converts it (choices, numbers, ranges); paths are left to
+    # the stage: they are relative to the run folder, not to here
+    ctx = click.Context(command, info_name=stage)
+    for param in command.params:
+        if (isinstance(param, click.Option) and values.get(param.name) is not None
+                and not isinstance(param.type, click.Path)):
+            try:
+                param.process_value(ctx, values[param.name])
+            except click.UsageError as exc:
+                raise click.BadParameter(f"{text!r}: {exc.format_message()} (holofit {stage} "
+                                         "--help)", param_hint=hint) from None
 
 
 def _stage_option(stage: str):  # type: ignore[no-untyped-def]

@@ -37,7 +37,8 @@ _OPTIONS = [
     click.option("--frames", "frame_range", default=None, metavar="START:STOP",
                  help="Only frames START <= frame < STOP."),
     click.option("--retry-failed", is_flag=True,
-                 help="Run again frames recorded as error / not_converged."),
+                 help="Run again frames recorded as not_converged too (frames recorded as "
+                      "error are always run again)."),
     click.option("--overwrite", is_flag=True,
                  help="Discard earlier results in OUT made with other settings."),
     click.option("--progress/--no-progress", default=None,

@@ -10,12 +10,20 @@ import numpy as np
 import pandas as pd
 
 from holofit.io.atomic import atomic_path
-from holofit.status import CROP_EDGE, CROP_ERROR, CROP_NO_PARTICLE, CROP_OK, FITTABLE_CROP_STATUSES
+from holofit.status import (
+    CROP_EDGE,
+    CROP_ERROR,
+    CROP_NO_PARTICLE,
+    CROP_OFF_TRACK,
+    CROP_OK,
+    FITTABLE_CROP_STATUSES,
+)
 
 __all__ = ["plot_overview"]
 
 _STATUS_COLOURS = {CROP_OK: "tab:blue", CROP_EDGE: "tab:orange",
-                   CROP_NO_PARTICLE: "tab:grey", CROP_ERROR: "tab:red"}
+                   CROP_NO_PARTICLE: "tab:grey", CROP_ERROR: "tab:red",
+                   CROP_OFF_TRACK: "tab:purple"}
 
 
 def plot_overview(

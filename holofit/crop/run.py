@@ -35,11 +35,12 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from holofit.batch.mainguard import refuse_while_worker_starts
 from holofit.config import ConfigError, Instrument, load_instrument, resolve_config
 from holofit.crop.centerfind import CenterFinder
 from holofit.crop.cropping import crop_corner, extract_crop
 from holofit.crop.errors import CropError, FrameError
-from holofit.crop.follow import Follower
+from holofit.crop.follow import FOLLOW_MODES, Follower, off_track
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
 from holofit.crop.table import CANDIDATE_UNITS, CROP_COLUMNS, CROP_UNITS
@@ -47,12 +48,60 @@ from holofit.io.movie import Movie, MovieError, open_movie
 from holofit.io.tables import sidecar_path, write_json, write_table
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.provenance import sidecar
-from holofit.status import CROP_EDGE, CROP_ERROR, CROP_NO_PARTICLE, CROP_OK, CROP_STATUSES
+from holofit.status import (
+    CROP_EDGE,
+    CROP_ERROR,
+    CROP_NO_PARTICLE,
+    CROP_OFF_TRACK,
+    CROP_OK,
+    CROP_STATUSES,
+    FITTABLE_CROP_STATUSES,
+)
 
-__all__ = ["MIN_CROP_SIZE", "CropResult", "run_crop"]
+__all__ = ["DEFAULT_CROP_SIZE", "MIN_CROP_SIZE", "CropResult", "check_crop_settings",
+           "run_crop"]
 
 #: smallest crop side, pixels
 MIN_CROP_SIZE = 8
+#: the paper's crop side, pixels
+DEFAULT_CROP_SIZE = 140
+
+
+def check_crop_settings(
+    frame_shape: tuple[int, int],
+    size: int = DEFAULT_CROP_SIZE,
+    follow: str = "strongest",
+    start: tuple[float, float] | None = None,
+) -> None:
+    """Refuse crop settings that cannot work on frames of ``frame_shape`` (rows, cols).
+
+    The rules of :func:`run_crop`, also checked by ``holofit init`` before a run folder is
+    written. Messages name the crop's options (``--size``, ``--follow``, ``--start``).
+
+    Raises
+    ------
+    CropError
+        A crop side below :data:`MIN_CROP_SIZE` or larger than the frame, an unknown follow
+        mode, a start point without ``follow="nearest"`` or outside the frame.
+    """
+    rows, cols = int(frame_shape[0]), int(frame_shape[1])
+    if size < MIN_CROP_SIZE:
+        raise CropError(f"crop size (--size) must be at least {MIN_CROP_SIZE} pixels, got {size}")
+    if size > min(rows, cols):
+        raise CropError(f"crop size {size} does not fit in frames of {rows} x {cols} pixels: "
+                        f"give a smaller --size (at most {min(rows, cols)})")
+    if follow not in FOLLOW_MODES:
+        raise CropError(f"--follow {follow!r}: expected one of {', '.join(FOLLOW_MODES)} "
+                        "(several particles at once: one run per particle with --follow "
+                        "nearest --start X,Y)")
+    if start is not None:
+        if follow != "nearest":
+            raise CropError("--start X,Y needs --follow nearest (the default, strongest, takes "
+                            "the strongest hologram of every frame)")
+        x, y = float(start[0]), float(start[1])
+        if not (0 <= x < cols and 0 <= y < rows):
+            raise CropError(f"--start {x:g},{y:g} lies outside the frames ({cols} columns x, "
+                            f"{rows} rows y, pixels)")
 
 
 @dataclass
@@ -77,6 +126,9 @@ class CropResult:
         Frames per status.
     problems : list of str
         What is wrong with the movie file as a whole (e.g. truncation), also in the sidecars.
+    warnings : list of str
+        What is doubtful about the result as a whole (e.g. the strongest hologram jumping to
+        another particle), also in the sidecars.
     """
 
     out_dir: Path
@@ -87,6 +139,7 @@ class CropResult:
     frames: pd.DataFrame
     counts: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
 def _resolve_instrument(instrument: Instrument | str | Path) -> Instrument:
@@ -217,7 +270,7 @@ def run_crop(
     *,
     normalized: bool = False,
     dark: References | float | None = None,
-    size: int = 140,
+    size: int = DEFAULT_CROP_SIZE,
     follow: str = "strongest",
     start: tuple[float, float] | None = None,
     max_jump_px: float | None = None,
@@ -278,6 +331,7 @@ def run_crop(
     CropError
         Unusable input (the message names the file, and the frame where one is at fault).
     """
+    refuse_while_worker_starts("run_crop")
     out = Path(out_dir)
     inst = _resolve_instrument(instrument)
     size = int(size)
@@ -301,11 +355,10 @@ def run_crop(
     except MovieError as exc:
         raise CropError(str(exc)) from None
     with movie:
-        if size > min(movie.frame_shape):
-            raise CropError(
-                f"{movie_path}: crop size {size} does not fit in frames of "
-                f"{movie.frame_shape[0]} x {movie.frame_shape[1]} pixels; use a smaller --size"
-            )
+        try:
+            check_crop_settings(tuple(movie.frame_shape), size, follow, start)
+        except CropError as exc:
+            raise CropError(f"{movie_path}: {exc}") from None
         saturation = _saturation(movie, inst) if mask_saturated else None
         if normalized:
             normalizer = Normalizer(np.ones(movie.frame_shape), saturation=saturation)
@@ -337,6 +390,8 @@ def run_crop(
             rows, candidates, preview = _crop_frames(
                 movie, normalizer, finder, follower, size, inst.pixel_size_um, writer, progress
             )
+            warnings = (_mark_off_track(rows, follower.max_jump_px)
+                        if follow == "strongest" else [])
             frames = pd.DataFrame(rows, columns=list(CROP_COLUMNS))
             for column in ("corner_row", "corner_col"):
                 frames[column] = frames[column].astype("Int64")
@@ -399,6 +454,7 @@ def run_crop(
                 "[corner_row + i, corner_col + j] (corner_* in the table)",
             },
             "status_counts": counts,
+            "warnings": warnings,
         }
         config = {"instrument": inst.as_dict()}
         write_json(
@@ -414,7 +470,52 @@ def run_crop(
                     extra=extra),
         )  # fmt: skip
     return CropResult(out, crops_path, table_path, cand_path, made_plot, frames, counts,
-                      list(movie.problems))
+                      list(movie.problems), warnings)
+
+
+def _frame_list(frames: list[int], most: int = 8) -> str:
+    shown = ", ".join(map(str, frames[:most]))
+    return shown + (f", ... ({len(frames)} in all)" if len(frames) > most else "")
+
+
+def _mark_off_track(rows: list[dict[str, Any]], max_jump_px: float) -> list[str]:
+    """``follow="strongest"``: mark the frames whose centre left the main track
+    (:func:`holofit.crop.follow.off_track`) while another hologram was in view ``off_track``,
+    in place; the warning, if any.
+
+    A frame off the main track with a single hologram found is kept as it is (a set of
+    unrelated holograms, one particle per image, jumps too; so does a movie with false
+    detections), but the warning names it."""
+    fitted = [r["status"] in FITTABLE_CROP_STATUSES for r in rows]
+    x = [r["x_px"] if f else math.nan for r, f in zip(rows, fitted, strict=True)]
+    y = [r["y_px"] if f else math.nan for r, f in zip(rows, fitted, strict=True)]
+    tracks = off_track(x, y, max_jump_px)
+    if not tracks.jumps:
+        return []
+    away = [int(k) for k in np.flatnonzero(tracks.off)]
+    off = [k for k in away if int(rows[k]["n_candidates"]) >= 2]
+    alone = [k for k in away if k not in off]
+    for k in off:
+        row = rows[k]
+        row["status"] = CROP_OFF_TRACK
+        row["message"] = (f"centre ({row['x_px']:.0f}, {row['y_px']:.0f}) px is off the movie's "
+                          f"main track (a jump of more than {max_jump_px:g} px) while another "
+                          "hologram is in view: likely another particle; not fitted")
+    main = int(np.flatnonzero(tracks.label == 0)[0])
+    r0 = rows[main]
+    text = (f"the strongest hologram jumped by more than {max_jump_px:g} px (the max jump) in "
+            f"frame(s) {_frame_list(tracks.jumps)}: {tracks.n_tracks} tracks")
+    if off:
+        text += (f", likely another particle in view; {len(off)} frame(s) off the main track "
+                 f"with another hologram in view are marked off_track and not fitted "
+                 f"({_frame_list(off)})")
+    if alone:
+        text += (f"; {len(alone)} frame(s) off the main track with a single hologram found are "
+                 f"kept ({_frame_list(alone)}): one particle cannot move that far between "
+                 "frames, so in a movie these are false detections or another particle")
+    text += (f". To follow the main track's particle: --follow nearest --start "
+             f"{r0['x_px']:.0f},{r0['y_px']:.0f} (where it is in frame {main})")
+    return [text]
 
 
 def _crop_frames(

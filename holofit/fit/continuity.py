@@ -20,7 +20,15 @@ frame whose library candidates led the fit into another one. After the final pas
    precision only), and the replaced fit becomes the runner-up if it is the closer competitor
    (the ``ambiguous`` flag then compares the two).
 4. Sweeps repeat while rows improve (a run of bad frames is eaten from its ends), at most
-   ``max_sweeps``. Frames still above the chi^2 bar become ``poor_fit`` (``flag``).
+   ``max_sweeps``.
+5. **Flag** (``flag``): an ``ok`` frame becomes ``poor_fit`` only when its chi^2 is improbable
+   for a frame in the right minimum (:func:`flag_bars`): the bar follows the chi^2
+   distribution of the frame's pixel count and the movie's measured excess scatter (the noise
+   estimate's own error, the model's small imperfections), widened for the uncertainty of
+   that scatter measured on few frames, so a frame in the right minimum is flagged with
+   probability at most ``flag_probability`` (default 1e-4). The suspect bar of step 1 is
+   lower: it only decides which frames are refitted, and a refit replaces a row only when it
+   finds a better minimum.
 
 The table logic lives here; :mod:`holofit.fit.stage` runs the refits through the batch runner.
 """
@@ -34,6 +42,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
+from scipy import stats
 
 from holofit.fit.frame import SAME_BASIN_RAD, SAME_BASIN_Z_UM
 from holofit.library.search import Candidate
@@ -42,8 +51,10 @@ from holofit.status import NOT_CONVERGED, OK, POOR_FIT
 __all__ = [
     "ContinuityOptions",
     "ContinuityReport",
+    "FlagBars",
     "NeighbourStart",
     "chi2_bar",
+    "flag_bars",
     "merge_refits",
     "neighbour_starts",
     "repair_by_continuity",
@@ -79,7 +90,11 @@ class ContinuityOptions:
         noise^2) is lower by more than this: a refit that lands in the same minimum differs
         by solver precision only, and must not set off new refits of its neighbours.
     flag : bool
-        Mark ``ok`` frames still above the chi^2 bar after the sweeps ``poor_fit``.
+        Mark ``ok`` frames whose chi^2 is improbable after the sweeps ``poor_fit``
+        (:func:`flag_bars`).
+    flag_probability : float
+        Probability that a frame in the right minimum is flagged (the one-sided tail of its
+        chi^2 beyond the flag bar).
     """
 
     enabled: bool = True
@@ -89,6 +104,7 @@ class ContinuityOptions:
     jump_factor: float = 1.0
     min_gain_chi2: float = 1.0
     flag: bool = True
+    flag_probability: float = 1e-4
 
     def __post_init__(self) -> None:
         if self.max_sweeps < 0 or self.max_gap < 1:
@@ -96,6 +112,9 @@ class ContinuityOptions:
         if not (self.chi2_sigmas > 0 and self.jump_factor > 0 and self.min_gain_chi2 >= 0):
             raise ValueError("continuity: chi2_sigmas and jump_factor must be > 0, "
                              "min_gain_chi2 >= 0")
+        if not 0 < self.flag_probability < 0.5:
+            raise ValueError("continuity: flag_probability must be in (0, 0.5), got "
+                             f"{self.flag_probability}")
 
 
 @dataclass(frozen=True)
@@ -121,9 +140,14 @@ class ContinuityReport:
     replaced : int
         Rows replaced by a better refit.
     flagged : int
-        ``ok`` rows marked ``poor_fit`` for staying above the chi^2 bar.
+        ``ok`` rows marked ``poor_fit`` for an improbable chi^2 (:func:`flag_bars`).
     chi2_bar : float
-        The final bar on the reduced chi^2.
+        The final suspect bar on the reduced chi^2.
+    flag_bar : float
+        The final flag bar on the reduced chi^2 of a frame with the movie's median pixel
+        count (each frame's follows its own count).
+    excess_scatter : float
+        The measured relative scatter of the reduced chi^2 beyond the chi^2 distribution's.
     per_sweep : list of dict
         Suspects, refits and replacements of each sweep.
     """
@@ -133,6 +157,8 @@ class ContinuityReport:
     replaced: int = 0
     flagged: int = 0
     chi2_bar: float = math.nan
+    flag_bar: float = math.nan
+    excess_scatter: float = math.nan
     per_sweep: list[dict[str, int]] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, object]:
@@ -162,6 +188,133 @@ def chi2_bar(table: pd.DataFrame, sigmas: float, min_rows: int = 10) -> float:
         return math.nan
     med = float(np.median(chi))
     return med + sigmas * max(med - float(np.percentile(chi, _ONE_SIGMA_BELOW)), 0.0)
+
+
+#: scatter measured from the lower half of n values is as uncertain as a sample standard
+#: deviation with n / 3 degrees of freedom (normal samples: n / 2.65 at n = 10, n / 2.97 at
+#: n = 1000); its relative bias, about -0.8 / n, is divided out
+_DOF_PER_ROW = 1.0 / 3.0
+_LOWER_HALF_BIAS = 0.8
+
+
+
+
+def _to_symmetric(ratio: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Box-Cox transform with exponent -1/2, ``2 (1 - ratio^(-1/2))``, of reduced chi^2
+    ratios (to the movie's median): the scale on which the scatter is measured and the bar set.
+
+    A frame's excess scatter comes mostly from its noise estimate (``chi2_red`` goes as
+    ``1 / noise_sd^2``, with ``noise_sd`` close to normal): on this scale that part is
+    symmetric, where on the ratio itself or its logarithm it has a longer upper tail (skewness
+    9e and 3e for a relative noise-estimate error e) that would let the normal quantile flag
+    too often. The chi^2 part (and a model misfit that adds to the residual) keeps a *shorter*
+    upper tail here (skewness -2.5 sqrt(2/nu)), which errs on the safe side. To first order
+    the transform is ``ratio - 1``: spreads keep their meaning.
+    """
+    return 2.0 * (1.0 - 1.0 / np.sqrt(ratio))
+
+
+def _from_symmetric(y: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The ratio whose :func:`_to_symmetric` is ``y`` (infinite for ``y >= 2``)."""
+    y = np.asarray(y, dtype=float)
+    with np.errstate(divide="ignore"):
+        return np.where(y < 2.0, 1.0 / np.square(1.0 - np.minimum(y, 2.0) / 2.0), np.inf)
+
+
+@dataclass(frozen=True)
+class FlagBars:
+    """The flag bars of a fit table (:func:`flag_bars`).
+
+    Attributes
+    ----------
+    bars : ndarray
+        Per row, the reduced chi^2 above which the row is improbable (NaN: no bar).
+    median : float
+        The converged rows' median reduced chi^2 (the movie's level of a right minimum).
+    excess : float
+        Relative scatter of the reduced chi^2 beyond the chi^2 distribution's (0 when the
+        measured scatter is no larger than that distribution's).
+    typical : float
+        The bar of a row with the median pixel count.
+    n_rows : int
+        Converged rows the scatter was measured on.
+    """
+
+    bars: NDArray[np.float64]
+    median: float = math.nan
+    excess: float = math.nan
+    typical: float = math.nan
+    n_rows: int = 0
+
+
+def flag_bars(table: pd.DataFrame, probability: float, min_rows: int = 10) -> FlagBars:
+    """Per-row bars on the reduced chi^2 that a frame in the right minimum exceeds with
+    probability ``probability`` at most.
+
+    A frame in the right minimum has ``chi2_red = m (1 + r)``: ``m`` the movie's level (the
+    median of the converged rows: the noise estimate's bias and the model's imperfection move
+    every frame alike) and ``r`` a relative scatter of variance ``2 / nu + e^2``: the chi^2
+    distribution's for the frame's ``nu`` pixels, plus an excess ``e`` common to the movie
+    (the error of each frame's noise estimate, frame-to-frame differences of the model's
+    misfit). The scatter ``s`` is measured on the *lower* half of the converged rows
+    (``sqrt(pi/2)`` times their mean distance below the median), which frames in a wrong
+    minimum cannot inflate, on the scale of :func:`_to_symmetric` (to first order
+    ``chi2_red / m - 1``); ``e^2 = max(s^2 - 2 / nu_med, 0)``. Measured on n rows, ``s`` is
+    as uncertain as a sample standard deviation with n/3 degrees of freedom, so the bar takes
+    Student's t quantile, not the normal one, and ``sqrt(1 + pi / (2 n))`` for the median's
+    own error; the bar is the larger of that one and the chi^2 distribution's alone::
+
+        bar = m * max(from_symmetric(t(p; n/3) sqrt(e^2 + 2/nu) sqrt(1 + pi/(2n))),
+                      chi2_isf(p, nu) / nu)
+
+    Few frames give high bars (n = 30: t = 5.3); a long movie's approach the normal quantile
+    (3.7 at p = 1e-4). On simulated movies (chi^2 of 19600 pixels, noise-estimate errors of
+    0 to 3 %, 30 to 1000 frames) the share of frames flagged is 0.3 to 0.9 times ``p``.
+
+    Parameters
+    ----------
+    table : DataFrame
+        A fit table (``status``, ``chi2_red``, ``n_pixels``).
+    probability : float
+        One-sided tail probability of a frame in the right minimum, 0 < p < 0.5.
+    min_rows : int
+        Fewer converged rows than this: no bar (NaN).
+
+    Returns
+    -------
+    FlagBars
+    """
+    n_all = len(table)
+    chi_all = table["chi2_red"].to_numpy(dtype=float)
+    nu_all = (table["n_pixels"].to_numpy(dtype=float) if "n_pixels" in table
+              else np.full(n_all, np.nan))
+    converged = table["status"].isin(_CONVERGED).to_numpy() & np.isfinite(chi_all)
+    chi = chi_all[converged]
+    n = int(chi.size)
+    if n < min_rows:
+        return FlagBars(np.full(n_all, np.nan), n_rows=n)
+    med = float(np.median(chi))
+    rel = _to_symmetric(chi / med)
+    below = -rel[rel < 0]
+    spread = (math.sqrt(math.pi / 2.0) * float(below.mean()) / (1.0 - _LOWER_HALF_BIAS / n)
+              if below.size else 0.0)
+    nu_conv = nu_all[converged]
+    nu_conv = nu_conv[np.isfinite(nu_conv) & (nu_conv > 0)]
+    nu_med = float(np.median(nu_conv)) if nu_conv.size else math.inf
+    excess2 = max(spread**2 - 2.0 / nu_med, 0.0)
+    t = float(stats.t.isf(probability, max(n * _DOF_PER_ROW, 1.0)))
+    widen = math.sqrt(1.0 + math.pi / (2.0 * n))
+
+    def bar(nu: NDArray[np.float64]) -> NDArray[np.float64]:
+        known = np.isfinite(nu) & (nu > 0)
+        nu_safe = np.where(known, nu, 1.0)
+        theory = np.where(known, 2.0 / nu_safe, 2.0 / nu_med)
+        measured = _from_symmetric(t * np.sqrt(excess2 + theory) * widen)
+        chi2_only = np.where(known, stats.chi2.isf(probability, nu_safe) / nu_safe, 1.0)
+        return med * np.maximum(measured, chi2_only)
+
+    typical = float(bar(np.array([nu_med]))[0])
+    return FlagBars(bar(nu_all), med, math.sqrt(excess2), typical, n)
 
 
 def _axes(table: pd.DataFrame) -> NDArray[np.float64]:
@@ -411,19 +564,23 @@ def repair_by_continuity(
                                  "replaced": n})
         if n == 0:
             break
-    bar = chi2_bar(table, opts.chi2_sigmas)
-    report.chi2_bar = bar
-    if opts.flag and math.isfinite(bar):
+    report.chi2_bar = chi2_bar(table, opts.chi2_sigmas)
+    flags = flag_bars(table, opts.flag_probability)
+    report.flag_bar, report.excess_scatter = flags.typical, flags.excess
+    if opts.flag and math.isfinite(flags.typical):
         chi = table["chi2_red"].to_numpy(dtype=float)
-        hit = (table["status"] == OK).to_numpy() & (chi > bar)
-        note = (f"reduced chi2 above the movie's bar {bar:.3g} (median + "
-                f"{opts.chi2_sigmas:g} lower-half spreads) and no neighbour's orientation fits "
-                "better: likely a wrong local minimum")
+        hit = (table["status"] == OK).to_numpy() & (chi > flags.bars)
+        col_status = table.columns.get_loc("status")
+        col_message = table.columns.get_loc("message")
         for i in np.flatnonzero(hit):
-            table.iat[i, table.columns.get_loc("status")] = POOR_FIT
-            msg = str(table.iat[i, table.columns.get_loc("message")])
-            table.iat[i, table.columns.get_loc("message")] = (
-                f"{msg}; {note}" if msg and msg != "nan" else note)
+            note = (f"reduced chi2 {chi[i]:.4g} above {flags.bars[i]:.4g}, which a frame in "
+                    f"the right minimum exceeds with probability {opts.flag_probability:g} "
+                    f"(chi^2 of its pixels and the movie's excess scatter "
+                    f"{flags.excess:.2g}, measured on {flags.n_rows} frames), and no "
+                    "neighbour's orientation fits better: likely a wrong local minimum")
+            table.iat[i, col_status] = POOR_FIT
+            msg = str(table.iat[i, col_message])
+            table.iat[i, col_message] = f"{msg}; {note}" if msg and msg != "nan" else note
         report.flagged = int(hit.sum())
     return table, report
 

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch, run_frame
 from holofit.cache import LRUCache
@@ -44,6 +45,12 @@ from holofit.fit.continuity import (
     ContinuityReport,
     NeighbourStart,
     repair_by_continuity,
+)
+from holofit.fit.defaults import (
+    INITIAL_MAX,
+    INITIAL_MIN,
+    INITIAL_SHARE,
+    default_initial_frames,
 )
 from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitOptions, fit_frame
 from holofit.fit_table import column_unit
@@ -71,6 +78,7 @@ __all__ = [
     "FitPayload",
     "FitRun",
     "FitStageError",
+    "default_initial_frames",
     "fit_columns",
     "fit_frame_task",
     "read_static",
@@ -328,7 +336,7 @@ def run_fit(
     out_dir: str | Path,
     *,
     pass_name: str = "both",
-    initial_frames: int = 500,
+    initial_frames: int | None = None,
     static: str | Path | None = None,
     instrument: Instrument | None = None,
     override_instrument: bool = False,
@@ -363,8 +371,10 @@ def run_fit(
         and ``frames/`` go.
     pass_name : {"both", "initial", "final"}
         Which passes to run.
-    initial_frames : int
-        Frames of the initial pass (the first ones that can be fitted).
+    initial_frames : int, optional
+        Frames of the initial pass (the first ones that can be fitted); default
+        :func:`default_initial_frames` of the movie's fittable frames (the choice is in
+        ``notes``).
     static : str or Path, optional
         ``static.json`` for the final pass (default: ``OUT/static.json`` from the initial
         pass).
@@ -409,7 +419,7 @@ def run_fit(
         raise ValueError(f"pass must be one of {', '.join(PASSES)}, got {pass_name!r}")
     if tmatrix not in TMATRIX_CHOICES:
         raise ValueError(f"tmatrix must be one of {', '.join(TMATRIX_CHOICES)}, got {tmatrix!r}")
-    if initial_frames < 1:
+    if initial_frames is not None and initial_frames < 1:
         raise ValueError(f"initial_frames must be >= 1, got {initial_frames}")
     opts = options or FrameFitOptions()
     cont = continuity or ContinuityOptions()
@@ -421,7 +431,11 @@ def run_fit(
     out = Path(out_dir)
     run = FitRun()
     model = particle.model
-    with CropSet(crop_dir) as crops:
+    # this process on one BLAS thread, as the workers are: OpenBLAS's pool spends 4-6x the
+    # CPU on the small dense solves of a T-matrix build, the in-memory continuity refits and
+    # the pictures (a rod's T-matrix: 7 s on one thread; 32-40 s of CPU and 39-60 s of wall
+    # time on two busy cores)
+    with threadpool_limits(limits=1, user_api="blas"), CropSet(crop_dir) as crops:
         inst = fit_instrument(resolve_instrument(crops, instrument, override_instrument),
                               numerical_aperture, fit_na)
         # one lattice for both passes, whatever the fitted index does to the dipole rule
@@ -518,8 +532,15 @@ def run_fit(
         static_path = Path(static) if static is not None else out / "static.json"
         if pass_name in ("initial", "both"):
             fittable = [f for f in todo if crops.row(f).get("status") in FITTABLE_CROP_STATUSES]
-            run.initial = one_pass("initial", particle, fittable[:initial_frames],
-                                   "initial.csv")
+            n_initial = initial_frames
+            if n_initial is None:
+                n_initial = default_initial_frames(len(fittable))
+                run.notes.append(
+                    f"initial pass (every parameter free) on the first {n_initial} of the "
+                    f"{len(fittable)} frames that can be fitted: the default, 1 in "
+                    f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX} "
+                    "(--initial-frames N to choose)")
+            run.initial = one_pass("initial", particle, fittable[:n_initial], "initial.csv")
             avg = static_average(read_table(run.initial), model)
             write_json(out / "static.json", {
                 **sidecar(kind="static parameters (robust average of the initial pass)",

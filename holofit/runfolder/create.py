@@ -3,7 +3,9 @@
 Everything is checked before anything is written: the movie, backgrounds and dark frames
 exist and are readable movies, make can use their paths, the configs resolve and validate,
 the analysis model suits the particle, the extra stage options leave the Makefile's own
-options alone, and the folder has no Makefile yet (unless ``force``). The Makefile is written
+options alone and suit the movie and the particle (:mod:`holofit.runfolder.stagecheck`: the
+crop size against the frames, follow mode and start point, ``--fix`` names), and the folder
+has no Makefile yet (unless ``force``). The Makefile is written
 last, so a folder with a Makefile is a complete run folder.
 """
 
@@ -38,6 +40,7 @@ from holofit.runfolder.spec import (
     check_make_path,
     check_stage_options,
 )
+from holofit.runfolder.stagecheck import check_crop_options, check_fit_options, initial_pass_note
 from holofit.scattering.select import ENGINE_CHOICES
 
 __all__ = ["RunFolder", "default_holofit_command", "init_run", "write_batch_makefile"]
@@ -86,6 +89,11 @@ def default_holofit_command() -> str:
 
 def _input(path: str | Path, what: str) -> str:
     """Absolute path of an existing input movie / background / dark, usable by make."""
+    return _read_input(path, what)[0]
+
+
+def _read_input(path: str | Path, what: str) -> tuple[str, int, tuple[int, int]]:
+    """:func:`_input`, with the movie's frame count and frame shape (rows, cols)."""
     p = Path(path).expanduser()
     if not p.exists():
         raise RunFolderError(f"{what} {path}: no such file or folder")
@@ -93,10 +101,11 @@ def _input(path: str | Path, what: str) -> str:
     check_make_path(absolute, what)
     try:
         with open_movie(absolute) as movie:
-            len(movie)
+            n_frames = len(movie)
+            shape = (int(movie.frame_shape[0]), int(movie.frame_shape[1]))
     except MovieError as exc:
         raise RunFolderError(f"{what}: {exc}") from None
-    return absolute
+    return absolute, n_frames, shape
 
 
 def _check_light(backgrounds: Sequence[str], darks: Sequence[str], dark_count: float | None,
@@ -256,7 +265,7 @@ def init_run(
     backgrounds = [str(b) for b in backgrounds]
     darks = [str(d) for d in darks]
     _check_light(backgrounds, darks, dark_count, normalized)
-    movie_abs = _input(movie, "movie")
+    movie_abs, n_frames, frame_shape = _read_input(movie, "movie")
     bg_abs = tuple(_input(b, "background") for b in backgrounds)
     dark_abs = tuple(_input(d, "dark frame") for d in darks)
 
@@ -283,6 +292,10 @@ def init_run(
         raise RunFolderError(f"options for unknown stage(s) {', '.join(unknown)}; stages: "
                              f"{', '.join(STAGES)}")
     opts = {stage: check_stage_options(stage, text) for stage, text in opts.items() if text}
+    check_crop_options(opts.get("crop", ""), frame_shape)
+    check_fit_options(opts.get("fit", ""), cfg.model)
+    note = initial_pass_note(opts.get("fit", ""), n_frames)
+    notes = [note] if note else []
 
     now = _dt.datetime.now().astimezone().replace(microsecond=0).isoformat()
     spec = RunSpec(
@@ -297,7 +310,7 @@ def init_run(
 
     run.mkdir(parents=True, exist_ok=True)
     out = RunFolder(run, run / "Makefile", run / "README.md", run / INSTRUMENT_COPY,
-                    run / PARTICLE_COPY, spec)
+                    run / PARTICLE_COPY, spec, notes=notes)
     _write_if_changed(out.instrument, _config_copy(inst_source))
     if shape is not None:
         target = run / shape
