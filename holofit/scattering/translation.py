@@ -49,7 +49,7 @@ from scipy.special import spherical_jn, spherical_yn
 
 from holofit.dda.legendre import legendre_tables
 from holofit.dda.tmatrix_waves import term_indices
-from holofit.dda.wigner import wigner_d_all
+from holofit.dda.wigner import apply_blocks, rotation_blocks, wigner_d_all
 
 __all__ = ["axial_entries", "axial_translation", "scalar_axial", "translation_matrix", "wigner_matrix"]
 
@@ -199,8 +199,8 @@ def translation_matrix(d_um: ArrayLike, k: float, order_to: int, order_from: int
     theta = float(np.arctan2(rho, d[2]))
     psi = float(np.arctan2(d[1], d[0]))
     axial = axial_translation(k * dist, order_to, order_from, kind)
-    rot_to = wigner_matrix(order_to, psi, theta)
-    rot_from = wigner_matrix(order_from, psi, theta)
-    return rot_to @ axial @ rot_from.conj().T
+    # D_to A D_from^H with the per-n blocks of the rotations (never as dense products)
+    half = apply_blocks(rotation_blocks(order_from, psi, theta, 0.0), axial.conj().T, order_from)
+    return apply_blocks(rotation_blocks(order_to, psi, theta, 0.0), half.conj().T, order_to)
 
 
