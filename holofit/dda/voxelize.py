@@ -40,9 +40,9 @@ from numpy.typing import NDArray
 from holofit.dda.lattice import Lattice
 from holofit.io.shapefile import read_shape_file
 from holofit.models import (
-    Cylinder,
     Cluster,
     CoatedSphere,
+    Cylinder,
     Dimer,
     Ellipsoid,
     JanusSphere,

@@ -189,7 +189,6 @@ def solve_cluster(positions_um: ArrayLike, radii_um: ArrayLike, indices: ArrayLi
     big = int(order) if order is not None else n_stop(k * radius)
     orders = tuple(n_stop(k * a) + int(sphere_margin) for a in radii)
     offsets = tuple(int(v) for v in np.cumsum([0, *[n_terms(L) for L in orders[:-1]]]))
-    n_sph = offsets[-1] + n_terms(orders[-1])
     size = float(np.max(radii))
     axial = bool(np.all(np.hypot(pos[:, 0], pos[:, 1]) <= AXIAL_TOLERANCE * size))
 
@@ -355,6 +354,8 @@ class ClusterTheory(ScatteringTheory):
     """
 
     name = "cluster"
+    #: every solve is served from the cluster's T-matrix (the fit stage builds no other)
+    own_tmatrix = True
 
     def __init__(self, sphere_margin: int = SPHERE_MARGIN, **_ignored: Any) -> None:
         self.sphere_margin = int(sphere_margin)

@@ -51,7 +51,13 @@ from holofit.dda.legendre import legendre_tables
 from holofit.dda.tmatrix_waves import term_indices
 from holofit.dda.wigner import apply_blocks, rotation_blocks, wigner_d_all
 
-__all__ = ["axial_entries", "axial_translation", "scalar_axial", "translation_matrix", "wigner_matrix"]
+__all__ = [
+    "axial_entries",
+    "axial_translation",
+    "scalar_axial",
+    "translation_matrix",
+    "wigner_matrix",
+]
 
 KINDS = ("regular", "outgoing")
 
