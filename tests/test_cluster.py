@@ -234,11 +234,11 @@ def test_truncation_rule_is_converged_for_touching_spheres() -> None:
     o = Orientation(0.3, 1.0, 0.5)
     a = ClusterWave(model, OPTICS, o, base).field_on_pixels((0, 0, 10.0), x.ravel(), y.ravel())
     b = ClusterWave(model, OPTICS, o, more).field_on_pixels((0, 0, 10.0), x.ravel(), y.ravel())
-    assert _rel(np.stack(a), np.stack(b)) < 1e-8
+    assert _rel(np.stack(a), np.stack(b)) < 2e-8  # measured 9.4e-9
     rot = ClusterWave(model, OPTICS, o, base).rotation
     near = np.array([[0.0, 0.7, 0.0], [0.6, 0.0, 0.5]]) @ rot.T  # beside the contact point
     assert _rel(SphereSumWave(base, OPTICS, o).field_at(near),
-                SphereSumWave(more, OPTICS, o).field_at(near)) < 1e-6
+                SphereSumWave(more, OPTICS, o).field_at(near)) < 2e-6  # measured 6.9e-7
 
 
 def _treams_field(model: Cluster, pts: np.ndarray, lmax: int) -> np.ndarray:

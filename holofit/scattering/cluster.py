@@ -31,7 +31,8 @@ of :func:`holofit.scattering.mie_coefficients.n_stop`, plus a margin for the nea
 touching neighbours); the cluster expansion keeps ``L = n_stop(k R)`` with ``R`` the radius of
 the sphere about the centre that contains every sphere. Measured on touching polystyrene
 dimers in water (tests/test_cluster.py): raising every order by 4 changes the camera field by
-less than 1e-8 of its maximum.
+9.4e-9 of its maximum (0.53 um spheres, 10 um from the camera) and the field beside the contact
+point by 6.9e-7.
 
 Conditioning
 ------------
