@@ -422,3 +422,15 @@ def test_frame_fit_with_the_cluster_engine_recovers_the_truth() -> None:
                    math.sin(truth.theta) * math.sin(truth.psi), math.cos(truth.theta)])
     u = np.array([res.values[k] for k in ("ux", "uy", "uz")])
     assert math.degrees(math.acos(min(1.0, float(u @ ut) / np.linalg.norm(u)))) < 1.0
+
+
+def test_sphere_sum_far_field_form_is_the_expansion_far_field() -> None:
+    """The spheres' own far fields, phased by their positions, equal the cluster expansion's
+    asymptotic field (two independent evaluations of ``far_field=True``)."""
+    cl = Cluster((0.3, 0.25), (1.59, 1.7 + 0.02j), ((0.0, 0.0, -0.3), (0.1, 0.2, 0.25)))
+    sol = ClusterTheory().solution(cl, OPTICS)
+    o = Orientation(0.4, 0.8, 0.2)
+    pts = np.array([[3.0, -2.0, 40.0], [-5.0, 1.0, -30.0], [20.0, 10.0, 5.0]])
+    a = SphereSumWave(sol, OPTICS, o).field_at(pts, far_field=True)
+    b = ClusterWave(cl, OPTICS, o, sol).field_at(pts, far_field=True)
+    assert _rel(a, b) < 1e-9
