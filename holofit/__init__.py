@@ -7,9 +7,10 @@ The public API, by job (the command line is a thin layer over these functions)::
     simulation     simulate_movie, simulate_trajectory, BrownianParameters
     configuration  Instrument, load_instrument, ParticleConfig, load_particle, DDASettings
     particles      Sphere, Spherocylinder, JanusSphere, Dimer, Spheroid, Ellipsoid, Cylinder,
-                   VoxelShape
+                   CoatedSphere, Cluster, VoxelShape
     geometry       Orientation, DetectorGrid, Optics
-    engines        LorenzMie, BuiltinDDA, AddaEngine, select_theory, get_theory
+    engines        LorenzMie, BuiltinDDA, AddaEngine, ClusterTheory, CoatedMie, select_theory,
+                   get_theory
     holograms      hologram, calc_hologram
     fitting        HologramModel, ParameterSpace, solve_least_squares, FitResult,
                    fit_sphere_crop, fit_frame
@@ -63,6 +64,8 @@ _API: dict[str, str] = {
     "Spheroid": "holofit.models",
     "Ellipsoid": "holofit.models",
     "Cylinder": "holofit.models",
+    "CoatedSphere": "holofit.models",
+    "Cluster": "holofit.models",
     "VoxelShape": "holofit.models",
     # geometry and light
     "Orientation": "holofit.scattering.theory",
@@ -72,6 +75,8 @@ _API: dict[str, str] = {
     "LorenzMie": "holofit.scattering.mie",
     "BuiltinDDA": "holofit.dda.engine",
     "AddaEngine": "holofit.dda.adda.engine",
+    "ClusterTheory": "holofit.scattering.cluster",
+    "CoatedMie": "holofit.scattering.coated_mie",
     "select_theory": "holofit.scattering.select",
     "get_theory": "holofit.scattering.registry",
     # holograms

@@ -232,6 +232,12 @@ def model_specs(kind: str) -> dict[str, Spec]:
             "centre_um": Spec("vector3", "the particle centre relative to the dipole box "
                               "centre, um", required=False, default=(0.0, 0.0, 0.0)),
         }
+    if kind == "cluster":
+        return {
+            "radii_um": Spec("lengths", "the sphere radii in um", *SIZE_RANGE_UM, hint=nm_hint),
+            "indices": Spec("indices", "the refractive index of each sphere"),
+            "positions_um": Spec("vectors", "the sphere centres in the particle frame, um"),
+        }
     specs: dict[str, Spec] = {}
     for name in (f.name for f in dataclasses.fields(cls)):
         if name in cls.size_fields:

@@ -17,6 +17,8 @@ from holofit.io.shapefile import read_shape_file
 
 __all__ = [
     "MODEL_TYPES",
+    "Cluster",
+    "CoatedSphere",
     "Cylinder",
     "Dimer",
     "Ellipsoid",
@@ -302,6 +304,105 @@ class Dimer(ParticleModel):
 
 
 @dataclass(frozen=True)
+class CoatedSphere(ParticleModel):
+    """A sphere with a concentric shell of uniform thickness (exact: coated-sphere Lorenz-Mie,
+    :mod:`holofit.scattering.coated_mie`).
+
+    Parameters
+    ----------
+    radius_um : float
+        Core radius, um.
+    shell_thickness_um : float
+        Shell thickness, um (the outer radius is ``radius_um + shell_thickness_um``).
+    index_core, index_shell : complex
+        Absolute refractive indices of core and shell.
+    """
+
+    radius_um: float
+    shell_thickness_um: float
+    index_core: complex
+    index_shell: complex
+
+    kind: ClassVar[str] = "coated_sphere"
+    size_fields: ClassVar[tuple[str, ...]] = ("radius_um", "shell_thickness_um")
+    index_fields: ClassVar[tuple[str, ...]] = ("index_core", "index_shell")
+    anisotropic: ClassVar[bool] = False
+
+    @property
+    def bounding_radius_um(self) -> float:
+        return self.radius_um + self.shell_thickness_um
+
+
+#: relative tolerance on the centre distance below which two cluster spheres overlap
+OVERLAP_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class Cluster(ParticleModel):
+    """Homogeneous spheres at fixed positions in the particle frame (touching or apart, not
+    overlapping); exact by the superposition T-matrix (:mod:`holofit.scattering.cluster`).
+
+    Parameters
+    ----------
+    radii_um : tuple of float
+        Sphere radii, um.
+    indices : tuple of complex
+        Absolute refractive index of each sphere.
+    positions_um : tuple of (x, y, z)
+        Sphere centres in the particle frame, relative to the particle centre (the origin of
+        the particle frame, about which the particle is positioned and rotated), um.
+    """
+
+    radii_um: tuple[float, ...]
+    indices: tuple[complex, ...]
+    positions_um: tuple[tuple[float, float, float], ...]
+
+    kind: ClassVar[str] = "cluster"
+    axisymmetric: ClassVar[bool] = False
+
+    def __post_init__(self) -> None:
+        radii = tuple(float(r) for r in self.radii_um)
+        indices = tuple(complex(n) for n in self.indices)
+        try:
+            pos = tuple(tuple(float(v) for v in p) for p in self.positions_um)
+        except TypeError:
+            raise ValueError("cluster: positions_um must be a list of [x, y, z]") from None
+        object.__setattr__(self, "radii_um", radii)
+        object.__setattr__(self, "indices", indices)
+        object.__setattr__(self, "positions_um", pos)
+        if not radii:
+            raise ValueError("cluster: at least one sphere is needed")
+        if not len(radii) == len(indices) == len(pos):
+            raise ValueError(f"cluster: {len(radii)} radii, {len(indices)} indices and "
+                             f"{len(pos)} positions: one of each per sphere")
+        for i, (r, n, p) in enumerate(zip(radii, indices, pos, strict=True)):
+            if not r > 0:
+                raise ValueError(f"cluster: radii_um[{i}] must be a positive length in um, "
+                                 f"got {r}")
+            if n.real <= 0 or n.imag < 0:
+                raise ValueError(f"cluster: indices[{i}] must have Re > 0 and Im >= 0, got {n}")
+            if len(p) != 3 or not all(np.isfinite(p)):
+                raise ValueError(f"cluster: positions_um[{i}] must be [x, y, z] in um, got {p}")
+        c = np.asarray(pos)
+        for i in range(len(radii)):
+            for j in range(i):
+                dist = float(np.linalg.norm(c[i] - c[j]))
+                if dist < (radii[i] + radii[j]) * (1.0 - OVERLAP_TOLERANCE):
+                    raise ValueError(
+                        f"cluster: spheres {j} and {i} overlap (centres {dist:.4g} um apart, "
+                        f"radii {radii[j]:.4g} + {radii[i]:.4g} um)")
+
+    @property
+    def bounding_radius_um(self) -> float:
+        c = np.asarray(self.positions_um)
+        return float(np.max(np.linalg.norm(c, axis=1) + np.asarray(self.radii_um)))
+
+    @property
+    def head_tail_symmetric(self) -> bool:
+        return False
+
+
+@dataclass(frozen=True)
 class VoxelShape(ParticleModel):
     """A user's dipole set from an ADDA shape file (one or several domains).
 
@@ -351,7 +452,7 @@ class VoxelShape(ParticleModel):
 MODEL_TYPES: dict[str, type[ParticleModel]] = {
     cls.kind: cls
     for cls in (Sphere, Spherocylinder, JanusSphere, Spheroid, Ellipsoid, Cylinder, Dimer,
-                VoxelShape)
+                CoatedSphere, Cluster, VoxelShape)
 }
 
 

@@ -45,7 +45,11 @@ def test_simulate_hologram_of_a_rod_and_a_janus_particle(tmp_path):
     'index2 = 1.5',
     'model = "voxels"\npath = "{geom}"\ndipole_size_um = 0.024\nindices = [1.59, 2.7]\n'
     'centre_um = [0.0, 0.0, -0.024]',
-], ids=["spheroid", "ellipsoid", "cylinder", "dimer", "voxels"])
+    'model = "coated_sphere"\nradius_um = 0.3\nshell_thickness_um = 0.05\nindex_core = 1.5\n'
+    'index_shell = 2.0',
+    'model = "cluster"\nradii_um = [0.3, 0.25]\nindices = [1.5, 1.6]\n'
+    'positions_um = [[0, 0, -0.3], [0.1, 0.0, 0.3]]',
+], ids=["spheroid", "ellipsoid", "cylinder", "dimer", "voxels", "coated sphere", "cluster"])
 def test_simulate_hologram_of_every_model(tmp_path, body):
     import tifffile
 

@@ -40,6 +40,8 @@ from numpy.typing import NDArray
 from holofit.dda.lattice import Lattice
 from holofit.io.shapefile import read_shape_file
 from holofit.models import (
+    Cluster,
+    CoatedSphere,
     Cylinder,
     Dimer,
     Ellipsoid,
@@ -86,7 +88,7 @@ def dipole_size(model: ParticleModel, wavelength_medium_um: float, n_medium: flo
     """
     if isinstance(model, VoxelShape):
         return model.dipole_size_um
-    indices = [complex(getattr(model, f)) for f in model.index_fields]
+    indices = _material_indices(model)
     m_max = max(abs(n) / n_medium for n in indices)
     return wavelength_medium_um / (dipoles_per_wavelength * m_max)
 
@@ -146,6 +148,20 @@ def _shape_fractions(model: ParticleModel, p: NDArray, d: float, binary: bool) -
         f_core = fill(s_core)
         f_union = fill(np.minimum(s_core, s_shell))
         return np.column_stack([f_core, np.maximum(f_union - f_core, 0.0)])
+    if isinstance(model, CoatedSphere):
+        f_core = fill(_sdf_sphere(p, model.radius_um))
+        f_all = fill(_sdf_sphere(p, model.bounding_radius_um))
+        return np.column_stack([f_core, np.maximum(f_all - f_core, 0.0)])
+    if isinstance(model, Cluster):
+        fs = np.column_stack([fill(_sdf_sphere(p - np.asarray(c), r))
+                              for c, r in zip(model.positions_um, model.radii_um, strict=True)])
+        s_all = np.min(np.column_stack([_sdf_sphere(p - np.asarray(c), r) for c, r in
+                                        zip(model.positions_um, model.radii_um, strict=True)]),
+                       axis=1)
+        total = fs.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.where(total[:, None] > 0, fs / total[:, None], 0.0)
+        return fill(s_all)[:, None] * share
     if isinstance(model, Dimer):
         z1, z2 = model.sphere_centres_z()
         s1 = _sdf_sphere(p, model.radius1_um, z1)
@@ -164,6 +180,13 @@ def _extent(model: ParticleModel) -> tuple[NDArray, NDArray]:
     if isinstance(model, JanusSphere):
         r = model.radius_um + model.cap_thickness_um
         return np.array([-r, -r, -model.radius_um]), np.array([r, r, r])
+    if isinstance(model, Cluster):
+        c = np.asarray(model.positions_um)
+        r = np.asarray(model.radii_um)[:, None]
+        return (c - r).min(axis=0), (c + r).max(axis=0)
+    if isinstance(model, CoatedSphere):
+        r = model.bounding_radius_um
+        return np.full(3, -r), np.full(3, r)
     if isinstance(model, Dimer):
         z1, z2 = model.sphere_centres_z()
         rx = max(model.radius1_um, model.radius2_um)
@@ -188,6 +211,8 @@ def _extent(model: ParticleModel) -> tuple[NDArray, NDArray]:
 
 
 def _material_indices(model: ParticleModel) -> tuple[complex, ...]:
+    if isinstance(model, Cluster):
+        return tuple(complex(n) for n in model.indices)
     return tuple(complex(getattr(model, f)) for f in model.index_fields)
 
 

@@ -641,6 +641,10 @@ def _final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | Non
     if policy == "auto" and n_frames < TMATRIX_MIN_FRAMES:
         return None
     theory = particle.theory(engine, fixed_lattice_for=inst.optics)
+    if getattr(theory, "own_tmatrix", False):
+        run.notes.append(f"final pass served by the {theory.name} engine's own T-matrix "
+                         "(one solve per geometry, every orientation by rotation)")
+        return None
     why_not = _no_tmatrix_reason(theory)
     if why_not:
         if policy == "always":
@@ -666,6 +670,8 @@ def _final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | Non
 
 def _no_tmatrix_reason(theory: ScatteringTheory) -> str:
     """Why ``theory`` cannot serve a T-matrix ('' if it can)."""
+    if getattr(theory, "own_tmatrix", False):
+        return ""
     if not hasattr(theory, "tmatrix"):
         return f"the {theory.name} engine has no T-matrix (use --engine builtin)"
     settings = getattr(theory, "settings", None)

@@ -37,7 +37,7 @@ from holofit.conventions import (
     euler_zyz_from_matrix,
     rotation_from_vector,
 )
-from holofit.models import ParticleModel, VoxelShape
+from holofit.models import Cluster, ParticleModel, VoxelShape
 from holofit.validation import INDEX_RANGE
 
 __all__ = [
@@ -128,7 +128,7 @@ def index_column(field_name: str, element: int | None = None) -> str:
 def static_parameters(model: ParticleModel) -> tuple[Parameter, ...]:
     """The model's sizes and real index parts as fit parameters (a voxel file: its indices)."""
     out: list[Parameter] = []
-    if isinstance(model, VoxelShape):
+    if isinstance(model, VoxelShape | Cluster):
         for k in range(len(model.indices)):
             out.append(Parameter(index_column("indices", k), "static", "1", INDEX_STEP,
                                  *INDEX_RANGE, field="indices", element=k))
@@ -419,7 +419,7 @@ def _angles_of_axis(u: NDArray[np.float64]) -> tuple[float, float]:
 def particle_with(model: ParticleModel, statics: dict[str, float]) -> ParticleModel:
     """``model`` with static parameters (fit-table names) replaced; imaginary parts kept."""
     changes: dict[str, object] = {}
-    indices = list(model.indices) if isinstance(model, VoxelShape) else None
+    indices = list(model.indices) if isinstance(model, VoxelShape | Cluster) else None
     for p in static_parameters(model):
         if p.name not in statics:
             continue

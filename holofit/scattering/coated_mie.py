@@ -28,16 +28,23 @@ is the homogeneous sphere's series with these coefficients (:class:`CoatedSphere
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from holofit.models import CoatedSphere, ParticleModel
 from holofit.optics import Optics
 from holofit.scattering.mie import CrossSections, bh_frame
 from holofit.scattering.mie_coefficients import n_stop, riccati_xi
 from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, field_on_pixels
-from holofit.scattering.theory import ScatteredWave
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+
+if TYPE_CHECKING:
+    from holofit.dda.multipole import MultipoleExpansion
 
 __all__ = [
+    "CoatedMie",
     "CoatedSphereWave",
     "coated_amplitudes",
     "coated_coefficients",
@@ -213,6 +220,28 @@ class CoatedSphereWave(ScatteredWave):
         """``S1, S2`` at scattering angles ``theta`` (rad from the propagation direction)."""
         return _amplitudes(self.a, self.b, theta)
 
+    @property
+    def radius_um(self) -> float:
+        """Outer radius, um (the lens model's source radius)."""
+        return self.outer_radius_um
+
+    @property
+    def expansion(self) -> MultipoleExpansion:
+        """The scattered field's outgoing multipole expansion (lab frame,
+        :mod:`holofit.dda.multipole`): ``p = -a_n`` times the plane wave's N-type coefficients,
+        ``q = -b_n`` times its M-type ones (what the lens model images)."""
+        from holofit.conventions import PROPAGATION_DIRECTION
+        from holofit.dda.multipole import MultipoleExpansion
+        from holofit.dda.tmatrix_waves import plane_wave_coefficients, term_indices, unpack
+
+        order = self.a.size
+        vec = plane_wave_coefficients(PROPAGATION_DIRECTION, self.optics.polarization, order)
+        _, n, _ = term_indices(order)
+        half = n.size // 2
+        vec = vec * np.concatenate([-self.a[n[:half] - 1], -self.b[n[half:] - 1]])
+        p, q = unpack(vec, order)
+        return MultipoleExpansion(self.optics.k, p, q, self.outer_radius_um)
+
     def cross_sections(self) -> CrossSections:
         """Extinction, scattering and absorption cross sections, um^2."""
         return _cross_sections(self.a, self.b, self.optics.k, self.outer_radius_um)
@@ -243,3 +272,20 @@ class CoatedSphereWave(ScatteredWave):
         field_on_pixels(xs, ys, xp, yp, zp, self._frame, self.optics.k, *self._coefs,
                         bool(far_field), ex, ey)
         return ex, ey
+
+
+class CoatedMie(ScatteringTheory):
+    """Exact Lorenz-Mie theory for coated spheres (:class:`holofit.models.CoatedSphere`)."""
+
+    name = "coated_sphere"
+
+    def __init__(self, **_ignored: object) -> None:
+        pass
+
+    def solve(self, model: ParticleModel, optics: Optics,
+              orientation: Orientation | None = None) -> CoatedSphereWave:
+        if not isinstance(model, CoatedSphere):
+            raise TypeError(f"coated-sphere Lorenz-Mie handles coated spheres only, not "
+                            f"{model.kind!r}")
+        return CoatedSphereWave(model.radius_um, model.bounding_radius_um, model.index_core,
+                                model.index_shell, optics)

@@ -32,16 +32,31 @@ def _adda(**options: Any) -> ScatteringTheory:
     return AddaEngine(**options)
 
 
+def _cluster(**options: Any) -> ScatteringTheory:
+    from holofit.scattering.cluster import ClusterTheory
+
+    return ClusterTheory(**options)
+
+
+def _coated_sphere(**options: Any) -> ScatteringTheory:
+    from holofit.scattering.coated_mie import CoatedMie
+
+    return CoatedMie(**options)
+
+
 #: engine name -> factory taking the engine's keyword options
 ENGINES: dict[str, Callable[..., ScatteringTheory]] = {
     "mie": _mie,
     "builtin": _builtin,
     "adda": _adda,
+    "cluster": _cluster,
+    "coated_sphere": _coated_sphere,
 }
 
 
 def get_theory(name: str, **options: Any) -> ScatteringTheory:
-    """The scattering engine called ``name`` (``mie``, ``builtin``, ``adda``).
+    """The scattering engine called ``name`` (``mie``, ``builtin``, ``adda``, ``cluster``,
+    ``coated_sphere``).
 
     Parameters
     ----------

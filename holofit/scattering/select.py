@@ -1,20 +1,45 @@
 """Choosing the scattering engine for a particle: the one rule, used by every stage.
 
-``auto`` means exact Lorenz-Mie for a sphere without DDA settings, and otherwise the engine the
-DDA settings name (the built-in DDA unless they say ``adda``). A sphere with a ``[dda]`` table
-in its config is computed by the DDA (that is how the paper's DDA-vs-Mie validation is run).
+``auto`` means the exact solution where one exists, and otherwise the engine the DDA settings
+name (the built-in DDA unless they say ``adda``):
+
+* a sphere without DDA settings: Lorenz-Mie (``mie``); a sphere with a ``[dda]`` table in its
+  config is computed by the DDA (that is how the paper's DDA-vs-Mie validation is run);
+* a dimer or a sphere cluster: the superposition T-matrix (``cluster``,
+  :mod:`holofit.scattering.cluster`), unless the DDA settings say ``adda``;
+* a coated sphere: coated-sphere Lorenz-Mie (``coated_sphere``), unless they say ``adda``.
+
+``--engine builtin`` (or ``adda``) computes any of them by the DDA, for comparison.
 """
 
 from __future__ import annotations
 
 from holofit.dda.settings import DDASettings
-from holofit.models import ParticleModel, Sphere
+from holofit.models import Cluster, CoatedSphere, Dimer, ParticleModel, Sphere
 from holofit.scattering.registry import get_theory
 from holofit.scattering.theory import ScatteringTheory
 
-__all__ = ["ENGINE_CHOICES", "select_theory"]
+__all__ = ["ENGINE_CHOICES", "exact_engine", "select_theory"]
 
-ENGINE_CHOICES = ("auto", "mie", "builtin", "adda")
+ENGINE_CHOICES = ("auto", "mie", "builtin", "adda", "cluster", "coated_sphere")
+
+#: the exact engines and the models each one handles
+_EXACT: dict[str, tuple[type[ParticleModel], ...]] = {
+    "mie": (Sphere,),
+    "cluster": (Sphere, Dimer, Cluster),
+    "coated_sphere": (CoatedSphere,),
+}
+
+
+def exact_engine(model: ParticleModel) -> str | None:
+    """The exact engine ``auto`` picks for ``model`` without DDA settings, or None."""
+    if isinstance(model, Sphere):
+        return "mie"
+    if isinstance(model, Dimer | Cluster):
+        return "cluster"
+    if isinstance(model, CoatedSphere):
+        return "coated_sphere"
+    return None
 
 
 def select_theory(
@@ -28,24 +53,28 @@ def select_theory(
         The particle.
     settings : DDASettings, optional
         The particle's DDA settings (its config's ``[dda]`` table); None if it has none.
-    engine : {"auto", "mie", "builtin", "adda"}, optional
+    engine : {"auto", "mie", "builtin", "adda", "cluster", "coated_sphere"}, optional
         Overrides the choice; ``auto`` (default) as in the module docstring.
 
     Raises
     ------
     ValueError
-        An unknown engine, or Lorenz-Mie asked for a particle that is not a sphere.
+        An unknown engine, or an exact engine asked for a particle it does not describe.
     """
     engine = engine or "auto"
     if engine not in ENGINE_CHOICES:
         raise ValueError(f"engine must be one of {', '.join(ENGINE_CHOICES)}, got {engine!r}")
     if engine == "auto":
-        if isinstance(model, Sphere) and settings is None:
-            engine = "mie"
+        exact = exact_engine(model)
+        dda_engine = (settings or DDASettings()).engine
+        if exact is None or (exact == "mie" and settings is not None) or dda_engine == "adda":
+            engine = dda_engine
         else:
-            engine = (settings or DDASettings()).engine
-    if engine == "mie":
-        if not isinstance(model, Sphere):
-            raise ValueError(f"Lorenz-Mie theory handles spheres only, not {model.kind!r}")
-        return get_theory("mie")
+            engine = exact
+    if engine in _EXACT:
+        if not isinstance(model, _EXACT[engine]):
+            what = {"mie": "spheres", "cluster": "spheres, dimers and sphere clusters",
+                    "coated_sphere": "coated spheres"}[engine]
+            raise ValueError(f"the {engine} engine handles {what} only, not {model.kind!r}")
+        return get_theory(engine)
     return get_theory(engine, settings=settings or DDASettings())
