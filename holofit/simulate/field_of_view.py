@@ -143,7 +143,8 @@ def simulate_field_of_view(
     frame_shape : tuple of int
         ``(rows, columns)`` of the frames.
     camera : Camera, optional
-        Camera model; by default the instrument's (:func:`~holofit.simulate.holograms.default_camera`).
+        Camera model; by default the instrument's
+        (:func:`~holofit.simulate.holograms.default_camera`).
     noise : bool
         Add shot and read noise (quantisation always applies).
     seed : int
