@@ -31,8 +31,10 @@ __all__ = [
     "SimulatedMovie",
     "SimulationError",
     "check_positions",
+    "default_camera",
     "simulate_movie",
     "smooth_illumination",
+    "write_background_and_truth",
 ]
 
 TRUTH_UNITS = {
@@ -216,11 +218,7 @@ def simulate_movie(
                 f"orientations must have shape ({n}, 3), got {orient.shape}"
             )
     theory = theory or select_theory(model)
-    camera = camera or Camera(
-        bit_depth=instrument.bit_depth,
-        background_counts=0.47 * (2**instrument.bit_depth - 1),
-        read_noise_counts=instrument.read_noise_counts or 0.8,
-    )
+    camera = camera or default_camera(instrument)
     rng = np.random.default_rng(seed)
     illum = (
         smooth_illumination(frame_shape, rng, uneven_illumination)
@@ -291,15 +289,42 @@ def simulate_movie(
     movie_path = bg_path = table_path = None
     if out is not None:
         movie_path = out / "movie.tif"
-        with TiffStackWriter(out / "background.tif", {"holofit": "simulated background"}) as bw:
-            for _ in range(max(n_background, 1)):
-                bw.write(camera.expose(np.ones(frame_shape), rng, illum, noise))
-        bg_path = out / "background.tif"
-        table_path = write_table(
-            out / "truth.csv",
-            truth,
-            sidecar(
-                kind="simulation ground truth", units=TRUTH_UNITS, extra={"truth": meta_common}
-            ),
+        bg_path, table_path = write_background_and_truth(
+            out, camera, frame_shape, rng, illum, noise, n_background, truth,
+            TRUTH_UNITS, meta_common,
         )
     return SimulatedMovie(movie_path, bg_path, table_path, truth, frames if keep_frames else None)
+
+
+def default_camera(instrument: Instrument) -> Camera:
+    """The simulated camera of an instrument: its bit depth and read noise, background at
+    47 % of full scale."""
+    return Camera(
+        bit_depth=instrument.bit_depth,
+        background_counts=0.47 * (2**instrument.bit_depth - 1),
+        read_noise_counts=instrument.read_noise_counts or 0.8,
+    )
+
+
+def write_background_and_truth(
+    out: Path,
+    camera: Camera,
+    frame_shape: tuple[int, int],
+    rng: np.random.Generator,
+    illumination: NDArray | None,
+    noise: bool,
+    n_background: int,
+    truth: pd.DataFrame,
+    units: dict[str, str],
+    meta: dict[str, Any],
+) -> tuple[Path, Path]:
+    """Write ``background.tif`` (frames of the same camera without a particle) and
+    ``truth.csv`` (+ sidecar) beside a simulated movie; returns their paths."""
+    with TiffStackWriter(out / "background.tif", {"holofit": "simulated background"}) as bw:
+        for _ in range(max(n_background, 1)):
+            bw.write(camera.expose(np.ones(frame_shape), rng, illumination, noise))
+    table_path = write_table(
+        out / "truth.csv", truth,
+        sidecar(kind="simulation ground truth", units=units, extra={"truth": meta}),
+    )
+    return out / "background.tif", table_path

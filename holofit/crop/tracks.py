@@ -1,0 +1,270 @@
+"""Linking every frame's hologram centres into tracks: one ``particle`` id per hologram.
+
+The crop stage's candidate table (:data:`holofit.crop.table.CANDIDATE_UNITS`) holds every
+accepted hologram centre of every frame. :func:`link_tracks` links them across frames with
+trackpy's linker (``trackpy.link``; Crocker & Grier's nearest-neighbour assignment with
+subnetwork resolution and a memory for briefly lost holograms), the field's standard, and
+names each track with trackpy's column name, ``particle``.
+
+Track ids are renumbered 0, 1, 2 ... in order of first appearance (then of ``x_px``), so that
+they do not depend on trackpy's internal counter and a rerun on the same candidates gives the
+same ids. Tracks shorter than ``min_track_length`` frames, and tracks beyond the
+``max_particles`` longest, are reported in the summary with why and left out of the linked
+table.
+
+:func:`mark_neighbours` adds, to each (particle, frame), the nearest other track in the same
+frame and its distance: holograms closer than a crop's half-width overlap in the crop.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "TRACK_SUMMARY_UNITS",
+    "LinkOptions",
+    "LinkedTracks",
+    "TrackError",
+    "link_tracks",
+    "mark_neighbours",
+]
+
+#: columns of the per-track summary returned by :func:`link_tracks`
+TRACK_SUMMARY_UNITS = {
+    "particle": "track id (0, 1, ... in order of first appearance); -1: left out",
+    "first_frame": "index",
+    "last_frame": "index",
+    "n_frames": "count (frames with a detection)",
+    "n_gaps": "count (frames within the track's span without a detection)",
+    "mean_score": "1 (mean detection score)",
+    "x_px_start": "pixel, full frame",
+    "y_px_start": "pixel, full frame",
+    "kept": "bool (linked table holds the track)",
+    "reason": "text (why a track was left out)",
+}
+
+
+class TrackError(ValueError):
+    """Candidates or settings that cannot be linked; the message says which."""
+
+
+@dataclass(frozen=True)
+class LinkOptions:
+    """How holograms are linked into tracks.
+
+    Attributes
+    ----------
+    search_range_um : float
+        Farthest a hologram centre may move between two successive frames in which it is
+        detected, um (full-frame x-y). It must exceed the largest step of a particle (for a
+        1 um sphere in water at 100 frames/s the rms 2D step is ~0.13 um) and should stay below
+        half the closest approach of two particles, or trackpy resolves the pair as a
+        subnetwork (slower, and ambiguous when they pass within a step of each other).
+    memory : int
+        Frames a hologram may go undetected and keep its track.
+    min_track_length : int
+        Shorter tracks (in detected frames) are reported and left out.
+    max_particles : int, optional
+        Keep at most this many tracks: the longest (ties: the higher mean score).
+    """
+
+    search_range_um: float = 1.5
+    memory: int = 3
+    min_track_length: int = 10
+    max_particles: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.search_range_um) and self.search_range_um > 0):
+            raise TrackError(
+                f"search_range_um must be a positive number of micrometres, got "
+                f"{self.search_range_um!r}"
+            )
+        if self.memory < 0:
+            raise TrackError(f"memory must be >= 0 frames, got {self.memory}")
+        if self.min_track_length < 1:
+            raise TrackError(f"min_track_length must be >= 1 frame, got {self.min_track_length}")
+        if self.max_particles is not None and self.max_particles < 1:
+            raise TrackError(f"max_particles must be >= 1, got {self.max_particles}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict for sidecar files."""
+        return asdict(self)
+
+
+@dataclass
+class LinkedTracks:
+    """What :func:`link_tracks` found.
+
+    Attributes
+    ----------
+    candidates : pandas.DataFrame
+        The kept candidates, one per (particle, frame), with the column ``particle``; sorted by
+        particle, then frame.
+    summary : pandas.DataFrame
+        One row per track found, kept or not (columns :data:`TRACK_SUMMARY_UNITS`).
+    """
+
+    candidates: pd.DataFrame
+    summary: pd.DataFrame
+
+    @property
+    def particles(self) -> list[int]:
+        """The kept track ids."""
+        return sorted(int(p) for p in self.candidates["particle"].unique())
+
+
+def _check_candidates(candidates: pd.DataFrame) -> pd.DataFrame:
+    missing = [c for c in ("frame", "x_px", "y_px") if c not in candidates.columns]
+    if missing:
+        raise TrackError(f"the candidate table lacks the column(s) {', '.join(missing)}")
+    table = candidates.copy()
+    coords = table[["frame", "x_px", "y_px"]].to_numpy(dtype=float)
+    bad = ~np.isfinite(coords).all(axis=1)
+    if bad.any():
+        frame = table["frame"].iloc[int(np.argmax(bad))]
+        raise TrackError(f"frame {frame}: a candidate with a position that is not a number")
+    table["frame"] = table["frame"].astype(int)
+    if "score" not in table.columns:
+        table["score"] = np.nan
+    return table
+
+
+def _empty_summary() -> pd.DataFrame:
+    return pd.DataFrame({c: pd.Series(dtype=object) for c in TRACK_SUMMARY_UNITS})
+
+
+def _summarise(linked: pd.DataFrame) -> pd.DataFrame:
+    rows = []
+    for pid, track in linked.groupby("particle", sort=False):
+        track = track.sort_values("frame")
+        first, last = int(track["frame"].iloc[0]), int(track["frame"].iloc[-1])
+        rows.append({
+            "particle": pid,
+            "first_frame": first,
+            "last_frame": last,
+            "n_frames": len(track),
+            "n_gaps": last - first + 1 - len(track),
+            "mean_score": float(track["score"].mean()),
+            "x_px_start": float(track["x_px"].iloc[0]),
+            "y_px_start": float(track["y_px"].iloc[0]),
+        })
+    return pd.DataFrame(rows)
+
+
+def link_tracks(
+    candidates: pd.DataFrame, pixel_size_um: float, options: LinkOptions | None = None
+) -> LinkedTracks:
+    """Link the hologram centres of every frame into tracks.
+
+    Parameters
+    ----------
+    candidates : pandas.DataFrame
+        Candidate centres: columns ``frame``, ``x_px``, ``y_px`` (full-frame pixels) and,
+        optionally, ``score`` and any others (carried along).
+    pixel_size_um : float
+        Size of a camera pixel in the sample plane, um.
+    options : LinkOptions, optional
+        Linking settings.
+
+    Returns
+    -------
+    LinkedTracks
+
+    Raises
+    ------
+    TrackError
+        Missing columns, non-finite positions, a bad pixel size or bad options.
+    """
+    import trackpy
+
+    options = options or LinkOptions()
+    if not (math.isfinite(pixel_size_um) and pixel_size_um > 0):
+        raise TrackError(f"pixel_size_um must be a positive number, got {pixel_size_um!r}")
+    table = _check_candidates(candidates)
+    if table.empty:
+        return LinkedTracks(table.assign(particle=pd.Series(dtype=int)), _empty_summary())
+    work = table.reset_index(drop=True)
+    work["x"], work["y"] = work["x_px"], work["y_px"]
+    trackpy.quiet()
+    linked = trackpy.link(
+        work, search_range=options.search_range_um / pixel_size_um, memory=options.memory
+    )
+    linked = linked.drop(columns=["x", "y"]).reset_index(drop=True)
+
+    summary = _summarise(linked)
+    # ids in order of first appearance, then of x: independent of trackpy's counter
+    summary = summary.sort_values(["first_frame", "x_px_start"], kind="stable")
+    summary["kept"] = summary["n_frames"] >= options.min_track_length
+    summary["reason"] = np.where(
+        summary["kept"], "",
+        [f"{n} frames, fewer than min_track_length {options.min_track_length}"
+         for n in summary["n_frames"]],
+    )
+    if options.max_particles is not None:
+        ranked = summary[summary["kept"]].sort_values(
+            ["n_frames", "mean_score"], ascending=False, kind="stable"
+        )
+        surplus = ranked.index[options.max_particles:]
+        summary.loc[surplus, "kept"] = False
+        summary.loc[surplus, "reason"] = (
+            f"beyond the {options.max_particles} longest tracks (max_particles)"
+        )
+    kept = summary[summary["kept"]]
+    new_ids = {old: new for new, old in enumerate(kept["particle"])}
+    summary["particle"] = [new_ids.get(p, -1) for p in summary["particle"]]
+    linked = linked[linked["particle"].isin(list(new_ids))].copy()
+    linked["particle"] = linked["particle"].map(new_ids).astype(int)
+    linked = linked.sort_values(["particle", "frame"], kind="stable").reset_index(drop=True)
+    summary = summary.sort_values(
+        ["kept", "particle", "first_frame"], ascending=[False, True, True], kind="stable"
+    ).reset_index(drop=True)
+    return LinkedTracks(linked, summary[list(TRACK_SUMMARY_UNITS)])
+
+
+def mark_neighbours(linked: pd.DataFrame) -> pd.DataFrame:
+    """Add, to each (particle, frame), the nearest other track in that frame.
+
+    Parameters
+    ----------
+    linked : pandas.DataFrame
+        Columns ``particle``, ``frame``, ``x_px``, ``y_px``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        A copy with ``neighbour`` (particle id, -1 if alone in the frame) and
+        ``neighbour_px`` (centre-to-centre distance, pixels; inf if alone).
+
+    Raises
+    ------
+    TrackError
+        A (particle, frame) pair that occurs more than once.
+    """
+    dup = linked.duplicated(["particle", "frame"])
+    if dup.any():
+        row = linked[dup].iloc[0]
+        raise TrackError(
+            f"particle {int(row['particle'])} has more than one row in frame "
+            f"{int(row['frame'])}: a track holds one hologram per frame"
+        )
+    out = linked.copy()
+    neighbour = np.full(len(out), -1, dtype=int)
+    distance = np.full(len(out), np.inf)
+    pos = out[["x_px", "y_px"]].to_numpy(dtype=float)
+    ids = out["particle"].to_numpy()
+    for rows in out.groupby("frame").indices.values():
+        if len(rows) < 2:
+            continue
+        d = np.hypot(*(pos[rows, None, :] - pos[None, rows, :]).transpose(2, 0, 1))
+        np.fill_diagonal(d, np.inf)
+        nearest = np.argmin(d, axis=1)
+        neighbour[rows] = ids[rows][nearest]
+        distance[rows] = d[np.arange(len(rows)), nearest]
+    out["neighbour"] = neighbour
+    out["neighbour_px"] = distance
+    return out
