@@ -23,7 +23,6 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.camera import Camera
 from holofit.config import Instrument
 from holofit.conventions import hologram_intensity, pixel_centres
-from holofit.io.tiffstack import TiffStackWriter
 from holofit.models import ParticleModel
 from holofit.scattering.camera import recorded_field
 from holofit.scattering.select import select_theory
@@ -34,7 +33,7 @@ from holofit.simulate.holograms import (
     SimulationError,
     check_positions,
     default_camera,
-    write_background_and_truth,
+    film,
 )
 
 __all__ = ["FIELD_TRUTH_UNITS", "ParticleInView", "simulate_field_of_view"]
@@ -210,32 +209,9 @@ def simulate_field_of_view(
         "seed": seed,
     }
     pol = instrument.optics.polarization_rad
-    out = Path(out_dir) if out_dir is not None else None
-    writer = None if out is None else TiffStackWriter(
-        out / "movie.tif", {"holofit": "simulated field of view"}
+    holograms = (hologram_intensity(*_frame_field(solved, k, xs, ys), pol) for k in range(n))
+    return film(
+        holograms, camera, rng, frame_shape, truth, FIELD_TRUTH_UNITS, meta,
+        label="simulated field of view", noise=noise, n_background=n_background,
+        out_dir=out_dir, keep_frames=keep_frames, progress=progress,
     )
-    frames: list[NDArray] = []
-    try:
-        for k in range(n):
-            ex, ey = _frame_field(solved, k, xs, ys)
-            raw = camera.expose(hologram_intensity(ex, ey, pol), rng, None, noise)
-            if writer is not None:
-                writer.write(raw)
-            if keep_frames:
-                frames.append(raw)
-            if progress is not None:
-                progress(1)
-        if writer is not None:
-            writer.close()
-            writer = None
-    finally:
-        if writer is not None:
-            writer.abort()
-    movie_path = bg_path = table_path = None
-    if out is not None:
-        movie_path = out / "movie.tif"
-        bg_path, table_path = write_background_and_truth(
-            out, camera, frame_shape, rng, None, noise, n_background, truth,
-            FIELD_TRUTH_UNITS, meta,
-        )
-    return SimulatedMovie(movie_path, bg_path, table_path, truth, frames if keep_frames else None)

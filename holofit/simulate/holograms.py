@@ -8,6 +8,7 @@ output goes straight into ``holofit crop``.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,9 +33,9 @@ __all__ = [
     "SimulationError",
     "check_positions",
     "default_camera",
+    "film",
     "simulate_movie",
     "smooth_illumination",
-    "write_background_and_truth",
 ]
 
 TRUTH_UNITS = {
@@ -258,12 +259,7 @@ def simulate_movie(
         "uneven_illumination": uneven_illumination,
     }
 
-    frames: list[NDArray] = []
-    writer = None
-    out = Path(out_dir) if out_dir is not None else None
-    if out is not None:
-        writer = TiffStackWriter(out / "movie.tif", {"holofit": "simulated movie"})
-    try:
+    def holograms() -> Iterator[NDArray[np.float64]]:
         wave = None
         last_orientation: tuple[float, ...] | None = None
         for k in range(n):
@@ -271,8 +267,73 @@ def simulate_movie(
             if wave is None or o != last_orientation:
                 wave = theory.solve(model, optics, Orientation(*o))
                 last_orientation = o
-            holo = calc_hologram(wave, pos[k], grid, alpha)
-            raw = camera.expose(holo, rng, illum, noise)
+            yield calc_hologram(wave, pos[k], grid, alpha)
+
+    return film(
+        holograms(), camera, rng, frame_shape, truth, TRUTH_UNITS, meta_common,
+        label="simulated movie", illumination=illum, noise=noise, n_background=n_background,
+        out_dir=out_dir, keep_frames=keep_frames, progress=progress,
+    )
+
+
+def film(
+    holograms: Iterable[NDArray[np.float64]],
+    camera: Camera,
+    rng: np.random.Generator,
+    frame_shape: tuple[int, int],
+    truth: pd.DataFrame,
+    units: dict[str, str],
+    meta: dict[str, Any],
+    *,
+    label: str,
+    illumination: NDArray | None = None,
+    noise: bool = True,
+    n_background: int = 5,
+    out_dir: str | Path | None = None,
+    keep_frames: bool = False,
+    progress: Any = None,
+) -> SimulatedMovie:
+    """Expose normalised holograms on the camera and write the movie and its companions.
+
+    Writes (with ``out_dir``) ``movie.tif`` frame by frame (removed again if anything fails),
+    then ``background.tif`` (frames of the same camera without a particle) and ``truth.csv``
+    (+ sidecar, ``units`` and ``meta``), in that order.
+
+    Parameters
+    ----------
+    holograms : iterable of ndarray
+        Normalised holograms (background 1), one per frame, of shape ``frame_shape``.
+    camera : Camera
+        Turns each into raw counts.
+    rng : numpy.random.Generator
+        Source of the camera noise.
+    frame_shape : tuple of int
+        ``(rows, columns)``.
+    truth : pandas.DataFrame
+        The ground truth to write.
+    units, meta : dict
+        The truth table's units and the sidecar's ``truth`` entry.
+    label : str
+        What the movie is, for its TIFF description.
+    illumination : ndarray, optional
+        Relative illumination pattern of movie and background.
+    noise : bool
+        Shot and read noise (quantisation always).
+    n_background : int
+        Frames in the background stack.
+    out_dir : str or Path, optional
+        Output folder; nothing is written without it.
+    keep_frames : bool
+        Also return the raw frames.
+    progress : callable, optional
+        Called with 1 per frame done.
+    """
+    frames: list[NDArray] = []
+    out = Path(out_dir) if out_dir is not None else None
+    writer = None if out is None else TiffStackWriter(out / "movie.tif", {"holofit": label})
+    try:
+        for holo in holograms:
+            raw = camera.expose(holo, rng, illumination, noise)
             if writer is not None:
                 writer.write(raw)
             if keep_frames:
@@ -285,15 +346,17 @@ def simulate_movie(
     finally:
         if writer is not None:
             writer.abort()
-
-    movie_path = bg_path = table_path = None
-    if out is not None:
-        movie_path = out / "movie.tif"
-        bg_path, table_path = write_background_and_truth(
-            out, camera, frame_shape, rng, illum, noise, n_background, truth,
-            TRUTH_UNITS, meta_common,
-        )
-    return SimulatedMovie(movie_path, bg_path, table_path, truth, frames if keep_frames else None)
+    if out is None:
+        return SimulatedMovie(None, None, None, truth, frames if keep_frames else None)
+    with TiffStackWriter(out / "background.tif", {"holofit": "simulated background"}) as bw:
+        for _ in range(max(n_background, 1)):
+            bw.write(camera.expose(np.ones(frame_shape), rng, illumination, noise))
+    table_path = write_table(
+        out / "truth.csv", truth,
+        sidecar(kind="simulation ground truth", units=units, extra={"truth": meta}),
+    )
+    return SimulatedMovie(out / "movie.tif", out / "background.tif", table_path, truth,
+                          frames if keep_frames else None)
 
 
 def default_camera(instrument: Instrument) -> Camera:
@@ -304,27 +367,3 @@ def default_camera(instrument: Instrument) -> Camera:
         background_counts=0.47 * (2**instrument.bit_depth - 1),
         read_noise_counts=instrument.read_noise_counts or 0.8,
     )
-
-
-def write_background_and_truth(
-    out: Path,
-    camera: Camera,
-    frame_shape: tuple[int, int],
-    rng: np.random.Generator,
-    illumination: NDArray | None,
-    noise: bool,
-    n_background: int,
-    truth: pd.DataFrame,
-    units: dict[str, str],
-    meta: dict[str, Any],
-) -> tuple[Path, Path]:
-    """Write ``background.tif`` (frames of the same camera without a particle) and
-    ``truth.csv`` (+ sidecar) beside a simulated movie; returns their paths."""
-    with TiffStackWriter(out / "background.tif", {"holofit": "simulated background"}) as bw:
-        for _ in range(max(n_background, 1)):
-            bw.write(camera.expose(np.ones(frame_shape), rng, illumination, noise))
-    table_path = write_table(
-        out / "truth.csv", truth,
-        sidecar(kind="simulation ground truth", units=units, extra={"truth": meta}),
-    )
-    return out / "background.tif", table_path
