@@ -13,7 +13,7 @@ Usage::
 
     python bench/calibration.py [--seeds 200] [--lengths 30 150 300 1000 2000]
                                 [--models rod janus sphere] [--noises replicate paper]
-                                [--out bench/results/calibration]
+                                [--out bench/results/calibration] [--first-seed 0]
 
 Writes ``calibration.csv`` (one row per model, noise, length and quantity; the table of the
 README's analysis section) and ``calibration.png`` (pull mean and s.d. against length) in
@@ -88,6 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", nargs="+", default=list(CALIBRATION_QUANTITIES))
     ap.add_argument("--noises", nargs="+", default=list(CALIBRATION_NOISE))
     ap.add_argument("--out", type=Path, default=Path("bench/results/calibration"))
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="offset of the seeds (fresh trajectories for a rerun of a case)")
     ap.add_argument("--merge", type=Path, nargs="+", default=None, metavar="CSV",
                     help="no study: merge these calibration.csv files (e.g. one per noise "
                          "level, run apart; a later file's row replaces an earlier one's) "
@@ -105,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
         for model in args.models:
             for n in args.lengths:
                 t0 = time.perf_counter()
-                for summary in calibration_case(model, noise, n, args.seeds).values():
+                for summary in calibration_case(model, noise, n, args.seeds,
+                                                  args.first_seed).values():
                     rows.append(summary.row())
                     print(fmt_row(rows[-1]), flush=True)
                 print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)

@@ -39,12 +39,30 @@ def test_errors_calibrated_at_every_length(model, noise, n_frames):
               f"s.d. {r['pull_sd']:.2f} (bias {100 * r['bias_rel']:+.1f} %)")
         assert row.failed == 0
         if model == "janus" and r["quantity"] == "D_r" and n_frames == 30:
-            # D_r T = 0.35: not resolved (errors ~110 %, the fit often at its bound 0); what
-            # can be asked is that it says so, and that its errors are not too small
+            # D_r T = 0.35: not resolved (errors ~110 %, scatter ~200 %, right-skewed); what
+            # can be asked is that it says so, and that its interval covers (conservatively)
             assert r["rel_error"] > 0.5 and row.sd <= sd_hi, r
+            assert r["within_1_sigma"] >= 0.683 - 3 * math.sqrt(0.683 * 0.317 / N_SEEDS), r
             continue
         assert abs(row.mean) <= mean_bound, r
         assert sd_lo <= row.sd <= sd_hi, r
+
+
+def test_janus_rotation_interval_covers_on_each_side():
+    # the projection fit's interval: the truth above its upper end in 15.9 % of runs (and
+    # below its lower end as often). With the sandwich sensitivity held at the estimate the
+    # upper errors of low estimates were too small: the truth lay above the upper end in
+    # 23.5 % of 200 runs at 300 frames, mean pull -0.33
+    n = 400
+    row = calibration_case("janus", "replicate", 300, n, first_seed=20_000)["D_r"]
+    mean_bound, _ = pull_bounds(n)
+    se = math.sqrt(0.159 * 0.841 / n)
+    above, below = float(np.mean(row.pulls < -1)), float(np.mean(row.pulls > 1))
+    print(f"\njanus D_r 300 frames: pull mean {row.mean:+.2f} s.d. {row.sd:.2f}, truth above "
+          f"the interval {100 * above:.1f} %, below {100 * below:.1f} %")
+    assert row.failed == 0
+    assert abs(row.mean) <= mean_bound
+    assert abs(above - 0.159) <= 3 * se and abs(below - 0.159) <= 3 * se
 
 
 def test_rod_with_artefacts_calibrated_over_20_seeds():

@@ -150,3 +150,14 @@ def test_a_long_adaptive_fit_range_on_a_short_run_is_computed():
     res = analyze_trajectory(traj, AnalysisSettings("janus"))
     assert res.fits["xy"].lags[-1] > 10
     assert math.isfinite(res.measured["D_t"].value)
+
+
+def test_projection_error_below_stops_at_zero():
+    # an unresolved D_r (30 frames, D_r T = 0.35): the score interval's lower end would lie
+    # below D_r = 0 (the error below came out ~1.6 x the value); it ends at the bound
+    for seed in range(3):
+        res = analyze_trajectory(calibration_trajectory("janus", "replicate", 30, 100 + seed),
+                                 AnalysisSettings("janus"))
+        m = res.measured["D_r"]
+        lo, hi = m.sides()
+        assert 0 <= lo <= m.value * (1 + 1e-9) and hi > lo, (m.value, lo, hi)
