@@ -16,10 +16,13 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from holofit.batch.keys import FRAME_KEY, Key, key_of_row
 
 __all__ = ["Journal", "JournalError", "read_journal"]
 
@@ -46,15 +49,25 @@ def _dumps(doc: dict[str, Any]) -> str:
     return json.dumps(doc, default=_plain, allow_nan=True, separators=(",", ":"))
 
 
-def read_journal(path: str | Path) -> tuple[dict[str, Any], dict[int, dict[str, Any]], int]:
+def read_journal(
+    path: str | Path, key_columns: Sequence[str] | None = None
+) -> tuple[dict[str, Any], dict[Key, dict[str, Any]], int]:
     """Read a journal.
+
+    Parameters
+    ----------
+    path : str or Path
+        The journal.
+    key_columns : sequence of str, optional
+        The rows' key columns (:mod:`holofit.batch.keys`); default: the header's
+        ``key_columns``, else ``("frame",)``.
 
     Returns
     -------
     header : dict
         The first line.
     rows : dict
-        Frame -> row of every complete line (a later line for the same frame wins).
+        Key -> row of every complete line (a later line for the same key wins).
     good_bytes : int
         Length of the intact part of the file (everything up to the last complete line).
 
@@ -65,7 +78,7 @@ def read_journal(path: str | Path) -> tuple[dict[str, Any], dict[int, dict[str, 
     """
     path = Path(path)
     raw = path.read_bytes()
-    rows: dict[int, dict[str, Any]] = {}
+    rows: dict[Key, dict[str, Any]] = {}
     header: dict[str, Any] | None = None
     pos = 0
     good = 0
@@ -88,8 +101,11 @@ def read_journal(path: str | Path) -> tuple[dict[str, Any], dict[int, dict[str, 
                     f"{path}: not a holofit batch journal (first line {line[:80]!r})"
                 )
             header = doc
+            if key_columns is None:
+                key_columns = tuple(header.get("key_columns", FRAME_KEY))
         else:
-            rows[int(doc["frame"])] = doc
+            assert key_columns is not None
+            rows[key_of_row(doc, key_columns)] = doc
         good = pos
     if header is None:
         raise JournalError(f"{path}: journal has no complete header line")
@@ -131,7 +147,7 @@ class Journal:
         self._last_sync = time.monotonic()
 
     def append(self, row: dict[str, Any]) -> None:
-        """Record one finished frame's row (must contain ``frame``)."""
+        """Record one finished item's row (must contain its key columns)."""
         self._fh.write((_dumps(row) + "\n").encode())
         self._fh.flush()
         now = time.monotonic()

@@ -52,7 +52,7 @@ import math
 import os
 import time
 import traceback
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,6 +67,7 @@ from holofit.batch.backends import (
 )
 from holofit.batch.errors import BatchError, WorkerLost
 from holofit.batch.journal import Journal, JournalError, read_journal
+from holofit.batch.keys import FRAME_KEY, Key, check_key_columns, key_of_row, key_row, normal_key
 from holofit.batch.mainguard import GUARD_ADVICE, refuse_while_worker_starts
 from holofit.io.lock import output_lock
 from holofit.io.tables import read_table, sidecar_path, write_table
@@ -195,12 +196,15 @@ def make_backend(options: BatchOptions) -> Backend:
 
 
 def run_frame(
-    func: Callable[[Any, int, Any], dict[str, Any]], config: Any, frame: int, payload: Any
+    func: Callable[[Any, Any, Any], dict[str, Any]], config: Any, frame: Key, payload: Any,
+    key_columns: Sequence[str] = FRAME_KEY,
 ) -> dict[str, Any]:
-    """Run the frame function for one frame, turning an exception into an ``error`` row.
+    """Run the frame function for one item (a frame), turning an exception into an ``error``
+    row.
 
-    This is what a worker executes. ``fit_time_s`` (wall time in the worker) is added if the
-    frame function did not set it.
+    This is what a worker executes. The item's key columns (:mod:`holofit.batch.keys`) are
+    set from its key; ``fit_time_s`` (wall time in the worker) is added if the frame function
+    did not set it.
     """
     t0 = time.perf_counter()
     try:
@@ -212,14 +216,15 @@ def run_frame(
             "message": f"{type(exc).__name__}: {exc} "
             f"(at {Path(where.filename).name}:{where.lineno})",
         }
-    row["frame"] = int(frame)
+    row.update(key_row(frame, key_columns))
     row.setdefault("fit_time_s", time.perf_counter() - t0)
     return row
 
 
-def _complete_row(row: dict[str, Any], columns: Sequence[str]) -> dict[str, Any]:
+def _complete_row(row: dict[str, Any], columns: Sequence[str],
+                  key_columns: Sequence[str] = FRAME_KEY) -> dict[str, Any]:
     out = {c: row.get(c, math.nan) for c in columns}
-    out["frame"] = int(row["frame"])
+    out.update(key_row(key_of_row(row, key_columns), key_columns))
     out["status"] = str(row.get("status") or ERROR)
     msg = row.get("message")
     out["message"] = "" if msg is None or (isinstance(msg, float) and math.isnan(msg)) else msg
@@ -246,9 +251,11 @@ class _OutputFiles:
 
     def __init__(self, output: Path, columns: list[str], meta: dict[str, Any],
                  finish: Callable[[pd.DataFrame], Any] | None = None,
-                 before_publish: Callable[[Path], Any] | None = None) -> None:
+                 before_publish: Callable[[Path], Any] | None = None,
+                 key_columns: tuple[str, ...] = FRAME_KEY) -> None:
         self.output = output
         self.columns = columns
+        self.key_columns = key_columns
         self.meta = meta
         self.finish_table = finish
         self.before_publish = before_publish
@@ -256,21 +263,27 @@ class _OutputFiles:
         self.partial = partial_path(output)
         self._staged = False
 
-    def write(self, rows: dict[int, dict[str, Any]], info: dict[str, Any], *, final: bool,
+    def complete(self, row: dict[str, Any]) -> dict[str, Any]:
+        """``row`` with every column (NaN where missing), its key, status and message."""
+        return _complete_row(row, self.columns, self.key_columns)
+
+    def write(self, rows: dict[Key, dict[str, Any]], info: dict[str, Any], *, final: bool,
               staged: bool = False) -> None:
-        """Write the rows (sorted by frame) as the final or the partial table, atomically
+        """Write the rows (sorted by key) as the final or the partial table, atomically
         (``staged``: the final table under the partial table's name)."""
         frames = sorted(rows)
         table = pd.DataFrame([rows[f] for f in frames], columns=self.columns)
         if final and self.finish_table is not None:
             self.finish_table(table)
-            for rec in table[["frame", "status", "message"]].to_dict(orient="records"):
-                rows[int(rec["frame"])].update(status=rec["status"], message=rec["message"])
+            kept = [*self.key_columns, "status", "message"]
+            for rec in table[kept].to_dict(orient="records"):
+                rows[key_of_row(rec, self.key_columns)].update(status=rec["status"],
+                                                               message=rec["message"])
         doc = dict(self.meta)
         doc["batch"] = info | {"frames_done": len(frames)}
         write_table(self.output if final and not staged else self.partial, table, doc)
 
-    def finish(self, rows: dict[int, dict[str, Any]], info: dict[str, Any]) -> None:
+    def finish(self, rows: dict[Key, dict[str, Any]], info: dict[str, Any]) -> None:
         """Write the final table, then remove the journal and the partial table; with
         ``before_publish``, only stage it (:meth:`publish` completes)."""
         staged = self.before_publish is not None
@@ -307,9 +320,9 @@ class _OutputFiles:
                 p.unlink()
 
 
-def _rows_from_table(path: Path, columns: Sequence[str]) -> dict[int, dict[str, Any]]:
+def _rows_from_table(path: Path, files: _OutputFiles) -> dict[Key, dict[str, Any]]:
     table = read_table(path)
-    missing = set(columns) - set(table.columns)
+    missing = set(files.columns) - set(table.columns)
     if missing:
         raise BatchError(
             f"{path}: existing table lacks column(s) {', '.join(sorted(missing))}; "
@@ -317,7 +330,7 @@ def _rows_from_table(path: Path, columns: Sequence[str]) -> dict[int, dict[str, 
         )
     rows = {}
     for rec in table.to_dict(orient="records"):
-        rows[int(rec["frame"])] = _complete_row(rec, columns)
+        rows[key_of_row(rec, files.key_columns)] = files.complete(rec)
     return rows
 
 
@@ -333,7 +346,7 @@ def _read_fingerprint(path: Path) -> str | None:
 
 def _earlier_rows(
     files: _OutputFiles, fingerprint: str, overwrite: bool
-) -> dict[int, dict[str, Any]]:
+) -> dict[Key, dict[str, Any]]:
     """Rows of an earlier run of the same batch (journal first, else the finished table)."""
     if overwrite:
         files.discard_all()
@@ -341,7 +354,7 @@ def _earlier_rows(
     hint = "rerun with --overwrite to discard them, or choose another output"
     if files.journal.exists():
         try:
-            header, rows, _ = read_journal(files.journal)
+            header, rows, _ = read_journal(files.journal, files.key_columns)
         except JournalError as exc:
             raise BatchError(f"{exc}; {hint}") from None
         if header.get("fingerprint") != fingerprint:
@@ -349,21 +362,21 @@ def _earlier_rows(
                 f"{files.journal}: holds results of a batch with other settings or inputs; "
                 f"{hint}"
             )
-        return {k: _complete_row(r, files.columns) for k, r in rows.items()}
+        return {k: files.complete(r) for k, r in rows.items()}
     if files.output.exists():
         if _read_fingerprint(files.output) != fingerprint:
             raise BatchError(
                 f"{files.output}: exists and was made with other settings or inputs; {hint}"
             )
-        return _rows_from_table(files.output, files.columns)
+        return _rows_from_table(files.output, files)
     return {}
 
 
 @dataclass(frozen=True)
 class _Task:
-    """A frame on its way to a worker; ``attempts`` counts the workers it was lost with."""
+    """An item on its way to a worker; ``attempts`` counts the workers it was lost with."""
 
-    frame: int
+    frame: Key
     payload: Any
     attempts: int = 0
 
@@ -395,11 +408,11 @@ class _BatchRun:
 
     def __init__(
         self,
-        func: Callable[[Any, int, Any], dict[str, Any]],
+        func: Callable[[Any, Any, Any], dict[str, Any]],
         config: Any,
         backend: Backend,
         files: _OutputFiles,
-        rows: dict[int, dict[str, Any]],
+        rows: dict[Key, dict[str, Any]],
         progress: Any,
         summary: BatchSummary,
         info: dict[str, Any],
@@ -422,7 +435,7 @@ class _BatchRun:
         self.journal = _open_journal(files, info["fingerprint"], rows)
         self._last_flush = time.monotonic()
 
-    def run(self, todo: collections.deque[int], load: Callable[[int], Any]) -> None:
+    def run(self, todo: collections.deque[Key], load: Callable[[Any], Any]) -> None:
         """Run every frame of ``todo``; on success write the final table; on any
         interruption keep what is done (journal, partial table) and re-raise; if every
         frame ended in ``error``, write the partial table only and raise :class:`BatchError`."""
@@ -447,8 +460,8 @@ class _BatchRun:
 
     def record(self, row: dict[str, Any]) -> None:
         """File one finished frame: rows, journal, progress."""
-        full = _complete_row(row, self.files.columns)
-        self.rows[full["frame"]] = full
+        full = self.files.complete(row)
+        self.rows[key_of_row(full, self.files.key_columns)] = full
         self.journal.append(full)
         self.summary.n_run += 1
         if full["status"] in FAILED_STATUSES:
@@ -457,10 +470,15 @@ class _BatchRun:
         self.progress.update(1)
 
     def submit(self, task: _Task) -> None:
-        fut = self.backend.submit(run_frame, self.func, self.config, task.frame, task.payload)
+        fut = self.backend.submit(run_frame, self.func, self.config, task.frame, task.payload,
+                                  self.files.key_columns)
         self.in_flight[fut] = task
 
-    def feed(self, todo: collections.deque[int], load: Callable[[int], Any]) -> None:
+    def failed_row(self, key: Key, message: str) -> dict[str, Any]:
+        """The ``error`` row of item ``key``."""
+        return {**key_row(key, self.files.key_columns), "status": ERROR, "message": message}
+
+    def feed(self, todo: collections.deque[Key], load: Callable[[Any], Any]) -> None:
         """Load and submit frames while the in-flight bound allows; frames that were running
         when a worker died go one at a time, alone (quarantine)."""
         quarantine = any(t.attempts >= 1 for t in self.in_flight.values())
@@ -473,10 +491,10 @@ class _BatchRun:
             try:
                 payload = load(frame)
             except Exception as exc:
-                self.record({"frame": frame, "status": ERROR, "message": f"loading: {exc}"})
+                self.record(self.failed_row(frame, f"loading: {exc}"))
                 continue
             if isinstance(payload, Precomputed):
-                self.record({**payload.row, "frame": frame})
+                self.record({**payload.row, **key_row(frame, self.files.key_columns)})
                 continue
             self.submit(_Task(frame, payload))
 
@@ -493,7 +511,7 @@ class _BatchRun:
                 self._worker_lost(task, exc)
                 break
             except Exception as exc:  # infrastructure error for this one future
-                self.record({"frame": task.frame, "status": ERROR, "message": f"{exc}"})
+                self.record(self.failed_row(task.frame, f"{exc}"))
 
     def _worker_lost(self, task: _Task, exc: WorkerLost) -> None:
         """A pool worker died: every frame in flight is lost. Restart the pool, requeue them."""
@@ -508,7 +526,7 @@ class _BatchRun:
         killed it: ``error``."""
         for t in lost:
             if t.attempts >= 1 and len(lost) == 1:
-                self.record({"frame": t.frame, "status": ERROR, "message": str(exc)})
+                self.record(self.failed_row(t.frame, str(exc)))
             else:
                 self.retry.append(_Task(t.frame, t.payload, t.attempts + 1))
 
@@ -534,7 +552,7 @@ class _BatchRun:
 _WORKER_DIED = ("a worker process died", "Dask workers died")
 
 
-def _total_failure(rows: dict[int, dict[str, Any]], files: _OutputFiles) -> str:
+def _total_failure(rows: dict[Key, dict[str, Any]], files: _OutputFiles) -> str:
     """Why a batch failed as a whole ('' if it did not): every frame tried (not ``skipped``)
     ended in ``error``."""
     tried = [r for r in rows.values() if r["status"] != SKIPPED]
@@ -554,12 +572,15 @@ def _total_failure(rows: dict[int, dict[str, Any]], files: _OutputFiles) -> str:
 
 
 def _open_journal(
-    files: _OutputFiles, fingerprint: str, rows: dict[int, dict[str, Any]]
+    files: _OutputFiles, fingerprint: str, rows: dict[Key, dict[str, Any]]
 ) -> Journal:
     """Continue the journal, or start one holding the rows of a finished table (so that
     they survive if this run is killed)."""
     fresh = not files.journal.exists()
-    journal = Journal(files.journal, {"fingerprint": fingerprint, "columns": files.columns})
+    header: dict[str, Any] = {"fingerprint": fingerprint, "columns": files.columns}
+    if files.key_columns != FRAME_KEY:
+        header["key_columns"] = list(files.key_columns)
+    journal = Journal(files.journal, header)
     if fresh:
         for f in sorted(rows):
             journal.append(rows[f])
@@ -579,21 +600,79 @@ def _backend_for(options: BatchOptions, given: Backend | None) -> Iterator[Backe
         backend.close()
 
 
-def _checked_frames(frames: Sequence[int], columns: Sequence[str]) -> list[int]:
-    for required in ("frame", "status", "message"):
+def _checked_frames(frames: Iterable[Any], columns: Sequence[str],
+                    key_columns: Sequence[str]) -> list[Key]:
+    for required in (*key_columns, "status", "message"):
         if required not in columns:
             raise ValueError(f"columns must include {required!r}")
-    out = [int(f) for f in frames]
+    out = [normal_key(f, key_columns) for f in frames]
     if len(set(out)) != len(out):
         raise ValueError("frames must be unique")
     return out
 
 
+@dataclass
+class _Batch:
+    """One call of :func:`run_batch`, its arguments checked."""
+
+    func: Callable[[Any, Any, Any], dict[str, Any]]
+    config: Any
+    frames: list[Key]
+    load: Callable[[Any], Any]
+    files: _OutputFiles
+    fingerprint: str
+    options: BatchOptions
+    backend: Backend | None
+    desc: str
+
+    def run(self) -> BatchSummary:
+        """Take the lock, reuse earlier rows, run the rest, write and publish the table."""
+        t0 = time.perf_counter()
+        files, opts, frames = self.files, self.options, self.frames
+        with output_lock(files.output.parent, stage=self.desc) as lock:
+            rows = _earlier_rows(files, self.fingerprint, opts.overwrite)
+            again = (ERROR, *FAILED_STATUSES) if opts.retry_failed else (ERROR,)
+            rows = {k: r for k, r in rows.items() if r["status"] not in again}
+            todo = collections.deque(f for f in frames if f not in rows)
+            summary = BatchSummary(files.output, len(frames), len(frames) - len(todo), 0)
+            if lock.note:
+                summary.notes.append(lock.note)
+            info = {"fingerprint": self.fingerprint, "complete": False,
+                    "frames_total": len(frames)}
+            if todo:
+                self._run_todo(todo, rows, summary, info)
+            elif not files.output.exists() or files.journal.exists():
+                # finished in the journal but never consolidated: write the table now
+                files.finish(rows, info)
+            files.publish()
+        summary.statuses = dict(collections.Counter(rows[f]["status"] for f in frames
+                                                    if f in rows))
+        summary.elapsed_s = time.perf_counter() - t0
+        return summary
+
+    def _run_todo(self, todo: collections.deque[Key], rows: dict[Key, dict[str, Any]],
+                  summary: BatchSummary, info: dict[str, Any]) -> None:
+        opts = self.options
+        n_failed = sum(1 for f in self.frames
+                       if f in rows and rows[f]["status"] in FAILED_STATUSES)
+        disable = None if opts.progress is None else not opts.progress
+        with (
+            _backend_for(opts, self.backend) as be,
+            progress_bar(len(self.frames), self.desc, disable=disable) as bar,
+        ):
+            summary.backend = be.describe()
+            info.update(summary.backend)
+            bar.update(summary.n_done_before)
+            run = _BatchRun(self.func, self.config, be, self.files, rows, bar, summary, info,
+                            opts, n_failed)
+            run.run(todo, self.load)
+
+
 def run_batch(
-    func: Callable[[Any, int, Any], dict[str, Any]],
+    func: Callable[[Any, Any, Any], dict[str, Any]],
     config: Any,
-    frames: Sequence[int],
-    load: Callable[[int], Any],
+    frames: Sequence[Any],
+    load: Callable[[Any], Any],
     output: str | Path,
     columns: Sequence[str],
     *,
@@ -604,27 +683,29 @@ def run_batch(
     desc: str = "batch",
     finish: Callable[[pd.DataFrame], Any] | None = None,
     before_publish: Callable[[Path], Any] | None = None,
+    key_columns: Sequence[str] = FRAME_KEY,
 ) -> BatchSummary:
-    """Run ``func`` on every frame, in parallel, resumably, writing a table keyed by frame.
+    """Run ``func`` on every item, in parallel, resumably, writing a table keyed by item.
 
     Parameters
     ----------
     func : callable
-        Module-level frame function ``func(config, frame, payload) -> row dict``; the row
+        Module-level item function ``func(config, key, payload) -> row dict``; the row
         should hold ``status`` (``ok``, ``not_converged``, ...) and ``message``.
     config : object
         Picklable settings passed to every call.
-    frames : sequence of int
-        Frames to run.
+    frames : sequence
+        Keys of the items to run (:mod:`holofit.batch.keys`): frame numbers for the default
+        ``key_columns``, tuples for several key columns.
     load : callable
-        ``load(frame)`` in the driver process returns the payload of a frame, or a
-        :class:`Precomputed` row. An exception is recorded as that frame's ``error``.
+        ``load(key)`` in the driver process returns the payload of an item, or a
+        :class:`Precomputed` row. An exception is recorded as that item's ``error``.
     output : str or Path
         The CSV table (sidecar JSON beside it; while running, the journal
         ``<output>.journal`` and the table so far, ``<name>.partial.csv``). Its folder is
         locked for the run (:func:`holofit.io.lock.output_lock`, stage ``desc``).
     columns : sequence of str
-        Columns of the table, in order; must include ``frame``, ``status``, ``message``.
+        Columns of the table, in order; must include the key columns, ``status``, ``message``.
     fingerprint : str
         Identity of the settings and inputs: earlier results are reused only if it matches.
     meta : dict, optional
@@ -632,18 +713,19 @@ def run_batch(
     options : BatchOptions, optional
         Backend and resumption settings.
     backend : Backend, optional
-        Use this backend instead of making one from ``options`` (it is not closed).
+        Use this backend (left open) instead of making one from ``options``.
     desc : str
-        Label of the progress bar, and the stage named in the folder's lock.
+        Label of the progress bar; the stage named in the folder's lock.
     finish : callable, optional
         Applied (in place) to the complete table just before it is written, with the whole
         movie at hand (e.g. flagging outlier frames); changed statuses and messages are kept.
     before_publish : callable, optional
         ``before_publish(table_path)`` is called with the complete table, written under the
-        partial table's name (sidecar beside it), after the backend has closed and before the
-        table is renamed to ``output``: a stage draws its pictures (or rewrites the table)
-        there, so that ``output``, the file ``make`` waits for, is the last one written. An
-        interruption in it keeps the journal; a rerun calls it again, without refitting.
+        partial table's name, after the backend has closed and before it is renamed to
+        ``output`` (the file ``make`` waits for, so the last one written): a stage draws its
+        pictures there. An interruption keeps the journal; a rerun calls it again.
+    key_columns : sequence of str
+        The columns that name an item (default ``("frame",)``); the table is sorted by them.
 
     Returns
     -------
@@ -655,44 +737,13 @@ def run_batch(
         If another run is writing into the output folder.
     BatchError
         If earlier results came from other settings, the backend cannot start, or every
-        frame tried ended in ``error`` (no table is written then; the partial table and the
+        item tried ended in ``error`` (no table is written then; the partial table and the
         journal hold the rows).
     SystemExit
-        Called by a spawned worker process re-running a script without the main guard
-        (:func:`holofit.batch.mainguard.refuse_while_worker_starts`).
+        In a spawned worker re-running a script without the main guard (:mod:`.mainguard`).
     """
     refuse_while_worker_starts(f"the {desc} stage")
-    t0 = time.perf_counter()
-    opts = options or BatchOptions()
-    output = Path(output)
-    columns = list(columns)
-    frames = _checked_frames(frames, columns)
-    files = _OutputFiles(output, columns, dict(meta or {}), finish, before_publish)
-    with output_lock(output.parent, stage=desc) as lock:
-        rows = _earlier_rows(files, fingerprint, opts.overwrite)
-        again = (ERROR, *FAILED_STATUSES) if opts.retry_failed else (ERROR,)
-        rows = {k: r for k, r in rows.items() if r["status"] not in again}
-        todo = collections.deque(f for f in frames if f not in rows)
-        summary = BatchSummary(output, len(frames), len(frames) - len(todo), 0)
-        if lock.note:
-            summary.notes.append(lock.note)
-        info = {"fingerprint": fingerprint, "complete": False, "frames_total": len(frames)}
-        if todo:
-            n_failed = sum(1 for f in frames if f in rows and rows[f]["status"] in FAILED_STATUSES)
-            disable = None if opts.progress is None else not opts.progress
-            with (
-                _backend_for(opts, backend) as be,
-                progress_bar(len(frames), desc, disable=disable) as bar,
-            ):
-                summary.backend = be.describe()
-                info.update(summary.backend)
-                bar.update(summary.n_done_before)
-                run = _BatchRun(func, config, be, files, rows, bar, summary, info, opts, n_failed)
-                run.run(todo, load)
-        elif not output.exists() or files.journal.exists():
-            # finished in the journal but never consolidated: write the table now
-            files.finish(rows, info)
-        files.publish()
-    summary.statuses = dict(collections.Counter(rows[f]["status"] for f in frames if f in rows))
-    summary.elapsed_s = time.perf_counter() - t0
-    return summary
+    keys, columns = check_key_columns(key_columns), list(columns)
+    files = _OutputFiles(Path(output), columns, dict(meta or {}), finish, before_publish, keys)
+    return _Batch(func, config, _checked_frames(frames, columns, keys), load, files,
+                  fingerprint, options or BatchOptions(), backend, desc).run()

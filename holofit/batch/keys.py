@@ -1,0 +1,75 @@
+"""The item key of a batch: which row of a stage table an item is.
+
+A batch runs one *item function* on many items; each item is named by a key, and the table
+holds one row per key, with the key in its *key columns*. Today every stage runs per frame:
+the key columns are ``("frame",)`` and a key is the frame number. A stage keyed by several
+columns (e.g. ``("particle", "frame")`` for a movie with several particles) gives the key as
+a tuple of the same length; the batch runner, its journal and the stage skeleton
+(:mod:`holofit.batch.stage`) treat a key only through the functions here, so they need no
+change for such a stage.
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Hashable, Mapping, Sequence
+from typing import Any
+
+__all__ = ["FRAME_KEY", "Key", "check_key_columns", "key_of_row", "key_row", "normal_key"]
+
+#: an item's key: a frame number, or a tuple with one value per key column
+Key = Hashable
+
+#: the key columns of a per-frame stage table
+FRAME_KEY: tuple[str, ...] = ("frame",)
+
+
+def _plain(value: Any) -> Any:
+    """A key value as a plain Python value (numpy and float integers -> int)."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if isinstance(value, numbers.Real) and float(value).is_integer():
+        return int(value)
+    return value
+
+
+def check_key_columns(key_columns: Sequence[str]) -> tuple[str, ...]:
+    """The key columns as a non-empty tuple of distinct names; ValueError otherwise."""
+    cols = tuple(str(c) for c in key_columns)
+    if not cols or len(set(cols)) != len(cols):
+        raise ValueError(f"key_columns must be distinct names, at least one, got {cols}")
+    return cols
+
+
+def normal_key(key: Any, key_columns: Sequence[str]) -> Key:
+    """``key`` in its one form: a plain value for one key column, a tuple for several.
+
+    Raises
+    ------
+    ValueError
+        A tuple key whose length is not the number of key columns.
+    """
+    if len(key_columns) == 1:
+        if isinstance(key, tuple):
+            if len(key) != 1:
+                raise ValueError(f"key {key!r} for key column {key_columns[0]!r}")
+            key = key[0]
+        return _plain(key)
+    if not isinstance(key, tuple) or len(key) != len(key_columns):
+        raise ValueError(f"key {key!r} does not match key columns {tuple(key_columns)}")
+    return tuple(_plain(v) for v in key)
+
+
+def key_row(key: Key, key_columns: Sequence[str]) -> dict[str, Any]:
+    """The key columns' values of the row of ``key``."""
+    values = (key,) if len(key_columns) == 1 else tuple(key)  # type: ignore[arg-type]
+    return {c: _plain(v) for c, v in zip(key_columns, values, strict=True)}
+
+
+def key_of_row(row: Mapping[str, Any], key_columns: Sequence[str]) -> Key:
+    """The key of a table row (from its key columns)."""
+    if len(key_columns) == 1:
+        return _plain(row[key_columns[0]])
+    return tuple(_plain(row[c]) for c in key_columns)
