@@ -9,8 +9,8 @@ from timing import median_time
 
 from holofit.analysis import AnalysisSettings, Trajectory, analyze_trajectory, run_analysis
 from holofit.analysis.validation import PAPER_ROD
-from holofit.fit_table import validate_fit_table, write_fit_table
 from holofit.simulate.brownian import BrownianParameters, MeasurementNoise, simulate_trajectory
+from holofit.tables.fit import validate_fit_table, write_fit_table
 
 
 def _rod(n_frames: int = 2000):

@@ -48,12 +48,11 @@ import numpy as np
 import pandas as pd
 
 from holofit.batch import BatchOptions
+from holofit.batch.aperture import FROM_INSTRUMENT
 from holofit.batch.errors import BatchError
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit.stage import run_fit
-from holofit.fitting.aperture import FROM_INSTRUMENT
-from holofit.fitting.crops import CropSet
 from holofit.fitting.pictures import model_image
 from holofit.library.stage import run_library
 from holofit.models import Sphere
@@ -61,6 +60,7 @@ from holofit.prefit.profile import radial_profile
 from holofit.prefit.sphere import FitOptions, fit_sphere_crop
 from holofit.prefit.stage import run_prefit
 from holofit.scattering.mie import LorenzMie
+from holofit.tables.cropset import CropSet
 
 ROOT = Path(__file__).resolve().parents[1]
 HOLOPY = ROOT / "tests" / "data" / "holopy"

@@ -37,7 +37,7 @@ __version__ = "0.1.0"
 #: public name -> module that defines it
 _API: dict[str, str] = {
     # stages
-    "run_crop": "holofit.crop.run",
+    "run_crop": "holofit.crop.stage",
     "run_prefit": "holofit.prefit.stage",
     "run_library": "holofit.library.stage",
     "LibrarySettings": "holofit.library.stage",
@@ -90,8 +90,8 @@ _API: dict[str, str] = {
     "fit_sphere_crop": "holofit.prefit.sphere",
     "fit_frame": "holofit.fit.frame",
     # tables
-    "read_fit_table": "holofit.fit_table",
-    "write_fit_table": "holofit.fit_table",
+    "read_fit_table": "holofit.tables.fit",
+    "write_fit_table": "holofit.tables.fit",
 }
 
 __all__ = ["__version__", *_API]

@@ -1,7 +1,7 @@
 """The status words of holofit's per-frame tables, defined once.
 
 Crop table (``crops.csv``): whether a frame has a hologram to fit. Fit tables (``prefit.csv``,
-``fit.csv`` and anything :mod:`holofit.fit_table` reads): how the fit of a frame ended.
+``fit.csv`` and anything :mod:`holofit.tables.fit` reads): how the fit of a frame ended.
 """
 
 from __future__ import annotations

@@ -12,8 +12,8 @@ from holofit.analysis import AnalysisSettings, Trajectory, analyze_trajectory
 from holofit.analysis.summary import SUMMARY_COLUMNS
 from holofit.analysis.validation import PAPER_ROD, rod_study, single_exponential_bias
 from holofit.cli import main
-from holofit.fit_table import validate_fit_table
 from holofit.simulate.brownian import BrownianParameters, MeasurementNoise, simulate_trajectory
+from holofit.tables.fit import validate_fit_table
 
 R = PAPER_ROD
 

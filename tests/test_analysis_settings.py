@@ -18,8 +18,8 @@ from holofit.analysis.recipes import Compared, Curve, MsdPanel, Probe, Recipe
 from holofit.analysis.summary import write_summary
 from holofit.cli import main
 from holofit.config import ConfigError, load_particle
-from holofit.fit_table import validate_fit_table
 from holofit.simulate.brownian import BrownianParameters, MeasurementNoise, simulate_trajectory
+from holofit.tables.fit import validate_fit_table
 
 
 def _sim_table(tmp_path, n=300):

@@ -9,7 +9,6 @@ from click.testing import CliRunner
 
 from holofit.cli import main
 from holofit.conventions import euler_zyz, euler_zyz_from_matrix, rotation_from_vector
-from holofit.fit_table import read_fit_table
 from holofit.simulate.brownian import (
     BrownianParameters,
     MeasurementNoise,
@@ -17,6 +16,7 @@ from holofit.simulate.brownian import (
     random_rotation,
     simulate_trajectory,
 )
+from holofit.tables.fit import read_fit_table
 
 
 def test_euler_decomposition_round_trip():

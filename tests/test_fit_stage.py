@@ -20,11 +20,11 @@ from holofit.fit import stage
 from holofit.fit.continuity import ContinuityOptions
 from holofit.fit.frame import FrameFitOptions
 from holofit.fit.stage import run_fit
-from holofit.fit_table import read_fit_table
-from holofit.fitting.inputs import StageInputError
 from holofit.library.stage import LibrarySettings, run_library
 from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
+from holofit.tables.fit import read_fit_table
+from holofit.tables.inputs import StageInputError
 
 SERIAL = BatchOptions(workers=0, progress=False)
 ROD_TOML = """

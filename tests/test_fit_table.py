@@ -8,7 +8,7 @@ import pytest
 
 from holofit.analysis.trajectory import Trajectory
 from holofit.conventions import axis_from_angles
-from holofit.fit_table import (
+from holofit.tables.fit import (
     STATUSES,
     FitTableError,
     column_unit,

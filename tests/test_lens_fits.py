@@ -16,10 +16,11 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
+from holofit.batch.aperture import fit_instrument, parse_numerical_aperture
 from holofit.cli import main
 from holofit.config import load_instrument
 from holofit.conventions import DetectorGrid, euler_zyz, hologram_intensity
-from holofit.fitting.aperture import fit_instrument, parse_numerical_aperture, scan_aperture
+from holofit.fitting.aperture import scan_aperture
 from holofit.fitting.forward import HologramModel, InvalidParameters
 from holofit.fitting.parameters import ParameterSpace, State
 from holofit.hologram import calc_hologram

@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from holofit.config import load_instrument
-from holofit.fitting.crops import CropSet, CropSetError, instrument_from_dict
 from holofit.io.tiffstack import write_tiff_stack
+from holofit.tables.cropset import CropSet, CropSetError, instrument_from_dict
 from tests.conftest import CONFIGS
 from tests.prefit_helpers import cut_crop, make_crops_from_frame, write_crop_dir
 

@@ -18,7 +18,7 @@ from holofit.analysis.results import AnalysisResult
 from holofit.analysis.settings import AnalysisSettings, SettingError
 from holofit.analysis.summary import format_report, write_summary
 from holofit.analysis.trajectory import Trajectory
-from holofit.fit_table import read_fit_table
+from holofit.tables.fit import read_fit_table
 
 __all__ = [
     "MODELS",

@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.analysis.errors import AnalysisError
-from holofit.fit_table import AXIS_COLUMNS, POSITION_COLUMNS, FitTable
+from holofit.tables.fit import AXIS_COLUMNS, POSITION_COLUMNS, FitTable
 
 __all__ = ["Trajectory"]
 

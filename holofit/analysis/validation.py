@@ -31,13 +31,13 @@ from holofit.analysis.projection import projection_correlation
 from holofit.analysis.settings import AnalysisSettings
 from holofit.analysis.trajectory import Trajectory
 from holofit.conventions import rotation_from_vector
-from holofit.fit_table import validate_fit_table
 from holofit.simulate.brownian import (
     BrownianParameters,
     MeasurementNoise,
     propagate_rigid_body,
     simulate_trajectory,
 )
+from holofit.tables.fit import validate_fit_table
 
 __all__ = [
     "CALIBRATION_NOISE",

@@ -10,7 +10,7 @@ from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_o
 from holofit.crop import CenterFinder, run_crop
 from holofit.crop.centerfind import MIN_RADIUS_PX
 from holofit.crop.follow import FOLLOW_MODES
-from holofit.crop.run import MIN_CROP_SIZE
+from holofit.crop.stage import MIN_CROP_SIZE
 from holofit.io.movie import MovieError, open_movie
 from holofit.progress import progress_bar
 from holofit.status import CROP_ERROR

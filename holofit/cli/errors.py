@@ -45,7 +45,7 @@ DEBUG_ENV = "HOLOFIT_DEBUG"
 FORESEEABLE: tuple[tuple[str, str], ...] = (
     ("holofit.validation", "ConfigError"),
     ("holofit.crop.errors", "CropError"),
-    ("holofit.fitting.crops", "CropSetError"),
+    ("holofit.tables.cropset", "CropSetError"),
     ("holofit.io.movie", "MovieError"),
     ("holofit.batch.errors", "BatchError"),
     ("holofit.io.lock", "OutputLocked"),
@@ -53,7 +53,7 @@ FORESEEABLE: tuple[tuple[str, str], ...] = (
     ("holofit.analysis.errors", "AnalysisError"),
     ("holofit.analysis.settings", "SettingError"),
     ("holofit.batch.journal", "JournalError"),
-    ("holofit.fit_table", "FitTableError"),
+    ("holofit.tables.fit", "FitTableError"),
     ("holofit.dda.adda.errors", "AddaError"),
     ("holofit.dda.solver", "ConvergenceError"),
     ("holofit.simulate.holograms", "SimulationError"),

@@ -9,8 +9,8 @@ from typing import Any, TypeVar
 
 import click
 
+from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice, parse_numerical_aperture
 from holofit.batch.runner import BatchOptions
-from holofit.fitting.aperture import FROM_INSTRUMENT, ApertureChoice, parse_numerical_aperture
 
 __all__ = [
     "aperture_choice",
@@ -141,7 +141,7 @@ def frame_list(crop_dir: Path, value: str | None) -> list[int] | None:
     sel = parse_frames(value)
     if sel is None:
         return None
-    from holofit.fitting.crops import CropSet
+    from holofit.tables.cropset import CropSet
 
     with CropSet(crop_dir) as crops:
         return [f for f in crops.frames if (sel.start is None or f >= sel.start)

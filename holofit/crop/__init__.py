@@ -13,8 +13,8 @@ Library entry points:
 from holofit.crop.centerfind import CenterFinder, find_centers
 from holofit.crop.errors import CropError, FrameError
 from holofit.crop.normalize import Normalizer, normalize
-from holofit.crop.run import CropResult, run_crop
-from holofit.crop.table import CROP_COLUMNS, CROP_UNITS
+from holofit.crop.stage import CropResult, run_crop
+from holofit.tables.crop import CROP_COLUMNS, CROP_UNITS
 
 __all__ = [
     "CROP_COLUMNS",

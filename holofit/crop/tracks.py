@@ -1,6 +1,6 @@
 """Linking every frame's hologram centres into tracks: one ``particle`` id per hologram.
 
-The crop stage's candidate table (:data:`holofit.crop.table.CANDIDATE_UNITS`) holds every
+The crop stage's candidate table (:data:`holofit.tables.crop.CANDIDATE_UNITS`) holds every
 accepted hologram centre of every frame. :func:`link_tracks` links them across frames with
 trackpy's linker (``trackpy.link``; Crocker & Grier's nearest-neighbour assignment with
 subnetwork resolution and a memory for briefly lost holograms), the field's standard, and

@@ -15,7 +15,7 @@
 
 Both passes run through the batch runner (parallel, resumable, failures recorded, a worker
 keeps its engine and its caches across frames), write the fit-table schema
-(:mod:`holofit.fit_table`: ``holofit analyze`` reads ``fit.csv`` as it is), flag the movie's
+(:mod:`holofit.tables.fit`: ``holofit analyze`` reads ``fit.csv`` as it is), flag the movie's
 outlier frames, and draw data / model / residual pictures of a few frames.
 """
 
@@ -35,6 +35,7 @@ import pandas as pd
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
+from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice, fit_instrument
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch, run_frame
 from holofit.cache import LRUCache
 from holofit.config import ConfigError, Instrument, ParticleConfig
@@ -53,11 +54,7 @@ from holofit.fit.defaults import (
     default_initial_frames,
 )
 from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitOptions, fit_frame
-from holofit.fit_table import column_unit
-from holofit.fitting.aperture import FROM_INSTRUMENT, ApertureChoice, fit_instrument
-from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
 from holofit.fitting.finish import outlier_rule, outlier_sidecar
-from holofit.fitting.inputs import StageInputError, read_stage_table, usable_start
 from holofit.fitting.parameters import (
     APERTURE,
     particle_with,
@@ -72,6 +69,9 @@ from holofit.models import ParticleModel
 from holofit.provenance import sidecar
 from holofit.scattering.theory import ScatteringTheory
 from holofit.status import FIT_STATUS_MEANINGS, FITTABLE_CROP_STATUSES, OK, SKIPPED, describe
+from holofit.tables.cropset import CropSet, CropSetError, resolve_instrument
+from holofit.tables.fit import column_unit
+from holofit.tables.inputs import StageInputError, read_stage_table, usable_start
 
 __all__ = [
     "FitConfig",

@@ -1,7 +1,6 @@
 """The fitting kit shared by the prefit and the DDA fit: one forward model, one least-squares
 entry point, one result type.
 
-- :mod:`~holofit.fitting.crops`: read a crop folder (crops, table, instrument);
 - :mod:`~holofit.fitting.pixels`: which pixels a fit uses (NaN / saturation mask, random
   subset) and where they are;
 - :mod:`~holofit.fitting.parameters`: named parameters (units, finite-difference steps,
@@ -14,7 +13,6 @@ entry point, one result type.
 - :mod:`~holofit.fitting.plots`: parameter plots and data / model / residual images.
 """
 
-from holofit.fitting.crops import CropSet, CropSetError, open_crops
 from holofit.fitting.forward import HologramModel, InvalidParameters
 from holofit.fitting.leastsq import Solution, solve_least_squares
 from holofit.fitting.parameters import Parameter, ParameterSpace, State
@@ -22,8 +20,6 @@ from holofit.fitting.pixels import PixelSelection, select_pixels
 from holofit.fitting.result import FitResult, QualityLimits, fit_result, result_row
 
 __all__ = [
-    "CropSet",
-    "CropSetError",
     "FitResult",
     "HologramModel",
     "InvalidParameters",
@@ -34,7 +30,6 @@ __all__ = [
     "Solution",
     "State",
     "fit_result",
-    "open_crops",
     "result_row",
     "select_pixels",
     "solve_least_squares",

@@ -19,7 +19,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.conventions import DetectorGrid
-from holofit.fitting.crops import CropSet
+from holofit.fitting.crops import CropSource
 from holofit.fitting.parameters import APERTURE, particle_with, static_parameters
 from holofit.fitting.plots import plot_frame_fit
 from holofit.hologram import hologram
@@ -78,7 +78,7 @@ def model_image(
 
 
 def write_frame_pictures(
-    table: pd.DataFrame, crops: CropSet, model: ParticleModel, theory: ScatteringTheory,
+    table: pd.DataFrame, crops: CropSource, model: ParticleModel, theory: ScatteringTheory,
     optics: Optics, pixel_size_um: float, out_dir: str | Path, stage: str,
     frames: Iterable[int] | None = None, far_field: bool = False,
 ) -> list[Path]:

@@ -51,7 +51,7 @@ __all__ = [
 #: noise alone makes the best of ~30 look better than the true one by up to ~10 (the 95 %
 #: point of the largest of 30 chi^2 variables of one degree of freedom)
 APERTURE_CHI2 = 10.0
-#: columns every fit table has after the parameters (their units: holofit.fit_table)
+#: columns every fit table has after the parameters (their units: holofit.tables.fit)
 GOODNESS_COLUMNS = ("chi2", "chi2_red", "noise_sd", "r2", "n_pixels", "n_eval", "fit_time_s")
 
 
@@ -227,7 +227,7 @@ def result_columns(value_columns: Iterable[str], error_columns: Iterable[str],
 
 
 def result_row(frame: int, time_s: float, result: FitResult) -> dict[str, Any]:
-    """The table row of a fit (fit-table schema, :mod:`holofit.fit_table`)."""
+    """The table row of a fit (fit-table schema, :mod:`holofit.tables.fit`)."""
     row: dict[str, Any] = {"frame": int(frame), "time_s": float(time_s)}
     row.update(result.values)
     row.update({f"d_{k}": v for k, v in result.errors.items()})

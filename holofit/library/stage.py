@@ -28,12 +28,12 @@ from numpy.typing import NDArray
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
 from holofit.cache import LRUCache
 from holofit.config import ConfigError, Instrument, ParticleConfig
-from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
-from holofit.fitting.inputs import read_stage_table, usable_start
 from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
 from holofit.provenance import sidecar
 from holofit.status import FITTABLE_CROP_STATUSES, OK, SKIPPED
+from holofit.tables.cropset import CropSet, CropSetError, resolve_instrument
+from holofit.tables.inputs import read_stage_table, usable_start
 
 __all__ = [
     "LibraryConfig",

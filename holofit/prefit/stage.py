@@ -1,40 +1,38 @@
 """``holofit prefit``: Lorenz-Mie fit of every crop (step 2 of the paper's procedure).
 
-Reads a crop folder (:mod:`holofit.fitting.crops`), fits the exact Lorenz-Mie hologram of a
+Reads a crop folder (:mod:`holofit.tables.cropset`), fits the exact Lorenz-Mie hologram of a
 sphere to each crop from an automatic start (:func:`holofit.prefit.sphere.fit_sphere_crop`)
-and writes one row per frame to ``prefit.csv`` (the fit-table schema, :mod:`holofit.fit_table`)
-through the batch runner (:mod:`holofit.batch.runner`): in parallel, resumable, failures
-recorded and skipped.
+and writes one row per frame to ``prefit.csv`` (its schema: :mod:`holofit.tables.prefit`)
+through the stage skeleton (:mod:`holofit.batch.stage`): in parallel, resumable, failures
+recorded, frames without a particle skipped.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
+from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
+from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed
+from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage, stage_inputs
 from holofit.config import ConfigError, Instrument
-from holofit.fit_table import column_unit
-from holofit.fitting.aperture import FROM_INSTRUMENT, ApertureChoice, fit_instrument
-from holofit.fitting.crops import CropSet, CropSetError, resolve_instrument
 from holofit.fitting.finish import outlier_rule, outlier_sidecar
-from holofit.fitting.parameters import APERTURE
 from holofit.fitting.pictures import write_frame_pictures
-from holofit.fitting.result import result_columns, result_row
+from holofit.fitting.result import result_row
 from holofit.io.tables import read_table
 from holofit.models import Sphere
-from holofit.prefit.sphere import SPHERE_COLUMNS, START_COLUMNS, FitOptions, fit_sphere_crop
+from holofit.prefit.sphere import FitOptions, fit_sphere_crop
 from holofit.provenance import sidecar
 from holofit.scattering.mie import LorenzMie
-from holofit.status import FIT_STATUS_MEANINGS, FITTABLE_CROP_STATUSES, SKIPPED, describe
+from holofit.tables.cropset import CropSet
+from holofit.tables.prefit import PREFIT_COLUMNS, PREFIT_UNITS, prefit_columns
 
 __all__ = [
     "PREFIT_COLUMNS",
@@ -46,35 +44,6 @@ __all__ = [
     "prefit_frame",
     "run_prefit",
 ]
-
-
-def prefit_columns(fit_na: bool = False) -> tuple[str, ...]:
-    """Columns of ``prefit.csv``, in order (with ``numerical_aperture`` if it is fitted)."""
-    fitted = (*SPHERE_COLUMNS, *((APERTURE.name,) if fit_na else ()))
-    return result_columns(fitted, fitted,
-                          ("crop_status", "n_masked", *START_COLUMNS, "setup_time_s"))
-
-
-#: columns of ``prefit.csv``, in order (the NA held)
-PREFIT_COLUMNS: tuple[str, ...] = prefit_columns()
-
-_EXTRA_UNITS = {
-    "time_s": "s (time of the frame: frame / the instrument's frame rate; NaN if unknown)",
-    "status": describe(FIT_STATUS_MEANINGS),
-    "crop_status": "status in the crop table",
-    "n_masked": "count (pixels left out: NaN or saturated)",
-    "n_starts": "count (candidate starts fitted)",
-    "start_z_um": "um (automatic start)",
-    "start_radius_um": "um (automatic start)",
-    "start_n": "1 (automatic start)",
-    "start_alpha": "1 (automatic start)",
-    "setup_time_s": "s (one-time set-up paid by this frame in its worker: the estimator's table)",
-    APERTURE.name: "1 (the objective's numerical aperture, fitted)",
-    f"d_{APERTURE.name}": "1 (1-sigma uncertainty of numerical_aperture)",
-}
-#: unit of every column of ``prefit.csv``
-PREFIT_UNITS: dict[str, str] = {c: _EXTRA_UNITS.get(c, column_unit(c))
-                                for c in prefit_columns(fit_na=True)}
 
 
 @dataclass(frozen=True)
@@ -103,13 +72,6 @@ class CropPayload:
 
     crop: NDArray[np.float32]
     row: dict[str, Any]
-
-
-def _finite(value: Any) -> bool:
-    try:
-        return math.isfinite(float(value))
-    except (TypeError, ValueError):
-        return False
 
 
 def prefit_frame(config: PrefitConfig, frame: int, payload: CropPayload) -> dict[str, Any]:
@@ -141,32 +103,10 @@ def prefit_frame(config: PrefitConfig, frame: int, payload: CropPayload) -> dict
     return out
 
 
-def _loader(crops: CropSet):
-    def load(frame: int) -> CropPayload | Precomputed:
-        row = crops.row(frame)
-        status = str(row.get("status", ""))
-        if status not in FITTABLE_CROP_STATUSES:
-            msg = str(row.get("message") or "")
-            return Precomputed(
-                {
-                    "status": SKIPPED,
-                    "message": f"crop stage: {status}" + (f": {msg}" if msg else ""),
-                    "crop_status": status,
-                }
-            )
-        needed = ("x_um", "y_um", "corner_row", "corner_col")
-        bad = [k for k in needed if not _finite(row.get(k))]
-        if bad:
-            return Precomputed(
-                {
-                    "status": SKIPPED,
-                    "message": f"crop table has no {', '.join(bad)} for this frame",
-                    "crop_status": status,
-                }
-            )
-        return CropPayload(crops.crop(frame), row)
-
-    return load
+def _load(loader: FrameLoader, frame: int) -> CropPayload | Precomputed:
+    """The shared loader's frame as the prefit's payload."""
+    got = loader(frame)
+    return got if isinstance(got, Precomputed) else CropPayload(got.crop, got.crop_row)
 
 
 @dataclass
@@ -180,8 +120,7 @@ class PrefitResult:
 
 def fingerprint_of(config: PrefitConfig, inputs: dict[str, Any]) -> str:
     """Hash of the settings and inputs that determine the prefit table."""
-    doc = json.dumps({"config": config.as_dict(), "inputs": inputs}, sort_keys=True, default=str)
-    return hashlib.sha256(doc.encode()).hexdigest()[:16]
+    return fingerprint({"config": config.as_dict(), "inputs": inputs})
 
 
 def run_prefit(
@@ -247,59 +186,55 @@ def run_prefit(
         If earlier results in ``out_dir`` came from other settings (see ``overwrite``).
     """
     out = Path(out_dir)
-    with CropSet(crop_dir) as crops:
-        fit = fit or FitOptions()
-        inst = fit_instrument(resolve_instrument(crops, instrument, override_instrument),
-                              numerical_aperture, fit.fit_na)
+    fit = fit or FitOptions()
+    with stage_inputs(crop_dir, frames, instrument, override_instrument, numerical_aperture,
+                      fit.fit_na) as given:
         try:
-            fit.search.check_heights(inst.optics.numerical_aperture is not None)
+            fit.search.check_heights(given.instrument.optics.numerical_aperture is not None)
         except ValueError as exc:
             raise ConfigError(f"prefit search range: {exc}") from None
-        config = PrefitConfig(inst, fit)
-        todo = crops.frames if frames is None else [int(f) for f in frames]
-        unknown = sorted(set(todo) - set(crops.frames))
-        if unknown:
-            raise CropSetError(f"{crops.table_path}: no frame(s) {unknown[:5]}")
-        inputs = crops.fingerprint()
-        columns = prefit_columns(fit.fit_na)
-        meta = sidecar(
-            kind="prefit table (Lorenz-Mie fit per frame)",
-            units={c: PREFIT_UNITS[c] for c in columns},
-            config=config.as_dict(),
-            inputs=[crops.table_path, crops.stack_path],
-            extra={"crop_shape": list(crops.crop_shape), "crops": inputs,
-                   "quality": outlier_sidecar(outlier_factor),
-                   **({"frame_interval_s": 1.0 / inst.frame_rate_hz}
-                      if inst.frame_rate_hz else {})},
-        )
-        drawn: list[Path] = []
+        config = PrefitConfig(given.instrument, fit)
+        table = _prefit_table(config, given.crops, out, outlier_factor)
 
-        def pictures(table_path: Path) -> None:
-            """The summary plot and frame pictures, drawn before the table is published
-            (``prefit.csv`` is the last file written: make waits for it)."""
-            from holofit.prefit.plots import plot_prefit
+        def pictures(table_path: Path) -> Path:
+            """The summary plot and frame pictures (:func:`run_stage`'s ``complete``)."""
+            return _pictures(table_path, given.crops, config, out, plot_frames)
 
-            png = plot_prefit(table_path, out / "prefit.png")
-            write_frame_pictures(
-                read_table(table_path), crops, Sphere(1.0, complex(1.5, config.fit.index_imag)),
-                LorenzMie(), inst.optics, inst.pixel_size_um, out / "frames", "prefit",
-                plot_frames)
-            drawn.append(png)
+        summary, png = run_stage(prefit_frame, config, given.frames,
+                                 partial(_load, FrameLoader(given.crops)), table, batch=batch,
+                                 complete=pictures if plot else None)
+    return PrefitResult(table.path, summary, png)
 
-        summary = run_batch(
-            prefit_frame,
-            config,
-            todo,
-            _loader(crops),
-            out / "prefit.csv",
-            columns,
-            fingerprint=fingerprint_of(config, {**inputs, "outlier_factor": outlier_factor}),
-            meta=meta,
-            options=batch,
-            desc="prefit",
-            finish=outlier_rule(outlier_factor),
-            before_publish=pictures if plot else None,
-        )
-        if plot and not drawn:  # the table was complete before this run: draw from it
-            pictures(out / "prefit.csv")
-    return PrefitResult(out / "prefit.csv", summary, drawn[0] if drawn else None)
+
+def _prefit_table(config: PrefitConfig, crops: CropSet, out: Path,
+                  outlier_factor: float) -> StageTable:
+    """``prefit.csv``: its columns (:mod:`holofit.tables.prefit`), sidecar and fingerprint."""
+    inst = config.instrument
+    inputs = crops.fingerprint()
+    columns = prefit_columns(config.fit.fit_na)
+    meta = sidecar(
+        kind="prefit table (Lorenz-Mie fit per frame)",
+        units={c: PREFIT_UNITS[c] for c in columns},
+        config=config.as_dict(),
+        inputs=[crops.table_path, crops.stack_path],
+        extra={"crop_shape": list(crops.crop_shape), "crops": inputs,
+               "quality": outlier_sidecar(outlier_factor),
+               **({"frame_interval_s": 1.0 / inst.frame_rate_hz}
+                  if inst.frame_rate_hz else {})},
+    )
+    return StageTable(out / "prefit.csv", columns, meta,
+                      fingerprint_of(config, {**inputs, "outlier_factor": outlier_factor}),
+                      "prefit", finish=outlier_rule(outlier_factor))
+
+
+def _pictures(table_path: Path, crops: CropSet, config: PrefitConfig, out: Path,
+              plot_frames: list[int] | None) -> Path:
+    """``prefit.png`` and the frame pictures of ``frames/``."""
+    from holofit.prefit.plots import plot_prefit
+
+    inst = config.instrument
+    png = plot_prefit(table_path, out / "prefit.png")
+    write_frame_pictures(
+        read_table(table_path), crops, Sphere(1.0, complex(1.5, config.fit.index_imag)),
+        LorenzMie(), inst.optics, inst.pixel_size_um, out / "frames", "prefit", plot_frames)
+    return png

@@ -37,10 +37,10 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.conventions import euler_zyz, euler_zyz_from_matrix, rotation_from_vector
-from holofit.fit_table import FitTable, column_unit, validate_fit_table, write_fit_table
 from holofit.io.tables import write_table
 from holofit.provenance import sidecar
 from holofit.status import OK
+from holofit.tables.fit import FitTable, column_unit, validate_fit_table, write_fit_table
 
 __all__ = [
     "BrownianParameters",

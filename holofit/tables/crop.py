@@ -1,6 +1,6 @@
 """The crop table (``crops.csv``) and candidate table: their columns and units, defined once
-for the stage that writes them (:mod:`holofit.crop.run`) and the stages that read them
-(:mod:`holofit.fitting.crops`)."""
+for the stage that writes them (:mod:`holofit.crop.stage`) and the stages that read them
+(:mod:`holofit.tables.cropset`)."""
 
 from __future__ import annotations
 

@@ -15,8 +15,8 @@ from typing import Any
 
 import pandas as pd
 
-from holofit.fitting.crops import CropSet, CropSetError
 from holofit.io.tables import sidecar_path
+from holofit.tables.cropset import CropSet, CropSetError
 
 __all__ = ["StageInputError", "read_stage_table", "usable_start"]
 

@@ -11,7 +11,7 @@ whatever the movie's length. Outputs (in ``out_dir``):
 ``crops.png``
     an overview plot (first frame with a particle, its crop, the track, the scores).
 ``crops.csv`` (+ ``crops.csv.json``)
-    one row per frame (columns in :data:`holofit.crop.table.CROP_UNITS`); written last, so
+    one row per frame (columns in :data:`holofit.tables.crop.CROP_UNITS`); written last, so
     its presence means the stage completed.
 
 A frame that cannot be read or normalised gets status ``error`` and the run goes on: every
@@ -43,7 +43,6 @@ from holofit.crop.errors import CropError, FrameError
 from holofit.crop.follow import FOLLOW_MODES, Follower, off_track
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
-from holofit.crop.table import CANDIDATE_UNITS, CROP_COLUMNS, CROP_UNITS
 from holofit.io.movie import Movie, MovieError, open_movie
 from holofit.io.tables import sidecar_path, write_json, write_table
 from holofit.io.tiffstack import TiffStackWriter
@@ -57,6 +56,7 @@ from holofit.status import (
     CROP_STATUSES,
     FITTABLE_CROP_STATUSES,
 )
+from holofit.tables.crop import CANDIDATE_UNITS, CROP_COLUMNS, CROP_UNITS
 
 __all__ = ["DEFAULT_CROP_SIZE", "MIN_CROP_SIZE", "CropResult", "check_crop_settings",
            "run_crop"]
