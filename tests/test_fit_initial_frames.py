@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from holofit.batch import BatchOptions
+from holofit.batch import stage as skeleton
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit import stage
@@ -46,7 +47,7 @@ def test_a_30_frame_movie_fits_8_frames_everything_free_and_says_so(tmp_path, mo
         given.append(list(frames))
         raise _Stop
 
-    monkeypatch.setattr(stage, "run_batch", intercept)
+    monkeypatch.setattr(skeleton, "run_batch", intercept)
     run = stage.FitRun()
     monkeypatch.setattr(stage, "FitRun", lambda: run)
     with pytest.raises(_Stop):

@@ -16,7 +16,7 @@ from holofit.batch import BatchOptions
 from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
-from holofit.fit import stage
+from holofit.fit import stage, task, tmatrix_policy
 from holofit.fit.continuity import ContinuityOptions
 from holofit.fit.frame import FrameFitOptions
 from holofit.fit.stage import run_fit
@@ -139,14 +139,14 @@ def test_missing_prefit_rows_and_unfittable_frames_are_recorded_and_the_batch_go
     table = pd.read_csv(pre / "prefit.csv")
     table = table[table["frame"] != 1]
     table.to_csv(pre / "prefit.csv", index=False)
-    real_fit = stage.fit_frame
+    real_fit = task.fit_frame
 
     def failing(*args, seed=0, **kwargs):
         if seed == 2:
             raise ValueError("the hologram of frame 2 cannot be fitted")
         return real_fit(*args, seed=seed, **kwargs)
 
-    monkeypatch.setattr(stage, "fit_frame", failing)
+    monkeypatch.setattr(task, "fit_frame", failing)
     run = run_fit(root / "crop", pre, root / "lib", particle, tmp_path / "fit",
                   pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False,
                   options=FrameFitOptions(mirror=False))
@@ -216,7 +216,7 @@ def test_a_polarizability_without_a_tmatrix(movie, tmp_path, monkeypatch):
         run_fit(root / "crop", root / "prefit", root / "lib", ldr, tmp_path / "a",
                 tmatrix="always", **common)
     assert not (tmp_path / "a" / "fit.csv").exists()
-    monkeypatch.setattr(stage, "TMATRIX_MIN_FRAMES", 1)
+    monkeypatch.setattr(tmatrix_policy, "TMATRIX_MIN_FRAMES", 1)
     run = run_fit(root / "crop", root / "prefit", root / "lib", ldr, tmp_path / "b",
                   tmatrix="auto", frames=[0], **common)
     assert run.tmatrix is None and any("direct DDA solves" in n for n in run.notes)

@@ -3,7 +3,8 @@
 For each frame, the crop is sampled on a polar grid about the prefit's (x, y) and compared, by
 R^2, with the particle's holograms at the prefit's height over a grid of orientations
 (:mod:`holofit.library.search`); the best few local maxima, at least ``min_separation_deg``
-apart, are the frame's candidates. Frames run through the batch runner (parallel, resumable,
+apart, are the frame's candidates (``library.csv``, schema :mod:`holofit.tables.library`).
+Frames run through the stage skeleton (:mod:`holofit.batch.stage`: parallel, resumable,
 failures recorded); each worker solves the library's tilts once and keeps them for all its
 frames.
 
@@ -15,25 +16,26 @@ the final precision.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
+from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed
+from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage, stage_inputs
 from holofit.cache import LRUCache
 from holofit.config import ConfigError, Instrument, ParticleConfig
 from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
 from holofit.provenance import sidecar
-from holofit.status import FITTABLE_CROP_STATUSES, OK, SKIPPED
-from holofit.tables.cropset import CropSet, CropSetError, resolve_instrument
-from holofit.tables.inputs import read_stage_table, usable_start
+from holofit.status import OK
+from holofit.tables.cropset import CropSet
+from holofit.tables.inputs import read_stage_table
+from holofit.tables.library import candidate_columns, library_columns, library_units
 
 __all__ = [
     "LibraryConfig",
@@ -91,32 +93,7 @@ class LibraryConfig:
                 "settings": asdict(self.settings), "engine": self.engine}
 
     def key(self) -> str:
-        doc = json.dumps(self.as_dict(), sort_keys=True, default=str)
-        return hashlib.sha256(doc.encode()).hexdigest()[:16]
-
-
-def candidate_columns(n: int) -> tuple[str, ...]:
-    """``c1_psi_rad, c1_theta_rad, c1_phi_rad, c1_r2, c2_...`` for ``n`` candidates."""
-    return tuple(f"c{i}_{q}" for i in range(1, n + 1)
-                 for q in ("psi_rad", "theta_rad", "phi_rad", "r2"))
-
-
-def _columns(settings: LibrarySettings) -> tuple[str, ...]:
-    return ("frame", "x_um", "y_um", "z_um", "alpha", "n_candidates",
-            *candidate_columns(settings.n_candidates), "fit_time_s", "status", "message")
-
-
-UNITS = {
-    "frame": "index",
-    "x_um": "um (prefit position: the library's centre)",
-    "y_um": "um",
-    "z_um": "um (prefit height: the library's holograms are computed there)",
-    "alpha": "1 (prefit alpha, used for the library's holograms)",
-    "n_candidates": "count",
-    "fit_time_s": "s (wall time of the frame's search)",
-    "status": "ok | skipped | error",
-    "message": "text",
-}
+        return fingerprint(self.as_dict())
 
 
 @dataclass(frozen=True)
@@ -235,62 +212,50 @@ def run_library(
                          "orientation; it needs no library")
     settings = settings or LibrarySettings()
     out = Path(out_dir)
-    with CropSet(crop_dir) as crops:
-        inst = resolve_instrument(crops, instrument, override_instrument)
-        pre, _ = read_stage_table(prefit, crops, "prefit")
-        config = LibraryConfig(particle, inst, settings, engine)
-        todo = crops.frames if frames is None else [int(f) for f in frames]
-        unknown = sorted(set(todo) - set(crops.frames))
-        if unknown:
-            raise CropSetError(f"{crops.table_path}: no frame(s) {unknown[:5]}")
+    with stage_inputs(crop_dir, frames, instrument, override_instrument) as given:
+        pre, _ = read_stage_table(prefit, given.crops, "prefit")
+        config = LibraryConfig(particle, given.instrument, settings, engine)
+        table = _library_table(config, given.crops, Path(prefit), out)
 
-        def load(frame: int) -> LibraryPayload | Precomputed:
-            crow = crops.row(frame)
-            if crow.get("status") not in FITTABLE_CROP_STATUSES:
-                return Precomputed({"status": SKIPPED,
-                                    "message": f"crop stage: {crow.get('status')}"})
-            prow = pre.loc[frame].to_dict() if frame in pre.index else None
-            why = usable_start(prow)
-            if why:
-                return Precomputed({"status": SKIPPED, "message": f"prefit: {why}"})
-            assert prow is not None
-            return LibraryPayload(crops.crop(frame),
-                                  (int(crow["corner_row"]), int(crow["corner_col"])),
-                                  {k: float(prow[k]) for k in ("x_um", "y_um", "z_um", "alpha")})
-
-        tilts = tilt_grid(particle.model, math.radians(settings.tilt_step_deg))
-        meta = sidecar(
-            kind="orientation library (candidate starts per frame)",
-            units={**UNITS, **{c: ("rad" if c.endswith("_rad") else "1 (R^2 of the candidate)")
-                               for c in candidate_columns(settings.n_candidates)}},
-            config=config.as_dict(),
-            inputs=[crops.table_path, Path(prefit)],
-            extra={"crops": crops.fingerprint(), "particle_model": particle.model.kind,
-                   "tilts_rad": [[t.theta, t.phi] for t in tilts]},
-        )
-        fingerprint = hashlib.sha256(json.dumps(
-            {"config": config.as_dict(), "crops": crops.fingerprint()}, sort_keys=True,
-            default=str).encode()).hexdigest()[:16]
-        drawn: list[Path] = []
-
-        def pictures(table_path: Path) -> None:
-            """``library.png``, drawn before the table is published (``library.csv`` is the
-            last file written: make waits for it)."""
+        def pictures(table_path: Path) -> Path:
+            """``library.png`` (:func:`run_stage`'s ``complete``)."""
             from holofit.fitting.plots import plot_table
 
-            drawn.append(plot_table(
+            return plot_table(
                 table_path, out / "library.png",
                 (("c1_theta_rad", "best theta (rad)"), ("c1_psi_rad", "best psi (rad)"),
                  ("c1_r2", "best R^2"), ("c2_r2", "second R^2"),
                  ("z_um", "prefit z (um)"), ("fit_time_s", "time per frame (s)")),
-                "holofit library", "library.csv"))
+                "holofit library", "library.csv")
 
-        summary = run_batch(library_frame, config, todo, load, out / "library.csv",
-                            _columns(settings), fingerprint=fingerprint, meta=meta,
-                            options=batch, desc="library",
-                            before_publish=pictures if plot else None)
-        if plot and not drawn:  # the table was complete before this run: draw from it
-            pictures(out / "library.csv")
-    png = drawn[0] if drawn else None
-    return LibraryResult(out / "library.csv", summary, png)
+        summary, png = run_stage(library_frame, config, given.frames,
+                                 partial(_load, FrameLoader(given.crops, pre)), table,
+                                 batch=batch, complete=pictures if plot else None)
+    return LibraryResult(table.path, summary, png)
 
+
+def _load(loader: FrameLoader, frame: int) -> LibraryPayload | Precomputed:
+    """The shared loader's frame as the library's payload."""
+    got = loader(frame)
+    if isinstance(got, Precomputed):
+        return got
+    return LibraryPayload(got.crop, got.corner, got.start)
+
+
+def _library_table(config: LibraryConfig, crops: CropSet, prefit: Path,
+                   out: Path) -> StageTable:
+    """``library.csv``: columns and units (:mod:`holofit.tables.library`), sidecar,
+    fingerprint."""
+    s = config.settings
+    tilts = tilt_grid(config.particle.model, math.radians(s.tilt_step_deg))
+    meta = sidecar(
+        kind="orientation library (candidate starts per frame)",
+        units=library_units(s.n_candidates),
+        config=config.as_dict(),
+        inputs=[crops.table_path, prefit],
+        extra={"crops": crops.fingerprint(), "particle_model": config.particle.model.kind,
+               "tilts_rad": [[t.theta, t.phi] for t in tilts]},
+    )
+    return StageTable(out / "library.csv", library_columns(s.n_candidates), meta,
+                      fingerprint({"config": config.as_dict(), "crops": crops.fingerprint()}),
+                      "library")

@@ -158,8 +158,7 @@ def run_prefit(
         Write ``prefit.png`` (values against frame) and data / model / residual pictures of a
         few frames (``frames/frame_<n>.png``).
     plot_frames : list of int, optional
-        The frames to draw (default: the first ok frame, the ok frame with the lowest R^2 and
-        the first poor fit).
+        The frames to draw (default: first ok, lowest-R^2 ok, first poor fit).
     override_instrument : bool
         Allow ``instrument`` to differ from the one the crops were made with.
     outlier_factor : float

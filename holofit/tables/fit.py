@@ -1,9 +1,13 @@
 """The per-frame fit table: the contract between ``holofit fit`` (writer) and ``holofit analyze``.
 
-One row per attempted frame, one column per quantity, the unit in the column name. The fit
-stage writes exactly this (through :func:`write_fit_table`, which validates before writing);
-the analysis reads it through :func:`read_fit_table`, which tolerates missing frames (no row)
-and frames whose fit did not succeed (``status != "ok"``): both become gaps in the trajectory.
+One row per attempted frame, one column per quantity, the unit in the column name. Writers:
+the fit stage (:mod:`holofit.fit.stage`: ``initial.csv``, ``fit.csv``) through the stage
+skeleton's batch runner, which writes each row as it comes and the table atomically, with the
+sidecar of :func:`fit_table_meta` (units, ``frame_interval_s``, the schema's name and
+version); the simulator through :func:`write_fit_table` (the same sidecar, after
+:func:`validate_fit_table`). The analysis reads it through :func:`read_fit_table`, which
+tolerates missing frames (no row) and frames whose fit did not succeed (``status != "ok"``):
+both become gaps in the trajectory.
 
 Columns
 -------
@@ -43,6 +47,7 @@ The sidecar JSON (``<table>.csv.json``) holds the units of every column, the pro
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -66,6 +71,7 @@ __all__ = [
     "FitTable",
     "FitTableError",
     "column_unit",
+    "fit_table_meta",
     "read_fit_table",
     "validate_fit_table",
     "write_fit_table",
@@ -274,7 +280,27 @@ def validate_fit_table(
         raise _fail(source, f"missing required column(s) {', '.join(missing)}")
     if df.empty:
         raise _fail(source, "the table has no rows")
+    df = _checked_frames(df, source)
+    _check_statuses(df, source)
+    for c in df.columns:
+        if c in TEXT_COLUMNS or c == "frame":
+            continue
+        if (
+            c in COLUMN_UNITS
+            or c.startswith("d_")
+            or c.endswith(_UNIT_SUFFIXES)
+            or pd.api.types.is_numeric_dtype(df[c])
+        ):
+            _numeric(df, c, source)
+    ok = (df["status"] == STATUS_OK).to_numpy()
+    _check_positions(df, ok, source)
+    _complete_orientation(df, ok, source)
+    dt = _check_times(df, ok, source, frame_interval_s)
+    return FitTable(df, dt, {}, source)
 
+
+def _checked_frames(df: pd.DataFrame, source: str) -> pd.DataFrame:
+    """``frame`` as unique integers >= 0; the table sorted by it."""
     frames = pd.to_numeric(df["frame"], errors="coerce")
     if frames.isna().any() or not np.all(np.mod(frames, 1) == 0) or (frames < 0).any():
         bad = int(np.flatnonzero(frames.isna() | (np.mod(frames, 1) != 0) | (frames < 0))[0])
@@ -285,8 +311,11 @@ def validate_fit_table(
     dup = df["frame"].duplicated(keep=False).to_numpy()
     if dup.any():
         raise _fail(source, f"frame(s) {_first_frames(df['frame'], dup)} appear more than once")
-    df = df.sort_values("frame", kind="stable").reset_index(drop=True)
+    return df.sort_values("frame", kind="stable").reset_index(drop=True)
 
+
+def _check_statuses(df: pd.DataFrame, source: str) -> None:
+    """``status`` lower-case and known; ``message`` text."""
     status = df["status"].astype(str).str.strip().str.lower()
     unknown = ~status.isin(STATUSES).to_numpy()
     if unknown.any():
@@ -299,18 +328,9 @@ def validate_fit_table(
     df["status"] = status
     df["message"] = df["message"].fillna("").astype(str) if "message" in df.columns else ""
 
-    for c in df.columns:
-        if c in TEXT_COLUMNS or c == "frame":
-            continue
-        if (
-            c in COLUMN_UNITS
-            or c.startswith("d_")
-            or c.endswith(_UNIT_SUFFIXES)
-            or pd.api.types.is_numeric_dtype(df[c])
-        ):
-            _numeric(df, c, source)
-    ok = (df["status"] == STATUS_OK).to_numpy()
 
+def _check_positions(df: pd.DataFrame, ok: np.ndarray, source: str) -> None:
+    """All three position columns or none; finite time and position at ok rows."""
     present = [c for c in POSITION_COLUMNS if c in df.columns]
     if present and len(present) != 3:
         missing_pos = sorted(set(POSITION_COLUMNS) - set(present))
@@ -323,10 +343,6 @@ def validate_fit_table(
                 f"column '{c}' is NaN or missing at ok frame(s) "
                 f"{_first_frames(df['frame'], nan_ok)}",
             )
-
-    _complete_orientation(df, ok, source)
-    dt = _check_times(df, ok, source, frame_interval_s)
-    return FitTable(df, dt, {}, source)
 
 
 def _complete_orientation(df: pd.DataFrame, ok: np.ndarray, source: str) -> None:
@@ -440,6 +456,35 @@ def read_fit_table(path: str | Path, frame_interval_s: float | None = None) -> F
     return fit
 
 
+def fit_table_meta(
+    columns: Iterable[str],
+    *,
+    kind: str = "fit table",
+    config: dict[str, Any] | None = None,
+    inputs: list[str | Path] | None = None,
+    frame_interval_s: float | None = None,
+    extra: dict[str, Any] | None = None,
+    status_unit: str | None = None,
+) -> dict[str, Any]:
+    """The sidecar of a fit table: units of ``columns`` (:func:`column_unit`; ``status_unit``
+    for ``status`` if given), the schema's name and version, ``frame_interval_s`` (when
+    known), provenance (:func:`holofit.provenance.sidecar`) and ``extra``."""
+    units = {c: column_unit(c) for c in columns}
+    if status_unit is not None and "status" in units:
+        units["status"] = status_unit
+    return sidecar(
+        kind=kind,
+        units=units,
+        config=config,
+        inputs=inputs,
+        extra={
+            "schema": {"name": "holofit fit table", "version": SCHEMA_VERSION},
+            **({"frame_interval_s": frame_interval_s} if frame_interval_s else {}),
+            **(extra or {}),
+        },
+    )
+
+
 def write_fit_table(
     path: str | Path,
     table: pd.DataFrame,
@@ -463,18 +508,8 @@ def write_fit_table(
     trail = [c for c in _TRAILING if c in df.columns]
     middle = [c for c in df.columns if c not in lead and c not in trail]
     df = df[lead + middle + trail]
-    units = {c: column_unit(c) for c in df.columns}
-    doc = sidecar(
-        kind=kind,
-        units=units,
-        config=config,
-        inputs=inputs,
-        extra={
-            "schema": {"name": "holofit fit table", "version": SCHEMA_VERSION},
-            "frame_interval_s": fit.frame_interval_s,
-            **(extra or {}),
-        },
-    )
+    doc = fit_table_meta(df.columns, kind=kind, config=config, inputs=inputs,
+                         frame_interval_s=fit.frame_interval_s, extra=extra)
     write_table(path, df, doc)
     fit.table = df
     fit.meta = doc

@@ -1,0 +1,99 @@
+"""The T-matrix policy of the final pass: when it is served from the particle's T-matrix.
+
+``--tmatrix auto`` (the default) serves a final pass of at least :data:`TMATRIX_MIN_FRAMES`
+frames of an anisotropic particle from its T-matrix, built once in the driver from DDA solves
+(``OUT/tmatrix.npz``, loaded by every worker) when the engine can give one
+(:func:`no_tmatrix_reason`); ``always`` refuses an engine that cannot; ``never`` fits every
+frame with direct solves.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from holofit.config import Instrument, ParticleConfig
+from holofit.dda.polarizability import INCIDENCE_INDEPENDENT
+from holofit.dda.tmatrix_io import TMatrixMismatch
+from holofit.fit.errors import FitStageError
+from holofit.scattering.theory import ScatteringTheory
+
+__all__ = ["TMATRIX_CHOICES", "TMATRIX_MIN_FRAMES", "FinalTMatrix", "check_policy",
+           "final_tmatrix", "no_tmatrix_reason"]
+
+TMATRIX_CHOICES = ("auto", "always", "never")
+#: final passes at least this long are served from a T-matrix by default
+TMATRIX_MIN_FRAMES = 8
+
+
+@dataclass
+class FinalTMatrix:
+    """What the policy decided: the T-matrix file (None: direct solves), its build (or load)
+    time, and notes for the user."""
+
+    path: Path | None = None
+    seconds: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+
+def check_policy(policy: str, particle: ParticleConfig, engine: str | None,
+                 final_pass: bool) -> None:
+    """Refuse an unknown policy, and ``always`` with an engine that has no T-matrix, before
+    any frame is fitted (ValueError, :class:`~holofit.fit.errors.FitStageError`)."""
+    if policy not in TMATRIX_CHOICES:
+        raise ValueError(f"tmatrix must be one of {', '.join(TMATRIX_CHOICES)}, got {policy!r}")
+    if policy == "always" and particle.model.anisotropic and final_pass:
+        why_not = no_tmatrix_reason(particle.theory(engine))
+        if why_not:
+            raise FitStageError(f"--tmatrix always: {why_not} (or use --tmatrix never)")
+
+
+def final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None,
+                  policy: str, n_frames: int, out: Path) -> FinalTMatrix:
+    """Build (or reuse) the final pass's T-matrix ``OUT/tmatrix.npz`` when the policy asks
+    for one."""
+    model = particle.model
+    if policy == "never" or not model.anisotropic:
+        return FinalTMatrix()
+    if policy == "auto" and n_frames < TMATRIX_MIN_FRAMES:
+        return FinalTMatrix()
+    theory = particle.theory(engine, fixed_lattice_for=inst.optics)
+    if getattr(theory, "own_tmatrix", False):
+        return FinalTMatrix(notes=[f"final pass served by the {theory.name} engine's own "
+                                   "T-matrix (one solve per geometry, every orientation by "
+                                   "rotation)"])
+    why_not = no_tmatrix_reason(theory)
+    if why_not:
+        if policy == "always":
+            raise FitStageError(f"--tmatrix always: {why_not} (or use --tmatrix never)")
+        return FinalTMatrix(notes=[f"final pass by direct DDA solves: {why_not}"])
+    path = out / "tmatrix.npz"
+    t0 = time.perf_counter()
+    reused = path.exists()
+    try:
+        theory.tmatrix(model, inst.optics, path=str(path))
+    except TMatrixMismatch:
+        # made for other static parameters or settings (an earlier run): build anew
+        path.unlink()
+        theory.tmatrix(model, inst.optics, path=str(path))
+        reused = False
+    seconds = time.perf_counter() - t0
+    return FinalTMatrix(path, seconds, [f"final pass served from the particle's T-matrix "
+                                        f"{path} ({'loaded' if reused else 'built'} in "
+                                        f"{seconds:.1f} s)"])
+
+
+def no_tmatrix_reason(theory: ScatteringTheory) -> str:
+    """Why ``theory`` cannot serve a T-matrix ('' if it can)."""
+    if getattr(theory, "own_tmatrix", False):
+        return ""
+    if not hasattr(theory, "tmatrix"):
+        return f"the {theory.name} engine has no T-matrix (use --engine builtin)"
+    settings = getattr(theory, "settings", None)
+    kind = getattr(settings, "polarizability", None)
+    if kind is not None and kind not in INCIDENCE_INDEPENDENT:
+        return (f"polarizability {kind!r} depends on the incident wave, so the lattice has no "
+                f"T-matrix (the particle config's [dda] polarizability: one of "
+                f"{', '.join(INCIDENCE_INDEPENDENT)})")
+    return ""
