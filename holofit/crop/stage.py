@@ -14,6 +14,8 @@ whatever the movie's length. Outputs (in ``out_dir``):
     one row per frame (columns in :data:`holofit.tables.crop.CROP_UNITS`); written last, so
     its presence means the stage completed.
 
+The tables and sidecars are written through :mod:`holofit.tables.crop`.
+
 A frame that cannot be read or normalised gets status ``error`` and the run goes on: every
 frame the movie file claims has a row, so a truncated movie's lost frames are ``error`` rows
 naming the frame (and the sidecar's ``movie.problems`` says what is wrong with the file). Input
@@ -44,9 +46,8 @@ from holofit.crop.follow import FOLLOW_MODES, Follower, off_track
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
 from holofit.io.movie import Movie, MovieError, open_movie
-from holofit.io.tables import sidecar_path, write_json, write_table
+from holofit.io.tables import sidecar_path
 from holofit.io.tiffstack import TiffStackWriter
-from holofit.provenance import sidecar
 from holofit.status import (
     CROP_EDGE,
     CROP_ERROR,
@@ -56,7 +57,13 @@ from holofit.status import (
     CROP_STATUSES,
     FITTABLE_CROP_STATUSES,
 )
-from holofit.tables.crop import CANDIDATE_UNITS, CROP_COLUMNS, CROP_UNITS
+from holofit.tables.crop import (
+    CROP_COLUMNS,
+    crop_extra,
+    stack_header,
+    write_candidates,
+    write_crop_table,
+)
 
 __all__ = ["DEFAULT_CROP_SIZE", "MIN_CROP_SIZE", "CropResult", "check_crop_settings",
            "run_crop"]
@@ -263,22 +270,13 @@ def _remove_stale(paths: list[Path]) -> None:
 
 
 def run_crop(
-    movie_path: str | Path,
-    background_path: References | None,
-    instrument: Instrument | str | Path,
-    out_dir: str | Path,
-    *,
-    normalized: bool = False,
-    dark: References | float | None = None,
-    size: int = DEFAULT_CROP_SIZE,
-    follow: str = "strongest",
-    start: tuple[float, float] | None = None,
-    max_jump_px: float | None = None,
-    finder: CenterFinder | None = None,
-    min_background: float = DEFAULT_MIN_BACKGROUND,
-    mask_saturated: bool = True,
-    plot: bool = True,
-    progress: Callable[[int], Any] | None = None,
+    movie_path: str | Path, background_path: References | None,
+    instrument: Instrument | str | Path, out_dir: str | Path, *, normalized: bool = False,
+    dark: References | float | None = None, size: int = DEFAULT_CROP_SIZE,
+    follow: str = "strongest", start: tuple[float, float] | None = None,
+    max_jump_px: float | None = None, finder: CenterFinder | None = None,
+    min_background: float = DEFAULT_MIN_BACKGROUND, mask_saturated: bool = True,
+    plot: bool = True, progress: Callable[[int], Any] | None = None,
 ) -> CropResult:
     """Normalise a raw movie, find the hologram centre of every frame and crop around it.
 
@@ -297,30 +295,23 @@ def run_crop(
         Output folder (created).
     normalized : bool
         The movie is background-divided already (as many public data sets are, often stored as
-        scaled integers: background at 100 counts, or scaled to 255): the background is taken
-        to be flat, so each frame is only divided by its mean (the paper's normalisation with a
-        flat background); saturated pixels are still masked.
+        scaled integers): each frame is only divided by its mean (the paper's normalisation
+        with a flat background); saturated pixels are still masked.
     dark : str, Path, sequence of them, or float, optional
         Dark level: a number of counts (``--dark-count``) or dark frame / stack files (their
         per-pixel median).
     size : int
         Crop side N, pixels (default 140, the paper's).
-    follow : {"strongest", "nearest"}
-        Which candidate to crop when a frame has several (see :mod:`holofit.crop.follow`).
-    start : tuple of float, optional
-        ``(x_px, y_px)`` of the particle in the first frame, for ``follow="nearest"``.
-    max_jump_px : float, optional
-        Largest move between frames for ``follow="nearest"`` (default ``size / 4``).
-    finder : CenterFinder, optional
-        Centre-finder settings (default: vote radius ``size / 2``).
-    min_background : float
-        Background pixels at or below this fraction of the median background are masked.
-    mask_saturated : bool
-        Mask (NaN) pixels at the camera's full-scale count.
-    plot : bool
-        Write ``crops.png``.
-    progress : callable, optional
-        Called with 1 after each frame.
+    follow, start, max_jump_px
+        Which candidate to crop when a frame has several (``"strongest"`` or ``"nearest"``:
+        :mod:`holofit.crop.follow`); ``(x_px, y_px)`` of the particle in the first frame and
+        the largest move between frames (default ``size / 4``) for ``"nearest"``.
+    finder, min_background
+        Centre-finder settings (default: vote radius ``size / 2``); background pixels at or
+        below this fraction of the median background are masked.
+    mask_saturated, plot, progress
+        Mask (NaN) pixels at the camera's full-scale count; write ``crops.png``; called with
+        1 after each frame.
 
     Returns
     -------
@@ -332,9 +323,87 @@ def run_crop(
         Unusable input (the message names the file, and the frame where one is at fault).
     """
     refuse_while_worker_starts("run_crop")
-    out = Path(out_dir)
     inst = _resolve_instrument(instrument)
     size = int(size)
+    backgrounds = _check_arguments(size, background_path, normalized, dark)
+    finder = finder or CenterFinder(radius_px=size / 2.0)
+    follower = Follower(follow, start, max_jump_px if max_jump_px is not None else size / 4.0)
+    try:
+        movie = open_movie(movie_path)
+    except MovieError as exc:
+        raise CropError(str(exc)) from None
+    with movie:
+        _check_for_movie(movie, movie_path, size, follow, start)
+        saturation = _saturation(movie, inst) if mask_saturated else None
+        normalizer, norm_info = _normalizer(movie, normalized, backgrounds, dark,
+                                            min_background, saturation, inst)
+        settings = {"size_px": size, "follow": follow,
+                    "start_px": list(start) if start is not None else None,
+                    "max_jump_px": follower.max_jump_px, "finder": finder.as_dict(),
+                    "normalization": {**norm_info, "mask_saturated": mask_saturated}}
+        inputs = [movie_path, *backgrounds, *([] if isinstance(dark, int | float)
+                                             else _paths(dark))]
+        job = _CropJob(movie, movie_path, Path(out_dir), normalizer, finder, follower, size,
+                       inst, settings, inputs, plot, progress)
+        return job.run()
+
+
+@dataclass
+class _CropJob:
+    """One run of the crop stage, its inputs checked: crop every frame, write the folder."""
+
+    movie: Movie
+    movie_path: str | Path
+    out: Path
+    normalizer: Normalizer
+    finder: CenterFinder
+    follower: Follower
+    size: int
+    inst: Instrument
+    settings: dict[str, Any]
+    inputs: list[str | Path]
+    plot: bool
+    progress: Callable[[int], Any] | None
+
+    def run(self) -> CropResult:
+        movie, size, paths = self.movie, self.size, _CropPaths(self.out)
+        with TiffStackWriter(paths.stack, stack_header(size, len(movie))) as writer:
+            rows, candidates, preview = _crop_frames(
+                movie, self.normalizer, self.finder, self.follower, size,
+                self.inst.pixel_size_um, writer, self.progress)
+            warnings = (_mark_off_track(rows, self.follower.max_jump_px)
+                        if self.settings["follow"] == "strongest" else [])
+            frames = _frame_table(rows, self.movie_path)
+            paths.remove_stale()  # a rerun must not leave an old table beside the new stack
+        counts = {s: int((frames["status"] == s).sum()) for s in CROP_STATUSES}
+        cand_table = write_candidates(paths.candidates, candidates, self.inst.as_dict(),
+                                      self.inputs, self.settings)
+        made_plot = None
+        if self.plot and preview is not None:
+            from holofit.crop.plot import plot_overview
+
+            made_plot = plot_overview(paths.plot, preview, frames, cand_table, size)
+        extra = crop_extra(self.settings, _movie_info(movie), paths.stack, paths.table,
+                           len(frames), size, counts, warnings)
+        write_crop_table(paths.table, paths.stack, frames, self.inst.as_dict(), self.inputs,
+                         extra)
+        return CropResult(self.out, paths.stack, paths.table, paths.candidates, made_plot,
+                          frames, counts, list(movie.problems), warnings)
+
+
+def _check_for_movie(movie: Movie, movie_path: str | Path, size: int, follow: str,
+                     start: tuple[float, float] | None) -> None:
+    """:func:`check_crop_settings` for the movie's frames; the message names the movie."""
+    try:
+        check_crop_settings(tuple(movie.frame_shape), size, follow, start)
+    except CropError as exc:
+        raise CropError(f"{movie_path}: {exc}") from None
+
+
+def _check_arguments(size: int, background_path: References | None, normalized: bool,
+                     dark: References | float | None) -> list[Path]:
+    """Refuse a crop too small and a background given or missing against ``normalized``;
+    the background files."""
     if size < MIN_CROP_SIZE:
         raise CropError(f"crop size must be at least {MIN_CROP_SIZE} pixels, got {size}")
     backgrounds = _paths(background_path)
@@ -348,129 +417,68 @@ def run_crop(
             "no background given: crop needs the background of the raw movie, or "
             "normalized=True (--normalized) for a movie that is normalised already"
         )
-    finder = finder or CenterFinder(radius_px=size / 2.0)
-    follower = Follower(follow, start, max_jump_px if max_jump_px is not None else size / 4.0)
-    try:
-        movie = open_movie(movie_path)
-    except MovieError as exc:
-        raise CropError(str(exc)) from None
-    with movie:
-        try:
-            check_crop_settings(tuple(movie.frame_shape), size, follow, start)
-        except CropError as exc:
-            raise CropError(f"{movie_path}: {exc}") from None
-        saturation = _saturation(movie, inst) if mask_saturated else None
-        if normalized:
-            normalizer = Normalizer(np.ones(movie.frame_shape), saturation=saturation)
-            norm_info: dict[str, Any] = {
-                "formula": "I / mean(I): the movie is background-divided already "
-                "(--normalized; the paper's normalisation with a flat background)",
-                "background": None,
-                "dark": None,
-                "saturation_counts": saturation,
-            }
-        else:
-            normalizer, norm_info = _prepare(
-                movie, backgrounds, dark, min_background, saturation, inst.path or inst.name
-            )
-        if saturation is not None:
-            _check_full_scale(movie, saturation, inst)
-        crops_path = out / "crops.tif"
-        table_path = out / "crops.csv"
-        cand_path = out / "candidates.csv"
-        plot_path = out / "crops.png"
-        meta = {
-            "holofit": "crop stack",
-            "size": size,
-            "frames": len(movie),
-            "table": "crops.csv",
-            "pixels": "float32, normalised (background ~1), NaN = masked or no crop",
-        }
-        with TiffStackWriter(crops_path, meta) as writer:
-            rows, candidates, preview = _crop_frames(
-                movie, normalizer, finder, follower, size, inst.pixel_size_um, writer, progress
-            )
-            warnings = (_mark_off_track(rows, follower.max_jump_px)
-                        if follow == "strongest" else [])
-            frames = pd.DataFrame(rows, columns=list(CROP_COLUMNS))
-            for column in ("corner_row", "corner_col"):
-                frames[column] = frames[column].astype("Int64")
-            n_error = int((frames["status"] == CROP_ERROR).sum())
-            if n_error == len(frames):
-                raise CropError(
-                    f"{movie_path}: every frame failed; first error: {frames['message'].iat[0]}"
-                )
-            # a rerun must not leave an old table beside the new stack
-            stale = (table_path, cand_path, crops_path)
-            _remove_stale([*stale[:2], *map(sidecar_path, stale), plot_path])
-        counts = {s: int((frames["status"] == s).sum()) for s in CROP_STATUSES}
-        settings = {
-            "size_px": size,
-            "follow": follow,
-            "start_px": list(start) if start is not None else None,
-            "max_jump_px": follower.max_jump_px,
-            "finder": finder.as_dict(),
-            "normalization": {**norm_info, "mask_saturated": mask_saturated},
-        }
-        inputs: list[str | Path] = [movie_path, *backgrounds]
-        if not isinstance(dark, int | float):
-            inputs += _paths(dark)
-        cand_table = pd.DataFrame(candidates, columns=list(CANDIDATE_UNITS))
-        write_table(
-            cand_path,
-            cand_table,
-            sidecar(
-                kind="crop candidates",
-                units=CANDIDATE_UNITS,
-                config={"instrument": inst.as_dict()},
-                inputs=inputs,
-                extra={"settings": settings},
-            ),
-        )
-        made_plot = None
-        if plot and preview is not None:
-            from holofit.crop.plot import plot_overview
+    return backgrounds
 
-            made_plot = plot_overview(plot_path, preview, frames, cand_table, size)
-        extra = {
-            "settings": settings,
-            "movie": {
-                "frames": len(movie),
-                "frame_shape": list(movie.frame_shape),
-                "dtype": str(movie.dtype),
-                "problems": list(movie.problems),
-                "reader_notes": list(movie.notes),
-            },
-            "crops": {
-                "file": crops_path.name,
-                "table": table_path.name,
-                "pages": len(frames),
-                "page_shape": [size, size],
-                "dtype": "float32",
-                "contents": "normalised hologram (background ~1), one page per frame in frame "
-                "order; NaN marks masked pixels (background ~0 or saturated); frames with "
-                "status no_particle or error get an all-NaN page",
-                "coordinates": "crop pixel [i, j] is full-frame pixel "
-                "[corner_row + i, corner_col + j] (corner_* in the table)",
-            },
-            "status_counts": counts,
-            "warnings": warnings,
+
+def _normalizer(movie: Movie, normalized: bool, backgrounds: list[Path],
+                dark: References | float | None, min_background: float,
+                saturation: float | None, inst: Instrument) -> tuple[Normalizer, dict[str, Any]]:
+    """The frames' normaliser and its record; the movie's full scale checked."""
+    if normalized:
+        normalizer = Normalizer(np.ones(movie.frame_shape), saturation=saturation)
+        norm_info: dict[str, Any] = {
+            "formula": "I / mean(I): the movie is background-divided already "
+            "(--normalized; the paper's normalisation with a flat background)",
+            "background": None,
+            "dark": None,
+            "saturation_counts": saturation,
         }
-        config = {"instrument": inst.as_dict()}
-        write_json(
-            sidecar_path(crops_path),
-            sidecar(kind="crop stack", units={"pixel value": "1 (background = 1)"},
-                    config=config, inputs=inputs, extra=extra),
-        )  # fmt: skip
-        # the table goes last: its presence marks a complete run
-        write_table(
-            table_path,
-            frames,
-            sidecar(kind="crop table", units=CROP_UNITS, config=config, inputs=inputs,
-                    extra=extra),
-        )  # fmt: skip
-    return CropResult(out, crops_path, table_path, cand_path, made_plot, frames, counts,
-                      list(movie.problems), warnings)
+    else:
+        normalizer, norm_info = _prepare(
+            movie, backgrounds, dark, min_background, saturation, inst.path or inst.name
+        )
+    if saturation is not None:
+        _check_full_scale(movie, saturation, inst)
+    return normalizer, norm_info
+
+
+class _CropPaths:
+    """The files of a crop folder."""
+
+    def __init__(self, out: Path) -> None:
+        self.stack = out / "crops.tif"
+        self.table = out / "crops.csv"
+        self.candidates = out / "candidates.csv"
+        self.plot = out / "crops.png"
+
+    def remove_stale(self) -> None:
+        """Remove the outputs of an earlier run but the stack (being written)."""
+        stale = (self.table, self.candidates, self.stack)
+        _remove_stale([*stale[:2], *map(sidecar_path, stale), self.plot])
+
+
+def _frame_table(rows: list[dict[str, Any]], movie_path: str | Path) -> pd.DataFrame:
+    """The crop table of ``rows``; CropError if every frame failed."""
+    frames = pd.DataFrame(rows, columns=list(CROP_COLUMNS))
+    for column in ("corner_row", "corner_col"):
+        frames[column] = frames[column].astype("Int64")
+    n_error = int((frames["status"] == CROP_ERROR).sum())
+    if n_error == len(frames):
+        raise CropError(
+            f"{movie_path}: every frame failed; first error: {frames['message'].iat[0]}"
+        )
+    return frames
+
+
+def _movie_info(movie: Movie) -> dict[str, Any]:
+    """What the sidecars record of the movie file."""
+    return {
+        "frames": len(movie),
+        "frame_shape": list(movie.frame_shape),
+        "dtype": str(movie.dtype),
+        "problems": list(movie.problems),
+        "reader_notes": list(movie.notes),
+    }
 
 
 def _frame_list(frames: list[int], most: int = 8) -> str:

@@ -4,9 +4,25 @@ for the stage that writes them (:mod:`holofit.crop.stage`) and the stages that r
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from holofit.io.tables import sidecar_path, write_json, write_table
+from holofit.provenance import sidecar
 from holofit.status import CROP_STATUS_MEANINGS, describe
 
-__all__ = ["CANDIDATE_UNITS", "CROP_COLUMNS", "CROP_UNITS", "REQUIRED_CROP_COLUMNS"]
+__all__ = [
+    "CANDIDATE_UNITS",
+    "CROP_COLUMNS",
+    "CROP_UNITS",
+    "REQUIRED_CROP_COLUMNS",
+    "crop_extra",
+    "stack_header",
+    "write_candidates",
+    "write_crop_table",
+]
 
 CROP_UNITS = {
     "frame": "index (0-based, movie order)",
@@ -44,3 +60,63 @@ CROP_COLUMNS: tuple[str, ...] = tuple(CROP_UNITS)
 REQUIRED_CROP_COLUMNS: tuple[str, ...] = (
     "frame", "status", "x_um", "y_um", "corner_row", "corner_col",
 )
+
+
+def stack_header(size: int, n_frames: int) -> dict[str, Any]:
+    """The description stored in the crop stack (``crops.tif``) itself."""
+    return {
+        "holofit": "crop stack",
+        "size": size,
+        "frames": n_frames,
+        "table": "crops.csv",
+        "pixels": "float32, normalised (background ~1), NaN = masked or no crop",
+    }
+
+
+def crop_extra(settings: dict[str, Any], movie: dict[str, Any], stack: Path, table: Path,
+               pages: int, size: int, counts: dict[str, int],
+               warnings: list[str]) -> dict[str, Any]:
+    """The ``extra`` of the crop stack's and the crop table's sidecars: the settings, the
+    movie (``movie``: frames, frame_shape, dtype, problems, reader_notes), the stack's
+    layout, the status counts and the warnings."""
+    return {
+        "settings": settings,
+        "movie": movie,
+        "crops": {
+            "file": stack.name,
+            "table": table.name,
+            "pages": pages,
+            "page_shape": [size, size],
+            "dtype": "float32",
+            "contents": "normalised hologram (background ~1), one page per frame in frame "
+            "order; NaN marks masked pixels (background ~0 or saturated); frames with "
+            "status no_particle or error get an all-NaN page",
+            "coordinates": "crop pixel [i, j] is full-frame pixel "
+            "[corner_row + i, corner_col + j] (corner_* in the table)",
+        },
+        "status_counts": counts,
+        "warnings": warnings,
+    }
+
+
+def write_candidates(path: Path, candidates: list[tuple[Any, ...]], instrument: dict[str, Any],
+                     inputs: list[str | Path], settings: dict[str, Any]) -> pd.DataFrame:
+    """Write ``candidates.csv`` (+ sidecar) from rows of :data:`CANDIDATE_UNITS`; the table."""
+    table = pd.DataFrame(candidates, columns=list(CANDIDATE_UNITS))
+    write_table(path, table, sidecar(kind="crop candidates", units=CANDIDATE_UNITS,
+                                     config={"instrument": instrument}, inputs=inputs,
+                                     extra={"settings": settings}))
+    return table
+
+
+def write_crop_table(table_path: Path, stack_path: Path, frames: pd.DataFrame,
+                     instrument: dict[str, Any], inputs: list[str | Path],
+                     extra: dict[str, Any]) -> None:
+    """Write the crop stack's sidecar, then ``crops.csv`` (+ sidecar): the table goes last,
+    its presence marks a complete run."""
+    config = {"instrument": instrument}
+    write_json(sidecar_path(stack_path),
+               sidecar(kind="crop stack", units={"pixel value": "1 (background = 1)"},
+                       config=config, inputs=inputs, extra=extra))
+    write_table(table_path, frames, sidecar(kind="crop table", units=CROP_UNITS, config=config,
+                                            inputs=inputs, extra=extra))
