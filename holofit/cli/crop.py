@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
-from holofit.crop import CenterFinder, run_crop
+from holofit.crop import CenterFinder, CropResult, run_crop
 from holofit.crop.centerfind import MIN_RADIUS_PX
 from holofit.crop.follow import FOLLOW_MODES
 from holofit.crop.stage import MIN_CROP_SIZE
@@ -161,18 +161,7 @@ def crop(
     score, status), OUT/candidates.csv and OUT/crops.png. Every frame the movie file claims
     gets a row: one that cannot be read (a truncated file) has status error.
     """
-    if darks and dark_count is not None:
-        raise click.UsageError("give either --dark or --dark-count, not both")
-    if normalized and (backgrounds or darks or dark_count is not None):
-        raise click.UsageError(
-            "--normalized takes no --background, --dark or --dark-count: the movie is "
-            "normalised already"
-        )
-    if not normalized and not backgrounds:
-        raise click.UsageError(
-            "give the background of the raw movie (--background, repeat for several files), "
-            "or --normalized for a movie that is normalised already"
-        )
+    _check_references(backgrounds, normalized, darks, dark_count)
     start_xy = _parse_start(start)
     if start_xy is not None and follow != "nearest":
         raise click.UsageError("--start needs --follow nearest")
@@ -186,28 +175,45 @@ def crop(
         )
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
-    try:
-        with open_movie(movie) as m:
-            total = len(m)
-    except MovieError:
-        total = 0  # run_crop reports the problem with the file
-    with progress_bar(total, "crop", unit="frame") as bar:
+    with progress_bar(_frame_count(movie), "crop", unit="frame") as bar:
         result = run_crop(
-            movie,
-            list(backgrounds) or None,
-            inst,
-            out,
-            normalized=normalized,
-            dark=list(darks) or dark_count,
-            size=size,
-            follow=follow,
-            start=start_xy,
-            max_jump_px=max_jump,
-            finder=finder,
-            mask_saturated=mask_saturated,
-            plot=plot,
+            movie, list(backgrounds) or None, inst, out, normalized=normalized,
+            dark=list(darks) or dark_count, size=size, follow=follow, start=start_xy,
+            max_jump_px=max_jump, finder=finder, mask_saturated=mask_saturated, plot=plot,
             progress=bar.update,
         )
+    _report(result)
+
+
+def _check_references(backgrounds: tuple[Path, ...], normalized: bool, darks: tuple[Path, ...],
+                      dark_count: float | None) -> None:
+    """Refuse a background or dark level given, or missing, against ``--normalized``."""
+    if darks and dark_count is not None:
+        raise click.UsageError("give either --dark or --dark-count, not both")
+    if normalized and (backgrounds or darks or dark_count is not None):
+        raise click.UsageError(
+            "--normalized takes no --background, --dark or --dark-count: the movie is "
+            "normalised already"
+        )
+    if not normalized and not backgrounds:
+        raise click.UsageError(
+            "give the background of the raw movie (--background, repeat for several files), "
+            "or --normalized for a movie that is normalised already"
+        )
+
+
+def _frame_count(movie: Path) -> int:
+    """Frames of the movie, for the progress bar (0 if it cannot be opened: run_crop says
+    why)."""
+    try:
+        with open_movie(movie) as m:
+            return len(m)
+    except MovieError:
+        return 0
+
+
+def _report(result: CropResult) -> None:
+    """What the crop wrote, its warnings and its first frame errors."""
     counts = ", ".join(f"{v} {k}" for k, v in result.counts.items() if v)
     click.echo(f"wrote {result.crops} and {result.table} ({len(result.frames)} frames: {counts})")
     for problem in [*result.problems, *result.warnings]:

@@ -24,7 +24,14 @@ from holofit.cli.stage_options import (
 )
 from holofit.fit.continuity import ContinuityOptions
 from holofit.fit.frame import FrameFitOptions
-from holofit.fit.stage import PASSES, TMATRIX_CHOICES, check_fixed, fixable_names, run_fit
+from holofit.fit.stage import (
+    PASSES,
+    TMATRIX_CHOICES,
+    FitRun,
+    check_fixed,
+    fixable_names,
+    run_fit,
+)
 from holofit.fitting.result import QualityLimits
 from holofit.scattering.select import ENGINE_CHOICES
 
@@ -163,6 +170,11 @@ def fit(
                   numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na,
                   continuity=ContinuityOptions(enabled=not no_continuity,
                                                 flag_probability=flag_probability))
+    _report(run)
+
+
+def _report(run: FitRun) -> None:
+    """What the fit wrote: each pass's counts, the notes, the sweeps, the tables."""
     for name, s in run.summaries.items():
         for note in s.notes:
             click.echo(f"note: {note}", err=True)

@@ -150,10 +150,8 @@ def run_prefit(
         in wavelength, medium, pixel size or polarisation needs ``override_instrument``.
     fit : FitOptions, optional
         Fit settings.
-    frames : list of int, optional
-        Only these frames (default: all).
-    batch : BatchOptions, optional
-        Parallel backend, resumption.
+    frames, batch
+        Only these frames (default: all); parallel backend, resumption.
     plot : bool
         Write ``prefit.png`` (values against frame) and data / model / residual pictures of a
         few frames (``frames/frame_<n>.png``).
