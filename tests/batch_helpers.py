@@ -74,3 +74,19 @@ def run_toy_batch(out: str, workers: int, n_frames: int, sleep_s: float) -> None
     )
     for note in summary.notes:
         print("note:", note, flush=True)
+
+
+#: columns of the toy table keyed by (particle, frame)
+PAIR_COLUMNS = ("particle", "frame", "status", "message", "value", "fit_time_s")
+
+
+def pair_item(config: ToyConfig, key: tuple[int, int], payload: float) -> dict:
+    """An item keyed by (particle, frame): its value is the payload; errors as configured
+    (``fail_frames`` holds the frames that fail for particle 1)."""
+    particle, frame = key
+    if config.log_dir is not None:
+        with open(Path(config.log_dir) / f"{os.getpid()}.log", "a") as fh:
+            fh.write(f"{particle},{frame}\n")
+    if particle == 1 and frame in config.fail_frames:
+        raise ValueError(f"bad item {key}")
+    return {"status": "ok", "message": "", "value": payload}
