@@ -81,6 +81,7 @@ __all__ = [
     "BatchSummary",
     "Precomputed",
     "available_cpus",
+    "earlier_fingerprint",
     "journal_path",
     "make_backend",
     "partial_path",
@@ -332,6 +333,19 @@ def _rows_from_table(path: Path, files: _OutputFiles) -> dict[Key, dict[str, Any
     for rec in table.to_dict(orient="records"):
         rows[key_of_row(rec, files.key_columns)] = files.complete(rec)
     return rows
+
+
+def earlier_fingerprint(output: str | Path) -> str | None:
+    """The fingerprint of the earlier run of a batch into ``output`` (its journal's, else its
+    finished table's); None if there is none, '' if its journal cannot be read."""
+    output = Path(output)
+    journal = journal_path(output)
+    if journal.exists():
+        try:
+            return read_journal(journal)[0].get("fingerprint")
+        except (JournalError, ValueError, KeyError):
+            return ""
+    return _read_fingerprint(output) if output.exists() else None
 
 
 def _read_fingerprint(path: Path) -> str | None:

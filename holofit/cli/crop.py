@@ -6,13 +6,12 @@ from pathlib import Path
 
 import click
 
+from holofit.batch.runner import BatchOptions
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
 from holofit.crop import CenterFinder, CropResult, run_crop
 from holofit.crop.centerfind import MIN_RADIUS_PX
 from holofit.crop.follow import FOLLOW_MODES
 from holofit.crop.stage import MIN_CROP_SIZE
-from holofit.io.movie import MovieError, open_movie
-from holofit.progress import progress_bar
 from holofit.status import CROP_ERROR
 
 
@@ -132,6 +131,11 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
     help="Mask (NaN) pixels at the camera's full-scale count.",
 )
 @click.option("--plot/--no-plot", default=True, show_default=True, help="Write crops.png.")
+@click.option("--workers", "-j", type=click.IntRange(min=0), default=None,
+              help="Worker processes searching frames (default: all available CPUs; 0: in "
+                   "this process).")
+@click.option("--progress/--no-progress", default=None,
+              help="Progress bar [default: when stderr is a terminal].")
 def crop(
     movie: Path,
     backgrounds: tuple[Path, ...],
@@ -150,8 +154,13 @@ def crop(
     max_particles: int,
     mask_saturated: bool,
     plot: bool,
+    workers: int | None,
+    progress: bool | None,
 ) -> None:
     """Normalise a raw MOVIE by its background, find hologram centres, crop N x N around them.
+
+    Frames are searched in parallel (-j); an interrupted run, run again, keeps the frames it
+    had searched (OUT/detections.csv while it runs).
 
     MOVIE is a multi-page (or OME-) TIFF or a folder of TIFF frames, 8 or 16 bit (or float);
     LZW- and deflate-compressed TIFFs are read too; with holofit[movies] installed also a video
@@ -175,13 +184,12 @@ def crop(
         )
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
-    with progress_bar(_frame_count(movie), "crop", unit="frame") as bar:
-        result = run_crop(
-            movie, list(backgrounds) or None, inst, out, normalized=normalized,
-            dark=list(darks) or dark_count, size=size, follow=follow, start=start_xy,
-            max_jump_px=max_jump, finder=finder, mask_saturated=mask_saturated, plot=plot,
-            progress=bar.update,
-        )
+    result = run_crop(
+        movie, list(backgrounds) or None, inst, out, normalized=normalized,
+        dark=list(darks) or dark_count, size=size, follow=follow, start=start_xy,
+        max_jump_px=max_jump, finder=finder, mask_saturated=mask_saturated, plot=plot,
+        batch=BatchOptions(workers=workers, progress=progress),
+    )
     _report(result)
 
 
@@ -200,16 +208,6 @@ def _check_references(backgrounds: tuple[Path, ...], normalized: bool, darks: tu
             "give the background of the raw movie (--background, repeat for several files), "
             "or --normalized for a movie that is normalised already"
         )
-
-
-def _frame_count(movie: Path) -> int:
-    """Frames of the movie, for the progress bar (0 if it cannot be opened: run_crop says
-    why)."""
-    try:
-        with open_movie(movie) as m:
-            return len(m)
-    except MovieError:
-        return 0
 
 
 def _report(result: CropResult) -> None:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -37,16 +37,37 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from holofit.batch.errors import BatchError
 from holofit.batch.mainguard import refuse_while_worker_starts
+from holofit.batch.runner import (
+    BatchOptions,
+    earlier_fingerprint,
+    journal_path,
+    partial_path,
+    run_batch,
+)
+from holofit.batch.stage import fingerprint
 from holofit.config import ConfigError, Instrument, load_instrument, resolve_config
 from holofit.crop.centerfind import CenterFinder
 from holofit.crop.cropping import crop_corner, extract_crop
-from holofit.crop.errors import CropError, FrameError
+from holofit.crop.detect import (
+    DETECTED,
+    DETECTION_COLUMNS,
+    FOUND_COLUMNS,
+    DetectConfig,
+    detect_frame,
+    found_from_json,
+    no_payload,
+    read_normalised,
+    release,
+)
+from holofit.crop.errors import CropError
 from holofit.crop.follow import FOLLOW_MODES, Follower, off_track
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
+from holofit.io.lock import output_lock
 from holofit.io.movie import Movie, MovieError, open_movie
-from holofit.io.tables import sidecar_path
+from holofit.io.tables import read_table, sidecar_path
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.status import (
     CROP_EDGE,
@@ -172,7 +193,7 @@ def _check_full_scale(movie: Movie, saturation: float, instrument: Instrument) -
     Counts above ``2**bit_depth - 1`` mean the instrument's ``bit_depth`` is not the camera's
     (a 16-bit movie with an 8-bit instrument): masking them as saturated would leave nothing
     of the hologram, every frame ``no_particle``. Later frames are checked as they are read
-    (:func:`_detect`).
+    (:func:`holofit.crop.detect.detect`).
     """
     for k in range(min(len(movie), 5)):
         try:
@@ -277,6 +298,7 @@ def run_crop(
     max_jump_px: float | None = None, finder: CenterFinder | None = None,
     min_background: float = DEFAULT_MIN_BACKGROUND, mask_saturated: bool = True,
     plot: bool = True, progress: Callable[[int], Any] | None = None,
+    batch: BatchOptions | None = None,
 ) -> CropResult:
     """Normalise a raw movie, find the hologram centre of every frame and crop around it.
 
@@ -298,8 +320,7 @@ def run_crop(
         scaled integers): each frame is only divided by its mean (the paper's normalisation
         with a flat background); saturated pixels are still masked.
     dark : str, Path, sequence of them, or float, optional
-        Dark level: a number of counts (``--dark-count``) or dark frame / stack files (their
-        per-pixel median).
+        Dark level: counts (``--dark-count``) or dark frame / stack files (their median).
     size : int
         Crop side N, pixels (default 140, the paper's).
     follow, start, max_jump_px
@@ -311,7 +332,9 @@ def run_crop(
         below this fraction of the median background are masked.
     mask_saturated, plot, progress
         Mask (NaN) pixels at the camera's full-scale count; write ``crops.png``; called with
-        1 after each frame.
+        1 after each frame is cropped.
+    batch : BatchOptions, optional
+        Where frames are searched (:mod:`holofit.crop.detect`; default: in this process).
 
     Returns
     -------
@@ -328,11 +351,7 @@ def run_crop(
     backgrounds = _check_arguments(size, background_path, normalized, dark)
     finder = finder or CenterFinder(radius_px=size / 2.0)
     follower = Follower(follow, start, max_jump_px if max_jump_px is not None else size / 4.0)
-    try:
-        movie = open_movie(movie_path)
-    except MovieError as exc:
-        raise CropError(str(exc)) from None
-    with movie:
+    with _open(movie_path) as movie:
         _check_for_movie(movie, movie_path, size, follow, start)
         saturation = _saturation(movie, inst) if mask_saturated else None
         normalizer, norm_info = _normalizer(movie, normalized, backgrounds, dark,
@@ -343,8 +362,10 @@ def run_crop(
                     "normalization": {**norm_info, "mask_saturated": mask_saturated}}
         inputs = [movie_path, *backgrounds, *([] if isinstance(dark, int | float)
                                              else _paths(dark))]
-        job = _CropJob(movie, movie_path, Path(out_dir), normalizer, finder, follower, size,
-                       inst, settings, inputs, plot, progress)
+        detect = _detect_config(movie, movie_path, backgrounds, dark, normalized,
+                                min_background, saturation, finder)
+        job = _CropJob(movie, movie_path, Path(out_dir), normalizer, detect, follower, size,
+                       inst, settings, inputs, plot, progress, batch)
         return job.run()
 
 
@@ -356,7 +377,7 @@ class _CropJob:
     movie_path: str | Path
     out: Path
     normalizer: Normalizer
-    finder: CenterFinder
+    detect: DetectConfig
     follower: Follower
     size: int
     inst: Instrument
@@ -364,12 +385,28 @@ class _CropJob:
     inputs: list[str | Path]
     plot: bool
     progress: Callable[[int], Any] | None
+    batch: BatchOptions | None
 
     def run(self) -> CropResult:
+        """Search every frame (a batch: parallel, resumable), then crop in frame order; the
+        detections are removed once the crop folder is complete (or failed as a whole)."""
+        with output_lock(self.out, stage="crop"):
+            files = _DetectionFiles(self.out / DETECTIONS)
+            detections = files.run(self.detect, len(self.movie), self.movie_path, self.batch)
+            try:
+                result = self.crop(detections)
+            except CropError:
+                files.remove()
+                raise
+            files.remove()
+        return result
+
+    def crop(self, detections: dict[int, dict[str, Any]]) -> CropResult:
+        """The sequential step and the outputs (:mod:`holofit.tables.crop`)."""
         movie, size, paths = self.movie, self.size, _CropPaths(self.out)
         with TiffStackWriter(paths.stack, stack_header(size, len(movie))) as writer:
             rows, candidates, preview = _crop_frames(
-                movie, self.normalizer, self.finder, self.follower, size,
+                movie, self.normalizer, detections, self.follower, size,
                 self.inst.pixel_size_um, writer, self.progress)
             warnings = (_mark_off_track(rows, self.follower.max_jump_px)
                         if self.settings["follow"] == "strongest" else [])
@@ -389,6 +426,79 @@ class _CropJob:
                          extra)
         return CropResult(self.out, paths.stack, paths.table, paths.candidates, made_plot,
                           frames, counts, list(movie.problems), warnings)
+
+
+#: the candidates of every frame searched so far (removed when the crop folder is complete)
+DETECTIONS = "detections.csv"
+
+
+class _DetectionFiles:
+    """``detections.csv`` (+ sidecar, journal, partial table): the resumable search."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def run(self, config: DetectConfig, n_frames: int, movie_path: str | Path,
+            batch: BatchOptions | None) -> dict[int, dict[str, Any]]:
+        """Search the frames not searched yet by an earlier run with the same movie and
+        settings (another run's results are discarded); every frame's row."""
+        opts = batch or BatchOptions(workers=0, progress=False)
+        if earlier_fingerprint(self.path) not in (None, config.key):
+            opts = replace(opts, overwrite=True)
+        meta = {"kind": "crop detections (candidate centres of every frame searched; "
+                        "removed when the crop folder is complete)",
+                "candidates": f"JSON list of [{', '.join(FOUND_COLUMNS)}] per candidate"}
+        try:
+            run_batch(detect_frame, config, range(n_frames), no_payload, self.path,
+                      DETECTION_COLUMNS, fingerprint=config.key, meta=meta, options=opts,
+                      desc="crop")
+        except BatchError as exc:
+            self.remove()
+            raise CropError(f"{movie_path}: {exc}") from None
+        finally:
+            release()
+        table = read_table(self.path)
+        return {int(r["frame"]): r for r in table.to_dict(orient="records")}
+
+    def remove(self) -> None:
+        _remove_stale([self.path, sidecar_path(self.path), journal_path(self.path),
+                       partial_path(self.path), sidecar_path(partial_path(self.path))])
+
+
+def _file_identity(path: str | Path) -> list[Any]:
+    """Name, size and modification time of a file or folder (what a rerun compares)."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError:
+        return [str(p)]
+    return [str(p), st.st_size, st.st_mtime_ns]
+
+
+def _detect_config(movie: Movie, movie_path: str | Path, backgrounds: list[Path],
+                   dark: References | float | None, normalized: bool, min_background: float,
+                   saturation: float | None, finder: CenterFinder) -> DetectConfig:
+    """What a worker needs to search frames, and its fingerprint (the movie's and the
+    reference files' names, sizes and times with the settings)."""
+    dark_files = () if dark is None or isinstance(dark, int | float) else tuple(
+        str(p) for p in _paths(dark))
+    dark_spec = float(dark) if isinstance(dark, int | float) else (dark_files or None)
+    config = DetectConfig(str(movie_path), tuple(str(p) for p in backgrounds), dark_spec,
+                          min_background, saturation, finder)
+    key = fingerprint({
+        "config": asdict(config), "normalized": normalized,
+        "movie": [*_file_identity(movie_path), len(movie), list(movie.frame_shape),
+                  str(movie.dtype)],
+        "references": [_file_identity(p) for p in (*config.backgrounds, *dark_files)]})
+    return replace(config, key=key)
+
+
+def _open(movie_path: str | Path) -> Movie:
+    """The movie; CropError naming the file if it cannot be opened."""
+    try:
+        return open_movie(movie_path)
+    except MovieError as exc:
+        raise CropError(str(exc)) from None
 
 
 def _check_for_movie(movie: Movie, movie_path: str | Path, size: int, follow: str,
@@ -526,45 +636,51 @@ def _mark_off_track(rows: list[dict[str, Any]], max_jump_px: float) -> list[str]
     return [text]
 
 
+def _blank_row(k: int) -> dict[str, Any]:
+    """Frame ``k``'s row before anything is known of it (status ``error``)."""
+    return {
+        "frame": k,
+        "status": CROP_ERROR,
+        "message": "",
+        "x_px": math.nan,
+        "y_px": math.nan,
+        "x_um": math.nan,
+        "y_um": math.nan,
+        "corner_row": pd.NA,
+        "corner_col": pd.NA,
+        "score": math.nan,
+        "alignment": math.nan,
+        "symmetry": math.nan,
+        "refinement": "",
+        "n_candidates": 0,
+        "n_masked": 0,
+    }
+
+
 def _crop_frames(
     movie: Movie,
     normalizer: Normalizer,
-    finder: CenterFinder,
+    detections: dict[int, dict[str, Any]],
     follower: Follower,
     size: int,
     pixel_size_um: float,
     writer: TiffStackWriter,
     progress: Callable[[int], Any] | None,
 ) -> tuple[list[dict[str, Any]], list[tuple[Any, ...]], dict[str, Any] | None]:
-    """The streaming loop: one frame in memory at a time."""
+    """The sequential step, in frame order: choose each frame's candidate (``follow``), crop
+    it (the frame read again) and write the page; one frame in memory at a time."""
     blank = np.full((size, size), np.nan, dtype=np.float32)
     rows: list[dict[str, Any]] = []
     candidates: list[tuple[Any, ...]] = []
     preview: dict[str, Any] | None = None
     for k in range(len(movie)):
-        row: dict[str, Any] = {
-            "frame": k,
-            "status": CROP_ERROR,
-            "message": "",
-            "x_px": math.nan,
-            "y_px": math.nan,
-            "x_um": math.nan,
-            "y_um": math.nan,
-            "corner_row": pd.NA,
-            "corner_col": pd.NA,
-            "score": math.nan,
-            "alignment": math.nan,
-            "symmetry": math.nan,
-            "refinement": "",
-            "n_candidates": 0,
-            "n_masked": 0,
-        }
+        row = _blank_row(k)
         page: NDArray = blank
-        try:
-            image, mask, found = _detect(movie, k, normalizer, finder)
-        except FrameError as exc:
-            row["message"] = str(exc)
+        det = detections.get(k, {"status": CROP_ERROR, "message": "not searched"})
+        if det["status"] != DETECTED:
+            row["message"] = str(det.get("message") or "")
         else:
+            found = found_from_json(det["candidates"])
             choice = follower.choose(found)
             row["n_candidates"] = len(found)
             for rank, cand in enumerate(found.itertuples(index=False)):
@@ -575,31 +691,12 @@ def _crop_frames(
             if choice.index is None:
                 row["status"], row["message"] = CROP_NO_PARTICLE, choice.message
             else:
-                best = found.iloc[choice.index]
-                x, y = float(best["x_px"]), float(best["y_px"])
-                corner_row, corner_col, shifted = crop_corner(x, y, size, image.shape)
-                page = extract_crop(image, (corner_row, corner_col), size)
-                row.update(
-                    status=CROP_EDGE if shifted else CROP_OK,
-                    message="particle near the frame edge: crop shifted inside the frame"
-                    if shifted
-                    else "",
-                    x_px=x,
-                    y_px=y,
-                    x_um=x * pixel_size_um,
-                    y_um=y * pixel_size_um,
-                    corner_row=corner_row,
-                    corner_col=corner_col,
-                    score=float(best["score"]),
-                    alignment=float(best["alignment"]),
-                    symmetry=float(best["symmetry"]),
-                    refinement=str(best["refinement"]),
-                    n_masked=int(
-                        mask[corner_row : corner_row + size, corner_col : corner_col + size].sum()
-                    ),
-                )
+                image, mask = read_normalised(movie, k, normalizer)
+                page = _crop_chosen(row, found.iloc[choice.index], image, mask, size,
+                                    pixel_size_um)
                 if preview is None:
-                    preview = {"frame": k, "image": image, "corner": (corner_row, corner_col)}
+                    preview = {"frame": k, "image": image,
+                               "corner": (row["corner_row"], row["corner_col"])}
         writer.write(page)
         rows.append(row)
         if progress is not None:
@@ -607,30 +704,28 @@ def _crop_frames(
     return rows, candidates, preview
 
 
-def _detect(
-    movie: Movie, k: int, normalizer: Normalizer, finder: CenterFinder
-) -> tuple[NDArray, NDArray, pd.DataFrame]:
-    """Read, normalise and search frame ``k``; any failure becomes a :class:`FrameError`."""
-    source = movie.frame_source(k)
-    try:
-        raw = movie[k]
-    except MovieError as exc:
-        raise FrameError(str(exc)) from None
-    full = normalizer.saturation
-    if full is not None and raw.size and float(np.max(raw)) > full:
-        raise FrameError(
-            f"{source}: frame {k}: counts up to {float(np.max(raw)):g} exceed the full scale "
-            f"{full:g} of the instrument's bit_depth: correct bit_depth in the instrument "
-            "config, or do not mask saturated pixels (--keep-saturated)"
-        )
-    try:
-        image, mask = normalizer(raw)
-    except ValueError as exc:
-        raise FrameError(f"{source}: frame {k}: {exc}") from None
-    try:
-        found = finder.find(image, mask)
-    except Exception as exc:  # a bug must not lose the rest of a long movie
-        raise FrameError(
-            f"{source}: frame {k}: centre finder failed ({type(exc).__name__}: {exc})"
-        ) from None
-    return image, mask, found
+def _crop_chosen(row: dict[str, Any], best: pd.Series, image: NDArray, mask: NDArray,
+                 size: int, pixel_size_um: float) -> NDArray:
+    """Crop around the chosen candidate ``best``: fill in ``row``; the crop."""
+    x, y = float(best["x_px"]), float(best["y_px"])
+    corner_row, corner_col, shifted = crop_corner(x, y, size, image.shape)
+    row.update(
+        status=CROP_EDGE if shifted else CROP_OK,
+        message="particle near the frame edge: crop shifted inside the frame"
+        if shifted
+        else "",
+        x_px=x,
+        y_px=y,
+        x_um=x * pixel_size_um,
+        y_um=y * pixel_size_um,
+        corner_row=corner_row,
+        corner_col=corner_col,
+        score=float(best["score"]),
+        alignment=float(best["alignment"]),
+        symmetry=float(best["symmetry"]),
+        refinement=str(best["refinement"]),
+        n_masked=int(
+            mask[corner_row : corner_row + size, corner_col : corner_col + size].sum()
+        ),
+    )
+    return extract_crop(image, (corner_row, corner_col), size)
