@@ -142,7 +142,6 @@ LIGHT = $(if $(NORMALIZED),--normalized) $(addprefix -b ,$(BACKGROUND)) \\
   $(addprefix --dark ,$(DARK)) $(if $(DARK_COUNT),--dark-count $(DARK_COUNT))
 ENGINE_OPT = $(if $(ENGINE),--engine $(ENGINE))
 BATCH = $(if $(JOBS),-j $(JOBS)) $(if $(SCHEDULER),--scheduler $(SCHEDULER)) $(BATCH_OPTS)
-CROP_JOBS = $(if $(JOBS),-j $(JOBS))
 
 # $(call record,STAGE,VARIABLE): settings/STAGE holds the value of VARIABLE, rewritten (so newer
 # than the stage's table) only when it changes; run as the Makefile is read
@@ -168,7 +167,7 @@ overwrite = $(if $(OVERWRITE),--overwrite,$(shell for f in $(1); do [ -e "$$f" ]
   for p in $^; do if [ "$$p" -nt "$$f" ]; then echo --overwrite; exit 0; fi; done; done))
 
 crop/crops.csv: $(MOVIE) $(BACKGROUND) $(DARK) instrument.toml settings/crop
-\t$(HOLOFIT) crop $(MOVIE) $(strip $(LIGHT)) -i instrument.toml -o crop $(CROP_OPTS) $(CROP_JOBS)
+\t$(HOLOFIT) crop $(MOVIE) $(strip $(LIGHT)) -i instrument.toml -o crop $(CROP_OPTS)
 
 prefit/prefit.csv: crop/crops.csv settings/prefit
 \t$(HOLOFIT) prefit crop -o prefit $(strip $(PREFIT_OPTS) $(BATCH) $(call overwrite,$@ $@.journal))
