@@ -4,8 +4,9 @@ Hough-type (orientation-alignment) transform refined to sub-pixel precision by p
 
 Library entry points:
 
-- :func:`run_crop`: the whole stage on a movie (streams frames; writes ``crops.tif``,
-  ``crops.csv`` + sidecar, ``candidates.csv``, ``crops.png``);
+- :func:`run_crop`: the whole stage on a movie (frames searched through the batch runner,
+  in parallel and resumably, then cropped in frame order; writes ``crops.tif``,
+  ``crops.csv`` + sidecar, ``candidates.csv``, ``crops.png``: :mod:`holofit.tables.crop`);
 - :func:`find_centers`: ranked centres of one normalised image;
 - :func:`normalize`: one raw frame -> normalised image and mask.
 """
