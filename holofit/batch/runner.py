@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import functools
 import json
 import math
 import os
@@ -447,6 +448,9 @@ class _BatchRun:
         self.in_flight: dict[Any, _Task] = {}
         self.retry: collections.deque[_Task] = collections.deque()
         self.journal = _open_journal(files, info["fingerprint"], rows)
+        #: what a worker runs: the frame function for one item, its key columns set
+        self.run_item = (run_frame if files.key_columns == FRAME_KEY
+                         else functools.partial(run_frame, key_columns=files.key_columns))
         self._last_flush = time.monotonic()
 
     def run(self, todo: collections.deque[Key], load: Callable[[Any], Any]) -> None:
@@ -484,8 +488,8 @@ class _BatchRun:
         self.progress.update(1)
 
     def submit(self, task: _Task) -> None:
-        fut = self.backend.submit(run_frame, self.func, self.config, task.frame, task.payload,
-                                  self.files.key_columns)
+        fut = self.backend.submit(self.run_item, self.func, self.config, task.frame,
+                                  task.payload)
         self.in_flight[fut] = task
 
     def failed_row(self, key: Key, message: str) -> dict[str, Any]:

@@ -392,19 +392,21 @@ class _CropJob:
         detections are removed once the crop folder is complete (or failed as a whole)."""
         with output_lock(self.out, stage="crop"):
             files = _DetectionFiles(self.out / DETECTIONS)
-            detections = files.run(self.detect, len(self.movie), self.movie_path, self.batch)
             try:
-                result = self.crop(detections)
+                result = self.crop(files)
             except CropError:
                 files.remove()
                 raise
             files.remove()
         return result
 
-    def crop(self, detections: dict[int, dict[str, Any]]) -> CropResult:
-        """The sequential step and the outputs (:mod:`holofit.tables.crop`)."""
+    def crop(self, files: _DetectionFiles) -> CropResult:
+        """The search, the sequential step and the outputs (:mod:`holofit.tables.crop`); the
+        stack's temporary file is there from the start (a killed run leaves only it, and
+        its next writer removes it)."""
         movie, size, paths = self.movie, self.size, _CropPaths(self.out)
         with TiffStackWriter(paths.stack, stack_header(size, len(movie))) as writer:
+            detections = files.run(self.detect, len(movie), self.movie_path, self.batch)
             rows, candidates, preview = _crop_frames(
                 movie, self.normalizer, detections, self.follower, size,
                 self.inst.pixel_size_um, writer, self.progress)
