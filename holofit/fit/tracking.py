@@ -117,11 +117,15 @@ class TrackOptions:
     min_step_um, min_axis_step_rad : float
         Floors of the limits from the recent steps (noise alone moves a fit by some nm).
     first_step_um, first_axis_step_rad : float
-        Limits before any step is known.
+        Limits before ``min_history`` steps are known.
     history : int
         Recent accepted steps the limits and the velocity are taken over.
+    min_history : int
+        Steps needed before the limits follow the recent steps.
     extrapolate : bool
-        Move the start by the recent velocity (mean of the last two steps).
+        Move the start by the recent velocity: the mean displacement per frame over the
+        last ``history`` steps (a drift such as sinking; a diffusive step averages out), once
+        ``min_history`` are known.
     refit_margin_chi2 : float
         The runner-up is fitted on all pixels when its screening is within
         ``ambiguity_chi2 + refit_margin_chi2`` of the best (:func:`fit_frame_warm`).
@@ -133,18 +137,20 @@ class TrackOptions:
     max_step_um: float | None = None
     max_axis_step_rad: float | None = None
     step_factor: float = 5.0
-    min_step_um: float = 0.05
-    min_axis_step_rad: float = math.radians(3.0)
+    min_step_um: float = 0.1
+    min_axis_step_rad: float = math.radians(5.0)
     first_step_um: float = 0.5
     first_axis_step_rad: float = math.radians(20.0)
     history: int = 8
+    min_history: int = 3
     extrapolate: bool = True
     refit_margin_chi2: float = 16.0
     warm: bool = True
 
     def __post_init__(self) -> None:
-        if not (self.step_factor > 0 and self.history >= 1 and self.refit_margin_chi2 >= 0):
-            raise ValueError("tracking: step_factor > 0, history >= 1 and "
+        if not (self.step_factor > 0 and self.history >= self.min_history >= 1
+                and self.refit_margin_chi2 >= 0):
+            raise ValueError("tracking: step_factor > 0, history >= min_history >= 1 and "
                              "refit_margin_chi2 >= 0 needed")
 
 
@@ -157,7 +163,13 @@ class _Accepted:
     runner_up: CarriedRunnerUp | None
     steps_um: list[float]
     steps_rad: list[float]
-    velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    moves: list[NDArray[np.float64]] = field(default_factory=list)
+
+    def velocity(self, min_history: int) -> NDArray[np.float64]:
+        """Mean displacement per frame over the recent steps, um."""
+        if len(self.moves) < min_history:
+            return np.zeros(3)
+        return np.mean(self.moves, axis=0)
 
 
 def state_of(values: dict[str, float], model: ParticleModel) -> State:
@@ -183,13 +195,13 @@ def _limits(acc: _Accepted, opts: TrackOptions, gap: int) -> tuple[float, float]
     grow = math.sqrt(max(gap, 1))
     if opts.max_step_um is not None:
         pos = opts.max_step_um
-    elif acc.steps_um:
+    elif len(acc.steps_um) >= opts.min_history:
         pos = max(opts.min_step_um, opts.step_factor * float(np.median(acc.steps_um)))
     else:
         pos = opts.first_step_um
     if opts.max_axis_step_rad is not None:
         ang = opts.max_axis_step_rad
-    elif acc.steps_rad:
+    elif len(acc.steps_rad) >= opts.min_history:
         ang = max(opts.min_axis_step_rad,
                   opts.step_factor * float(np.median(acc.steps_rad)))
     else:
@@ -228,7 +240,8 @@ class _Fitter:
         gap = f.frame - acc.frame
         state = acc.state
         if self.opts.extrapolate and gap == 1:
-            state = replace(state, position=tuple(np.add(state.position, acc.velocity)))
+            drift = acc.velocity(self.opts.min_history)
+            state = replace(state, position=tuple(np.add(state.position, drift)))
         return fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
                               self.optics, state, self.free, self.opts.frame, seed=f.frame,
                               carried=acc.runner_up if gap == 1 else None,
@@ -255,10 +268,10 @@ def _accept(acc: _Accepted | None, f: ChunkFrame, result: FitResult,
     dist, ang = _step(acc, state, model)
     gap = max(f.frame - acc.frame, 1)
     move = np.subtract(state.position, acc.state.position) / gap
-    velocity = 0.5 * (move + acc.velocity) if gap == 1 else np.zeros(3)
     keep = opts.history
-    return _Accepted(f.frame, state, runner, ([*acc.steps_um, dist / math.sqrt(gap)])[-keep:],
-                     ([*acc.steps_rad, ang / math.sqrt(gap)])[-keep:], velocity)
+    return _Accepted(f.frame, state, runner, [*acc.steps_um, dist / math.sqrt(gap)][-keep:],
+                     [*acc.steps_rad, ang / math.sqrt(gap)][-keep:],
+                     [*acc.moves, move][-keep:])
 
 
 def track_chunk(
