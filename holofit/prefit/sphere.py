@@ -93,7 +93,8 @@ class FitOptions:
         Fit the objective's numerical aperture too (the optics must have one: the start).
     seed_only : bool
         Seed x, y, z and alpha only (a non-spherical particle, whose sizes the DDA fit's
-        initial pass finds): radius and index stay at the radial-profile estimate, the
+        initial pass finds): radius and index stay at the radial-profile table's entry (its
+        least-squares refinement, slow on a profile no sphere explains, is skipped), the
         estimator's starts are compared by one evaluation each on ``screen_pixels`` pixels,
         and position and alpha are fitted on all pixels with at most ``seed_nfev`` residual
         evaluations to the relative cost change ``seed_ftol`` (:func:`fit_sphere_crop`).
@@ -285,7 +286,8 @@ class _CropFit:
         prof = radial_profile(data, self.pix.valid, centre_rc, n_bins)
         starts = estimate_starts(table, prof, fix_alpha=opts.fix_alpha,
                                  index_imag=opts.index_imag, max_starts=opts.max_starts,
-                                 ambiguity_ratio=opts.ambiguity_ratio)
+                                 ambiguity_ratio=opts.ambiguity_ratio,
+                                 refine=not opts.seed_only)
         if not starts:
             raise ValueError("no automatic start found (the radial profile has no minimum)")
         return starts, setup_s
