@@ -19,7 +19,8 @@ chi^2 bar of :func:`holofit.fit.continuity.chi2_bar` over the first 12 frames fi
 independently (their mean time and evaluations are the ``independent`` baseline on the same
 frames and machine); how the frames were obtained; the errors against the truth; frames on a
 wrong branch (axis > 20 deg from the truth) that are ``ok`` and not flagged (``ambiguous`` or
-``track_jump``).
+``track_jump``); the frames the continuity sweeps would still refit
+(:func:`holofit.fit.continuity.suspects`, an upper bound of what they change).
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ from fit_cases import (
 
 from holofit.camera import Camera
 from holofit.conventions import DetectorGrid
-from holofit.fit.continuity import chi2_bar
+from holofit.fit.continuity import ContinuityOptions, chi2_bar, suspects
 from holofit.fit.frame import FrameFitOptions, fit_frame
 from holofit.fit.tracking import ChunkFrame, TrackOptions, track_chunk
 from holofit.fitting.result import result_row
@@ -149,6 +150,9 @@ def run(name: str, n: int) -> dict[str, float]:
     flagged = (tab["status"] != "ok") | (tab["ambiguous"] == 1) | (tab["track_jump"] == 1)
     out[f"track_{name}_wrong_branch_frames"] = float(wrong.sum())
     out[f"track_{name}_wrong_branch_ok_unflagged"] = float((wrong & ~flagged).sum())
+    # what the continuity sweeps would still refit (an upper bound of what they change)
+    out[f"track_{name}_sweep_suspects"] = float(
+        suspects(tab, ContinuityOptions(), model.head_tail_symmetric).sum())
     return out
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from holofit.fit.frame import FrameFitOptions, fit_frame, fit_frame_warm
 from holofit.fit.tracking import TrackOptions, state_of, stitch_chunks, track_chunk
-from tests.tracking_helpers import FINAL, INSTRUMENT, ROD, engine, make_track
+from tests.tracking_helpers import FINAL, INSTRUMENT, JANUS, ROD, engine, make_track
 
 OPTICS = INSTRUMENT.optics
 PX = INSTRUMENT.pixel_size_um
@@ -156,3 +156,19 @@ def test_overlapping_chunks_stitch_and_disagreements_are_reported(theory):
     assert list(bad["frame"]) == [1]
     assert bad.loc[0, "position_diff_um"] == pytest.approx(0.1, abs=0.03)
     assert np.isfinite(bad.loc[0, "chi2_later"])
+
+
+@pytest.mark.slow
+def test_a_janus_track_started_on_its_mirror_has_no_ok_unflagged_wrong_frame():
+    # the Janus mirror (cap toward the camera or the light) is a second minimum: started
+    # there, every frame is either back on the right branch or flagged
+    theory = engine(JANUS)
+    track = make_track(theory, n=6, seed=8, model=JANUS)
+    wrong = {"x_um": track.positions[0][0], "y_um": track.positions[0][1],
+             "z_um": track.positions[0][2] + 0.2, "psi_rad": track.angles[0, 0],
+             "theta_rad": math.pi - track.angles[0, 1], "alpha": 0.9}
+    tab = track_chunk(track.frames, theory, JANUS, OPTICS, PX, FINAL, None, start=wrong)
+    rows = tab.to_dict("records")
+    for k, row in enumerate(rows):
+        assert _right(track, row, k, nm=30.0, deg=3.0) or _flagged(row), (k, row["message"])
+    assert all(_right(track, r, k, nm=30.0, deg=3.0) for k, r in enumerate(rows) if k >= 1)
