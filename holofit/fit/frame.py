@@ -383,8 +383,8 @@ def fit_frame(
             best, runner = _challenge(fit, best, runner, free)
         else:  # screened on a subset: scale to all pixels
             runner = screened[1]
-            runner_rss = runner.solution.rss * fit.pix.size / max(
-                runner.solution.residuals.size, 1)
+            runner_rss = runner.solution.rss * (fit.pix.size / max(
+                runner.solution.residuals.size, 1))
     result = _frame_result(fit, best, runner, len(starts), runner_rss)
     result.time_s = time.perf_counter() - t0
     return result
