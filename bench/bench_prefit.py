@@ -13,7 +13,9 @@ paper's rod (a 0.501, b 1.079 um, n 1.495) through the 60x water set-up with its
 pixel, holograms from the final pass's T-matrix (kept in ``bench/.cache/``, built once),
 8-bit camera noise. Timed: the seed fit (``FitOptions(seed_only=True)``: x, y, z, alpha) and,
 on the same frames, today's full sphere fit (``prefit_rod_frame_full_s``), with their
-evaluations, position errors against the truth and ``ok`` fractions.
+evaluations, position errors against the truth and ``ok`` fractions; and, in the same run,
+the sphere prefit of ``prefit_frame_140px_s`` and ``prefit_frame_lens_140px_s`` (20 frames) as
+``prefit_rod_reference_sphere_*``: the comparison under whatever else the machine runs.
 
 The cost of the objective lens in a fit: ``prefit_frame_140px_s`` is the ideal model (no lens)
 on ideal holograms; ``prefit_frame_lens_140px_s`` the same frames (same particles and noise)
@@ -207,6 +209,10 @@ def bench_prefit_rod() -> dict[str, float]:
         out[f"prefit_rod{label}_xy_rms_nm"] = 1e3 * float(np.sqrt(np.mean(e[:, :2] ** 2)))
         out[f"prefit_rod{label}_z_rms_nm"] = 1e3 * float(np.sqrt(np.mean(e[:, 2] ** 2)))
         out[f"prefit_rod{label}_ok_fraction"] = ok / len(frames)
+    # the sphere's prefit on the same core in the same run (the load of the moment shared)
+    _, out["prefit_rod_reference_sphere_140px_s"], _ = _one_core(
+        inst.with_numerical_aperture(None), 140, 20)
+    _, out["prefit_rod_reference_sphere_lens_140px_s"], _ = _one_core(inst, 140, 20)
     return out
 
 
