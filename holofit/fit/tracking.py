@@ -7,9 +7,11 @@ that fails. Along one track (frames in time order):
 1. A chunk starts with a full library fit (:func:`holofit.fit.frame.fit_frame`: the library's
    starts and the mirror), or from a given fit (``start``).
 2. Frame k is fitted from frame k-1's accepted fit (:func:`holofit.fit.frame.fit_frame_warm`):
-   position extrapolated by the recent velocity (consecutive frames only), orientation, alpha
-   and the static parameters as they are; its runner-up is screened at the mirror (or at the
-   previous runner-up, carried along) and refitted only where it comes close.
+   position moved by the recent drift (the mean displacement per frame over the recent steps;
+   consecutive frames only), orientation, alpha and the static parameters as they are; its
+   mirror runner-up is evaluated where the previous frame's sat (carried along), screened
+   where that comes close or drifts, and fitted on all pixels only where the screening comes
+   close.
 3. The warm fit is accepted when it is ``ok``, its reduced chi^2 is under the movie's bar
    (``chi2_bar``: :func:`holofit.fit.continuity.chi2_bar` of the library fits computes it)
    and its step from the accepted predecessor is smooth: position and axis steps within
