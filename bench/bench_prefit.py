@@ -7,6 +7,16 @@ gives them. The estimator's table is built once per process (timed separately as
 table search, profile refinement, screening of ambiguous starts, the full fit and its
 statistics.
 
+Non-spherical particles (``prefit_rod_*``, issue target ``prefit_rod_frame_s`` <= 0.15): the
+paper's rod (a 0.501, b 1.079 um, n 1.495) through the 60x water set-up with its objective
+(NA 1.2), 20 frames at random orientations, z 8-16 um, the crop stage's centre within half a
+pixel, holograms from the final pass's T-matrix (kept in ``bench/.cache/``, built once),
+8-bit camera noise. Timed: the seed fit (``FitOptions(seed_only=True)``: x, y, z, alpha) and,
+on the same frames, today's full sphere fit (``prefit_rod_frame_full_s``), with their
+evaluations, position errors against the truth and ``ok`` fractions; and, in the same run,
+the sphere prefit of ``prefit_frame_140px_s`` and ``prefit_frame_lens_140px_s`` (20 frames) as
+``prefit_rod_reference_sphere_*``: the comparison under whatever else the machine runs.
+
 The cost of the objective lens in a fit: ``prefit_frame_140px_s`` is the ideal model (no lens)
 on ideal holograms; ``prefit_frame_lens_140px_s`` the same frames (same particles and noise)
 made and fitted through the set-up's objective (NA 1.20, :mod:`holofit.scattering.lens`), and
@@ -18,6 +28,7 @@ made and fitted through the set-up's objective (NA 1.20, :mod:`holofit.scatterin
 from __future__ import annotations
 
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -141,4 +152,69 @@ def bench_prefit_batch() -> dict[str, float]:
     return {"prefit_frames_per_s_2workers": n / wall, "prefit_batch_150_frames_2workers_s": wall}
 
 
-BENCHMARKS = {"prefit_frame": bench_prefit_frame, "prefit_batch": bench_prefit_batch}
+def _rod_frames(n: int = 20, seed: int = 0):
+    """The rod frames of the module docstring: (crop, corner, centre, truth position)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from fit_cases import CASES_SETUP, use_tmatrix
+
+    from holofit.config import load_particle
+    from holofit.fitting.parameters import particle_with, static_values
+    from holofit.scattering.theory import Orientation
+
+    inst_name, part_name, truth, _ = CASES_SETUP["rod"]
+    inst = load_instrument(resolve_config(inst_name, "instruments"))
+    cfg = load_particle(resolve_config(part_name, "particles"))
+    model = particle_with(cfg.model, dict(static_values(truth)))
+    theory = cfg.with_fixed_lattice(inst.optics).theory()
+    cache = Path(__file__).resolve().parent / ".cache"
+    cache.mkdir(exist_ok=True)
+    use_tmatrix(theory, model, inst, cache / "rod_final_tmatrix.npz")
+    px = inst.pixel_size_um
+    rng = np.random.default_rng(seed)
+    cam = Camera(background_counts=120.0)
+    frames = []
+    for _ in range(n):
+        corner = (200, 300)
+        r = corner[0] + 70 - 0.5 + rng.uniform(-0.5, 0.5)
+        c = corner[1] + 70 - 0.5 + rng.uniform(-0.5, 0.5)
+        pos = (c * px, r * px, rng.uniform(8.0, 16.0))
+        o = Orientation(rng.uniform(0, 2 * np.pi), np.arccos(rng.uniform(-1, 1)))
+        wave = theory.solve(model, inst.optics, o)
+        holo = calc_hologram(wave, pos, DetectorGrid((140, 140), px, corner), 0.9)
+        crop = cam.expose(holo, rng) / 120.0
+        centre = ((c + rng.uniform(-0.5, 0.5)) * px, (r + rng.uniform(-0.5, 0.5)) * px)
+        frames.append((crop, corner, centre, pos))
+    return inst, frames
+
+
+def bench_prefit_rod() -> dict[str, float]:
+    inst, frames = _rod_frames()
+    profile_table(inst.optics, inst.pixel_size_um, 69,
+                  FitOptions().search.for_crop(69 * inst.pixel_size_um,
+                                               inst.optics.wavelength_medium_um))
+    out: dict[str, float] = {}
+    for label, opts in (("", FitOptions(seed_only=True)), ("_full", FitOptions())):
+        times, evals, errs, ok = [], [], [], 0
+        for crop, corner, centre, pos in frames:
+            t0 = time.perf_counter()
+            fit = fit_sphere_crop(crop, corner, centre, inst.optics, inst.pixel_size_um, opts)
+            times.append(time.perf_counter() - t0)
+            evals.append(fit.n_eval)
+            errs.append([fit.values[k] - v for k, v in zip(("x_um", "y_um", "z_um"), pos,
+                                                            strict=True)])
+            ok += fit.status == "ok"
+        e = np.asarray(errs)
+        out[f"prefit_rod_frame{label}_s"] = statistics.median(times)
+        out[f"prefit_rod_frame{label}_evaluations"] = float(statistics.median(evals))
+        out[f"prefit_rod{label}_xy_rms_nm"] = 1e3 * float(np.sqrt(np.mean(e[:, :2] ** 2)))
+        out[f"prefit_rod{label}_z_rms_nm"] = 1e3 * float(np.sqrt(np.mean(e[:, 2] ** 2)))
+        out[f"prefit_rod{label}_ok_fraction"] = ok / len(frames)
+    # the sphere's prefit on the same core in the same run (the load of the moment shared)
+    _, out["prefit_rod_reference_sphere_140px_s"], _ = _one_core(
+        inst.with_numerical_aperture(None), 140, 20)
+    _, out["prefit_rod_reference_sphere_lens_140px_s"], _ = _one_core(inst, 140, 20)
+    return out
+
+
+BENCHMARKS = {"prefit_frame": bench_prefit_frame, "prefit_batch": bench_prefit_batch,
+              "prefit_rod": bench_prefit_rod}

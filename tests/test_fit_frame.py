@@ -103,3 +103,29 @@ def test_a_noise_level_difference_is_flagged_ambiguous(engine):
     assert res.extra["n_starts"] == 2
     if not math.isnan(res.extra["delta_chi2"]):
         assert res.extra["ambiguous"] == 1 and res.extra["delta_chi2"] < 9
+
+
+def test_the_fits_of_a_frame_share_their_solved_orientations():
+    # screening, best fit and runner-up of one frame solve each orientation once (the fits
+    # share one cache of solved waves; an empty cache handed over used to start a new one)
+    from tests.tracking_helpers import FINAL as FINAL_PASS
+    from tests.tracking_helpers import INSTRUMENT, make_track
+    from tests.tracking_helpers import ROD as SMALL_ROD
+    from tests.tracking_helpers import engine as tm_engine
+
+    theory = tm_engine()
+    f = make_track(theory, n=1, seed=3).frames[0]
+    keys: list[bytes] = []
+    solve = theory.solve
+
+    def counting(model, optics, orientation=None):
+        keys.append(np.round([orientation.psi, orientation.theta, orientation.phi], 12)
+                    .tobytes())
+        return solve(model, optics, orientation)
+
+    theory.solve = counting
+    res = fit_frame(f.crop, f.corner, INSTRUMENT.pixel_size_um, theory, SMALL_ROD,
+                    INSTRUMENT.optics, f.position_um, f.alpha, f.candidates, FINAL_PASS,
+                    FrameFitOptions(), seed=0)
+    assert res.status == "ok" and res.extra["n_solves"] == len(keys) > 2
+    assert len(set(keys)) == len(keys), "an orientation was solved twice"

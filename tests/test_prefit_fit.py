@@ -132,3 +132,36 @@ def test_too_few_pixels_is_an_error():
     data[:5, :5] = 1.0
     with pytest.raises(ValueError, match="usable pixels"):
         _fit(data)
+
+
+def test_seed_only_places_a_rod_at_a_spheres_cost_with_honest_flags():
+    # a rod's hologram (T-matrix, through a 1.2 NA objective) seeded as a sphere: x, y, z and
+    # alpha in a few dozen evaluations; a crop without a particle is not an ok seed
+    from holofit.prefit.estimate import SearchSpace
+    from holofit.scattering.theory import Orientation
+    from tests.tracking_helpers import INSTRUMENT, ROD, engine
+
+    theory = engine()
+    px = INSTRUMENT.pixel_size_um
+    grid = DetectorGrid((80, 80), px, (10, 20))
+    truth = ((20 + 39.7) * px, (10 + 40.2) * px, 7.0)
+    wave = theory.solve(ROD, INSTRUMENT.optics, Orientation(0.4, 1.1))
+    rng = np.random.default_rng(0)
+    cam = Camera(background_counts=120.0)
+    crop = cam.expose(calc_hologram(wave, truth, grid, 0.9), rng) / 120.0
+    opts = FitOptions(seed_only=True, search=SearchSpace(z_range_um=(3.0, 15.0)))
+    centre = (truth[0] + 0.3 * px, truth[1] - 0.4 * px)
+    res = fit_sphere_crop(crop, grid.corner, centre, INSTRUMENT.optics, px, opts)
+    assert res.status == "ok", res.message
+    assert abs(res.values["x_um"] - truth[0]) < 0.05 and abs(res.values["y_um"] - truth[1]) < 0.05
+    assert abs(res.values["z_um"] - truth[2]) < 0.6
+    assert res.n_eval <= 30
+    full = fit_sphere_crop(crop, grid.corner, centre, INSTRUMENT.optics, px,
+                           FitOptions(search=opts.search))
+    assert full.n_eval > 2 * res.n_eval
+    flat = cam.expose(np.ones((80, 80)), rng) / 120.0  # no particle at all
+    try:
+        empty = fit_sphere_crop(flat, grid.corner, centre, INSTRUMENT.optics, px, opts)
+    except ValueError:
+        return  # no start found: reported as such
+    assert empty.status != "ok"

@@ -23,9 +23,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.cache import LRUCache
 from holofit.conventions import euler_zyz
 from holofit.fitting.aperture import aperture_start
-from holofit.fitting.forward import HologramModel
+from holofit.fitting.forward import HologramModel, InvalidParameters
 from holofit.fitting.leastsq import Solution, solve_least_squares
 from holofit.fitting.parameters import APERTURE, ParameterSpace, State, static_values
 from holofit.fitting.pixels import PixelSelection, select_pixels
@@ -36,13 +37,24 @@ from holofit.models import ParticleModel
 from holofit.optics import Optics
 from holofit.scattering.theory import ScatteringTheory
 
-__all__ = ["RUNNER_UP_COLUMNS", "FrameFitOptions", "fit_frame"]
+__all__ = [
+    "RUNNER_UP_COLUMNS",
+    "CarriedRunnerUp",
+    "FrameFitOptions",
+    "WarmFit",
+    "fit_frame",
+    "fit_frame_warm",
+    "mirror_state",
+]
 
 #: what every DDA fit row records about its starts and its runner-up
 RUNNER_UP_COLUMNS = (
     "n_solves", "n_starts", "start_theta_rad", "start_psi_rad", "library_r2", "chi2_runner_up",
     "delta_chi2", "ambiguous", "runner_up_theta_rad", "runner_up_psi_rad", "runner_up_z_um",
 )
+#: a carried runner-up's bound may exceed its last fitted delta_chi2 by this fraction (plus
+#: the refit margin) before it is screened again (:func:`fit_frame_warm`)
+CARRY_DRIFT = 0.25
 #: two fitted orientations closer than this (rad) are the same basin
 SAME_BASIN_RAD = math.radians(5.0)
 #: ... unless their heights differ by more than this (um)
@@ -150,6 +162,153 @@ class _Branch:
     solution: Solution
 
 
+class _FrameFit:
+    """One crop's pixels, noise and engine, and the fits run on them (counted)."""
+
+    def __init__(self, crop: NDArray, corner_rc: tuple[int, int], pixel_size_um: float,
+                 theory: ScatteringTheory, model: ParticleModel, optics: Optics,
+                 opts: FrameFitOptions, rng: np.random.Generator, free: Sequence[str]) -> None:
+        self.theory, self.model, self.optics, self.opts, self.rng = (
+            theory, model, optics, opts, rng)
+        self.pix = select_pixels(crop, corner_rc, pixel_size_um, saturation=opts.saturation,
+                                 fraction=opts.pixel_fraction, rng=rng, min_pixels=200)
+        self.noise = (opts.noise_sd if opts.noise_sd is not None
+                      else estimate_noise_sd(crop, self.pix.valid))
+        self.statics = static_values(model)
+        self.na_start = aperture_start(optics) if APERTURE.name in free else None
+        self.models: list[HologramModel] = []
+        self.waves: LRUCache | None = None
+        self.n_eval = 0
+
+    def state_at(self, start: Candidate | None, position_um: Sequence[float],
+                 alpha: float) -> State:
+        """The start state of a library candidate at the given placement."""
+        rot = None if start is None else euler_zyz(start.psi, start.theta, start.phi)
+        return State(tuple(position_um), rot, alpha, self.statics,  # type: ignore[arg-type]
+                     self.na_start)
+
+    def run(self, space: ParameterSpace, index: NDArray[np.intp] | None, nfev: int,
+            tol: float) -> Solution:
+        """Fit ``space`` from its start on all pixels (``index`` None) or a subset."""
+        pix = self.pix
+        xs, ys, data = ((pix.xs_um, pix.ys_um, pix.data) if index is None
+                        else (pix.xs_um[index], pix.ys_um[index], pix.data[index]))
+        m = HologramModel(self.theory, space, self.optics, xs, ys,
+                          far_field=self.opts.far_field, waves=self.waves)
+        self.waves = m.waves  # every fit of the crop shares the solved waves
+        self.models.append(m)
+        sol = solve_least_squares(m, data, space.initial_vector(), max_nfev=nfev, ftol=tol,
+                                  xtol=tol)
+        self.n_eval += sol.n_eval
+        return sol
+
+    def evaluate(self, state: State, index: NDArray[np.intp]) -> _Branch:
+        """``state`` evaluated once on the pixels ``index`` (nothing fitted)."""
+        pix = self.pix
+        space = ParameterSpace(self.model, [], state)
+        m = HologramModel(self.theory, space, self.optics, pix.xs_um[index], pix.ys_um[index],
+                          far_field=self.opts.far_field, waves=self.waves)
+        self.models.append(m)
+        try:
+            res = m.hologram_of(state) - pix.data[index]
+        except InvalidParameters:
+            res = np.full(index.size, np.inf)
+        self.n_eval += m.n_holograms
+        rss = float(res @ res)
+        return _Branch(None, space, Solution(np.empty(0), res, np.empty((index.size, 0)), rss,
+                                             m.n_holograms, True, "evaluated"))
+
+    def screen(self, state: State, free: Sequence[str], sub: NDArray[np.intp],
+               start: Candidate | None = None) -> _Branch:
+        """Hold the orientation (one solve), fit position and alpha on the pixels ``sub``."""
+        held = [n for n in ("x_um", "y_um", "z_um", "alpha") if n in free]
+        space = ParameterSpace(self.model, held, state)
+        return _Branch(start, space, self.run(space, sub, self.opts.screen_nfev, 1e-4))
+
+    def refine(self, state: State, free: Sequence[str], start: Candidate | None,
+               statics: tuple | None = None) -> _Branch:
+        """A fit on all pixels from ``state``; with ``statics``, those are held there (the
+        runner-up then differs from the best in placement and orientation only, which is
+        what the ambiguity is)."""
+        names = list(free)
+        if statics is not None:
+            state = replace(state, statics=statics)
+            static_names = {name for name, _ in statics}
+            names = [n for n in free if n not in static_names]
+        space = ParameterSpace(self.model, names, state)
+        return _Branch(start, space, self.run(space, None, self.opts.max_nfev, self.opts.ftol))
+
+    @property
+    def n_solves(self) -> int:
+        return sum(m.n_solves for m in self.models)
+
+
+def _state(branch: _Branch) -> State:
+    return branch.space.state(branch.solution.vector)
+
+
+def _rss(branch: _Branch) -> float:
+    rss = branch.solution.rss
+    return rss if np.isfinite(rss) else np.inf
+
+
+def _library_starts(model: ParticleModel, candidates: Sequence[Candidate],
+                    opts: FrameFitOptions) -> list[Candidate | None]:
+    """The distinct starts of a frame: the best candidates and the mirror of the first."""
+    if not model.anisotropic:
+        return [None]
+    if not candidates:
+        raise ValueError("no starting orientation for an anisotropic particle")
+    ranked = list(candidates[: opts.n_starts])
+    if opts.mirror:
+        ranked.append(mirrored(ranked[0]))
+    return list(_distinct_starts(ranked, model))
+
+
+def _same_basin(a: State, b: State, model: ParticleModel) -> bool:
+    return (_axis_angle(a, b, model.head_tail_symmetric) < SAME_BASIN_RAD
+            and abs(a.position[2] - b.position[2]) < SAME_BASIN_Z_UM)
+
+
+def _challenge(fit: _FrameFit, best: _Branch, runner: _Branch, free: Sequence[str]
+               ) -> tuple[_Branch, _Branch | None]:
+    """Compare the refined runner-up with the best: one minimum (no runner-up), or the better
+    of two (the challenger refitted with every parameter of the pass if it held some)."""
+    if _same_basin(_state(best), _state(runner), fit.model):
+        return best, None  # both starts led to the same minimum: nothing to confuse
+    if runner.solution.rss < best.solution.rss:
+        challenger = (fit.refine(_state(runner), free, runner.start)
+                      if set(runner.space.names) != set(best.space.names) else runner)
+        return challenger, best
+    return best, runner
+
+
+def _frame_result(fit: _FrameFit, best: _Branch, runner: _Branch | None, n_starts: int,
+                  runner_rss: float | None = None) -> FitResult:
+    """The best fit's result with the runner-up columns (``runner_rss``: the runner-up's
+    residual sum of squares on all pixels, if not its own solution's)."""
+    pix, opts, noise = fit.pix, fit.opts, fit.noise
+    result = fit_result(best.space, best.solution, pix.data, noise, opts.quality,
+                        n_solves=fit.n_solves)
+    result.n_eval = fit.n_eval
+    extra: dict[str, float | int] = {c: math.nan for c in RUNNER_UP_COLUMNS}
+    extra.update(n_starts=n_starts, n_masked=pix.n_masked, ambiguous=0,
+                 n_solves=result.n_solves)
+    if best.start is not None:
+        extra.update(start_theta_rad=best.start.theta, start_psi_rad=best.start.psi,
+                     library_r2=best.start.r2)
+    if runner is not None:
+        rss_runner = runner.solution.rss if runner_rss is None else runner_rss
+        delta = (rss_runner - best.solution.rss) / noise**2 if noise > 0 else math.nan
+        rs = _state(runner)
+        psi, theta, _ = rs.angles()
+        extra.update(chi2_runner_up=rss_runner / pix.size, delta_chi2=delta,
+                     ambiguous=int(delta < opts.ambiguity_chi2), runner_up_theta_rad=theta,
+                     runner_up_psi_rad=psi, runner_up_z_um=rs.position[2])
+    result.extra = extra
+    return result
+
+
 def fit_frame(
     crop: NDArray,
     corner_rc: tuple[int, int],
@@ -164,7 +323,7 @@ def fit_frame(
     options: FrameFitOptions | None = None,
     seed: int = 0,
 ) -> FitResult:
-    """Fit the DDA hologram of ``model`` to one crop.
+    """Fit the DDA hologram of ``model`` to one crop from the library's starts.
 
     Parameters
     ----------
@@ -203,113 +362,161 @@ def fit_frame(
     t0 = time.perf_counter()
     opts = options or FrameFitOptions()
     rng = np.random.default_rng(seed)
-    pix = select_pixels(crop, corner_rc, pixel_size_um, saturation=opts.saturation,
-                        fraction=opts.pixel_fraction, rng=rng, min_pixels=200)
-    noise = opts.noise_sd if opts.noise_sd is not None else estimate_noise_sd(crop, pix.valid)
-    statics = static_values(model)
-    na_start = aperture_start(optics) if APERTURE.name in free else None
-    if model.anisotropic:
-        if not candidates:
-            raise ValueError("no starting orientation for an anisotropic particle")
-        ranked = list(candidates[: opts.n_starts])
-        if opts.mirror:
-            ranked.append(mirrored(ranked[0]))
-        starts: list[Candidate | None] = list(_distinct_starts(ranked, model))
-    else:
-        starts = [None]
-
-    def space_for(start: Candidate | State | None, names: Sequence[str]) -> ParameterSpace:
-        if isinstance(start, State):
-            state = start
-        else:
-            rot = None if start is None else euler_zyz(start.psi, start.theta, start.phi)
-            state = State(tuple(position_um), rot, alpha, statics,  # type: ignore[arg-type]
-                          na_start)
-        return ParameterSpace(model, names, state)
-
-    full = HologramModel(theory, space_for(starts[0], free), optics, pix.xs_um, pix.ys_um,
-                         far_field=opts.far_field)
-    models: list[HologramModel] = [full]
-    n_eval = 0
-
-    def run(space: ParameterSpace, index: NDArray[np.intp] | None, nfev: int,
-            tol: float) -> Solution:
-        nonlocal n_eval
-        xs, ys, data = ((pix.xs_um, pix.ys_um, pix.data) if index is None
-                        else (pix.xs_um[index], pix.ys_um[index], pix.data[index]))
-        m = HologramModel(theory, space, optics, xs, ys, far_field=opts.far_field,
-                          waves=full.waves)
-        models.append(m)
-        sol = solve_least_squares(m, data, space.initial_vector(), max_nfev=nfev, ftol=tol,
-                                  xtol=tol)
-        n_eval += sol.n_eval
-        return sol
-
+    fit = _FrameFit(crop, corner_rc, pixel_size_um, theory, model, optics, opts, rng, free)
+    starts = _library_starts(model, candidates, opts)
     # screening: each start's orientation held (one solve each), position and alpha fitted on
     # a pixel subset (no further solves), so that starts compare at their best placement
     screened: list[_Branch] = []
     if len(starts) > 1:
-        sub = _subset(pix, opts.screen_pixels, rng)
-        held = [n for n in ("x_um", "y_um", "z_um", "alpha") if n in free]
-        for s in starts:
-            space = space_for(s, held)
-            screened.append(_Branch(s, space, run(space, sub, opts.screen_nfev, 1e-4)))
-        screened.sort(key=lambda b: b.solution.rss if np.isfinite(b.solution.rss) else np.inf)
-
-    def refine(branch: _Branch | None, statics: tuple | None = None) -> _Branch:
-        start_state = (branch.space.state(branch.solution.vector) if branch is not None
-                       else space_for(starts[0], free).start)
-        names = free
-        if statics is not None:
-            # the runner-up takes the best fit's static parameters and keeps them: the two
-            # then differ in placement and orientation only, which is what the ambiguity is
-            start_state = replace(start_state, statics=statics)
-            static_names = {name for name, _ in statics}
-            names = [n for n in free if n not in static_names]
-        space = space_for(start_state, names)
-        sol = run(space, None, opts.max_nfev, opts.ftol)
-        return _Branch(branch.start if branch is not None else starts[0], space, sol)
-
-    best = refine(screened[0] if screened else None)
+        sub = _subset(fit.pix, opts.screen_pixels, rng)
+        screened = sorted((fit.screen(fit.state_at(s, position_um, alpha), free, sub, s)
+                           for s in starts), key=_rss)
+    first = (_state(screened[0]) if screened
+             else fit.state_at(starts[0], position_um, alpha))
+    best = fit.refine(first, free, screened[0].start if screened else starts[0])
     runner: _Branch | None = None
+    runner_rss = None
     if len(screened) > 1:
-        best_statics = best.space.state(best.solution.vector).statics
-        runner = (refine(screened[1], best_statics) if opts.refine_runner_up
-                  else screened[1])
         if opts.refine_runner_up:
-            a = best.space.state(best.solution.vector)
-            b = runner.space.state(runner.solution.vector)
-            if (_axis_angle(a, b, model.head_tail_symmetric) < SAME_BASIN_RAD
-                    and abs(a.position[2] - b.position[2]) < SAME_BASIN_Z_UM):
-                runner = None  # both starts led to the same minimum: nothing to confuse
-            elif runner.solution.rss < best.solution.rss:
-                # the other branch is better: fit it with every parameter of the pass
-                challenger = refine(runner) if set(runner.space.names) != set(
-                    best.space.names) else runner
-                best, runner = challenger, best
-
-    result = fit_result(best.space, best.solution, pix.data, noise, opts.quality,
-                        n_solves=sum(m.n_solves for m in models))
-    result.n_eval = n_eval
-    extra: dict[str, float | int] = {c: math.nan for c in RUNNER_UP_COLUMNS}
-    extra.update(n_starts=len(starts), n_masked=pix.n_masked, ambiguous=0,
-                 n_solves=result.n_solves)
-    if best.start is not None:
-        extra.update(start_theta_rad=best.start.theta, start_psi_rad=best.start.psi,
-                     library_r2=best.start.r2)
-    if runner is not None:
-        rss_runner = runner.solution.rss
-        if not opts.refine_runner_up:  # screened on a subset: scale to all pixels
-            rss_runner *= pix.size / max(runner.solution.residuals.size, 1)
-        delta = (rss_runner - best.solution.rss) / noise**2 if noise > 0 else math.nan
-        rs = runner.space.state(runner.solution.vector)
-        psi, theta, _ = rs.angles()
-        extra.update(chi2_runner_up=rss_runner / pix.size, delta_chi2=delta,
-                     ambiguous=int(delta < opts.ambiguity_chi2), runner_up_theta_rad=theta,
-                     runner_up_psi_rad=psi, runner_up_z_um=rs.position[2])
-    result.extra = extra
+            runner = fit.refine(_state(screened[1]), free, screened[1].start,
+                                _state(best).statics)
+            best, runner = _challenge(fit, best, runner, free)
+        else:  # screened on a subset: scale to all pixels
+            runner = screened[1]
+            runner_rss = runner.solution.rss * (fit.pix.size / max(
+                runner.solution.residuals.size, 1))
+    result = _frame_result(fit, best, runner, len(starts), runner_rss)
     result.time_s = time.perf_counter() - t0
     return result
+
+
+@dataclass(frozen=True)
+class CarriedRunnerUp:
+    """The mirror runner-up of a frame, as the next frame starts it: its placement relative
+    to the best fit, its alpha and its ``delta_chi2`` when it was last fitted."""
+
+    offset_um: tuple[float, float, float]
+    alpha: float
+    delta_chi2: float
+
+
+@dataclass
+class WarmFit:
+    """A frame fitted from a known state (:func:`fit_frame_warm`).
+
+    Attributes
+    ----------
+    result : FitResult
+        The best fit, with :data:`RUNNER_UP_COLUMNS`, ``n_masked`` and ``runner_up_refit``
+        (2: the runner-up was fitted on all pixels; 1: screened on a subset; 0: evaluated
+        once where it was carried to; its chi^2 is then an upper bound of its minimum's).
+    carried : CarriedRunnerUp or None
+        The mirror runner-up for the next frame.
+    """
+
+    result: FitResult
+    carried: CarriedRunnerUp | None
+
+
+def mirror_state(state: State) -> State:
+    """``state`` with its orientation mirrored through the x-y plane (``theta -> pi - theta``)."""
+    if state.rotation is None:
+        return state
+    psi, theta, phi = state.angles()
+    return replace(state, rotation=euler_zyz(psi, math.pi - theta, phi))
+
+
+def fit_frame_warm(
+    crop: NDArray,
+    corner_rc: tuple[int, int],
+    pixel_size_um: float,
+    theory: ScatteringTheory,
+    model: ParticleModel,
+    optics: Optics,
+    start: State,
+    free: Sequence[str],
+    options: FrameFitOptions | None = None,
+    seed: int = 0,
+    carried: CarriedRunnerUp | None = None,
+    refit_margin_chi2: float = 16.0,
+) -> WarmFit:
+    """Fit one crop from a known state (a neighbouring frame's fit), and find its mirror
+    runner-up without a second full fit where none is needed.
+
+    1. The fit on all pixels from ``start`` (position, orientation, alpha and statics).
+    2. The runner-up (the fit's mirror through the x-y plane, ``theta -> pi - theta``): with
+       ``carried``, evaluated once (one solve) at the mirror placed as the previous frame's
+       runner-up was; its excess chi^2 over the best on ``screen_pixels`` pixels, scaled to
+       all pixels, is an upper bound of ``delta_chi2`` (any point of a basin is at or above
+       its minimum). If that comes within ``ambiguity_chi2 + refit_margin_chi2``, or has
+       drifted up by more than ``refit_margin_chi2`` plus :data:`CARRY_DRIFT` of its value
+       since it was last fitted (the bound would grow loose), or nothing is carried, the
+       mirror is screened (orientation held, position and alpha fitted on the
+       subset, one solve).
+    3. Where the screening's ``delta_chi2`` is within ``ambiguity_chi2 + refit_margin_chi2``
+       the runner-up is fitted on all pixels (and replaces the best if lower, as in
+       :func:`fit_frame`); otherwise the frame is decisive and the bound is reported.
+
+    Parameters are those of :func:`fit_frame`, with ``start`` (a :class:`State`) in place of
+    the placement and candidates; ``options.mirror`` False skips steps 2-3.
+
+    Returns
+    -------
+    WarmFit
+    """
+    t0 = time.perf_counter()
+    opts = options or FrameFitOptions()
+    rng = np.random.default_rng(seed)
+    fit = _FrameFit(crop, corner_rc, pixel_size_um, theory, model, optics, opts, rng, free)
+    if fit.na_start is not None and start.numerical_aperture is None:
+        start = replace(start, numerical_aperture=fit.na_start)
+    best = fit.refine(start, free, None)
+    runner: _Branch | None = None
+    runner_rss = None
+    how = -1
+    if model.anisotropic and opts.mirror and np.isfinite(best.solution.rss):
+        runner, runner_rss, how = _warm_runner_up(fit, best, free, carried, refit_margin_chi2)
+        if how == 2:
+            best, runner = _challenge(fit, best, runner, free)
+            runner_rss = None
+    result = _frame_result(fit, best, runner, 1 + int(runner is not None), runner_rss)
+    result.extra["runner_up_refit"] = how
+    result.time_s = time.perf_counter() - t0
+    return WarmFit(result, _carry(best, runner, result))
+
+
+def _carry(best: _Branch, runner: _Branch | None, result: FitResult) -> CarriedRunnerUp | None:
+    if runner is None or not np.isfinite(result.extra["delta_chi2"]):
+        return None
+    b, r = _state(best), _state(runner)
+    offset = tuple(float(v) for v in np.subtract(r.position, b.position))
+    return CarriedRunnerUp(offset, r.alpha, float(result.extra["delta_chi2"]))  # type: ignore
+
+
+def _warm_runner_up(fit: _FrameFit, best: _Branch, free: Sequence[str],
+                    carried: CarriedRunnerUp | None, margin: float
+                    ) -> tuple[_Branch, float, int]:
+    """Steps 2-3 of :func:`fit_frame_warm`: the runner-up branch, its rss on all pixels (the
+    screening's or the evaluation's excess, scaled), and how it was found (2, 1, 0)."""
+    best_state = _state(best)
+    sub = _subset(fit.pix, fit.opts.screen_pixels, fit.rng)
+    scale = fit.pix.size / max(sub.size, 1)
+    best_sub = float(np.sum(best.solution.residuals[sub] ** 2))
+    noise2 = fit.noise**2 if fit.noise > 0 else math.nan
+    bar = fit.opts.ambiguity_chi2 + margin
+    mirror = mirror_state(best_state)
+    if carried is not None:
+        guess = replace(mirror, position=tuple(np.add(best_state.position, carried.offset_um)),
+                        alpha=carried.alpha)
+        once = fit.evaluate(guess, sub)
+        delta = (once.solution.rss - best_sub) * scale / noise2
+        if delta >= bar and delta <= (1 + CARRY_DRIFT) * carried.delta_chi2 + margin:
+            return once, best.solution.rss + delta * noise2, 0
+    screened = fit.screen(mirror, free, sub)
+    delta = (float(screened.solution.rss) - best_sub) * scale / noise2
+    if not delta >= bar:  # close (or unknown): fit it on all pixels
+        return fit.refine(_state(screened), free, None, best_state.statics), math.nan, 2
+    return screened, best.solution.rss + delta * noise2, 1
 
 
 def _subset(pix: PixelSelection, n: int, rng: np.random.Generator) -> NDArray[np.intp]:

@@ -30,8 +30,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.fitting.aperture import aperture_start
-from holofit.fitting.forward import HologramModel
-from holofit.fitting.leastsq import solve_least_squares
+from holofit.fitting.forward import HologramModel, InvalidParameters
+from holofit.fitting.leastsq import Solution, solve_least_squares
 from holofit.fitting.parameters import ParameterSpace, State
 from holofit.fitting.pixels import select_pixels
 from holofit.fitting.result import FitResult, QualityLimits, fit_result
@@ -91,6 +91,17 @@ class FitOptions:
         also end inside the search space (with 5 % margin).
     fit_na : bool
         Fit the objective's numerical aperture too (the optics must have one: the start).
+    seed_only : bool
+        Seed x, y, z and alpha only (a non-spherical particle, whose sizes the DDA fit's
+        initial pass finds): radius and index stay at the radial-profile table's entry (its
+        least-squares refinement, slow on a profile no sphere explains, is skipped), the
+        estimator's starts are compared by one evaluation each on ``screen_pixels`` pixels,
+        and position and alpha are fitted on all pixels with at most ``seed_nfev`` residual
+        evaluations to the relative cost change ``seed_ftol`` (:func:`fit_sphere_crop`).
+    seed_nfev : int
+        Most residual evaluations of a seed fit (each adds a Jacobian of 3 more).
+    seed_ftol : float
+        Convergence tolerance of a seed fit.
     """
 
     fix_alpha: float | None = None
@@ -107,6 +118,9 @@ class FitOptions:
     xtol: float = 1e-8
     quality: QualityLimits = field(default_factory=QualityLimits)
     fit_na: bool = False
+    seed_only: bool = False
+    seed_nfev: int = 8
+    seed_ftol: float = 1e-3
 
     def __post_init__(self) -> None:
         if not 0 < self.pixel_fraction <= 1:
@@ -119,6 +133,10 @@ class FitOptions:
             raise ValueError(f"noise_sd must be positive, got {self.noise_sd}")
         if self.max_starts < 1 or self.max_nfev < 1 or self.screen_pixels < 10:
             raise ValueError("max_starts, max_nfev and screen_pixels must be positive")
+        if self.seed_nfev < 1 or not self.seed_ftol > 0:
+            raise ValueError("seed_nfev must be >= 1 and seed_ftol > 0")
+        if self.seed_only and self.fit_na:
+            raise ValueError("seed_only fits no numerical aperture (fit_na)")
 
 
 def _limits(opts: FitOptions, n_medium: float) -> QualityLimits:
@@ -183,7 +201,7 @@ def fit_sphere_crop(
     pixel_size_um : float
         Pixel pitch in the sample plane, um.
     options : FitOptions, optional
-        Fit settings.
+        Fit settings (``seed_only``: the short seed fit of a non-spherical particle).
     seed : int
         Seed of the random pixel subsets (use the frame number for reproducible batches).
 
@@ -204,96 +222,146 @@ def fit_sphere_crop(
     """
     t0 = time.perf_counter()
     opts = options or FitOptions()
-    lens = optics.numerical_aperture is not None
-    opts.search.check_heights(lens)
-    na_start = aperture_start(optics) if opts.fit_na else None
-    data = np.asarray(crop, dtype=float)
-    n_free = 6 - (opts.fix_alpha is not None) + opts.fit_na
+    opts.search.check_heights(optics.numerical_aperture is not None)
     rng = np.random.default_rng(seed)
-    pix = select_pixels(
-        data,
-        corner_rc,
-        pixel_size_um,
-        saturation=opts.saturation,
-        fraction=opts.pixel_fraction,
-        rng=rng,
-        min_pixels=max(100, 10 * n_free),
-    )
-    d = pix.data
-
-    # automatic start: radial profile about the crop stage's centre
-    xc, yc = (float(v) for v in centre_xy_um)
-    centre_rc = (yc / pixel_size_um - corner_rc[0], xc / pixel_size_um - corner_rc[1])
-    n_bins = min(data.shape) // 2 - 1
-    search = opts.search.for_crop(n_bins * pixel_size_um, optics.wavelength_medium_um)
-    t_setup = time.perf_counter()
-    table = profile_table(optics, float(pixel_size_um), n_bins, search)
-    setup_s = time.perf_counter() - t_setup
-    prof = radial_profile(data, pix.valid, centre_rc, n_bins)
-    starts = estimate_starts(
-        table,
-        prof,
-        fix_alpha=opts.fix_alpha,
-        index_imag=opts.index_imag,
-        max_starts=opts.max_starts,
-        ambiguity_ratio=opts.ambiguity_ratio,
-    )
-    if not starts:
-        raise ValueError("no automatic start found (the radial profile has no minimum)")
-
-    # the candidates are screened at the start NA; the full fit varies it if asked
-    screen_free = ("x_um", "y_um", "z_um", "radius_um", "n") + (
-        ("alpha",) if opts.fix_alpha is None else ())
-    free = screen_free + (("numerical_aperture",) if opts.fit_na else ())
-    theory = LorenzMie()
-
-    def space_from(s: ProfileStart, names: tuple[str, ...] = screen_free) -> ParameterSpace:
-        alpha = s.alpha if opts.fix_alpha is None else opts.fix_alpha
-        sphere = Sphere(s.radius_um, complex(s.index, opts.index_imag))
-        state = State((xc, yc, s.z_um), None, alpha,
-                      (("radius_um", s.radius_um), ("n", s.index)), na_start)
-        return ParameterSpace(sphere, names, state, step_overrides=EXACT_STEPS)
-
-    n_eval = 0
-    chosen = starts[0]
-    space = space_from(chosen)
-    vector = space.initial_vector()
-    if len(starts) > 1:
-        # screen the candidates on a random subset, keep the best
-        m = min(opts.screen_pixels, d.size)
-        sub = np.sort(rng.choice(d.size, size=m, replace=False))
-        best_cost = np.inf
-        for s in starts:
-            cand = space_from(s)
-            model = HologramModel(theory, cand, optics, pix.xs_um[sub], pix.ys_um[sub])
-            sol = solve_least_squares(model, d[sub], cand.initial_vector(), max_nfev=40,
-                                      ftol=1e-6, xtol=1e-6)
-            n_eval += sol.n_eval
-            if np.isfinite(sol.rss) and sol.rss < best_cost:
-                best_cost, chosen, space, vector = sol.rss, s, cand, sol.vector
-    if opts.fit_na:  # the screened state, the aperture free (holofit.fitting.leastsq)
-        space = ParameterSpace(space.model, free, space.state(vector),
-                               step_overrides=EXACT_STEPS)
-        vector = space.initial_vector()
-    model = HologramModel(theory, space, optics, pix.xs_um, pix.ys_um)
-    sol = solve_least_squares(model, d, vector, max_nfev=opts.max_nfev, ftol=opts.ftol,
-                              xtol=opts.xtol)
-    sol.n_eval += n_eval
-    noise = opts.noise_sd if opts.noise_sd is not None else estimate_noise_sd(data, pix.valid)
-    result = fit_result(space, sol, d, noise, _limits(opts, optics.n_medium))
+    crop_fit = _CropFit(crop, corner_rc, centre_xy_um, optics, pixel_size_um, opts, rng)
+    if opts.seed_only:
+        space, sol, chosen = crop_fit.seed()
+    else:
+        space, sol, chosen = crop_fit.full()
+    data = crop_fit.data
+    noise = opts.noise_sd if opts.noise_sd is not None else estimate_noise_sd(
+        data, crop_fit.pix.valid)
+    result = fit_result(space, sol, crop_fit.pix.data, noise, _limits(opts, optics.n_medium))
     if result.ok:
         why = _crop_too_small(result.values, data.shape, corner_rc, pixel_size_um,
                               optics.wavelength_medium_um)
         if why:
             result.status, result.message = POOR_FIT, why
     result.extra = {
-        "n_starts": len(starts),
+        "n_starts": len(crop_fit.starts),
         "start_z_um": chosen.z_um,
         "start_radius_um": chosen.radius_um,
         "start_n": chosen.index,
         "start_alpha": chosen.alpha,
-        "n_masked": pix.n_masked,
-        "setup_time_s": setup_s,
+        "n_masked": crop_fit.pix.n_masked,
+        "setup_time_s": crop_fit.setup_s,
     }
-    result.time_s = time.perf_counter() - t0 - setup_s
+    result.time_s = time.perf_counter() - t0 - crop_fit.setup_s
     return result
+
+
+class _CropFit:
+    """One crop's pixels, its automatic starts, and the fits from them."""
+
+    def __init__(self, crop: NDArray, corner_rc: tuple[int, int],
+                 centre_xy_um: tuple[float, float], optics: Optics, pixel_size_um: float,
+                 opts: FitOptions, rng: np.random.Generator) -> None:
+        self.optics, self.opts, self.rng = optics, opts, rng
+        self.na_start = aperture_start(optics) if opts.fit_na else None
+        self.data = np.asarray(crop, dtype=float)
+        n_free = 6 - (opts.fix_alpha is not None) + opts.fit_na
+        self.pix = select_pixels(self.data, corner_rc, pixel_size_um,
+                                 saturation=opts.saturation, fraction=opts.pixel_fraction,
+                                 rng=rng, min_pixels=max(100, 10 * n_free))
+        self.xc, self.yc = (float(v) for v in centre_xy_um)
+        self.starts, self.setup_s = self._automatic_starts(corner_rc, pixel_size_um)
+        self.screen_free = ("x_um", "y_um", "z_um", "radius_um", "n") + (
+            ("alpha",) if opts.fix_alpha is None else ())
+        self.theory = LorenzMie()
+
+    def _automatic_starts(self, corner_rc: tuple[int, int], pixel_size_um: float
+                          ) -> tuple[list[ProfileStart], float]:
+        """The radial-profile estimator's starts about the crop stage's centre, and the
+        seconds its table took (one-time set-up)."""
+        opts, data = self.opts, self.data
+        centre_rc = (self.yc / pixel_size_um - corner_rc[0],
+                     self.xc / pixel_size_um - corner_rc[1])
+        n_bins = min(data.shape) // 2 - 1
+        search = opts.search.for_crop(n_bins * pixel_size_um,
+                                      self.optics.wavelength_medium_um)
+        t_setup = time.perf_counter()
+        table = profile_table(self.optics, float(pixel_size_um), n_bins, search)
+        setup_s = time.perf_counter() - t_setup
+        prof = radial_profile(data, self.pix.valid, centre_rc, n_bins)
+        starts = estimate_starts(table, prof, fix_alpha=opts.fix_alpha,
+                                 index_imag=opts.index_imag, max_starts=opts.max_starts,
+                                 ambiguity_ratio=opts.ambiguity_ratio,
+                                 refine=not opts.seed_only)
+        if not starts:
+            raise ValueError("no automatic start found (the radial profile has no minimum)")
+        return starts, setup_s
+
+    def space_from(self, s: ProfileStart, names: tuple[str, ...]) -> ParameterSpace:
+        opts = self.opts
+        alpha = s.alpha if opts.fix_alpha is None else opts.fix_alpha
+        sphere = Sphere(s.radius_um, complex(s.index, opts.index_imag))
+        state = State((self.xc, self.yc, s.z_um), None, alpha,
+                      (("radius_um", s.radius_um), ("n", s.index)), self.na_start)
+        return ParameterSpace(sphere, names, state, step_overrides=EXACT_STEPS)
+
+    def _subset(self) -> NDArray[np.intp]:
+        d = self.pix.data
+        m = min(self.opts.screen_pixels, d.size)
+        return np.sort(self.rng.choice(d.size, size=m, replace=False))
+
+    def _model(self, space: ParameterSpace, index: NDArray[np.intp] | None = None
+               ) -> HologramModel:
+        pix = self.pix
+        xs, ys = (pix.xs_um, pix.ys_um) if index is None else (pix.xs_um[index],
+                                                               pix.ys_um[index])
+        return HologramModel(self.theory, space, self.optics, xs, ys)
+
+    def full(self) -> tuple[ParameterSpace, Solution, ProfileStart]:
+        """Every start screened on a subset (if several), the best fitted on all pixels."""
+        opts, d = self.opts, self.pix.data
+        n_eval = 0
+        chosen = self.starts[0]
+        space = self.space_from(chosen, self.screen_free)
+        vector = space.initial_vector()
+        if len(self.starts) > 1:
+            sub = self._subset()
+            best_cost = np.inf
+            for s in self.starts:
+                cand = self.space_from(s, self.screen_free)
+                sol = solve_least_squares(self._model(cand, sub), d[sub],
+                                          cand.initial_vector(), max_nfev=40, ftol=1e-6,
+                                          xtol=1e-6)
+                n_eval += sol.n_eval
+                if np.isfinite(sol.rss) and sol.rss < best_cost:
+                    best_cost, chosen, space, vector = sol.rss, s, cand, sol.vector
+        if opts.fit_na:  # the screened state, the aperture free (holofit.fitting.leastsq)
+            free = (*self.screen_free, "numerical_aperture")
+            space = ParameterSpace(space.model, free, space.state(vector),
+                                   step_overrides=EXACT_STEPS)
+            vector = space.initial_vector()
+        sol = solve_least_squares(self._model(space), d, vector, max_nfev=opts.max_nfev,
+                                  ftol=opts.ftol, xtol=opts.xtol)
+        sol.n_eval += n_eval
+        return space, sol, chosen
+
+    def seed(self) -> tuple[ParameterSpace, Solution, ProfileStart]:
+        """``seed_only``: position and alpha fitted briefly from the best start (each start
+        evaluated once on a subset), radius and index held at the estimate."""
+        opts, d = self.opts, self.pix.data
+        names = tuple(n for n in self.screen_free if n not in ("radius_um", "n"))
+        n_eval = 0
+        chosen = self.starts[0]
+        if len(self.starts) > 1:
+            sub = self._subset()
+            costs = []
+            for s in self.starts:
+                model = self._model(self.space_from(s, names), sub)
+                try:
+                    r = model.hologram(model.space.initial_vector()) - d[sub]
+                    costs.append(float(r @ r))
+                except InvalidParameters:
+                    costs.append(np.inf)
+                n_eval += model.n_holograms
+            chosen = self.starts[int(np.argmin(costs))]
+        space = self.space_from(chosen, names)
+        sol = solve_least_squares(self._model(space), d, space.initial_vector(),
+                                  max_nfev=opts.seed_nfev, ftol=opts.seed_ftol,
+                                  xtol=opts.seed_ftol)
+        sol.n_eval += n_eval
+        return space, sol, chosen

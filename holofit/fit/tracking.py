@@ -1,0 +1,433 @@
+"""The tracking final pass: each frame of a track fitted from its predecessor's fit.
+
+Between frames a particle moves little (the paper's rod: ~4 deg and ~80 nm), so the previous
+frame's fit is a start inside the right basin and the library's starts are needed only where
+that fails. Along one track (frames in time order):
+
+1. A chunk starts with a full library fit (:func:`holofit.fit.frame.fit_frame`: the library's
+   starts and the mirror), or from a given fit (``start``).
+2. Frame k is fitted from frame k-1's accepted fit (:func:`holofit.fit.frame.fit_frame_warm`):
+   position moved by the recent drift (the mean displacement per frame over the recent steps;
+   consecutive frames only), orientation, alpha and the static parameters as they are; its
+   mirror runner-up is evaluated where the previous frame's sat (carried along), screened
+   where that comes close or drifts, and fitted on all pixels only where the screening comes
+   close.
+3. The warm fit is accepted when it is ``ok``, its reduced chi^2 is under the movie's bar
+   (``chi2_bar``: :func:`holofit.fit.continuity.chi2_bar` of the library fits computes it)
+   and its step from the accepted predecessor is smooth: position and axis steps within
+   limits, given (e.g. a few times the diffusion scale ``sqrt(2 D dt)``) or else
+   ``step_factor`` times the median of the recent accepted steps (never below the floors).
+4. A frame that fails is re-acquired: fitted from the library's starts and the mirror as an
+   independent frame; the better of the two fits (lower chi^2) is kept. A re-acquired frame
+   that is still above the bar becomes ``poor_fit``; one whose step is not smooth keeps its
+   status but is flagged (``track_jump`` 1 and a message), never silently ``ok``.
+
+Chunks of one track overlap by a few frames; :func:`stitch_chunks` joins them and reports where
+the overlaps disagree (position or axis beyond tolerance).
+
+Each row has the fit table's columns (:func:`holofit.fitting.result.result_row`, with
+:data:`holofit.fit.frame.RUNNER_UP_COLUMNS`) and :data:`TRACK_COLUMNS`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from holofit.conventions import euler_zyz
+from holofit.fit.frame import (
+    CarriedRunnerUp,
+    FrameFitOptions,
+    WarmFit,
+    fit_frame,
+    fit_frame_warm,
+)
+from holofit.fitting.parameters import State, static_values
+from holofit.fitting.result import FitResult, result_row
+from holofit.library.search import Candidate
+from holofit.models import ParticleModel
+from holofit.optics import Optics
+from holofit.scattering.theory import ScatteringTheory
+from holofit.status import OK, POOR_FIT
+
+__all__ = [
+    "TRACK_COLUMNS",
+    "ChunkFrame",
+    "TrackOptions",
+    "stitch_chunks",
+    "track_chunk",
+]
+
+#: what a tracked row adds to the fit table's columns: how the frame was obtained
+#: (``library``: a chunk's first frame; ``warm``; ``reacquired``), whether its step from the
+#: accepted predecessor broke the smoothness limits, whether the runner-up was refitted, and
+#: the step itself (um, rad)
+TRACK_COLUMNS = ("track_source", "track_jump", "runner_up_refit", "track_step_um",
+                 "track_step_axis_rad")
+
+
+@dataclass(frozen=True)
+class ChunkFrame:
+    """One frame of a track, as the fit stage has it.
+
+    Attributes
+    ----------
+    frame : int
+        Frame index in the movie (gaps mean dropped frames).
+    crop : ndarray
+        Normalised hologram crop.
+    corner : tuple of int
+        Full-frame ``(row, column)`` of the crop's pixel ``[0, 0]``.
+    position_um : tuple of float
+        The prefit's ``(x, y, z)``, um (re-acquisition's start).
+    alpha : float
+        The prefit's alpha.
+    candidates : tuple of Candidate
+        The library's orientations for this frame, best first.
+    time_s : float
+        Time of the frame, s (NaN: unknown).
+    """
+
+    frame: int
+    crop: NDArray
+    corner: tuple[int, int]
+    position_um: tuple[float, float, float]
+    alpha: float
+    candidates: tuple[Candidate, ...]
+    time_s: float = math.nan
+
+
+@dataclass(frozen=True)
+class TrackOptions:
+    """How a track is followed.
+
+    Attributes
+    ----------
+    frame : FrameFitOptions
+        Each fit's settings (warm fits, library fits and re-acquisitions alike).
+    max_step_um, max_axis_step_rad : float, optional
+        Largest smooth step between consecutive frames (position, um; axis, rad), e.g. a few
+        times the diffusion scale ``sqrt(2 D dt)``; None: from the recent steps.
+    step_factor : float
+        Without given limits: the limit is this many times the median of the recent steps.
+    min_step_um, min_axis_step_rad : float
+        Floors of the limits from the recent steps (noise alone moves a fit by some nm).
+    first_step_um, first_axis_step_rad : float
+        Limits before ``min_history`` steps are known.
+    history : int
+        Recent accepted steps the limits and the velocity are taken over.
+    min_history : int
+        Steps needed before the limits follow the recent steps.
+    extrapolate : bool
+        Move the start by the recent velocity: the mean displacement per frame over the
+        last ``history`` steps (a drift such as sinking; a diffusive step averages out), once
+        ``min_history`` are known.
+    refit_margin_chi2 : float
+        The runner-up is fitted on all pixels when its screening is within
+        ``ambiguity_chi2 + refit_margin_chi2`` of the best (:func:`fit_frame_warm`).
+    warm : bool
+        False: every frame is an independent library fit (``--no-tracking``).
+    """
+
+    frame: FrameFitOptions = field(default_factory=FrameFitOptions)
+    max_step_um: float | None = None
+    max_axis_step_rad: float | None = None
+    step_factor: float = 5.0
+    min_step_um: float = 0.1
+    min_axis_step_rad: float = math.radians(5.0)
+    first_step_um: float = 0.5
+    first_axis_step_rad: float = math.radians(20.0)
+    history: int = 8
+    min_history: int = 3
+    extrapolate: bool = True
+    refit_margin_chi2: float = 16.0
+    warm: bool = True
+
+    def __post_init__(self) -> None:
+        if not (self.step_factor > 0 and self.history >= self.min_history >= 1
+                and self.refit_margin_chi2 >= 0):
+            raise ValueError("tracking: step_factor > 0, history >= min_history >= 1 and "
+                             "refit_margin_chi2 >= 0 needed")
+
+
+@dataclass
+class _Accepted:
+    """The last accepted fit of a track and what the next frame starts from."""
+
+    frame: int
+    state: State
+    runner_up: CarriedRunnerUp | None
+    steps_um: list[float]
+    steps_rad: list[float]
+    moves: list[NDArray[np.float64]] = field(default_factory=list)
+
+    def velocity(self, min_history: int) -> NDArray[np.float64]:
+        """Mean displacement per frame over the recent steps, um."""
+        if len(self.moves) < min_history:
+            return np.zeros(3)
+        return np.mean(self.moves, axis=0)
+
+
+def state_of(values: dict[str, float], model: ParticleModel) -> State:
+    """The :class:`State` of a fit's values (position, orientation, alpha, statics)."""
+    pos = (float(values["x_um"]), float(values["y_um"]), float(values["z_um"]))
+    rot = None
+    if model.anisotropic:
+        rot = euler_zyz(float(values["psi_rad"]), float(values["theta_rad"]),
+                        float(values.get("phi_rad", 0.0)))
+    statics = tuple((name, float(values.get(name, v))) for name, v in static_values(model))
+    return State(pos, rot, float(values["alpha"]), statics)
+
+
+def _axis_step(a: State, b: State, head_tail: bool) -> float:
+    if a.rotation is None or b.rotation is None:
+        return 0.0
+    c = float(np.dot(a.rotation[:, 2], b.rotation[:, 2]))
+    return math.acos(min(1.0, abs(c) if head_tail else max(-1.0, c)))
+
+
+def _limits(acc: _Accepted, opts: TrackOptions, gap: int) -> tuple[float, float]:
+    """Largest smooth position and axis steps over ``gap`` frames (diffusive: sqrt(gap))."""
+    grow = math.sqrt(max(gap, 1))
+    if opts.max_step_um is not None:
+        pos = opts.max_step_um
+    elif len(acc.steps_um) >= opts.min_history:
+        pos = max(opts.min_step_um, opts.step_factor * float(np.median(acc.steps_um)))
+    else:
+        pos = opts.first_step_um
+    if opts.max_axis_step_rad is not None:
+        ang = opts.max_axis_step_rad
+    elif len(acc.steps_rad) >= opts.min_history:
+        ang = max(opts.min_axis_step_rad,
+                  opts.step_factor * float(np.median(acc.steps_rad)))
+    else:
+        ang = opts.first_axis_step_rad
+    return pos * grow, ang * grow
+
+
+def _step(acc: _Accepted, state: State, model: ParticleModel) -> tuple[float, float]:
+    d = np.subtract(state.position, acc.state.position)
+    return float(np.linalg.norm(d)), _axis_step(acc.state, state, model.head_tail_symmetric)
+
+
+def _under_bar(result: FitResult, chi2_bar: float | None) -> bool:
+    if result.status != OK:
+        return False
+    return chi2_bar is None or not math.isfinite(chi2_bar) or result.chi2_red <= chi2_bar
+
+
+@dataclass
+class _Fitter:
+    """What every fit of a chunk shares."""
+
+    theory: ScatteringTheory
+    model: ParticleModel
+    optics: Optics
+    pixel_size_um: float
+    free: tuple[str, ...]
+    opts: TrackOptions
+
+    def library(self, f: ChunkFrame) -> FitResult:
+        return fit_frame(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
+                         self.optics, f.position_um, f.alpha, f.candidates, self.free,
+                         self.opts.frame, seed=f.frame)
+
+    def warm(self, f: ChunkFrame, acc: _Accepted) -> WarmFit:
+        gap = f.frame - acc.frame
+        state = acc.state
+        if self.opts.extrapolate and gap == 1:
+            drift = acc.velocity(self.opts.min_history)
+            state = replace(state, position=tuple(np.add(state.position, drift)))
+        return fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
+                              self.optics, state, self.free, self.opts.frame, seed=f.frame,
+                              carried=acc.runner_up if gap == 1 else None,
+                              refit_margin_chi2=self.opts.refit_margin_chi2)
+
+
+def _row(f: ChunkFrame, result: FitResult, source: str, jump: bool, step: tuple[float, float],
+         n_eval: int) -> dict[str, Any]:
+    result.n_eval = n_eval
+    row = result_row(f.frame, f.time_s, result)
+    row.update(track_source=source, track_jump=int(jump), track_step_um=step[0],
+               track_step_axis_rad=step[1])
+    row.setdefault("runner_up_refit", 2 if result.extra.get("n_starts", 1) > 1 else -1)
+    return row
+
+
+def _accept(acc: _Accepted | None, f: ChunkFrame, result: FitResult,
+            runner: CarriedRunnerUp | None,
+            model: ParticleModel, opts: TrackOptions) -> _Accepted:
+    """The track's state after accepting ``result`` for frame ``f``."""
+    state = state_of(result.values, model)
+    if acc is None:
+        return _Accepted(f.frame, state, runner, [], [])
+    dist, ang = _step(acc, state, model)
+    gap = max(f.frame - acc.frame, 1)
+    move = np.subtract(state.position, acc.state.position) / gap
+    keep = opts.history
+    return _Accepted(f.frame, state, runner, [*acc.steps_um, dist / math.sqrt(gap)][-keep:],
+                     [*acc.steps_rad, ang / math.sqrt(gap)][-keep:],
+                     [*acc.moves, move][-keep:])
+
+
+def track_chunk(
+    frames: Sequence[ChunkFrame],
+    theory: ScatteringTheory,
+    model: ParticleModel,
+    optics: Optics,
+    pixel_size_um: float,
+    free: Sequence[str],
+    chi2_bar: float | None,
+    options: TrackOptions | None = None,
+    start: dict[str, float] | None = None,
+) -> pd.DataFrame:
+    """Fit the frames of one chunk of a track, each from its predecessor (module docstring).
+
+    Parameters
+    ----------
+    frames : sequence of ChunkFrame
+        The chunk's frames in time order.
+    theory, model, optics, pixel_size_um, free
+        As for :func:`holofit.fit.frame.fit_frame` (the final pass: statics fixed).
+    chi2_bar : float or None
+        The movie's bar on the reduced chi^2 (None or NaN: only the fit's status counts).
+    options : TrackOptions, optional
+        Settings.
+    start : dict, optional
+        A fit's values (``x_um, y_um, z_um, theta_rad, psi_rad[, phi_rad], alpha``) the first
+        frame starts from warm; None: the first frame is a library fit.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per frame: the fit table's columns and :data:`TRACK_COLUMNS`.
+    """
+    opts = options or TrackOptions()
+    fitter = _Fitter(theory, model, optics, pixel_size_um, tuple(free), opts)
+    acc: _Accepted | None = None
+    if start is not None and frames:
+        acc = _Accepted(frames[0].frame - 1, state_of(start, model), None, [], [])
+    rows = []
+    for f in frames:
+        row, acc = _track_frame(fitter, f, acc, chi2_bar)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar: float | None
+                 ) -> tuple[dict[str, Any], _Accepted | None]:
+    """One frame: warm fit, checks, re-acquisition; the row and the track's new state."""
+    model, opts = fitter.model, fitter.opts
+    nan2 = (math.nan, math.nan)
+    if acc is None or not opts.warm:  # a chunk's first frame: the library's starts
+        res = fitter.library(f)
+        good = _under_bar(res, chi2_bar)
+        _flag_above_bar(res, good, chi2_bar)
+        new = _accept(None, f, res, None, model, opts) if good or res.status == OK else None
+        return _row(f, res, "library", False, nan2, res.n_eval), new
+    warm = fitter.warm(f, acc)
+    res = warm.result
+    step = _step(acc, state_of(res.values, model), model)
+    lim = _limits(acc, opts, f.frame - acc.frame)
+    smooth = step[0] <= lim[0] and step[1] <= lim[1]
+    if _under_bar(res, chi2_bar) and smooth:
+        return (_row(f, res, "warm", False, step, res.n_eval),
+                _accept(acc, f, res, warm.carried, model, opts))
+    # re-acquisition: the frame as an independent one; the better fit kept
+    again = fitter.library(f)
+    n_eval = res.n_eval + again.n_eval
+    runner = warm.carried
+    if not res.chi2 <= again.chi2:
+        res, runner = again, None
+    step = _step(acc, state_of(res.values, model), model)
+    smooth = step[0] <= lim[0] and step[1] <= lim[1]
+    good = _under_bar(res, chi2_bar)
+    _flag_above_bar(res, good, chi2_bar)
+    if good and not smooth:
+        res.message = _join(res.message, f"jump of {step[0]:.3g} um and "
+                            f"{math.degrees(step[1]):.3g} deg from frame {acc.frame} "
+                            f"(limits {lim[0]:.3g} um, {math.degrees(lim[1]):.3g} deg)")
+    new = _accept(acc, f, res, runner, model, opts) if good else acc
+    return _row(f, res, "reacquired", not smooth, step, n_eval), new
+
+
+def _join(a: str, b: str) -> str:
+    return b if not a or a == "converged" else f"{a}; {b}"
+
+
+def _flag_above_bar(res: FitResult, good: bool, chi2_bar: float | None) -> None:
+    """An ``ok`` fit above the movie's bar becomes ``poor_fit``."""
+    if res.status == OK and not good:
+        res.status = POOR_FIT
+        res.message = _join(res.message, f"reduced chi^2 {res.chi2_red:.3g} above the "
+                            f"movie's bar {chi2_bar:.3g}")
+
+
+def stitch_chunks(
+    chunks: Sequence[pd.DataFrame],
+    head_tail: bool,
+    position_tol_um: float = 0.02,
+    axis_tol_rad: float = math.radians(2.0),
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Join the tables of overlapping chunks of one track (in time order).
+
+    In an overlap the earlier chunk's row is kept (it was reached warm, along the track),
+    unless the two disagree (position beyond ``position_tol_um`` or axis beyond
+    ``axis_tol_rad``) and the later one has the lower chi^2.
+
+    Parameters
+    ----------
+    chunks : sequence of pandas.DataFrame
+        :func:`track_chunk` tables, in time order.
+    head_tail : bool
+        The particle's axis u and -u are one orientation.
+    position_tol_um, axis_tol_rad : float
+        When two fits of one frame agree.
+
+    Returns
+    -------
+    table : pandas.DataFrame
+        One row per frame.
+    disagreements : pandas.DataFrame
+        ``frame, chunk, position_diff_um, axis_diff_rad, chi2_earlier, chi2_later, kept``
+        for every overlapping frame whose fits disagree.
+    """
+    rows: dict[int, dict[str, Any]] = {}
+    where: dict[int, int] = {}
+    bad = []
+    for i, chunk in enumerate(chunks):
+        for row in chunk.to_dict("records"):
+            frame = int(row["frame"])
+            old = rows.get(frame)
+            if old is None:
+                rows[frame], where[frame] = row, i
+                continue
+            dpos, dax = _row_difference(old, row, head_tail)
+            if dpos <= position_tol_um and dax <= axis_tol_rad:
+                continue
+            later_better = float(row["chi2"]) < float(old["chi2"])
+            bad.append({"frame": frame, "chunk": i, "position_diff_um": dpos,
+                        "axis_diff_rad": dax, "chi2_earlier": float(old["chi2"]),
+                        "chi2_later": float(row["chi2"]),
+                        "kept": "later" if later_better else "earlier"})
+            if later_better:
+                rows[frame], where[frame] = row, i
+    table = pd.DataFrame([rows[k] for k in sorted(rows)])
+    cols = ["frame", "chunk", "position_diff_um", "axis_diff_rad", "chi2_earlier",
+            "chi2_later", "kept"]
+    return table, pd.DataFrame(bad, columns=cols)
+
+
+def _row_difference(a: dict[str, Any], b: dict[str, Any], head_tail: bool
+                    ) -> tuple[float, float]:
+    dpos = math.dist([a["x_um"], a["y_um"], a["z_um"]], [b["x_um"], b["y_um"], b["z_um"]])
+    if "ux" not in a:
+        return dpos, 0.0
+    c = float(np.dot([a["ux"], a["uy"], a["uz"]], [b["ux"], b["uy"], b["uz"]]))
+    return dpos, math.acos(min(1.0, abs(c) if head_tail else max(-1.0, c)))
