@@ -44,7 +44,7 @@ def compare(d_um: float, axis: str = "x", size_px: int = 160) -> dict[str, float
     xs, ys = xs.ravel(), ys.ravel()
     centre = np.array([size_px / 2 * inst.pixel_size_um, size_px / 2 * inst.pixel_size_um,
                        HEIGHT_UM])
-    step = {"x": (1.0, 0.0, 0.0), "z": (0.0, 0.0, 1.0)}[axis]
+    step = {"x": (1.0, 0.0, 0.0), "z": (0.0, 0.0, 1.0), "xz": (0.7071, 0.0, 0.7071)}[axis]
     offsets = np.array([[-d_um / 2 * v for v in step], [d_um / 2 * v for v in step]])
     t0 = time.perf_counter()
     sol = solve_cluster(offsets, [RADIUS_UM] * 2, [INDEX] * 2, optics)
@@ -73,8 +73,9 @@ def compare(d_um: float, axis: str = "x", size_px: int = 160) -> dict[str, float
 
 
 def main(argv: list[str]) -> None:
-    """``[x|z] d1 d2 ...``: side by side (x, the default) or one above the other (z)."""
-    axis = argv.pop(0) if argv and argv[0] in ("x", "z") else "x"
+    """``[x|z|xz] d1 d2 ...``: side by side (x, the default), one above the other (z), or at
+    45 degrees (xz)."""
+    axis = argv.pop(0) if argv and argv[0] in ("x", "z", "xz") else "x"
     seps = [float(a) for a in argv] or [1.5, 2.0, 3.0, 4.0]
     for d in seps:
         print(json.dumps(compare(d, axis)), flush=True)
