@@ -16,6 +16,7 @@ import json
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,13 @@ import pandas as pd
 from holofit.analysis import AnalysisSettings, run_analysis
 from holofit.analysis.hydrodynamics import spherocylinder_diffusion
 from holofit.batch import BatchOptions
-from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
+from holofit.config import (
+    Instrument,
+    ParticleConfig,
+    load_instrument,
+    load_particle,
+    resolve_config,
+)
 from holofit.crop import run_crop
 from holofit.demo_sphere import run_sphere_demo
 from holofit.fit.stage import run_fit
@@ -63,6 +70,21 @@ def _timed(echo: Callable[[str], None], label: str, t0: float) -> float:
     return dt
 
 
+@dataclass
+class _Demo:
+    """What the demo's steps share: where outputs go, the truth, the set-up and the timings."""
+
+    out: Path
+    echo: Callable[[str], None]
+    n_frames: int
+    truth: pd.DataFrame = field(default_factory=pd.DataFrame)
+    times: dict[str, float] = field(default_factory=dict)
+    final_table: Path | None = None
+
+    def timed(self, label: str, t0: float) -> None:
+        self.times[f"{label}_s"] = _timed(self.echo, label, t0)
+
+
 def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: int = 2,
                  n_frames: int = 150, initial_frames: int = 8) -> dict[str, float]:
     """The rod demo (see the module docstring).
@@ -73,46 +95,65 @@ def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: 
         Truth and recovered values: static parameters, rms errors of the final fit, the
         diffusion coefficients with their errors, and the wall time of each stage.
     """
-    out = Path(out)
     t_start = time.perf_counter()
+    demo = _Demo(Path(out), echo, n_frames)
     inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
     config = load_particle(resolve_config("rod_paper", "particles"))
-    truth_config = ParticleConfig(ROD, config.settings, config.path)
     batch = BatchOptions(workers=workers, progress=False)
-    times: dict[str, float] = {}
     echo(f"holofit demo: the paper's silica rod (a {ROD.a_um * 1e3:.0f} nm, b "
          f"{ROD.b_um * 1e3:.0f} nm, n {ROD.index:g}) diffusing (D_par {ROD_D_PAR}, D_perp "
          f"{ROD_D_PERP} um^2/s, D_r {ROD_D_R} 1/s) and sinking {SEDIMENTATION_UM_S} um/s in "
          f"water at {TEMPERATURE_C:g} C; {n_frames} frames at {inst.frame_rate_hz:g} frames/s "
          f"through {inst.name} (NA {inst.extra.get('numerical_aperture', '-')}), 8-bit noise")
+    _simulate_and_crop(demo, inst, ParticleConfig(ROD, config.settings, config.path))
+    _prefit_and_library(demo, config, batch)
+    static, ok, rms, axis_err = _fit(demo, config, batch, initial_frames)
+    truth_d, m = _analyze(demo)
+    total = time.perf_counter() - t_start
+    echo(f"Outputs in {demo.out}/ (plots: prefit/prefit.png, fit/fit.png, fit/frames_final/, "
+         f"analysis/*.png); total {total:.0f} s on {workers} worker(s).")
+    return {"a_um": float(static["a_um"]), "b_um": float(static["b_um"]),
+            "n": float(static["n"]), "ok_fraction": float(ok.mean()),
+            **{f"rms_{k}_nm": v for k, v in rms.items()}, "axis_rms_deg": _rms(axis_err),
+            **{f"{k}_value": m[k].value for k in truth_d}, **{f"{k}_error": m[k].error
+                                                              for k in truth_d},
+            **{f"{k}_truth": v for k, v in truth_d.items()}, **demo.times, "total_s": total}
 
+
+def _simulate_and_crop(demo: _Demo, inst: Instrument, truth_config: ParticleConfig) -> None:
+    """Steps 1 and 2: the movie with known truth, and its crops."""
     t0 = time.perf_counter()
     dynamics = BrownianParameters(
-        n_frames=n_frames, frame_interval_s=1.0 / inst.frame_rate_hz, d_par_um2_s=ROD_D_PAR,
-        d_perp_um2_s=ROD_D_PERP, d_r_s=ROD_D_R, drift_um_s=(0.0, 0.0, -SEDIMENTATION_UM_S),
-        start_position_um=(17.0, 17.0, 15.0))
-    sim = diffusing_movie(truth_config, inst, dynamics, out, frame_shape=(192, 192), seed=7)
-    truth = sim.trajectory.truth.set_index("frame")
-    echo(f"1. simulate: {sim.movie.movie}")
-    times["simulate_s"] = _timed(echo, "simulate", t0)
+        n_frames=demo.n_frames, frame_interval_s=1.0 / inst.frame_rate_hz,
+        d_par_um2_s=ROD_D_PAR, d_perp_um2_s=ROD_D_PERP, d_r_s=ROD_D_R,
+        drift_um_s=(0.0, 0.0, -SEDIMENTATION_UM_S), start_position_um=(17.0, 17.0, 15.0))
+    sim = diffusing_movie(truth_config, inst, dynamics, demo.out, frame_shape=(192, 192), seed=7)
+    demo.truth = truth = sim.trajectory.truth.set_index("frame")
+    demo.echo(f"1. simulate: {sim.movie.movie}")
+    demo.timed("simulate", t0)
 
     t0 = time.perf_counter()
-    crop = run_crop(sim.movie.movie, sim.movie.background, inst, out / "crop", size=140)
+    crop = run_crop(sim.movie.movie, sim.movie.background, inst, demo.out / "crop", size=140)
     table = pd.read_csv(crop.table).set_index("frame")
     found = table["status"].isin(FITTABLE_CROP_STATUSES)
     err = np.hypot(table["x_um"] - truth["x_um"], table["y_um"] - truth["y_um"])[found]
-    echo(f"2. crop: hologram found in {int(found.sum())}/{n_frames} frames, centre off the "
-         f"rod's centre by {1e3 * np.median(err):.0f} nm (median)")
-    times["crop_s"] = _timed(echo, "crop", t0)
+    demo.echo(f"2. crop: hologram found in {int(found.sum())}/{demo.n_frames} frames, centre "
+              f"off the rod's centre by {1e3 * np.median(err):.0f} nm (median)")
+    demo.timed("crop", t0)
 
+
+def _prefit_and_library(demo: _Demo, config: ParticleConfig, batch: BatchOptions) -> None:
+    """Steps 3 and 4: the Lorenz-Mie prefit and the orientation library."""
+    out, truth = demo.out, demo.truth
     t0 = time.perf_counter()
     pre = run_prefit(out / "crop", out / "prefit", batch=batch)
     p = pd.read_csv(pre.table).set_index("frame")
     dz = (p["z_um"] - truth["z_um"]).dropna()
-    echo(f"3. prefit (a sphere's model of a rod: a start, not a measurement): "
-         f"{int(p['status'].isin([OK, POOR_FIT]).sum())}/{n_frames} converged, z off by "
-         f"{1e3 * dz.median():+.0f} nm (median), sphere radius {p['radius_um'].median():.3f} um")
-    times["prefit_s"] = _timed(echo, "prefit", t0)
+    demo.echo(f"3. prefit (a sphere's model of a rod: a start, not a measurement): "
+              f"{int(p['status'].isin([OK, POOR_FIT]).sum())}/{demo.n_frames} converged, z off "
+              f"by {1e3 * dz.median():+.0f} nm (median), sphere radius "
+              f"{p['radius_um'].median():.3f} um")
+    demo.timed("prefit", t0)
 
     t0 = time.perf_counter()
     lib = run_library(out / "crop", out / "prefit", config, out / "library", batch=batch)
@@ -120,35 +161,47 @@ def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: 
     u_true = _axis(truth["theta_rad"], truth["psi_rad"])
     best = _axis(lt["c1_theta_rad"], lt["c1_psi_rad"])
     ang = _angle(best, u_true.loc[lt.index].to_numpy(), head_tail=True)
-    echo(f"4. library: best candidate within {np.median(ang):.1f} deg of the truth (median; "
-         f"grid step 10 deg)")
-    times["library_s"] = _timed(echo, "library", t0)
+    demo.echo(f"4. library: best candidate within {np.median(ang):.1f} deg of the truth "
+              f"(median; grid step 10 deg)")
+    demo.timed("library", t0)
 
+
+def _fit(demo: _Demo, config: ParticleConfig, batch: BatchOptions, initial_frames: int
+         ) -> tuple[dict, pd.Series, dict[str, float], np.ndarray]:
+    """Step 5: both DDA passes; the static parameters, the ok mask and the final-pass errors."""
+    out = demo.out
     t0 = time.perf_counter()
     run = run_fit(out / "crop", out / "prefit", out / "library", config, out / "fit",
                   initial_frames=initial_frames, batch=batch)
-    times["fit_s"] = _timed(echo, "fit", t0)
+    demo.timed("fit", t0)
     static = json.loads(run.static.read_text())["values"]
     fit = pd.read_csv(run.final).set_index("frame")
     ok = fit["status"] == OK
     f = fit[ok]
-    tr = truth.loc[f.index]
+    tr = demo.truth.loc[f.index]
     rms = {k: 1e3 * float(np.sqrt(np.mean((f[k] - tr[k]) ** 2))) for k in
            ("x_um", "y_um", "z_um")}
     axis_err = _angle(f[["ux", "uy", "uz"]].to_numpy(),
                       _axis(tr["theta_rad"], tr["psi_rad"]).to_numpy(), head_tail=True)
-    echo(f"5. fit, initial pass ({initial_frames} frames, everything free): a "
-         f"{static['a_um'] * 1e3:.1f} nm (truth {ROD.a_um * 1e3:.0f}), b "
-         f"{static['b_um'] * 1e3:.1f} nm (truth {ROD.b_um * 1e3:.0f}), n {static['n']:.4f} "
-         f"(truth {ROD.index:g}); the config started at a 500, b 1000 nm")
-    echo(f"   final pass: {int(ok.sum())}/{n_frames} frames ok, rms error x {rms['x_um']:.1f}, "
-         f"y {rms['y_um']:.1f}, z {rms['z_um']:.1f} nm, axis {_rms(axis_err):.2f} deg; "
-         f"{int(fit['ambiguous'].fillna(0).sum())} frame(s) flagged ambiguous")
+    demo.echo(f"5. fit, initial pass ({initial_frames} frames, everything free): a "
+              f"{static['a_um'] * 1e3:.1f} nm (truth {ROD.a_um * 1e3:.0f}), b "
+              f"{static['b_um'] * 1e3:.1f} nm (truth {ROD.b_um * 1e3:.0f}), n "
+              f"{static['n']:.4f} (truth {ROD.index:g}); the config started at a 500, b 1000 nm")
+    demo.echo(f"   final pass: {int(ok.sum())}/{demo.n_frames} frames ok, rms error x "
+              f"{rms['x_um']:.1f}, y {rms['y_um']:.1f}, z {rms['z_um']:.1f} nm, axis "
+              f"{_rms(axis_err):.2f} deg; {int(fit['ambiguous'].fillna(0).sum())} frame(s) "
+              "flagged ambiguous")
+    demo.final_table = run.final
+    return static, ok, rms, axis_err
 
+
+def _analyze(demo: _Demo) -> tuple[dict[str, float], dict]:
+    """Step 6: the diffusion analysis against the truth and the spherocylinder prediction."""
+    echo = demo.echo
     t0 = time.perf_counter()
     settings = AnalysisSettings(model="rod", temperature_c=TEMPERATURE_C)
-    result, _ = run_analysis(run.final, settings, out / "analysis")
-    times["analyze_s"] = _timed(echo, "analyze", t0)
+    result, _ = run_analysis(demo.final_table, settings, demo.out / "analysis")
+    demo.timed("analyze", t0)
     theory = spherocylinder_diffusion(ROD.a_um, ROD.b_um, TEMPERATURE_C)
     truth_d = {"D_par": ROD_D_PAR, "D_perp": ROD_D_PERP,
                "D_t": (ROD_D_PAR + 2 * ROD_D_PERP) / 3, "D_r": ROD_D_R}
@@ -168,15 +221,7 @@ def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: 
                  "intercept is not resolved from zero)")
         else:
             echo(f"   {key:<7} {m[key].value:.2f} +- {m[key].error:.2f} {m[key].unit}")
-    total = time.perf_counter() - t_start
-    echo(f"Outputs in {out}/ (plots: prefit/prefit.png, fit/fit.png, fit/frames_final/, "
-         f"analysis/*.png); total {total:.0f} s on {workers} worker(s).")
-    return {"a_um": float(static["a_um"]), "b_um": float(static["b_um"]),
-            "n": float(static["n"]), "ok_fraction": float(ok.mean()),
-            **{f"rms_{k}_nm": v for k, v in rms.items()}, "axis_rms_deg": _rms(axis_err),
-            **{f"{k}_value": m[k].value for k in truth_d}, **{f"{k}_error": m[k].error
-                                                              for k in truth_d},
-            **{f"{k}_truth": v for k, v in truth_d.items()}, **times, "total_s": total}
+    return truth_d, m
 
 
 def _axis(theta: pd.Series, psi: pd.Series) -> pd.DataFrame:

@@ -98,3 +98,65 @@ def test_bad_particles_are_named(inst):
         simulate_field_of_view(
             [ParticleInView(Sphere(0.5, 1.59), [(2, 2, 8), (2, 2, np.nan)])], inst, SHAPE
         )
+
+
+def _scene(tmp_path, body: str):
+    path = tmp_path / "scene.toml"
+    path.write_text(body)
+    return path
+
+
+SCENE = """
+instrument = "paper_60x_water"
+frames = 6
+shape = [64, 96]
+seed = 3
+
+[[particle]]
+config = "sphere_ps_1um"
+start_um = [3.0, 3.5, 12.0]
+
+[[particle]]
+config = "sphere_ps_1um"
+start_um = [8.0, 3.5, 12.0]
+drift_um_s = [400.0, 0.0, 0.0]
+"""
+
+
+def test_scene_file_makes_a_field_of_view(tmp_path) -> None:
+    from click.testing import CliRunner
+
+    from holofit.analysis.hydrodynamics import sphere_diffusion
+    from holofit.cli import main
+    from holofit.simulate.scene import load_scene
+
+    scene = load_scene(_scene(tmp_path, SCENE))
+    assert len(scene.particles) == 2 and scene.frame_shape == (64, 96)
+    # the second particle drifts 4 um per frame (100 frames/s): it leaves the 9.6 um wide field
+    x1 = np.asarray(scene.particles[1].positions_um)[:, 0]
+    assert x1[-1] - x1[0] == pytest.approx(5 * 4.0, abs=0.5)
+    # a sphere's D comes from Stokes-Einstein: the steps of the first particle scale with it
+    steps = np.diff(np.asarray(scene.particles[0].positions_um)[:, :2], axis=0)
+    d = sphere_diffusion(0.5, 21.0)["D_t"]
+    assert np.mean(steps**2) < 20 * 2 * d * 0.01
+    out = tmp_path / "movie"
+    res = CliRunner().invoke(main, ["simulate", "field-of-view", str(tmp_path / "scene.toml"),
+                                    "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    truth = pd.read_csv(out / "truth.csv")
+    assert len(truth) == 12 and set(truth["particle"]) == {0, 1}
+
+
+@pytest.mark.parametrize("body, message", [
+    (SCENE.replace('start_um = [3.0', 'strat_um = [3.0'),
+     "particle 0.*strat_um"),
+    (SCENE.split("[[particle]]")[0], "no \\[\\[particle\\]\\] tables"),
+    (SCENE.replace('"sphere_ps_1um"\nstart_um = [8.0', '"rod_paper"\nstart_um = [8.0'),
+     "particle 1.*needs d_par_um2_s"),
+])
+def test_scene_errors_name_the_particle_and_key(tmp_path, body, message) -> None:
+    from holofit.simulate.scene import load_scene
+    from holofit.validation import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        load_scene(_scene(tmp_path, body))

@@ -362,6 +362,110 @@ def _whitener(cov: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.linalg.inv(chol)
 
 
+@dataclass(frozen=True)
+class _Errors:
+    """What an error method returns: the parameters (possibly refitted), their covariance, the
+    point errors used for the figure, chi^2 per degree of freedom and the sided errors of D."""
+
+    p: NDArray[np.float64]
+    success: bool
+    pcov: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    chi2: float
+    d_errors: tuple[float, float]
+    method: str
+    converged: bool = True
+
+
+def _usable(stats: LagStatistics) -> LagStatistics:
+    good = np.isfinite(stats.mean) & np.isfinite(stats.sem) & (stats.count >= 2)
+    return LagStatistics(
+        stats.name, stats.lags[good], stats.tau_s[good], stats.mean[good], stats.sem[good],
+        stats.count[good], stats.rejected[good], stats.converged[good],
+    )
+
+
+def _gls_errors(model: CurveModel, tau: NDArray, m: NDArray, p: NDArray, success: bool,
+                cov_at: Callable, dof: int) -> _Errors:
+    """Generalised least squares with the lag covariance at the current D, iterated."""
+    for _ in range(GLS_ROUNDS):
+        w = _whitener(cov_at(p))
+
+        def gresid(q: NDArray, w: NDArray = w) -> NDArray:
+            return w @ (model.f(q, tau) - m)
+
+        def gjac(q: NDArray, w: NDArray = w) -> NDArray:
+            return w @ model.jac(q, tau)
+
+        sol = _solve(gresid, gjac, p, tau.size, len(model.params))
+        p, success = sol.x, bool(sol.success)
+
+    def gls_pcov(q: NDArray) -> NDArray:
+        wq = _whitener(cov_at(q))
+        jw = wq @ model.jac(q, tau)
+        return np.linalg.pinv(jw.T @ jw)
+
+    cov_m = cov_at(p)
+    w = _whitener(cov_m)
+    pcov = gls_pcov(p)
+    chi2 = float(np.sum((w @ (model.f(p, tau) - m)) ** 2) / dof)
+    d_errors = _sided_errors(p, pcov, gls_pcov, SIDED_ROUNDS[0])
+    sigma = np.sqrt(np.clip(np.diag(cov_m), 0, None))
+    return _Errors(p, success, pcov, sigma, chi2, d_errors, "gls")
+
+
+def _sandwich_errors(model: CurveModel, tau: NDArray, m: NDArray, p: NDArray, cov_at: Callable,
+                     floor: float, chi2: float) -> _Errors:
+    """Refit weighted by the model's own point errors, then the sandwich covariance."""
+    # the block errors of a short run are noisy, and weights that follow the data's
+    # fluctuations bias the fit
+    sig_m = np.maximum(np.sqrt(np.clip(np.diag(cov_at(p)), 0, None)), floor)
+
+    def wresid(q: NDArray) -> NDArray:
+        return (model.f(q, tau) - m) / sig_m
+
+    def wjac(q: NDArray) -> NDArray:
+        return model.jac(q, tau) / sig_m[:, None]
+
+    sol = _solve(wresid, wjac, p, tau.size, len(model.params), model.lower)
+    p, success = sol.x, bool(sol.success)
+    j = wjac(p)
+    a = np.linalg.pinv(j.T @ j) @ j.T / sig_m[None, :]
+    cov_m = cov_at(p)
+    pcov = a @ cov_m @ a.T
+
+    def sandwich_at(q: NDArray) -> NDArray:
+        # sigma(D) of the score interval: the estimator's sensitivity (its Jacobian)
+        # and the data's covariance both at D (a D >= 0 model is not evaluated below 0)
+        q = np.array(q, dtype=float)
+        if model.lower is not None:
+            q = np.maximum(q, np.where(np.isfinite(model.lower), model.lower, -np.inf))
+        jq = model.jac(q, tau) / sig_m[:, None]
+        aq = np.linalg.pinv(jq.T @ jq) @ jq.T / sig_m[None, :]
+        return aq @ cov_at(q) @ aq.T
+
+    d_errors = _sided_errors(p, pcov, sandwich_at, SIDED_ROUNDS[1])
+    if model.lower is not None and math.isfinite(model.lower[0]):
+        # the interval ends at the bound (D >= 0): no error below reaches past it
+        d_errors = (min(d_errors[0], float(p[0] - model.lower[0])), d_errors[1])
+    sigma = np.sqrt(np.clip(np.diag(cov_m), 0, None))
+    return _Errors(p, success, pcov, sigma, chi2, d_errors, "sandwich")
+
+
+def _influence_covariance(obs: Observables, st: LagStatistics, a: NDArray, n_par: int,
+                          pair_filter: PairFilter | None) -> tuple[NDArray, bool]:
+    """Covariance of the parameters from the influence series of the data."""
+    infl = influence_series(obs, st.name, st, a, pair_filter)
+    err, conv_rows = _sum_error(infl)
+    pcov = np.diag(err**2)
+    for i in range(n_par):  # covariances from the errors of pairwise sums
+        for k in range(i + 1, n_par):
+            e_sum, c_sum = _sum_error((infl[i] + infl[k])[None, :])
+            pcov[i, k] = pcov[k, i] = 0.5 * (e_sum[0] ** 2 - err[i] ** 2 - err[k] ** 2)
+            conv_rows = np.append(conv_rows, c_sum)
+    return pcov, bool(np.all(conv_rows))
+
+
 def fit_lag_statistics(
     stats: LagStatistics,
     model: CurveModel,
@@ -375,11 +479,7 @@ def fit_lag_statistics(
     AnalysisError
         Fewer usable lags than parameters.
     """
-    good = np.isfinite(stats.mean) & np.isfinite(stats.sem) & (stats.count >= 2)
-    st = LagStatistics(
-        stats.name, stats.lags[good], stats.tau_s[good], stats.mean[good], stats.sem[good],
-        stats.count[good], stats.rejected[good], stats.converged[good],
-    )
+    st = _usable(stats)
     n_par = len(model.params)
     if st.lags.size < n_par:
         raise AnalysisError(
@@ -401,85 +501,24 @@ def fit_lag_statistics(
     j = jac(p)
     jtj_inv = np.linalg.pinv(j.T @ j)
     naive = np.sqrt(np.clip(np.diag(jtj_inv), 0, None))
-    a = jtj_inv @ j.T / sigma[None, :]  # d theta / d m of the weighted fit
     dof = max(tau.size - n_par, 1)
     chi2 = float(np.sum(resid(p) ** 2) / dof)
-    conv = True
-    d_errors = (float("nan"), float("nan"))
     if model.covariance is not None and model.params[0] == "D":
         masks = [pair_mask(obs.valid, int(k), pair_filter) for k in st.lags]
         cov_at = model.covariance(st.lags, masks, dt)
         if model.gls:
-            method = "gls"
-            for _ in range(GLS_ROUNDS):
-                w = _whitener(cov_at(p))
-
-                def gresid(q: NDArray, w: NDArray = w) -> NDArray:
-                    return w @ (model.f(q, tau) - m)
-
-                def gjac(q: NDArray, w: NDArray = w) -> NDArray:
-                    return w @ model.jac(q, tau)
-
-                sol = _solve(gresid, gjac, p, tau.size, n_par)
-                p, success = sol.x, bool(sol.success)
-            def gls_pcov(q: NDArray) -> NDArray:
-                wq = _whitener(cov_at(q))
-                jw = wq @ model.jac(q, tau)
-                return np.linalg.pinv(jw.T @ jw)
-
-            cov_m = cov_at(p)
-            w = _whitener(cov_m)
-            pcov = gls_pcov(p)
-            chi2 = float(np.sum((w @ (model.f(p, tau) - m)) ** 2) / dof)
-            d_errors = _sided_errors(p, pcov, gls_pcov, SIDED_ROUNDS[0])
+            res = _gls_errors(model, tau, m, p, success, cov_at, dof)
         else:
-            method = "sandwich"
-            # refit weighted by the model's own point errors: the block errors of a short run
-            # are noisy, and weights that follow the data's fluctuations bias the fit
-            sig_m = np.maximum(np.sqrt(np.clip(np.diag(cov_at(p)), 0, None)), floor)
-
-            def wresid(q: NDArray) -> NDArray:
-                return (model.f(q, tau) - m) / sig_m
-
-            def wjac(q: NDArray) -> NDArray:
-                return model.jac(q, tau) / sig_m[:, None]
-
-            sol = _solve(wresid, wjac, p, tau.size, n_par, model.lower)
-            p, success = sol.x, bool(sol.success)
-            j = wjac(p)
-            a = np.linalg.pinv(j.T @ j) @ j.T / sig_m[None, :]
-            cov_m = cov_at(p)
-            pcov = a @ cov_m @ a.T
-            def sandwich_at(q: NDArray) -> NDArray:
-                # sigma(D) of the score interval: the estimator's sensitivity (its Jacobian)
-                # and the data's covariance both at D (a D >= 0 model is not evaluated below 0)
-                q = np.array(q, dtype=float)
-                if model.lower is not None:
-                    q = np.maximum(q, np.where(np.isfinite(model.lower), model.lower, -np.inf))
-                jq = model.jac(q, tau) / sig_m[:, None]
-                aq = np.linalg.pinv(jq.T @ jq) @ jq.T / sig_m[None, :]
-                return aq @ cov_at(q) @ aq.T
-
-            d_errors = _sided_errors(p, pcov, sandwich_at, SIDED_ROUNDS[1])
-            if model.lower is not None and math.isfinite(model.lower[0]):
-                # the interval ends at the bound (D >= 0): no error below reaches past it
-                d_errors = (min(d_errors[0], float(p[0] - model.lower[0])), d_errors[1])
-        sigma = np.sqrt(np.clip(np.diag(cov_m), 0, None))
+            res = _sandwich_errors(model, tau, m, p, cov_at, floor, chi2)
     else:
-        method = "influence"
-        infl = influence_series(obs, st.name, st, a, pair_filter)
-        err, conv_rows = _sum_error(infl)
-        pcov = np.diag(err**2)
-        for i in range(n_par):  # covariances from the errors of pairwise sums
-            for k in range(i + 1, n_par):
-                e_sum, c_sum = _sum_error((infl[i] + infl[k])[None, :])
-                pcov[i, k] = pcov[k, i] = 0.5 * (e_sum[0] ** 2 - err[i] ** 2 - err[k] ** 2)
-                conv_rows = np.append(conv_rows, c_sum)
-        conv = bool(np.all(conv_rows))
-    errors = np.sqrt(np.clip(np.diag(pcov), 0, None))
+        a = jtj_inv @ j.T / sigma[None, :]  # d theta / d m of the weighted fit
+        pcov, conv = _influence_covariance(obs, st, a, n_par, pair_filter)
+        res = _Errors(p, success, pcov, sigma, chi2, (float("nan"), float("nan")), "influence",
+                      conv)
+    errors = np.sqrt(np.clip(np.diag(res.pcov), 0, None))
     return FitResult(
-        st.name, model, p, errors, naive, st.lags, tau, m, sigma, chi2,
-        np.atleast_2d(pcov), method, conv, success, d_errors,
+        st.name, model, res.p, errors, naive, st.lags, tau, m, res.sigma, res.chi2,
+        np.atleast_2d(res.pcov), res.method, res.converged, res.success, res.d_errors,
     )
 
 

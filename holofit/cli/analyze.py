@@ -117,6 +117,9 @@ def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
               help="Override the time between frames, s.")
 @click.option("--plot/--no-plot", "--plots/--no-plots", "plots", default=True, show_default=True,
               help="Write PNG plots (--plots/--no-plots: the old spelling, deprecated).")
+@click.option("--min-track-frames", type=click.IntRange(min=3), default=20, show_default=True,
+              help="Multi-particle tables: tracks with fewer ok frames are reported and left "
+                   "out.")
 @out_dir_option()
 def analyze(
     fit_table: Path,
@@ -138,18 +141,25 @@ def analyze(
     max_lag: int | None,
     frame_interval_s: float | None,
     plots: bool,
+    min_track_frames: int,
     out: Path,
 ) -> None:
     """Diffusion analysis of FIT_TABLE: MSDs, orientation correlations, theory.
 
     Writes OUT/summary.csv (+ .json sidecar), OUT/summary.json, OUT/msd.csv and PNG plots
-    (msd.png, orientation.png, trajectory.png), and prints a short report.
+    (msd.png, orientation.png, trajectory.png), and prints a short report. A table of several
+    tracks (a ``particle`` column) is analysed track by track (OUT/particle_N/) and pooled
+    (OUT/tracks.csv, OUT/pooled.csv, tracks.png, track_msds.png).
     """
     from holofit.analysis import (
         AnalysisSettings,
         SettingError,
+        TrackPooling,
         format_report,
+        format_tracks_report,
+        n_tracks,
         run_analysis,
+        run_track_analysis,
     )
 
     if model is None:
@@ -170,6 +180,14 @@ def analyze(
         raise click.BadParameter(exc.problem, param_hint=OPTION_OF_SETTING[exc.setting]) from None
     # FitTableError / AnalysisError name the file; the top-level handler shows them as
     # "holofit analyze: error: ..." like every stage's
+    if n_tracks(fit_table) > 1:  # a field of view: every track, then the tracks pooled
+        tracks, files = run_track_analysis(fit_table, settings, out, plots=plots,
+                                           frame_interval_s=frame_interval_s,
+                                           pooling=TrackPooling(min_frames=min_track_frames))
+        click.echo(format_tracks_report(tracks))
+        click.echo("")
+        click.echo("wrote " + ", ".join(str(p) for p in files.values()))
+        return
     result, files = run_analysis(fit_table, settings, out, plots=plots,
                                  frame_interval_s=frame_interval_s)
     click.echo(format_report(result))

@@ -17,6 +17,7 @@ from holofit.cli.common import (
     parse_triple,
 )
 from holofit.cli.errors import HolofitGroup
+from holofit.cli.simulate_field import simulate_field_cmd
 from holofit.cli.simulate_trajectory import simulate_trajectory_cmd
 from holofit.models import ParticleModel, Sphere
 from holofit.progress import progress_bar
@@ -34,6 +35,7 @@ def simulate() -> None:
 
 
 simulate.add_command(simulate_trajectory_cmd)
+simulate.add_command(simulate_field_cmd)
 
 
 def _read_csv(path: Path, option: str) -> pd.DataFrame:

@@ -254,14 +254,7 @@ def init_run(
         Naming the input, option or file at fault; nothing is written then.
     """
     run = Path(run_dir)
-    if (run / "Makefile").exists() and not force:
-        raise RunFolderError(f"{run / 'Makefile'} exists: {run} is a run folder already (force "
-                             "to write it again: its outputs are kept, and make reruns what the "
-                             "new settings change)")
-    if run.exists() and not run.is_dir():
-        raise RunFolderError(f"{run}: exists and is not a folder")
-    if batch_makefile:
-        check_make_path(run.resolve().name, "run folder name")
+    _check_run_dir(run, force, batch_makefile)
     backgrounds = [str(b) for b in backgrounds]
     darks = [str(d) for d in darks]
     _check_light(backgrounds, darks, dark_count, normalized)
@@ -275,27 +268,8 @@ def init_run(
     cfg = load_particle(part_source)
     _check_particle(cfg, part_source)
     shape = _shape_file(part_source) if cfg.model.kind == "voxels" else None
-
-    if engine is not None:
-        if engine not in ENGINE_CHOICES:
-            raise RunFolderError(f"engine {engine!r}: expected one of "
-                                 f"{', '.join(ENGINE_CHOICES)}")
-        cfg.theory(engine)  # an engine that cannot handle the particle: ConfigError now
-    analysis = analysis_model_for(cfg.model.kind, model)
-    try:
-        AnalysisSettings(model=analysis, temperature_c=temperature_c)
-    except SettingError as exc:
-        raise RunFolderError(f"analysis {exc.setting}: {exc.problem}") from None
-    opts = dict(options or {})
-    unknown = sorted(set(opts) - set(STAGES))
-    if unknown:
-        raise RunFolderError(f"options for unknown stage(s) {', '.join(unknown)}; stages: "
-                             f"{', '.join(STAGES)}")
-    opts = {stage: check_stage_options(stage, text) for stage, text in opts.items() if text}
-    check_crop_options(opts.get("crop", ""), frame_shape)
-    check_fit_options(opts.get("fit", ""), cfg.model)
-    note = initial_pass_note(opts.get("fit", ""), n_frames)
-    notes = [note] if note else []
+    analysis = _check_engine_and_analysis(cfg, engine, model, temperature_c)
+    opts, notes = _check_options(options, cfg, frame_shape, n_frames)
 
     now = _dt.datetime.now().astimezone().replace(microsecond=0).isoformat()
     spec = RunSpec(
@@ -307,7 +281,56 @@ def init_run(
         header=(f"holofit run folder: written by `holofit init` (holofit {holofit.__version__}), "
                 f"{now}", _command()),
     )
+    return _write_folder(run, spec, inst_source, part_source, shape, notes, batch_makefile)
 
+
+def _check_run_dir(run: Path, force: bool, batch_makefile: bool) -> None:
+    """Refuse to overwrite a run folder without ``force``, or a file where the folder goes."""
+    if (run / "Makefile").exists() and not force:
+        raise RunFolderError(f"{run / 'Makefile'} exists: {run} is a run folder already (force "
+                             "to write it again: its outputs are kept, and make reruns what the "
+                             "new settings change)")
+    if run.exists() and not run.is_dir():
+        raise RunFolderError(f"{run}: exists and is not a folder")
+    if batch_makefile:
+        check_make_path(run.resolve().name, "run folder name")
+
+
+def _check_engine_and_analysis(cfg: ParticleConfig, engine: str | None, model: str | None,
+                               temperature_c: float) -> str:
+    """Check the engine against the particle and the analysis settings; the analysis model."""
+    if engine is not None:
+        if engine not in ENGINE_CHOICES:
+            raise RunFolderError(f"engine {engine!r}: expected one of "
+                                 f"{', '.join(ENGINE_CHOICES)}")
+        cfg.theory(engine)  # an engine that cannot handle the particle: ConfigError now
+    analysis = analysis_model_for(cfg.model.kind, model)
+    try:
+        AnalysisSettings(model=analysis, temperature_c=temperature_c)
+    except SettingError as exc:
+        raise RunFolderError(f"analysis {exc.setting}: {exc.problem}") from None
+    return analysis
+
+
+def _check_options(options: Mapping[str, str] | None, cfg: ParticleConfig,
+                   frame_shape: tuple[int, int], n_frames: int
+                   ) -> tuple[dict[str, str], list[str]]:
+    """Check each stage's extra options now, as its command line would; the options and notes."""
+    opts = dict(options or {})
+    unknown = sorted(set(opts) - set(STAGES))
+    if unknown:
+        raise RunFolderError(f"options for unknown stage(s) {', '.join(unknown)}; stages: "
+                             f"{', '.join(STAGES)}")
+    opts = {stage: check_stage_options(stage, text) for stage, text in opts.items() if text}
+    check_crop_options(opts.get("crop", ""), frame_shape)
+    check_fit_options(opts.get("fit", ""), cfg.model)
+    note = initial_pass_note(opts.get("fit", ""), n_frames)
+    return opts, [note] if note else []
+
+
+def _write_folder(run: Path, spec: RunSpec, inst_source: Path, part_source: Path,
+                  shape: PurePosixPath | None, notes: list[str], batch_makefile: bool) -> RunFolder:
+    """Write the configs' copies, the README and the Makefile (last: it marks the folder)."""
     run.mkdir(parents=True, exist_ok=True)
     out = RunFolder(run, run / "Makefile", run / "README.md", run / INSTRUMENT_COPY,
                     run / PARTICLE_COPY, spec, notes=notes)

@@ -340,28 +340,8 @@ def simulate_trajectory(
     n = params.n_frames
     dt = params.frame_interval_s
     frames = np.arange(n)
-
-    eps_z = noise.eps_xy_um if noise.eps_z_um is None else noise.eps_z_um
-    sig = np.array([noise.eps_xy_um, noise.eps_xy_um, eps_z])
-    pos_m = pos + rng.standard_normal((n, 3)) * sig
-    rot_m = rot.copy()
-    if noise.eps_r_rad > 0:
-        w = rng.standard_normal((n, 3)) * (noise.eps_r_rad / math.sqrt(2.0))
-        rot_m = rot_m @ rotation_from_vector(w)
-
-    pool = frames.copy()
-    picked = {}
-    for name in ("flip", "mirror", "fail", "missing"):
-        chosen = _choose(rng, pool, getattr(noise, f"{name}_fraction"), n)
-        picked[name] = chosen
-        pool = np.setdiff1d(pool, chosen)
-    flip_x = np.diag([1.0, -1.0, -1.0])  # Rx(pi): u -> -u
-    mirror = np.diag([1.0, 1.0, -1.0])
-    for k in picked["flip"]:
-        rot_m[k] = rot_m[k] @ flip_x
-    for k in picked["mirror"]:
-        # M R M Rx(pi) is a proper rotation with axis (ux, uy, -uz)
-        rot_m[k] = mirror @ rot_m[k] @ mirror @ flip_x
+    pos_m, rot_m = _measured(pos, rot, noise, rng)
+    picked = _artefacts(rot_m, noise, rng)
 
     table = _table(frames, dt, pos_m, rot_m, static)
     fail = picked["fail"]
@@ -388,23 +368,64 @@ def simulate_trajectory(
         picked["missing"],
     )
     if out_dir is not None:
-        out = Path(out_dir)
-        result.truth_path = write_table(
-            out / "truth.csv",
-            validate_fit_table(truth, str(out / "truth.csv"), dt).table,
-            sidecar(
-                kind="simulated trajectory, noise-free truth (fit-table schema)",
-                units={c: column_unit(c) for c in truth.columns},
-                extra={"frame_interval_s": dt, "truth": truth_meta},
-            ),
-        )
-        result.fit = write_fit_table(
-            out / "trajectory.csv",
-            table,
-            frame_interval_s=dt,
-            kind="simulated trajectory (fit-table schema)",
-            config={"dynamics": asdict(params), "noise": asdict(noise), "seed": seed},
-            extra={"truth": truth_meta},
-        )
-        result.path = out / "trajectory.csv"
+        _write(result, Path(out_dir), dt, {"dynamics": asdict(params), "noise": asdict(noise),
+                                           "seed": seed})
     return result
+
+
+def _measured(pos: NDArray, rot: NDArray, noise: MeasurementNoise, rng: np.random.Generator
+              ) -> tuple[NDArray, NDArray]:
+    """The true positions (um) and rotations with the measurement noise of ``noise`` added."""
+    n = len(pos)
+    eps_z = noise.eps_xy_um if noise.eps_z_um is None else noise.eps_z_um
+    sig = np.array([noise.eps_xy_um, noise.eps_xy_um, eps_z])
+    pos_m = pos + rng.standard_normal((n, 3)) * sig
+    rot_m = rot.copy()
+    if noise.eps_r_rad > 0:
+        w = rng.standard_normal((n, 3)) * (noise.eps_r_rad / math.sqrt(2.0))
+        rot_m = rot_m @ rotation_from_vector(w)
+    return pos_m, rot_m
+
+
+def _artefacts(rot_m: NDArray, noise: MeasurementNoise, rng: np.random.Generator
+               ) -> dict[str, NDArray]:
+    """Choose the flipped, mirrored, failed and missing frames (disjoint); flips and mirrors
+    are applied to ``rot_m`` in place."""
+    n = len(rot_m)
+    pool = np.arange(n)
+    picked = {}
+    for name in ("flip", "mirror", "fail", "missing"):
+        chosen = _choose(rng, pool, getattr(noise, f"{name}_fraction"), n)
+        picked[name] = chosen
+        pool = np.setdiff1d(pool, chosen)
+    flip_x = np.diag([1.0, -1.0, -1.0])  # Rx(pi): u -> -u
+    mirror = np.diag([1.0, 1.0, -1.0])
+    for k in picked["flip"]:
+        rot_m[k] = rot_m[k] @ flip_x
+    for k in picked["mirror"]:
+        # M R M Rx(pi) is a proper rotation with axis (ux, uy, -uz)
+        rot_m[k] = mirror @ rot_m[k] @ mirror @ flip_x
+    return picked
+
+
+def _write(result: SimulatedTrajectory, out: Path, dt: float, config: dict) -> None:
+    """Write the truth and the measurement (fit-table schema, with sidecars) into ``out``."""
+    truth, truth_meta = result.truth, result.truth_meta
+    result.truth_path = write_table(
+        out / "truth.csv",
+        validate_fit_table(truth, str(out / "truth.csv"), dt).table,
+        sidecar(
+            kind="simulated trajectory, noise-free truth (fit-table schema)",
+            units={c: column_unit(c) for c in truth.columns},
+            extra={"frame_interval_s": dt, "truth": truth_meta},
+        ),
+    )
+    result.fit = write_fit_table(
+        out / "trajectory.csv",
+        result.table,
+        frame_interval_s=dt,
+        kind="simulated trajectory (fit-table schema)",
+        config=config,
+        extra={"truth": truth_meta},
+    )
+    result.path = out / "trajectory.csv"

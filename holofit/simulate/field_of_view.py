@@ -178,15 +178,28 @@ def simulate_field_of_view(
     rng = np.random.default_rng(seed)
     xs, ys = pixel_centres(frame_shape, instrument.pixel_size_um)
     dt = 1.0 / instrument.frame_rate_hz if instrument.frame_rate_hz else 1.0
-    truth = pd.concat(
+    truth = _truth_table(solved, n, dt, instrument.pixel_size_um)
+    meta = _metadata(solved, instrument, camera, noise, seed)
+    pol = instrument.optics.polarization_rad
+    holograms = (hologram_intensity(*_frame_field(solved, k, xs, ys), pol) for k in range(n))
+    return film(
+        holograms, camera, rng, frame_shape, truth, FIELD_TRUTH_UNITS, meta,
+        label="simulated field of view", noise=noise, n_background=n_background,
+        out_dir=out_dir, keep_frames=keep_frames, progress=progress,
+    )
+
+
+def _truth_table(solved: Sequence[_Solved], n: int, dt: float, pixel_um: float) -> pd.DataFrame:
+    """One row per (particle, frame): the true position (um and px), orientation and alpha."""
+    return pd.concat(
         [
             pd.DataFrame({
                 "particle": i,
                 "frame": np.arange(n),
                 "time_s": np.arange(n) * dt,
                 "x_um": s.pos[:, 0], "y_um": s.pos[:, 1], "z_um": s.pos[:, 2],
-                "x_px": s.pos[:, 0] / instrument.pixel_size_um,
-                "y_px": s.pos[:, 1] / instrument.pixel_size_um,
+                "x_px": s.pos[:, 0] / pixel_um,
+                "y_px": s.pos[:, 1] / pixel_um,
                 "psi_rad": s.orient[:, 0], "theta_rad": s.orient[:, 1],
                 "phi_rad": s.orient[:, 2],
                 "alpha": s.particle.alpha,
@@ -195,7 +208,12 @@ def simulate_field_of_view(
         ],
         ignore_index=True,
     )
-    meta = {
+
+
+def _metadata(solved: Sequence[_Solved], instrument: Instrument, camera: Camera, noise: bool,
+              seed: int) -> dict[str, Any]:
+    """The sidecar's description of the simulation."""
+    return {
         "instrument": instrument.as_dict(),
         "particles": [
             {"model": s.particle.model.kind, **s.particle.model.parameters(),
@@ -208,10 +226,3 @@ def simulate_field_of_view(
         "noise": noise,
         "seed": seed,
     }
-    pol = instrument.optics.polarization_rad
-    holograms = (hologram_intensity(*_frame_field(solved, k, xs, ys), pol) for k in range(n))
-    return film(
-        holograms, camera, rng, frame_shape, truth, FIELD_TRUTH_UNITS, meta,
-        label="simulated field of view", noise=noise, n_background=n_background,
-        out_dir=out_dir, keep_frames=keep_frames, progress=progress,
-    )
