@@ -32,8 +32,8 @@ import numpy as np
 
 from holofit.conventions import DetectorGrid, r_squared
 from holofit.hologram import calc_hologram
-from holofit.models import JanusSphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import JanusSphere, Spherocylinder
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, 0.0)

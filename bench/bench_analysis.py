@@ -7,9 +7,9 @@ from pathlib import Path
 
 from timing import median_time
 
-from holofit.analysis import AnalysisSettings, Trajectory, analyze_trajectory, run_analysis
-from holofit.analysis.validation import PAPER_ROD
+from holofit.analysis import AnalysisConfig, Trajectory, analyze_trajectory, run_analysis
 from holofit.simulate.brownian import BrownianParameters, MeasurementNoise, simulate_trajectory
+from holofit.studies.diffusion import PAPER_ROD
 from holofit.tables.fit import validate_fit_table, write_fit_table
 
 
@@ -25,7 +25,7 @@ def bench_analysis() -> dict[str, float]:
     params, noise = _rod()
     static = {"a_um": 0.501, "b_um": 1.079}
     sim = simulate_trajectory(params, noise, seed=0, static=static)
-    settings = AnalysisSettings("rod")
+    settings = AnalysisConfig("rod")
 
     def analyse() -> None:
         # validation of the table, cleaning, all lag statistics, fits with errors, the two

@@ -22,7 +22,7 @@ from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid, hologram_intensity
 from holofit.crop import find_centers, normalize, run_crop
 from holofit.io.tiffstack import TiffStackWriter
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie
 
 SHAPE = (1024, 1280)

@@ -24,8 +24,8 @@ from timing import median_time
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import Sphere, Spherocylinder
 from holofit.scattering.mie import LorenzMie
 from holofit.scattering.theory import Orientation
 

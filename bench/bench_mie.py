@@ -6,8 +6,8 @@ from timing import median_time
 
 from holofit.conventions import DetectorGrid
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie
 
 

@@ -11,7 +11,7 @@ Non-spherical particles (``prefit_rod_*``, issue target ``prefit_rod_frame_s`` <
 paper's rod (a 0.501, b 1.079 um, n 1.495) through the 60x water set-up with its objective
 (NA 1.2), 20 frames at random orientations, z 8-16 um, the crop stage's centre within half a
 pixel, holograms from the final pass's T-matrix (kept in ``bench/.cache/``, built once),
-8-bit camera noise. Timed: the seed fit (``FitOptions(seed_only=True)``: x, y, z, alpha) and,
+8-bit camera noise. Timed: the seed fit (``SphereFitSettings(seed_only=True)``: x, y, z, alpha) and,
 on the same frames, today's full sphere fit (``prefit_rod_frame_full_s``), with their
 evaluations, position errors against the truth and ``ok`` fractions; and, in the same run,
 the sphere prefit of ``prefit_frame_140px_s`` and ``prefit_frame_lens_140px_s`` (20 frames) as
@@ -43,9 +43,9 @@ from holofit.conventions import DetectorGrid
 from holofit.hologram import calc_hologram
 from holofit.io import write_table
 from holofit.io.tiffstack import write_tiff_stack
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.prefit.estimate import profile_table
-from holofit.prefit.sphere import FitOptions, fit_sphere_crop
+from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.prefit.stage import run_prefit
 from holofit.provenance import sidecar
 from holofit.scattering.mie import MieWave
@@ -73,7 +73,7 @@ def _frames(inst, n, size, seed=0):
 
 
 def _one_core(inst, size, n, opts=None):
-    opts = opts or FitOptions()
+    opts = opts or SphereFitSettings()
     t0 = time.perf_counter()
     n_bins = size // 2 - 1
     search = opts.search.for_crop(n_bins * inst.pixel_size_um, inst.optics.wavelength_medium_um)
@@ -94,7 +94,7 @@ def bench_prefit_frame() -> dict[str, float]:
     ideal = lens.with_numerical_aperture(None)
     t_table, t_frame, n_eval = _one_core(ideal, 140, 30)
     t_table_lens, t_lens, n_eval_lens = _one_core(lens, 140, 30)
-    _, t_fit_na, n_eval_fit_na = _one_core(lens, 140, 10, FitOptions(fit_na=True))
+    _, t_fit_na, n_eval_fit_na = _one_core(lens, 140, 10, SphereFitSettings(fit_na=True))
     pyl = load_instrument(resolve_config("pylorenzmie", "instruments"))
     t_table_390, t_390, _ = _one_core(pyl, 390, 5)
     return {
@@ -158,7 +158,7 @@ def _rod_frames(n: int = 20, seed: int = 0):
     from fit_cases import CASES_SETUP, use_tmatrix
 
     from holofit.config import load_particle
-    from holofit.fitting.parameters import particle_with, static_values
+    from holofit.holomodel.parameters import particle_with, static_values
     from holofit.scattering.theory import Orientation
 
     inst_name, part_name, truth, _ = CASES_SETUP["rod"]
@@ -190,10 +190,10 @@ def _rod_frames(n: int = 20, seed: int = 0):
 def bench_prefit_rod() -> dict[str, float]:
     inst, frames = _rod_frames()
     profile_table(inst.optics, inst.pixel_size_um, 69,
-                  FitOptions().search.for_crop(69 * inst.pixel_size_um,
+                  SphereFitSettings().search.for_crop(69 * inst.pixel_size_um,
                                                inst.optics.wavelength_medium_um))
     out: dict[str, float] = {}
-    for label, opts in (("", FitOptions(seed_only=True)), ("_full", FitOptions())):
+    for label, opts in (("", SphereFitSettings(seed_only=True)), ("_full", SphereFitSettings())):
         times, evals, errs, ok = [], [], [], 0
         for crop, corner, centre, pos in frames:
             t0 = time.perf_counter()

@@ -5,7 +5,7 @@ size), each trajectory length and each noise level (what the fits reach on the r
 and 0.2 deg; the paper's real data, 35 nm and 1.5 deg), the script simulates independent
 Brownian trajectories with known truth, analyses each with the default settings of
 ``holofit analyze`` and collects the pulls ``(measured - truth) / error``
-(:func:`holofit.analysis.validation.calibration_case`). Calibrated errors give pulls of mean 0
+(:func:`holofit.studies.diffusion.calibration_case`). Calibrated errors give pulls of mean 0
 and standard deviation 1; over ``n`` trajectories the sample mean has a standard error
 ``1 / sqrt(n)`` and the sample s.d. ``1 / sqrt(2 (n - 1))``.
 
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from holofit.analysis.validation import (
+from holofit.studies.diffusion import (
     CALIBRATION_NOISE,
     CALIBRATION_QUANTITIES,
     calibration_case,

@@ -36,13 +36,13 @@ import numpy as np
 from holofit.camera import Camera
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.conventions import DetectorGrid
-from holofit.fit.frame import FrameFitOptions, fit_frame
+from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.fit.stage import _free
 from holofit.hologram import calc_hologram
 from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
-from holofit.models import Dimer
 from holofit.optics import Optics
+from holofit.particles import Dimer
 from holofit.scattering.cluster import ClusterTheory
 from holofit.scattering.theory import Orientation
 
@@ -132,7 +132,7 @@ def fit(ideal: bool = False) -> dict[str, float]:
     scores = lib.scores(pg, d, w, start, 0.8)
     cands = pick_candidates(scores, lib.tilts, pg.phi, model, 4, math.radians(20))
     res = fit_frame(crop, grid.corner, px, th, model, inst.optics, start, 0.8, cands,
-                    _free(model, "final"), FrameFitOptions(), seed=0)
+                    _free(model, "final"), FrameFitSettings(), seed=0)
     out[f"{tag}_s"] = time.perf_counter() - t0
     out[f"{tag}_cpu_s"] = time.process_time() - c0
     out[f"{tag}_ok"] = float(res.status == "ok")

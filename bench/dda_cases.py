@@ -18,8 +18,8 @@ from holofit.conventions import DetectorGrid
 from holofit.dda import interaction
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
-from holofit.models import JanusSphere, Sphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import JanusSphere, Sphere, Spherocylinder
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, 0.0)

@@ -43,13 +43,13 @@ from holofit.config import (
 )
 from holofit.conventions import DetectorGrid
 from holofit.dda.tmatrix_io import TMatrixMismatch
-from holofit.fit.frame import FrameFitOptions, fit_frame
+from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.fit.stage import _free
-from holofit.fitting.parameters import particle_with, static_values
 from holofit.hologram import calc_hologram
+from holofit.holomodel.parameters import particle_with, static_values
 from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import Candidate, OrientationLibrary, pick_candidates, tilt_grid
-from holofit.models import JanusSphere, ParticleModel, Spherocylinder
+from holofit.particles import JanusSphere, ParticleModel, Spherocylinder
 from holofit.scattering.theory import Orientation, ScatteringTheory
 
 CASES_SETUP = {
@@ -224,7 +224,7 @@ def run(case: str, with_tmatrix: bool = True) -> dict[str, float]:
     def fit(pass_name, model, label):
         t0 = time.perf_counter()
         res = fit_frame(crop, grid.corner, px, theory, model, inst.optics, start, START_ALPHA,
-                        cands, _free(model, pass_name), FrameFitOptions(), seed=0)
+                        cands, _free(model, pass_name), FrameFitSettings(), seed=0)
         out[f"fit_{name}_frame_{label}_s"] = time.perf_counter() - t0
         return res
 

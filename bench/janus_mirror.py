@@ -72,7 +72,7 @@ from pathlib import Path
 
 from fit_cases import START_ALPHA, library_candidates, make_case, make_library, use_tmatrix
 
-from holofit.fit.frame import FrameFitOptions, fit_frame
+from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.fit.stage import _free
 from holofit.library.search import Candidate
 from holofit.scattering.theory import Orientation
@@ -109,9 +109,9 @@ def study(seeds: int, tmatrix: Path) -> dict:
     library_s = time.perf_counter() - t0
     free = _free(model, "final")
     px = case.inst.pixel_size_um
-    single = FrameFitOptions(n_starts=1, mirror=False)
+    single = FrameFitSettings(n_starts=1, mirror=False)
 
-    def fit_from(crop, theta: float, options: FrameFitOptions, seed: int):
+    def fit_from(crop, theta: float, options: FrameFitSettings, seed: int):
         start = Candidate(START_PSI if theta else 0.0, theta, 0.0, math.nan)
         return fit_frame(crop, case.grid.corner, px, theory, model, case.inst.optics,
                          case.start, START_ALPHA, [start], free, options, seed=seed)
@@ -131,12 +131,12 @@ def study(seeds: int, tmatrix: Path) -> dict:
         for label, mirror in (("frame_fit", True), ("frame_fit_no_mirror", False)):
             res = fit_frame(crop, case.grid.corner, px, theory, model, case.inst.optics,
                             case.start, START_ALPHA, cands, free,
-                            FrameFitOptions(mirror=mirror), seed=seed)
+                            FrameFitSettings(mirror=mirror), seed=seed)
             frame[label] = {**_summary(res), **{k: res.extra[k] for k in RUNNER_UP},
                             "candidates": [(c.psi, c.theta, c.r2) for c in cands]}
         out["seeds"].append({"seed": seed, "single": fits, **frame})
     # the model's own difference: the noise-free hologram, chi^2 in the movie's noise units
-    quiet = FrameFitOptions(n_starts=1, mirror=False, noise_sd=noise_sd)
+    quiet = FrameFitSettings(n_starts=1, mirror=False, noise_sd=noise_sd)
     free_fits = {name: _summary(fit_from(case.crop(None), th, quiet, 0), noise_sd)
                  for name, th in (("0", 0.0), ("pi", math.pi))}
     for f in free_fits.values():

@@ -27,10 +27,10 @@ import numpy as np
 
 from holofit.conventions import DetectorGrid
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.prefit.estimate import SearchSpace
-from holofit.prefit.sphere import FitOptions, fit_sphere_crop
+from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.scattering.mie import MieWave
 
 NOISE = 0.02
@@ -107,7 +107,7 @@ def fit_case(case: Case, lens_model: bool = False, z_um: float | None = None,
     holo, corner, centre, truth = lens_crop(case, z_um)
     optics = Optics(case.wavelength_um, case.n_medium, 0.0, case.na if lens_model else None)
     # the status as for a frame with pixel noise NOISE (noise-free data would be poor_fit)
-    opts = FitOptions(noise_sd=NOISE, **({"search": search} if search is not None else {}))
+    opts = SphereFitSettings(noise_sd=NOISE, **({"search": search} if search is not None else {}))
     row: dict[str, float | str] = {"case": case.label, "z_true_um": float(truth[2]),
                                    "model": "lens" if lens_model else "ideal"}
     try:

@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 from fit_cases import START_ALPHA, library_candidates, make_case, make_library, use_tmatrix
 
-from holofit.fit.frame import FrameFitOptions, fit_frame
+from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.fit.stage import _free
 from holofit.scattering.theory import Orientation
 
@@ -75,7 +75,7 @@ def study(fractions: list[float], seeds: int, tmatrix: str | None = None) -> dic
             t0 = time.perf_counter()
             res = fit_frame(crop, case.grid.corner, px, theory, model, case.inst.optics,
                             case.start, START_ALPHA, cands, free,
-                            FrameFitOptions(pixel_fraction=f), seed=seed)
+                            FrameFitSettings(pixel_fraction=f), seed=seed)
             wall = time.perf_counter() - t0
             rows.append({
                 "fraction": f, "seed": seed, "status": res.status, "n_pixels": res.n_pixels,

@@ -30,8 +30,8 @@ import numpy as np
 from holofit.conventions import DetectorGrid, r_squared
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie, cross_sections
 from holofit.scattering.theory import Orientation
 

@@ -31,14 +31,14 @@ import numpy as np
 import pandas as pd
 from truth_compare import compare_with_truth
 
-from holofit.analysis import AnalysisSettings, run_analysis
+from holofit.analysis import AnalysisConfig, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diffusion
 from holofit.batch import BatchOptions
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit.stage import run_fit
 from holofit.library.stage import run_library
-from holofit.models import JanusSphere, Spherocylinder
+from holofit.particles import JanusSphere, Spherocylinder
 from holofit.prefit import run_prefit
 from holofit.simulate.brownian import BrownianParameters
 from holofit.simulate.scenarios import diffusing_movie
@@ -76,7 +76,7 @@ def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dy
            out / "library", batch=batch)
     run = _stage(times, "fit", run_fit, out / "crop", out / "prefit", out / "library", config,
                  out / "fit", initial_frames=initial_frames, batch=batch)
-    settings = AnalysisSettings(model=model, temperature_c=T_C)
+    settings = AnalysisConfig(model=model, temperature_c=T_C)
     result, files = _stage(times, "analyze", run_analysis, run.final, settings,
                            out / "analysis")
     fit = pd.read_csv(run.final).set_index("frame")
@@ -98,7 +98,7 @@ def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dy
 NEAR_FOCUS_UM = 3.0
 
 
-def _analyse_truth(truth: pd.DataFrame, final: Path, settings: AnalysisSettings, out: Path):
+def _analyse_truth(truth: pd.DataFrame, final: Path, settings: AnalysisConfig, out: Path):
     """The same analysis on the simulation's true trajectory at the fitted frames: what the
     movie's length allows, separated from what the fits add."""
     table = truth.reset_index()[["frame", "time_s", "x_um", "y_um", "z_um", "psi_rad",

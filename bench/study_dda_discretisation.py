@@ -37,8 +37,8 @@ from holofit.dda.engine import DDAWave
 from holofit.dda.lattice import Lattice
 from holofit.dda.voxelize import ramp
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.scattering.coated_mie import CoatedSphereWave
 from holofit.scattering.theory import Orientation
 

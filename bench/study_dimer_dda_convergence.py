@@ -24,8 +24,8 @@ import numpy as np
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
-from holofit.models import Dimer
 from holofit.optics import Optics
+from holofit.particles import Dimer
 from holofit.scattering.cluster import ClusterTheory
 from holofit.scattering.theory import Orientation
 

@@ -36,11 +36,11 @@ from holofit.camera import Camera
 from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
-from holofit.fit.frame import FrameFitOptions, fit_frame
-from holofit.fitting.parameters import static_parameters
+from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.hologram import calc_hologram
+from holofit.holomodel.parameters import static_parameters
 from holofit.library.search import Candidate
-from holofit.models import CoatedSphere, Dimer, ParticleModel
+from holofit.particles import CoatedSphere, Dimer, ParticleModel
 from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation
 
@@ -91,7 +91,7 @@ def run_case(case: str, dpl: float, seed: int, o_index: int) -> dict[str, object
     cands = [Candidate(o.psi, o.theta, o.phi, 0.0)]
     t0 = time.perf_counter()
     res = fit_frame(crop, grid.corner, px, dda, start_model, inst.optics, start, 0.8, cands,
-                    tuple(free), FrameFitOptions(), seed=0)
+                    tuple(free), FrameFitSettings(), seed=0)
     wall = time.perf_counter() - t0
     truth_values = {"x_um": pos[0], "y_um": pos[1], "z_um": pos[2], "alpha": ALPHA}
     for p in static_parameters(truth):

@@ -25,8 +25,8 @@ import numpy as np
 
 from holofit.config import load_instrument, resolve_config
 from holofit.conventions import hologram_intensity, pixel_centres
-from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.scattering.camera import recorded_field
 from holofit.scattering.cluster import SphereSumWave, solve_cluster
 from holofit.scattering.mie import MieWave

@@ -19,7 +19,7 @@ from holofit.dda import interaction
 from holofit.dda.engine import BuiltinDDA
 from holofit.dda.tmatrix_io import load_tmatrix, save_tmatrix
 from holofit.hologram import calc_hologram
-from holofit.models import JanusSphere, Spherocylinder
+from holofit.particles import JanusSphere, Spherocylinder
 from holofit.scattering.theory import Orientation
 
 #: the paper's particles (rod: a, b; Janus: core radius, cap thickness; water, 660 nm)

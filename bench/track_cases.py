@@ -50,11 +50,11 @@ from fit_cases import (
 
 from holofit.camera import Camera
 from holofit.conventions import DetectorGrid
-from holofit.fit.continuity import ContinuityOptions, chi2_bar, suspects
-from holofit.fit.frame import FrameFitOptions, fit_frame
+from holofit.fit.continuity import ContinuitySettings, chi2_bar, suspects
+from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.fit.tracking import ChunkFrame, TrackOptions, track_chunk
-from holofit.fitting.result import result_row
 from holofit.hologram import calc_hologram
+from holofit.holomodel.result import result_row
 from holofit.scattering.theory import Orientation
 
 CACHE = Path(__file__).resolve().parent / ".cache"
@@ -113,7 +113,7 @@ def run(name: str, n: int) -> dict[str, float]:
         frames[i] = ChunkFrame(f.frame, f.crop, f.corner, f.position_um, f.alpha,
                                tuple(library_candidates(lib, c, f.crop, f.position_um)),
                                f.time_s)
-    opts = FrameFitOptions()
+    opts = FrameFitSettings()
     # independent frames (today's final pass) on the first N_BAR: the baseline and the bar
     t0 = time.perf_counter()
     rows = []
@@ -152,7 +152,7 @@ def run(name: str, n: int) -> dict[str, float]:
     out[f"track_{name}_wrong_branch_ok_unflagged"] = float((wrong & ~flagged).sum())
     # what the continuity sweeps would still refit (an upper bound of what they change)
     out[f"track_{name}_sweep_suspects"] = float(
-        suspects(tab, ContinuityOptions(), model.head_tail_symmetric).sum())
+        suspects(tab, ContinuitySettings(), model.head_tail_symmetric).sum())
     return out
 
 

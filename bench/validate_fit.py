@@ -23,15 +23,15 @@ from pathlib import Path
 import pandas as pd
 from truth_compare import compare_with_truth
 
-from holofit.analysis import AnalysisSettings, run_analysis
+from holofit.analysis import AnalysisConfig, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diffusion
 from holofit.batch import BatchOptions
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit.stage import run_fit
-from holofit.fitting.parameters import static_values
+from holofit.holomodel.parameters import static_values
 from holofit.library.stage import run_library
-from holofit.models import JanusSphere, Spherocylinder
+from holofit.particles import JanusSphere, Spherocylinder
 from holofit.prefit import run_prefit
 from holofit.simulate.brownian import BrownianParameters
 from holofit.simulate.scenarios import diffusing_movie
@@ -111,7 +111,7 @@ def main() -> None:
     report.update(compare_with_truth(fit, truth.set_index("frame"),
                                      head_tail_symmetric=truth_model.head_tail_symmetric))
     if args.analyze:
-        settings = AnalysisSettings(model=case["model"], temperature_c=21.0)
+        settings = AnalysisConfig(model=case["model"], temperature_c=21.0)
         result, _ = run_analysis(run.final, settings, out / "analysis")
         report["analysis"] = {k: {"value": m.value, "error": m.error, "unit": m.unit}
                               for k, m in result.measured.items()}

@@ -53,11 +53,11 @@ from holofit.batch.errors import BatchError
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit.stage import run_fit
-from holofit.fitting.pictures import model_image
+from holofit.holomodel.pictures import model_image
 from holofit.library.stage import run_library
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.prefit.profile import radial_profile
-from holofit.prefit.sphere import FitOptions, fit_sphere_crop
+from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.prefit.stage import run_prefit
 from holofit.scattering.mie import LorenzMie
 from holofit.tables.cropset import CropSet
@@ -159,7 +159,7 @@ def _prefit(case: Case, crops: Path, out: Path, label: str, na: Any, fit_na: boo
     folder = out / ("prefit_" + label.replace(" ", "_").replace(",", "").replace(".", "p"))
     t0 = time.perf_counter()
     fix_alpha = None if "alpha free" in label else case.fix_alpha
-    fit = FitOptions(fix_alpha=fix_alpha, fit_na=fit_na)
+    fit = SphereFitSettings(fix_alpha=fix_alpha, fit_na=fit_na)
     try:  # the same settings as a finished earlier run: its table is kept
         result = run_prefit(crops, folder, fit=fit, batch=SERIAL, numerical_aperture=na,
                             plot=True, plot_frames=[0])
@@ -219,7 +219,7 @@ def _profile(case: Case, crops: Path) -> list[dict[str, float]]:
     for na in (*PROFILE_NA, None):
         optics = inst.with_numerical_aperture(na).optics  # type: ignore[union-attr]
         fit = fit_sphere_crop(data, corner, centre, optics, inst.pixel_size_um,  # type: ignore
-                              FitOptions(fix_alpha=case.fix_alpha), seed=0)
+                              SphereFitSettings(fix_alpha=case.fix_alpha), seed=0)
         out.append(dict(na=math.nan if na is None else na, r2=fit.r2, chi2_red=fit.chi2_red,
                         z_um=fit.values["z_um"], radius_um=fit.values["radius_um"],
                         n=fit.values["n"], status=fit.status))

@@ -3,7 +3,7 @@
 The public API, by job (the command line is a thin layer over these functions)::
 
     stages         run_crop, run_prefit, run_library, run_fit, run_analysis
-                   (LibrarySettings, FrameFitOptions, ContinuityOptions, AnalysisSettings)
+                   (LibrarySettings, FrameFitSettings, ContinuitySettings, AnalysisConfig)
     simulation     simulate_movie, simulate_trajectory, BrownianParameters
     configuration  Instrument, load_instrument, ParticleConfig, load_particle, DDASettings
     particles      Sphere, Spherocylinder, JanusSphere, Dimer, Spheroid, Ellipsoid, Cylinder,
@@ -42,10 +42,10 @@ _API: dict[str, str] = {
     "run_library": "holofit.library.stage",
     "LibrarySettings": "holofit.library.stage",
     "run_fit": "holofit.fit.stage",
-    "FrameFitOptions": "holofit.fit.frame",
-    "ContinuityOptions": "holofit.fit.continuity",
+    "FrameFitSettings": "holofit.fit.frame",
+    "ContinuitySettings": "holofit.fit.continuity",
     "run_analysis": "holofit.analysis",
-    "AnalysisSettings": "holofit.analysis",
+    "AnalysisConfig": "holofit.analysis",
     # simulation
     "simulate_movie": "holofit.simulate.holograms",
     "simulate_trajectory": "holofit.simulate.brownian",
@@ -57,16 +57,16 @@ _API: dict[str, str] = {
     "load_particle": "holofit.config",
     "DDASettings": "holofit.dda.settings",
     # particle models
-    "Sphere": "holofit.models",
-    "Spherocylinder": "holofit.models",
-    "JanusSphere": "holofit.models",
-    "Dimer": "holofit.models",
-    "Spheroid": "holofit.models",
-    "Ellipsoid": "holofit.models",
-    "Cylinder": "holofit.models",
-    "CoatedSphere": "holofit.models",
-    "Cluster": "holofit.models",
-    "VoxelShape": "holofit.models",
+    "Sphere": "holofit.particles",
+    "Spherocylinder": "holofit.particles",
+    "JanusSphere": "holofit.particles",
+    "Dimer": "holofit.particles",
+    "Spheroid": "holofit.particles",
+    "Ellipsoid": "holofit.particles",
+    "Cylinder": "holofit.particles",
+    "CoatedSphere": "holofit.particles",
+    "Cluster": "holofit.particles",
+    "VoxelShape": "holofit.particles",
     # geometry and light
     "Orientation": "holofit.scattering.theory",
     "DetectorGrid": "holofit.conventions",
@@ -83,10 +83,10 @@ _API: dict[str, str] = {
     "hologram": "holofit.hologram",
     "calc_hologram": "holofit.hologram",
     # fitting kit
-    "HologramModel": "holofit.fitting.forward",
-    "ParameterSpace": "holofit.fitting.parameters",
-    "solve_least_squares": "holofit.fitting.leastsq",
-    "FitResult": "holofit.fitting.result",
+    "HologramModel": "holofit.holomodel.forward",
+    "ParameterSpace": "holofit.holomodel.parameters",
+    "solve_least_squares": "holofit.holomodel.leastsq",
+    "FitResult": "holofit.holomodel.result",
     "fit_sphere_crop": "holofit.prefit.sphere",
     "fit_frame": "holofit.fit.frame",
     # tables

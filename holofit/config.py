@@ -30,12 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from holofit.dda.settings import DDASettings
-from holofit.models import MODEL_TYPES, ParticleModel, Sphere
-from holofit.optics import Optics
-from holofit.scattering.select import select_theory
-from holofit.scattering.theory import ScatteringTheory
-from holofit.validation import (
+from holofit.config_schema import (
     INDEX_RANGE,
     SIZE_RANGE_UM,
     ConfigError,
@@ -44,6 +39,11 @@ from holofit.validation import (
     read_toml,
     validate_table,
 )
+from holofit.dda.settings import DDASettings
+from holofit.optics import Optics
+from holofit.particles import MODEL_TYPES, ParticleModel, Sphere
+from holofit.scattering.select import select_theory
+from holofit.scattering.theory import ScatteringTheory
 
 __all__ = [
     "ConfigError",

@@ -9,8 +9,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.conventions import DetectorGrid, hologram_intensity
-from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 from holofit.scattering.lens import lens_field_on_detector
 from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory

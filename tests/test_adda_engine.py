@@ -22,8 +22,8 @@ from holofit.dda.engine import BuiltinDDA
 from holofit.dda.farfield import adda_amplitude_matrix
 from holofit.dda.voxelize import voxelize
 from holofit.io.shapefile import read_shape_file
-from holofit.models import JanusSphere, Spherocylinder, VoxelShape
 from holofit.optics import Optics
+from holofit.particles import JanusSphere, Spherocylinder, VoxelShape
 from holofit.scattering.theory import Orientation
 from tests.conftest import DATA
 

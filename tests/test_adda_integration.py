@@ -17,8 +17,8 @@ from holofit.conventions import DetectorGrid, r_squared
 from holofit.dda import adda as ae
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
-from holofit.models import JanusSphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import JanusSphere, Spherocylinder
 from holofit.scattering.theory import Orientation
 
 pytestmark = pytest.mark.adda

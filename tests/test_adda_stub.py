@@ -23,8 +23,8 @@ import pytest
 from holofit.conventions import DetectorGrid, euler_zyz, hologram_intensity
 from holofit.dda import adda as ae
 from holofit.hologram import calc_hologram
-from holofit.models import JanusSphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import JanusSphere, Spherocylinder
 from holofit.scattering.registry import get_theory
 from holofit.scattering.theory import Orientation
 

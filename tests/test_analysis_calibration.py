@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from holofit.analysis.validation import (
+from holofit.studies.diffusion import (
     L1_AMPLITUDE,
     calibration_case,
     projection_study,

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from holofit.analysis import AnalysisSettings, Trajectory, analyze_trajectory
+from holofit.analysis import AnalysisConfig, Trajectory, analyze_trajectory
 from holofit.analysis.measurement import Measurement
 from holofit.analysis.msd_covariance import msd_covariance
 from holofit.analysis.projection_covariance import projection_covariance
-from holofit.analysis.validation import (
+from holofit.studies.diffusion import (
     calibration_case,
     calibration_trajectory,
     pull_bounds,
@@ -66,7 +66,7 @@ def test_drift_removal_leaves_short_runs_unbiased():
     for seed in range(300):
         traj = calibration_trajectory("sphere", "replicate", 30, seed)
         traj.position_um[:, 0] += 3.0 * traj.time_s  # 3 um/s along x
-        res = analyze_trajectory(traj, AnalysisSettings("sphere"))
+        res = analyze_trajectory(traj, AnalysisConfig("sphere"))
         values.append(res.measured["D_t"].value)
         assert abs(res.drift_um_s[0] - 3.0) < 5 * res.drift_err_um_s[0]
     truth = 0.4183
@@ -79,7 +79,7 @@ def test_unresolved_localisation_error_is_an_upper_limit():
     # one-frame MSD, far below what 300 frames resolve; sqrt of the fitted intercept used to
     # report ~10 nm
     res = analyze_trajectory(calibration_trajectory("rod", "replicate", 300, 3),
-                             AnalysisSettings("rod"))
+                             AnalysisConfig("rod"))
     for key in ("eps_par", "eps_perp"):
         m = res.measured[key]
         assert m.upper_limit and math.isnan(m.error) and m.value >= 2.0
@@ -87,7 +87,7 @@ def test_unresolved_localisation_error_is_an_upper_limit():
     assert "upper limit" in row["source"]
     # 35 nm on 2000 frames is resolved and measured within its error
     res = analyze_trajectory(calibration_trajectory("rod", "paper", 2000, 3),
-                             AnalysisSettings("rod"))
+                             AnalysisConfig("rod"))
     for key in ("eps_par", "eps_perp"):
         m = res.measured[key]
         assert not m.upper_limit and abs(m.value - 35.0) < 4 * m.error
@@ -119,13 +119,13 @@ def _rod_table_traj(n, gaps=()):
 def test_ten_frames_are_enough_and_fewer_pairs_say_how_many_are_needed():
     # issue 24 item 11: 10 ok frames (the stated minimum) were refused by the rotational
     # estimate of the rejection ("too few valid frame pairs", which needed 12)
-    res = analyze_trajectory(_rod_table_traj(10), AnalysisSettings("rod"))
+    res = analyze_trajectory(_rod_table_traj(10), AnalysisConfig("rod"))
     assert math.isfinite(res.measured["D_r"].value)
     with pytest.raises(ValueError, match="at least 10"):
-        analyze_trajectory(_rod_table_traj(10, gaps=[4]), AnalysisSettings("rod"))
+        analyze_trajectory(_rod_table_traj(10, gaps=[4]), AnalysisConfig("rod"))
     # 12 slots with two gaps: 10 frames, but only 7 pairs at lag 1 and 6 at lag 2
     with pytest.raises(ValueError) as err:
-        analyze_trajectory(_rod_table_traj(12, gaps=[3, 8]), AnalysisSettings("rod"))
+        analyze_trajectory(_rod_table_traj(12, gaps=[3, 8]), AnalysisConfig("rod"))
     text = str(err.value)
     assert "rod.csv" in text and "at least 8 pairs" in text and "lag 1: " in text
     assert "--d-est" in text
@@ -136,7 +136,7 @@ def test_a_rotation_the_run_cannot_resolve_gives_no_radius_and_no_crash():
     # D_r = 0, which used to divide by zero in the Stokes-Einstein-Debye radius
     traj = calibration_trajectory("janus", "replicate", 30, 1)
     traj.axis[:] = traj.axis[0]
-    res = analyze_trajectory(traj, AnalysisSettings("janus"))
+    res = analyze_trajectory(traj, AnalysisConfig("janus"))
     m = res.measured["D_r"]
     assert m.value == pytest.approx(0.0, abs=1e-6)
     assert "a_eff_r" not in res.measured and "a_eff_t" in res.measured
@@ -147,7 +147,7 @@ def test_a_long_adaptive_fit_range_on_a_short_run_is_computed():
     # 30 noisy frames whose probe finds a large reduced noise: the range 1..p ran past the
     # lags computed for the plots ("requested lags were not computed")
     traj = calibration_trajectory("janus", "paper", 30, 1_003_024)
-    res = analyze_trajectory(traj, AnalysisSettings("janus"))
+    res = analyze_trajectory(traj, AnalysisConfig("janus"))
     assert res.fits["xy"].lags[-1] > 10
     assert math.isfinite(res.measured["D_t"].value)
 
@@ -157,7 +157,7 @@ def test_projection_error_below_stops_at_zero():
     # below D_r = 0 (the error below came out ~1.6 x the value); it ends at the bound
     for seed in range(3):
         res = analyze_trajectory(calibration_trajectory("janus", "replicate", 30, 100 + seed),
-                                 AnalysisSettings("janus"))
+                                 AnalysisConfig("janus"))
         m = res.measured["D_r"]
         lo, hi = m.sides()
         assert 0 <= lo <= m.value * (1 + 1e-9) and hi > lo, (m.value, lo, hi)

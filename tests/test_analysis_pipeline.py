@@ -8,11 +8,11 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from holofit.analysis import AnalysisSettings, Trajectory, analyze_trajectory
+from holofit.analysis import AnalysisConfig, Trajectory, analyze_trajectory
 from holofit.analysis.summary import SUMMARY_COLUMNS
-from holofit.analysis.validation import PAPER_ROD, rod_study, single_exponential_bias
 from holofit.cli import main
 from holofit.simulate.brownian import BrownianParameters, MeasurementNoise, simulate_trajectory
+from holofit.studies.diffusion import PAPER_ROD, rod_study, single_exponential_bias
 from holofit.tables.fit import validate_fit_table
 
 R = PAPER_ROD
@@ -33,7 +33,7 @@ def _within(m, truth, k=4.0):
 def test_rod_recovers_truth_within_reported_errors():
     traj, sim = _rod_traj(seed=11, fail=0.02, missing=0.02,
                           static={"a_um": 0.501, "b_um": 1.079})
-    res = analyze_trajectory(traj, AnalysisSettings("rod"))
+    res = analyze_trajectory(traj, AnalysisConfig("rod"))
     m = res.measured
     assert _within(m["D_par"], R["d_par"]) and _within(m["D_perp"], R["d_perp"])
     assert _within(m["D_r"], R["d_r"]) and _within(m["D_t"], (R["d_par"] + 2 * R["d_perp"]) / 3)
@@ -60,8 +60,8 @@ def test_rod_errors_calibrated_reduced_study():
 
 def test_cleaning_is_what_makes_the_rotation_right():
     traj, _ = _rod_traj(seed=5)
-    raw = analyze_trajectory(traj, AnalysisSettings("rod", head_tail=False, reject=False))
-    clean = analyze_trajectory(traj, AnalysisSettings("rod"))
+    raw = analyze_trajectory(traj, AnalysisConfig("rod", head_tail=False, reject=False))
+    clean = analyze_trajectory(traj, AnalysisConfig("rod"))
     # 1 % flips add 8 % * exp(-2 D_r tau) to <|du|^2>: an apparent 12-degree noise floor
     assert raw.stats["orient"].mean[0] > 5 * clean.stats["orient"].mean[0]
     assert raw.measured["eps_r"].value > 5 * math.degrees(R["eps_r"])
@@ -74,8 +74,8 @@ def test_cleaning_is_what_makes_the_rotation_right():
 
 def test_sedimentation_drift_removed():
     traj, _ = _rod_traj(seed=2, drift=(0.0, 0.0, -0.9))
-    on = analyze_trajectory(traj, AnalysisSettings("rod"))
-    off = analyze_trajectory(traj, AnalysisSettings("rod", subtract_drift=False))
+    on = analyze_trajectory(traj, AnalysisConfig("rod"))
+    off = analyze_trajectory(traj, AnalysisConfig("rod", subtract_drift=False))
     d_t = (R["d_par"] + 2 * R["d_perp"]) / 3
     assert on.drift_um_s[2] == pytest.approx(-0.9, abs=0.4)  # +-0.17 um/s from 20 s of data
     assert _within(on.measured["D_t_lab"], d_t)
@@ -88,7 +88,7 @@ def test_janus_projection_and_translation():
     sim = simulate_trajectory(p, MeasurementNoise(0.02, None, 0.0, mirror_fraction=0.05),
                               seed=3, static={"radius_um": 0.49})
     traj = Trajectory.from_fit_table(validate_fit_table(sim.table))
-    res = analyze_trajectory(traj, AnalysisSettings("janus"))
+    res = analyze_trajectory(traj, AnalysisConfig("janus"))
     m = res.measured
     assert _within(m["D_t"], d_t) and _within(m["D_r"], d_r) and _within(m["eps"], 20.0)
     # mirrored polar angles do not touch psi, so no cleaning was needed
@@ -109,7 +109,7 @@ def test_sphere_translation_only():
     sim = simulate_trajectory(p, MeasurementNoise(0.01), seed=9)
     traj = Trajectory.from_fit_table(validate_fit_table(sim.table.drop(
         columns=["ux", "uy", "uz", "theta_rad", "psi_rad", "phi_rad"])))
-    res = analyze_trajectory(traj, AnalysisSettings("sphere", a_um=0.5))
+    res = analyze_trajectory(traj, AnalysisConfig("sphere", a_um=0.5))
     assert _within(res.measured["D_t"], 0.5)
     assert "D_r" not in res.measured and res.predictions["D_t"][0].value > 0
 
@@ -117,7 +117,7 @@ def test_sphere_translation_only():
 def test_rod_without_orientation_is_refused():
     traj = Trajectory.from_arrays(np.random.default_rng(0).normal(size=(100, 3)), None, 0.01)
     with pytest.raises(ValueError, match="needs the orientation"):
-        analyze_trajectory(traj, AnalysisSettings("rod"))
+        analyze_trajectory(traj, AnalysisConfig("rod"))
 
 
 def test_cli_writes_summary_plots_and_report(tmp_path):
@@ -157,7 +157,7 @@ def test_cli_errors_are_clear(tmp_path):
 
 def test_fit_range_options_are_used():
     traj, _ = _rod_traj(seed=4, n=1500)
-    res = analyze_trajectory(traj, AnalysisSettings("rod", fit_lags_translation=(2, 6),
+    res = analyze_trajectory(traj, AnalysisConfig("rod", fit_lags_translation=(2, 6),
                                                     fit_lags_rotation=(1, 30)))
     assert list(res.fits["par"].lags) == [2, 3, 4, 5, 6]
     assert res.fits["orient"].lags[-1] == 30 and res.fits["orient"].lags[0] == 1
@@ -175,9 +175,9 @@ def test_frames_flagged_ambiguous_are_left_out_of_a_rod_analysis(tmp_path):
     table = table.drop(columns=["theta_rad", "psi_rad"], errors="ignore")
     table["ambiguous"] = flagged.astype(int)
     fit = validate_fit_table(table)
-    off = AnalysisSettings("rod", reject=False, drop_ambiguous=False)
-    on = AnalysisSettings("rod", reject=False)  # rods drop ambiguous frames by default
-    assert on.drop_ambiguous and not AnalysisSettings("janus").drop_ambiguous
+    off = AnalysisConfig("rod", reject=False, drop_ambiguous=False)
+    on = AnalysisConfig("rod", reject=False)  # rods drop ambiguous frames by default
+    assert on.drop_ambiguous and not AnalysisConfig("janus").drop_ambiguous
     biased = analyze_trajectory(Trajectory.from_fit_table(fit, False), off).measured["D_r"]
     traj = Trajectory.from_fit_table(fit, True)
     assert traj.n_ambiguous == int(flagged.sum())
@@ -195,7 +195,7 @@ def test_sizes_held_fixed_keep_the_initial_pass_spread():
                            "spread": {"a_um": 0.02, "b_um": 0.05}, "n_frames": 100}}
     summary = fit.static_summary()
     assert summary["a_um"]["std"] == 0.02 and summary["a_um"]["count"] == 100
-    res = analyze_trajectory(Trajectory.from_fit_table(fit), AnalysisSettings("rod"))
+    res = analyze_trajectory(Trajectory.from_fit_table(fit), AnalysisConfig("rod"))
     assert res.sizes["a_um"][1] == pytest.approx(0.02 / 10)
     # issue 24 item 12: the summary says where the spread comes from (it is not a s.d. over
     # the table's frames, whose values are all the same)
@@ -210,7 +210,7 @@ def test_sizes_that_vary_over_frames_report_their_spread():
     table = sim.table.copy()
     table["a_um"] = 0.501 + 0.01 * np.random.default_rng(0).standard_normal(len(table))
     res = analyze_trajectory(Trajectory.from_fit_table(validate_fit_table(table)),
-                             AnalysisSettings("rod"))
+                             AnalysisConfig("rod"))
     row = next(r for r in res.rows if r["quantity"] == "a")
     assert row["source"] == "fit table 'a_um': median +- s.d. over 300 frames"
     assert row["measured_err"] == pytest.approx(10.0, rel=0.15)
@@ -221,7 +221,7 @@ def test_short_trajectories_are_unbiased_and_get_a_note():
     # removal without the bridge factor, and lags weighted as if independent)
     rows = rod_study(n_seeds=30, n_frames=30, first_seed=500)
     assert abs(rows["D_t"].bias_in_se) < 3, rows["D_t"].line()
-    short = analyze_trajectory(_rod_traj(seed=1, n=30)[0], AnalysisSettings("rod"))
+    short = analyze_trajectory(_rod_traj(seed=1, n=30)[0], AnalysisConfig("rod"))
     assert any("skewed" in note for note in short.notes)
-    long = analyze_trajectory(_rod_traj(seed=1, n=300)[0], AnalysisSettings("rod"))
+    long = analyze_trajectory(_rod_traj(seed=1, n=300)[0], AnalysisConfig("rod"))
     assert not any("skewed" in note for note in long.notes)

@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from holofit.analysis import AnalysisSettings, SettingError, Trajectory, analyze_trajectory
+from holofit.analysis import AnalysisConfig, SettingError, Trajectory, analyze_trajectory
 from holofit.analysis import recipes as recipes_mod
-from holofit.analysis.fitting import linear_msd_model
+from holofit.analysis.linefit import linear_msd_model
 from holofit.analysis.measurement import Measurement
 from holofit.analysis.plots import write_plots
 from holofit.analysis.recipes import Compared, Curve, MsdPanel, Probe, Recipe
@@ -49,7 +49,7 @@ def test_kelvin_for_celsius_and_nm_for_um_are_refused_naming_the_option(tmp_path
 
 def test_settings_and_config_files_share_one_rule(tmp_path):
     with pytest.raises(SettingError) as info:
-        AnalysisSettings("sphere", a_um=500.0)
+        AnalysisConfig("sphere", a_um=500.0)
     assert info.value.setting == "a_um"
     # the particle-file loader says the same about the same slip
     cfg = tmp_path / "p.toml"
@@ -68,10 +68,10 @@ def test_settings_and_config_files_share_one_rule(tmp_path):
         ({"reject_probability": 1.0}, "reject_probability"),
     ):
         with pytest.raises(SettingError) as bad:
-            AnalysisSettings("rod", **kwargs)
+            AnalysisConfig("rod", **kwargs)
         assert bad.value.setting == setting
     # in range: accepted (the default analysis of the paper's rod at 21 C)
-    assert AnalysisSettings("rod", temperature_c=21.0, a_um=0.5, b_um=1.08).head_tail is True
+    assert AnalysisConfig("rod", temperature_c=21.0, a_um=0.5, b_um=1.08).head_tail is True
 
 
 def test_errors_name_the_table_once(tmp_path):
@@ -99,7 +99,7 @@ def test_a_long_given_translation_range_is_fitted_at_every_lag(tmp_path):
     # lags beyond 60 used to be computed on a sparse grid but fitted on the dense one
     _, sim = _sim_table(tmp_path)
     traj = Trajectory.from_fit_table(validate_fit_table(sim.table))
-    res = analyze_trajectory(traj, AnalysisSettings("sphere", fit_lags_translation=(1, 100)))
+    res = analyze_trajectory(traj, AnalysisConfig("sphere", fit_lags_translation=(1, 100)))
     assert list(res.fits["xy"].lags) == list(range(1, 101))
 
 
@@ -130,7 +130,7 @@ def test_a_new_model_is_a_new_recipe(tmp_path, monkeypatch):
     p = BrownianParameters(3000, 0.02, d_t, d_t, 1.0)
     sim = simulate_trajectory(p, MeasurementNoise(0.01), seed=9, static={"radius_um": 0.5})
     traj = Trajectory.from_fit_table(validate_fit_table(sim.table))
-    res = analyze_trajectory(traj, AnalysisSettings("sphere3d"))
+    res = analyze_trajectory(traj, AnalysisConfig("sphere3d"))
     m = res.measured["D_t"]
     assert abs(m.value - d_t) < 4 * m.error  # the simulation's truth
     row = next(r for r in res.rows if r["quantity"] == "D (3-D MSD)")

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from holofit.analysis import AnalysisSettings
+from holofit.analysis import AnalysisConfig
 from holofit.analysis.errors import AnalysisError
 from holofit.analysis.tracks import (
     analyze_tracks,
@@ -38,7 +38,7 @@ def _write(tmp_path, parts: list[pd.DataFrame]):
     return path
 
 
-SPHERE = AnalysisSettings(model="sphere", temperature_c=21.0, a_um=0.5)
+SPHERE = AnalysisConfig(model="sphere", temperature_c=21.0, a_um=0.5)
 
 
 def test_pool_estimates_is_the_weighted_mean_and_its_chi2() -> None:

@@ -21,9 +21,9 @@ from click.testing import CliRunner
 
 from holofit.cli import main
 from holofit.config import load_instrument
+from holofit.config_schema import ConfigError
 from holofit.crop import CropError
 from holofit.dda import adda as ae
-from holofit.validation import ConfigError
 from tests.test_adda_stub import make_stub
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,8 +13,8 @@ from holofit.config import ConfigError, load_particle
 from holofit.dda.legendre import legendre_tables
 from holofit.dda.multipole import MultipoleExpansion, _sum_points
 from holofit.dda.tmatrix_waves import n_terms, unpack
-from holofit.models import Cluster, CoatedSphere, Dimer, Sphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import Cluster, CoatedSphere, Dimer, Sphere, Spherocylinder
 from holofit.scattering.cluster import (
     ClusterTheory,
     ClusterWave,
@@ -393,7 +393,7 @@ def test_frame_fit_with_the_cluster_engine_recovers_the_truth() -> None:
 
     from holofit.camera import Camera
     from holofit.conventions import DetectorGrid
-    from holofit.fit.frame import FrameFitOptions, fit_frame
+    from holofit.fit.frame import FrameFitSettings, fit_frame
     from holofit.hologram import calc_hologram
     from holofit.library.polar import polar_grid, sample_crop
     from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
@@ -414,7 +414,7 @@ def test_frame_fit_with_the_cluster_engine_recovers_the_truth() -> None:
     cands = pick_candidates(lib.scores(pg, d, w, start, 0.8), lib.tilts, pg.phi, model, 4,
                             math.radians(20))
     res = fit_frame(crop, grid.corner, px, th, model, optics, start, 0.8, cands,
-                    ("x_um", "y_um", "z_um", "orientation", "alpha"), FrameFitOptions(), seed=0)
+                    ("x_um", "y_um", "z_um", "orientation", "alpha"), FrameFitSettings(), seed=0)
     assert res.status == "ok"
     err = math.dist([res.values[k] for k in ("x_um", "y_um", "z_um")], pos)
     assert err < 0.005

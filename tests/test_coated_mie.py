@@ -4,8 +4,8 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.scattering.coated_mie import (
     CoatedSphereWave,
     coated_amplitudes,

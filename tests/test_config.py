@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from holofit.config import ConfigError, load_instrument, load_particle, resolve_config
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from tests.conftest import CONFIGS
 
 GOOD = """

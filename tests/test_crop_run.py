@@ -17,7 +17,7 @@ import tifffile
 from holofit.camera import Camera
 from holofit.crop import CenterFinder, CropError, normalize, run_crop
 from holofit.io.tiffstack import write_tiff_stack
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.simulate.holograms import simulate_movie
 from holofit.status import CROP_STATUSES as STATUSES
 from tests.test_crop_synthetic import (

@@ -20,7 +20,7 @@ from holofit.config import Instrument, load_instrument
 from holofit.conventions import DetectorGrid, hologram_intensity
 from holofit.crop import find_centers, normalize
 from holofit.io.movie import open_movie
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie
 from holofit.simulate.holograms import simulate_movie
 from tests.conftest import CONFIGS

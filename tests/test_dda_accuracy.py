@@ -14,8 +14,8 @@ from holofit.dda.engine import BuiltinDDA
 from holofit.dda.farfield import adda_amplitude_matrix, far_field
 from holofit.dda.voxelize import voxelize
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere, VoxelShape
 from holofit.optics import Optics
+from holofit.particles import Sphere, VoxelShape
 from holofit.scattering.mie import MieWave
 from tests.conftest import DATA
 

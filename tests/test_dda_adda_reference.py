@@ -17,7 +17,7 @@ from holofit.dda.farfield import adda_amplitude_matrix, far_field
 from holofit.dda.polarizability import polarizability
 from holofit.dda.voxelize import voxelize
 from holofit.io.shapefile import read_shape_file
-from holofit.models import VoxelShape
+from holofit.particles import VoxelShape
 from tests.conftest import DATA
 
 REF = DATA / "adda"

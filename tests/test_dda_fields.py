@@ -17,8 +17,8 @@ from holofit.dda.multipole import (
 )
 from holofit.dda.nearfield import direct_field
 from holofit.hologram import calc_hologram
-from holofit.models import Dimer, JanusSphere, Sphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import Dimer, JanusSphere, Sphere, Spherocylinder
 from holofit.scattering.mie import LorenzMie
 from holofit.scattering.theory import Orientation
 

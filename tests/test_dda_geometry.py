@@ -7,7 +7,7 @@ from holofit.config import ConfigError, load_particle
 from holofit.dda.settings import DDASettings
 from holofit.dda.voxelize import dipole_size, ramp, voxelize
 from holofit.io.shapefile import read_shape_file, write_shape_file
-from holofit.models import (
+from holofit.particles import (
     Cylinder,
     Dimer,
     Ellipsoid,

@@ -10,8 +10,8 @@ import pytest
 from holofit.conventions import DetectorGrid, r_squared
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie
 
 OPTICS = Optics(0.66, 1.33, 0.0)

@@ -11,8 +11,8 @@ from holofit.dda.lattice import Lattice
 from holofit.dda.settings import DDASettings
 from holofit.dda.voxelize import _interface_normals, _shape_fractions
 from holofit.hologram import calc_hologram
-from holofit.models import JanusSphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import JanusSphere, Spherocylinder
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, np.radians(10))

@@ -9,8 +9,8 @@ from holofit.dda.engine import BuiltinDDA
 from holofit.dda.interaction import get_interaction, green_tensor
 from holofit.dda.solver import ConvergenceError, qmr_cs
 from holofit.dda.voxelize import voxelize
-from holofit.models import Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import Spherocylinder
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, 0.0)

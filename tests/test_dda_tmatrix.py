@@ -23,8 +23,8 @@ from holofit.dda.tmatrix_waves import plane_wave_coefficients
 from holofit.dda.voxelize import voxelize
 from holofit.hologram import calc_hologram
 from holofit.io.shapefile import write_shape_file
-from holofit.models import Dimer, JanusSphere, Sphere, Spherocylinder, VoxelShape
 from holofit.optics import Optics
+from holofit.particles import Dimer, JanusSphere, Sphere, Spherocylinder, VoxelShape
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, np.radians(20))
@@ -290,11 +290,11 @@ def test_incidence_independent_prescriptions_against_mie():
 
 
 def test_fit_forward_model_gets_exact_orientation_columns(engines):
-    """holofit.fitting's HologramModel takes its orientation columns from the T-matrix wave's
+    """holofit.holomodel's HologramModel takes its orientation columns from the T-matrix wave's
     rotation derivatives; they equal central differences of direct solves."""
     from holofit.conventions import euler_zyz
-    from holofit.fitting.forward import HologramModel
-    from holofit.fitting.parameters import ParameterSpace, State, static_values
+    from holofit.holomodel.forward import HologramModel
+    from holofit.holomodel.parameters import ParameterSpace, State, static_values
 
     model, fast, direct = engines["rod"]
     xs, ys = (c.ravel() for c in pixel_centres(GRID.shape, GRID.pixel_size_um))

@@ -31,7 +31,7 @@ from holofit.dda.wigner import (
     wigner_d_all,
 )
 from holofit.io.shapefile import write_shape_file
-from holofit.models import Dimer, JanusSphere, Sphere, Spherocylinder, VoxelShape
+from holofit.particles import Dimer, JanusSphere, Sphere, Spherocylinder, VoxelShape
 
 K = 12.66
 

@@ -17,8 +17,8 @@ import pytest
 from holofit.conventions import DetectorGrid, euler_zyz_from_matrix, pixel_centres, r_squared
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
-from holofit.models import Dimer, JanusSphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import Dimer, JanusSphere, Spherocylinder
 from holofit.scattering.theory import Orientation
 
 pytestmark = pytest.mark.slow

@@ -12,8 +12,8 @@ from holofit.conventions import euler_zyz
 from holofit.dda.adda_orient import orientation_from_adda
 from holofit.dda.engine import BuiltinDDA
 from holofit.dda.nearfield import direct_field
-from holofit.models import Sphere, VoxelShape
 from holofit.optics import Optics
+from holofit.particles import Sphere, VoxelShape
 from holofit.scattering.mie import cross_sections, far_field_amplitudes
 from holofit.scattering.theory import Orientation
 from tests.conftest import DATA

@@ -2,7 +2,7 @@
 
 import pytest
 
-from holofit.demo import run_demo
+from holofit.demo.rod import run_demo
 
 
 def test_demo_pipeline_recovers_the_truth(tmp_path):

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from holofit.fit.continuity import (
-    ContinuityOptions,
+    ContinuitySettings,
     NeighbourStart,
     chi2_bar,
     flag_bars,
@@ -114,7 +114,7 @@ def test_the_bar_ignores_the_wrong_frames_tail(truth):
     # the lower half's spread is the noise's 0.01: the bad frames (chi^2 1.6-2.6) cannot
     # inflate it, so the bar sits near 1 + 4 * 0.01
     assert 1.02 < bar < 1.07
-    flagged = suspects(table, ContinuityOptions(), head_tail=False)
+    flagged = suspects(table, ContinuitySettings(), head_tail=False)
     assert flagged[SINGLES + RUN].all()
 
 
@@ -123,7 +123,7 @@ def test_sweeps_bring_every_wrong_frame_back_from_its_neighbours(truth):
     before = _off_deg(table, u_true)
     assert (before[SINGLES + RUN + SUBTLE] > 60).all()
     refit, calls = _oracle(truth, u_true, chi)
-    out, report = repair_by_continuity(table.copy(), refit, ContinuityOptions(),
+    out, report = repair_by_continuity(table.copy(), refit, ContinuitySettings(),
                                        head_tail=False, ambiguity_chi2=9.0)
     after = _off_deg(out, u_true)
     assert after.max() < 1e-3, np.flatnonzero(after > 1e-3)
@@ -147,7 +147,7 @@ def test_sweeps_bring_every_wrong_frame_back_from_its_neighbours(truth):
 def test_frames_no_neighbour_helps_become_poor_fit(truth):
     table, u_true, chi = _table(truth)
     refit, calls = _oracle(truth, u_true, chi, helps=False)
-    out, report = repair_by_continuity(table.copy(), refit, ContinuityOptions(),
+    out, report = repair_by_continuity(table.copy(), refit, ContinuitySettings(),
                                        head_tail=False, ambiguity_chi2=9.0)
     assert report.replaced == 0 and report.sweeps == 1 and len(calls) == 1
     st = out.set_index("frame")["status"]
@@ -160,7 +160,7 @@ def test_disabled_sweeps_change_nothing(truth):
     table, u_true, chi = _table(truth)
     refit, calls = _oracle(truth, u_true, chi)
     out, report = repair_by_continuity(table.copy(), refit,
-                                       ContinuityOptions(enabled=False), head_tail=False,
+                                       ContinuitySettings(enabled=False), head_tail=False,
                                        ambiguity_chi2=9.0)
     assert not calls and report.sweeps == 0
     pd.testing.assert_frame_equal(out, table, check_dtype=False)
@@ -168,9 +168,9 @@ def test_disabled_sweeps_change_nothing(truth):
 
 def test_options_are_checked():
     with pytest.raises(ValueError, match="max_gap"):
-        ContinuityOptions(max_gap=0)
+        ContinuitySettings(max_gap=0)
     with pytest.raises(ValueError, match="chi2_sigmas"):
-        ContinuityOptions(chi2_sigmas=0)
+        ContinuitySettings(chi2_sigmas=0)
 
 
 def test_a_refit_into_the_same_minimum_replaces_nothing(truth):
@@ -178,7 +178,7 @@ def test_a_refit_into_the_same_minimum_replaces_nothing(truth):
     replaced, so no neighbour is set off, and the sweeps stop."""
     table, u_true, chi = _table(truth)
     refit, _ = _oracle(truth, u_true, chi - 1e-9)  # 1e-9 in chi^2 per pixel: << noise
-    out, report = repair_by_continuity(table.copy(), refit, ContinuityOptions(),
+    out, report = repair_by_continuity(table.copy(), refit, ContinuitySettings(),
                                        head_tail=False, ambiguity_chi2=9.0)
     good = sorted(set(range(len(truth))) - set(SINGLES + RUN + SUBTLE))
     pd.testing.assert_frame_equal(out.loc[good], table.loc[good], check_dtype=False)
@@ -269,7 +269,7 @@ def test_a_frame_is_demoted_only_for_an_improbable_chi2(truth):
     def same_minimum(sweep, starts):
         return table.loc[table["frame"].isin(list(starts))].copy()
 
-    out, report = repair_by_continuity(table.copy(), same_minimum, ContinuityOptions(),
+    out, report = repair_by_continuity(table.copy(), same_minimum, ContinuitySettings(),
                                        head_tail=True, ambiguity_chi2=9.0)
     st = out["status"].to_numpy()
     assert st[top] == "ok"
@@ -280,7 +280,7 @@ def test_a_frame_is_demoted_only_for_an_improbable_chi2(truth):
 
 def test_the_flag_probability_is_the_users():
     with pytest.raises(ValueError, match="flag_probability"):
-        ContinuityOptions(flag_probability=0.0)
+        ContinuitySettings(flag_probability=0.0)
     rng = np.random.default_rng(4)
     table = _ok_table(_right_minimum_chi2(rng, 100, 19600, 0.01), 19600)
     assert flag_bars(table, 1e-2).typical < flag_bars(table, 1e-4).typical

@@ -12,11 +12,11 @@ import pytest
 from holofit.camera import Camera
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
-from holofit.fit.frame import FrameFitOptions, fit_frame
+from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.hologram import calc_hologram
 from holofit.library.search import Candidate
-from holofit.models import Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import Spherocylinder
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, 0.0)
@@ -45,7 +45,7 @@ def _fit(engine, data, free=FINAL, model=ROD, start_off=(0.05, -0.04, 0.25),
     start = (TRUTH["x_um"] + start_off[0], TRUTH["y_um"] + start_off[1],
              TRUTH["z_um"] + start_off[2])
     return fit_frame(data, GRID.corner, PX, engine, model, OPTICS, start, 0.85, cands, free,
-                     FrameFitOptions(**opts), seed=1)
+                     FrameFitSettings(**opts), seed=1)
 
 
 def test_noise_free_frame_converges_to_the_truth_from_a_library_grade_start(engine):
@@ -126,6 +126,6 @@ def test_the_fits_of_a_frame_share_their_solved_orientations():
     theory.solve = counting
     res = fit_frame(f.crop, f.corner, INSTRUMENT.pixel_size_um, theory, SMALL_ROD,
                     INSTRUMENT.optics, f.position_um, f.alpha, f.candidates, FINAL_PASS,
-                    FrameFitOptions(), seed=0)
+                    FrameFitSettings(), seed=0)
     assert res.status == "ok" and res.extra["n_solves"] == len(keys) > 2
     assert len(set(keys)) == len(keys), "an orientation was solved twice"

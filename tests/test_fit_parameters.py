@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from holofit.conventions import axis_from_angles, euler_zyz, rotation_from_vector
-from holofit.fitting.parameters import (
+from holofit.holomodel.parameters import (
     ParameterSpace,
     State,
     index_column,
@@ -16,7 +16,7 @@ from holofit.fitting.parameters import (
     static_parameters,
     static_values,
 )
-from holofit.models import Dimer, Ellipsoid, JanusSphere, Sphere, Spherocylinder, VoxelShape
+from holofit.particles import Dimer, Ellipsoid, JanusSphere, Sphere, Spherocylinder, VoxelShape
 
 
 def test_fit_table_names_of_static_parameters():

@@ -3,7 +3,7 @@
 A fit that ends outside the range the user searched is ``poor_fit`` even when it matches the
 data (the hologram says the particle is not what the user said it is); a frame whose reduced
 chi^2 is far above the movie's typical one is flagged by the movie-median rule
-(:func:`holofit.fitting.result.flag_outliers`), once, and the analysis leaves it out.
+(:func:`holofit.holomodel.result.flag_outliers`), once, and the analysis leaves it out.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from holofit.fitting.result import flag_outliers
+from holofit.holomodel.result import flag_outliers
 from holofit.prefit.estimate import SearchSpace
 from holofit.status import OK, POOR_FIT
 from tests.test_prefit_fit import TRUTH, _fit, _hologram

@@ -17,8 +17,8 @@ from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit import stage, task, tmatrix_policy
-from holofit.fit.continuity import ContinuityOptions
-from holofit.fit.frame import FrameFitOptions
+from holofit.fit.continuity import ContinuitySettings
+from holofit.fit.frame import FrameFitSettings
 from holofit.fit.stage import run_fit
 from holofit.library.stage import LibrarySettings, run_library
 from holofit.prefit import run_prefit
@@ -149,7 +149,7 @@ def test_missing_prefit_rows_and_unfittable_frames_are_recorded_and_the_batch_go
     monkeypatch.setattr(task, "fit_frame", failing)
     run = run_fit(root / "crop", pre, root / "lib", particle, tmp_path / "fit",
                   pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False,
-                  options=FrameFitOptions(mirror=False))
+                  options=FrameFitSettings(mirror=False))
     out = pd.read_csv(run.final).set_index("frame")
     assert out.loc[0, "status"] == "ok"
     assert out.loc[1, "status"] == "skipped" and "prefit: no row" in out.loc[1, "message"]
@@ -239,7 +239,7 @@ def test_continuity_refits_a_wrong_frame_from_its_neighbours(movie, tmp_path):
 
     common = dict(pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False)
     first = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "fit",
-                    continuity=ContinuityOptions(enabled=False), **common)
+                    continuity=ContinuitySettings(enabled=False), **common)
     table = pd.read_csv(first.final)
     assert off_deg(table).max() < 2
     psi, theta = np.radians(124.0), np.radians(90.0)

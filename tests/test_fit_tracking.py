@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from holofit.fit.frame import FrameFitOptions, fit_frame, fit_frame_warm
+from holofit.fit.frame import FrameFitSettings, fit_frame, fit_frame_warm
 from holofit.fit.tracking import TrackOptions, state_of, stitch_chunks, track_chunk
 from tests.tracking_helpers import FINAL, INSTRUMENT, JANUS, ROD, engine, make_track
 
@@ -58,7 +58,7 @@ def test_independent_frames_are_todays_fit_frame(theory):
     tab = _track(theory, track, options=TrackOptions(warm=False))
     for f, row in zip(track.frames, tab.to_dict("records"), strict=True):
         ref = fit_frame(f.crop, f.corner, PX, theory, ROD, OPTICS, f.position_um, f.alpha,
-                        f.candidates, FINAL, FrameFitOptions(), seed=f.frame)
+                        f.candidates, FINAL, FrameFitSettings(), seed=f.frame)
         assert row["track_source"] == "library"
         for key, value in ref.values.items():
             assert row[key] == value, key
@@ -71,12 +71,12 @@ def test_warm_fit_from_the_truth_lands_where_the_library_fit_does(theory):
     track = make_track(theory, n=1, seed=4)
     f = track.frames[0]
     ref = fit_frame(f.crop, f.corner, PX, theory, ROD, OPTICS, f.position_um, f.alpha,
-                    f.candidates, FINAL, FrameFitOptions(), seed=0)
+                    f.candidates, FINAL, FrameFitSettings(), seed=0)
     truth = {"x_um": track.positions[0][0], "y_um": track.positions[0][1],
              "z_um": track.positions[0][2], "psi_rad": track.angles[0, 0],
              "theta_rad": track.angles[0, 1], "alpha": 0.9}
     warm = fit_frame_warm(f.crop, f.corner, PX, theory, ROD, OPTICS, state_of(truth, ROD),
-                          FINAL, FrameFitOptions(), seed=0).result
+                          FINAL, FrameFitSettings(), seed=0).result
     assert warm.status == "ok"
     assert abs(warm.chi2_red - ref.chi2_red) < 1e-3 * ref.chi2_red
     for key in ("x_um", "y_um", "z_um"):
@@ -121,7 +121,7 @@ def test_a_mirror_within_the_noise_is_refitted_on_all_pixels(theory):
     # refit margin, so it is fitted on all pixels (here it rolls back into the best's own
     # basin: no competing minimum, as today's independent fit finds on the first frame)
     track = make_track(theory, n=4, seed=5)
-    tab = _track(theory, track, options=TrackOptions(frame=FrameFitOptions(noise_sd=0.5)))
+    tab = _track(theory, track, options=TrackOptions(frame=FrameFitSettings(noise_sd=0.5)))
     warm = tab[tab["track_source"] == "warm"]
     assert len(warm) == 3 and (warm["runner_up_refit"] == 2).all()
     for row in tab.to_dict("records"):

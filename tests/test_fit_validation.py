@@ -16,13 +16,13 @@ import pytest
 from holofit.camera import Camera
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
-from holofit.fitting.forward import HologramModel
-from holofit.fitting.leastsq import solve_least_squares
-from holofit.fitting.parameters import ParameterSpace, State, static_values
-from holofit.fitting.pixels import select_pixels
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
+from holofit.holomodel.forward import HologramModel
+from holofit.holomodel.leastsq import solve_least_squares
+from holofit.holomodel.parameters import ParameterSpace, State, static_values
+from holofit.holomodel.pixels import select_pixels
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie, MieWave
 
 pytestmark = pytest.mark.slow

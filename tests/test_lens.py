@@ -25,8 +25,8 @@ from holofit.config import load_instrument
 from holofit.conventions import DetectorGrid, hologram_intensity
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import Sphere, Spherocylinder
 from holofit.scattering.lens import (
     LensImage,
     lens_field_on_detector,
@@ -259,8 +259,8 @@ def test_a_trial_step_far_off_is_refused_not_computed_for_minutes():
     node count grows with k z, and its eigenvalue problem would run for minutes (seen in a
     replicate run: a prefit worker stuck on one frame). Such a height is refused at once and
     the forward model turns the refusal into an invalid step."""
-    from holofit.fitting.forward import HologramModel, InvalidParameters
-    from holofit.fitting.parameters import ParameterSpace, State, static_values
+    from holofit.holomodel.forward import HologramModel, InvalidParameters
+    from holofit.holomodel.parameters import ParameterSpace, State, static_values
 
     optics = Optics(0.66, 1.33, 0.0, 1.2)
     wave = LorenzMie().solve(Sphere(0.5, 1.59), optics)

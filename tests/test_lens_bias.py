@@ -17,9 +17,9 @@ from scipy.optimize import least_squares
 
 from holofit.conventions import DetectorGrid, hologram_intensity
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
 from holofit.optics import Optics
-from holofit.prefit.sphere import FitOptions, fit_sphere_crop
+from holofit.particles import Sphere
+from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.scattering.mie import MieWave
 
 PX = 0.1767
@@ -42,7 +42,7 @@ def _crop():
 def test_ideal_prefit_of_a_lens_hologram_has_the_direct_fits_bias():
     holo, corner, grid, truth = _crop()
     centre = (truth[0] - 0.4 * PX, truth[1] + 0.3 * PX)
-    opts = FitOptions(noise_sd=0.02)
+    opts = SphereFitSettings(noise_sd=0.02)
     ideal = fit_sphere_crop(holo, corner, centre, IDEAL, PX, opts)
     lens = fit_sphere_crop(holo, corner, centre, LENS, PX, opts)
     names = ("x_um", "y_um", "z_um", "radius_um", "n", "alpha")

@@ -19,22 +19,22 @@ from click.testing import CliRunner
 from holofit.batch.aperture import fit_instrument, parse_numerical_aperture
 from holofit.cli import main
 from holofit.config import load_instrument
+from holofit.config_schema import ConfigError
 from holofit.conventions import DetectorGrid, euler_zyz, hologram_intensity
-from holofit.fitting.aperture import scan_aperture
-from holofit.fitting.forward import HologramModel, InvalidParameters
-from holofit.fitting.parameters import ParameterSpace, State
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere, Spherocylinder
+from holofit.holomodel.aperture import scan_aperture
+from holofit.holomodel.forward import HologramModel, InvalidParameters
+from holofit.holomodel.parameters import ParameterSpace, State
 from holofit.optics import Optics
+from holofit.particles import Sphere, Spherocylinder
 from holofit.prefit.estimate import SearchSpace
 from holofit.prefit.profile import profile_terms
-from holofit.prefit.sphere import FitOptions, fit_sphere_crop
+from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.prefit.stage import run_prefit
 from holofit.scattering.lens import lens_field_on_pixels
 from holofit.scattering.lens_lines import SphereLensLines
 from holofit.scattering.mie import LorenzMie, MieWave
 from holofit.simulate.holograms import simulate_movie
-from holofit.validation import ConfigError
 from tests.conftest import CONFIGS
 from tests.prefit_helpers import make_crops_from_movie
 
@@ -177,7 +177,7 @@ def test_fitted_aperture_recovers_the_objective():
     holo, corner, centre, (xc, yc) = _lens_crop(6.0, 0.8)
     model = HologramModel(LorenzMie(), _space(1.2), LENS, np.zeros(1), np.zeros(1))
     assert model.aperture(State((0, 0, 1), None, 1.0)) == 1.2  # the optics' when not fitted
-    fit = fit_sphere_crop(holo, corner, centre, LENS, 0.1, FitOptions(fit_na=True))
+    fit = fit_sphere_crop(holo, corner, centre, LENS, 0.1, SphereFitSettings(fit_na=True))
     v, e = fit.values, fit.errors
     assert fit.status == "ok", fit.message
     assert v["numerical_aperture"] == pytest.approx(0.8, abs=3 * e["numerical_aperture"] + 1e-3)
@@ -207,7 +207,7 @@ def test_aperture_scan_finds_the_global_minimum():
 def test_prefit_through_the_lens_near_and_below_focus(z):
     holo, corner, centre, (xc, yc) = _lens_crop(z, 1.2)
     search = SearchSpace(z_range_um=(-6.0, -1.0) if z < 0 else (0.5, 3.0))
-    fit = fit_sphere_crop(holo, corner, centre, LENS, 0.1, FitOptions(search=search))
+    fit = fit_sphere_crop(holo, corner, centre, LENS, 0.1, SphereFitSettings(search=search))
     v = fit.values
     assert fit.status == "ok", fit.message
     assert v["z_um"] == pytest.approx(z, abs=0.005)
@@ -222,7 +222,7 @@ def test_prefit_through_the_lens_near_and_below_focus(z):
     # the ideal model cannot describe a particle below the focus at all
     with pytest.raises(ValueError, match="below the focal plane"):
         fit_sphere_crop(holo, corner, centre, Optics(0.66, 1.33, 0.0), 0.1,
-                        FitOptions(search=SearchSpace(z_range_um=(-10.0, -0.5))))
+                        SphereFitSettings(search=SearchSpace(z_range_um=(-10.0, -0.5))))
 
 
 def test_numerical_aperture_choices():

@@ -23,7 +23,7 @@ import tifffile
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument
 from holofit.crop import run_crop
-from holofit.prefit.sphere import FitOptions, fit_sphere_crop
+from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.prefit.stage import run_prefit
 from tests.conftest import CONFIGS, DATA
 
@@ -64,7 +64,7 @@ def _pylorenzmie_crop(name, centre_xy, size):
 def _fit(crop, corner, centre, na, fit_na=False):
     optics = PYLM.with_numerical_aperture(na).optics
     return fit_sphere_crop(crop, corner, centre, optics, PYLM.pixel_size_um,
-                           FitOptions(fit_na=fit_na))
+                           SphereFitSettings(fit_na=fit_na))
 
 
 def test_pylorenzmie_ps_sphere_with_the_fitted_aperture():

@@ -14,8 +14,8 @@ from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
 from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import OrientationLibrary, Tilt, pick_candidates, tilt_grid
-from holofit.models import Ellipsoid, JanusSphere, Spherocylinder
 from holofit.optics import Optics
+from holofit.particles import Ellipsoid, JanusSphere, Spherocylinder
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, 0.3)  # polarised 17 deg from x: the identity must handle it

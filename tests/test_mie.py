@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy import special
 
-from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie, cross_sections, far_field_amplitudes
 from holofit.scattering.mie_coefficients import mie_coefficients, n_stop
 from tests.conftest import DATA

@@ -2,17 +2,18 @@
 
 The layers, lowest first (a module may import from its own layer and the layers below it):
 
-0. foundation - conventions, units, statuses, particle models, optics, file I/O, tables, the
-   batch runner, the configuration-file schema;
+0. foundation - conventions, units, statuses, particle models, optics, file I/O, the
+   configuration-file schema;
 1. ``scattering`` - the scattering theories that need no dipoles: Mie, coated sphere, sphere
    clusters, multipole expansions, T-matrices, the lens;
 2. ``dda`` - the discrete dipole approximation (and ADDA), built on ``scattering``;
 3. engines and configuration - the one list of engines, the choice among them, and the config
    files that name them;
 4. ``holomodel`` - the hologram model kit: parameters, forward model, least squares, results;
-5. stages - crop, prefit, library, fit, analysis, simulate;
-6. applications - run folders, demos, studies;
-7. ``cli``, and the package's own ``__init__`` (the public API).
+5. stage infrastructure - the tables and their schemas, the batch runner and the stage skeleton;
+6. stages - crop, prefit, library, fit, analysis, simulate;
+7. applications - run folders, demos, studies;
+8. ``cli``, and the package's own ``__init__`` (the public API).
 
 Every import counts, including those inside functions (a lazy import is still a dependency).
 """
@@ -29,11 +30,12 @@ ROOT = Path(__file__).resolve().parents[1] / "holofit"
 
 LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"conventions", "status", "cache", "progress", "provenance", "camera", "io",
-               "config_schema", "optics", "particles", "batch", "tables"}),
+               "config_schema", "optics", "particles"}),
     frozenset({"scattering"}),
     frozenset({"dda"}),
     frozenset({"engines", "config"}),
     frozenset({"holomodel"}),
+    frozenset({"tables", "batch"}),
     frozenset({"crop", "prefit", "library", "fit", "analysis", "simulate"}),
     frozenset({"runfolder", "demo", "studies"}),
     frozenset({"cli", "__init__"}),

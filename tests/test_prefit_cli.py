@@ -20,7 +20,7 @@ from holofit.batch import journal_path
 from holofit.batch.journal import read_journal
 from holofit.cli import main
 from holofit.config import load_instrument
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.simulate.holograms import simulate_movie
 from tests.conftest import CONFIGS
 from tests.prefit_helpers import make_crops_from_movie

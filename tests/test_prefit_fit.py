@@ -11,10 +11,10 @@ from holofit.camera import Camera
 from holofit.config import load_instrument
 from holofit.conventions import DetectorGrid
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.prefit.estimate import estimate_starts, profile_table
 from holofit.prefit.profile import radial_profile
-from holofit.prefit.sphere import FitOptions, fit_sphere_crop
+from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.scattering.mie import MieWave
 from tests.conftest import CONFIGS
 
@@ -42,7 +42,7 @@ def _noisy(seed, truth=TRUTH):
 
 
 def _fit(data, **kw):
-    return fit_sphere_crop(data, CORNER, CENTRE, OPTICS, PX, FitOptions(**kw))
+    return fit_sphere_crop(data, CORNER, CENTRE, OPTICS, PX, SphereFitSettings(**kw))
 
 
 def _errors(fit, truth=TRUTH):
@@ -114,7 +114,7 @@ def test_several_starts_are_screened_and_the_best_wins():
 def test_profile_estimate_is_close_for_a_range_of_spheres():
     rng = np.random.default_rng(6)
     n_bins = N // 2 - 1
-    search = FitOptions().search.for_crop(n_bins * PX, INST.optics.wavelength_medium_um)
+    search = SphereFitSettings().search.for_crop(n_bins * PX, INST.optics.wavelength_medium_um)
     table = profile_table(INST.optics, PX, n_bins, search)
     for _ in range(6):
         truth = dict(TRUTH, z_um=rng.uniform(5, 30), radius_um=rng.uniform(0.4, 1.0),
@@ -149,7 +149,7 @@ def test_seed_only_places_a_rod_at_a_spheres_cost_with_honest_flags():
     rng = np.random.default_rng(0)
     cam = Camera(background_counts=120.0)
     crop = cam.expose(calc_hologram(wave, truth, grid, 0.9), rng) / 120.0
-    opts = FitOptions(seed_only=True, search=SearchSpace(z_range_um=(3.0, 15.0)))
+    opts = SphereFitSettings(seed_only=True, search=SearchSpace(z_range_um=(3.0, 15.0)))
     centre = (truth[0] + 0.3 * px, truth[1] - 0.4 * px)
     res = fit_sphere_crop(crop, grid.corner, centre, INSTRUMENT.optics, px, opts)
     assert res.status == "ok", res.message
@@ -157,7 +157,7 @@ def test_seed_only_places_a_rod_at_a_spheres_cost_with_honest_flags():
     assert abs(res.values["z_um"] - truth[2]) < 0.6
     assert res.n_eval <= 30
     full = fit_sphere_crop(crop, grid.corner, centre, INSTRUMENT.optics, px,
-                           FitOptions(search=opts.search))
+                           SphereFitSettings(search=opts.search))
     assert full.n_eval > 2 * res.n_eval
     flat = cam.expose(np.ones((80, 80)), rng) / 120.0  # no particle at all
     try:

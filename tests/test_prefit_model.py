@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 from holofit.conventions import DetectorGrid, hologram_intensity, incident_phase_at
-from holofit.fitting.forward import HologramModel, InvalidParameters
-from holofit.fitting.leastsq import INVALID_RESIDUAL, solve_least_squares
-from holofit.fitting.parameters import ParameterSpace, State
-from holofit.fitting.pixels import select_pixels
-from holofit.fitting.statistics import covariance_from_jacobian, estimate_noise_sd
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
+from holofit.holomodel.forward import HologramModel, InvalidParameters
+from holofit.holomodel.leastsq import INVALID_RESIDUAL, solve_least_squares
+from holofit.holomodel.parameters import ParameterSpace, State
+from holofit.holomodel.pixels import select_pixels
+from holofit.holomodel.statistics import covariance_from_jacobian, estimate_noise_sd
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.prefit.estimate import SearchSpace, z_grid
 from holofit.prefit.profile import annulus_mean_radius, profile_terms, radial_profile
 from holofit.scattering.mie import LorenzMie, MieWave

@@ -25,7 +25,7 @@ import tifffile
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument
 from holofit.crop import run_crop
-from holofit.prefit.sphere import FitOptions
+from holofit.prefit.sphere import SphereFitSettings
 from holofit.prefit.stage import run_prefit
 from tests.conftest import CONFIGS, DATA
 
@@ -79,7 +79,7 @@ def test_pylorenzmie_ps_silica_silica_sphere(tmp_path):
     inst = load_instrument(CONFIGS / "instruments" / "pylorenzmie.toml")
     raw = _pylorenzmie("PS_silica")
     crops = _crop_folder(tmp_path, raw, 100, 200, inst, follow_start=(908.5, 484.0))
-    row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0))
+    row = _prefit(tmp_path, crops, SphereFitSettings(fix_alpha=1.0))
     assert row["radius_um"] == pytest.approx(0.498, abs=0.01)
     assert row["n"] == pytest.approx(1.4255, abs=0.005)
     assert row["z_um"] == pytest.approx(179.284 * 0.048, abs=0.1)
@@ -100,7 +100,7 @@ def test_pylorenzmie_image0400_both_spheres(tmp_path, label, centre, a_pub, n_pu
     # the two spheres' fringes overlap: each crop holds its neighbour's rings, which no single
     # sphere explains (R^2 0.63-0.72, residual 15-20 times the pixel noise): the values agree
     # with the published fits, and the fit is flagged all the same
-    row = _prefit(tmp_path, crops, FitOptions(fix_alpha=1.0), status="poor_fit")
+    row = _prefit(tmp_path, crops, SphereFitSettings(fix_alpha=1.0), status="poor_fit")
     assert "far above the pixel noise" in row["message"]
     assert row["n_masked"] > 0  # the saturated core is left out
     assert row["radius_um"] == pytest.approx(a_pub, abs=0.05)
@@ -121,8 +121,8 @@ def test_a_fit_far_from_the_data_is_not_plain_ok(tmp_path):
     crops = run_crop(movie, background, inst, tmp_path / "crops", size=301, follow="nearest",
                      start=(921, 303), dark=13.0, plot=False)
     assert pd.read_csv(crops.table).iloc[0]["status"] in ("ok", "edge")
-    result = run_prefit(tmp_path / "crops", tmp_path / "prefit", fit=FitOptions(fix_alpha=1.0),
-                        batch=SERIAL, plot=False)
+    result = run_prefit(tmp_path / "crops", tmp_path / "prefit",
+                        fit=SphereFitSettings(fix_alpha=1.0), batch=SERIAL, plot=False)
     row = pd.read_csv(result.table).iloc[0]
     assert row["status"] == "poor_fit"
     assert "far above the pixel noise" in row["message"] or "outside" in row["message"]

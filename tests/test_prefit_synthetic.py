@@ -18,7 +18,7 @@ import pytest
 
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.prefit.stage import run_prefit
 from holofit.simulate.holograms import simulate_movie
 from tests.conftest import CONFIGS

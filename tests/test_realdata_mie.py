@@ -9,7 +9,7 @@ import tifffile
 from holofit.config import load_instrument
 from holofit.conventions import DetectorGrid, holopy_to_holofit_xy, r_squared
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie
 from tests.conftest import CONFIGS, DATA
 

@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 
 from holofit.config import load_instrument, resolve_config
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.runfolder import init_run
 from holofit.simulate.holograms import simulate_movie
 from tests.runfolder_helpers import make_env, mtimes, names, needs_make, run_make, stages_run

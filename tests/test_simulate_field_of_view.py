@@ -10,7 +10,7 @@ from holofit.camera import Camera
 from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid
 from holofit.hologram import calc_hologram
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.scattering.lens import lens_field_on_detector
 from holofit.scattering.mie import LorenzMie
 from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
@@ -155,8 +155,8 @@ def test_scene_file_makes_a_field_of_view(tmp_path) -> None:
      "particle 1.*needs d_par_um2_s"),
 ])
 def test_scene_errors_name_the_particle_and_key(tmp_path, body, message) -> None:
+    from holofit.config_schema import ConfigError
     from holofit.simulate.scene import load_scene
-    from holofit.validation import ConfigError
 
     with pytest.raises(ConfigError, match=message):
         load_scene(_scene(tmp_path, body))

@@ -13,7 +13,7 @@ from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid
 from holofit.hologram import calc_hologram
 from holofit.io import open_movie
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie
 
 

@@ -15,7 +15,7 @@ from holofit.config import Instrument
 from holofit.dda.engine import BuiltinDDA
 from holofit.fit.tracking import ChunkFrame
 from holofit.library.search import Candidate
-from holofit.models import JanusSphere, ParticleModel, Spherocylinder
+from holofit.particles import JanusSphere, ParticleModel, Spherocylinder
 from holofit.simulate.holograms import simulate_movie
 
 INSTRUMENT = Instrument("test", 0.66, 1.33, 0.12, extra={"numerical_aperture": 1.2})

@@ -17,7 +17,7 @@ from holofit.analysis.measurement import Measurement
 from holofit.analysis.pipeline import analyze_trajectory
 from holofit.analysis.recipes import MODELS
 from holofit.analysis.results import AnalysisResult
-from holofit.analysis.settings import AnalysisSettings, SettingError
+from holofit.analysis.settings import AnalysisConfig, SettingError
 from holofit.analysis.summary import format_report, write_summary
 from holofit.analysis.tracks import (
     TrackPooling,
@@ -34,9 +34,9 @@ from holofit.tables.fit import read_fit_table
 
 __all__ = [
     "MODELS",
+    "AnalysisConfig",
     "AnalysisError",
     "AnalysisResult",
-    "AnalysisSettings",
     "Measurement",
     "SettingError",
     "TrackPooling",
@@ -54,7 +54,7 @@ __all__ = [
 
 
 def analyze_table(
-    path: str | Path, settings: AnalysisSettings, frame_interval_s: float | None = None
+    path: str | Path, settings: AnalysisConfig, frame_interval_s: float | None = None
 ) -> AnalysisResult:
     """Read a fit table (validating it) and analyse it."""
     fit = read_fit_table(path, frame_interval_s)
@@ -64,7 +64,7 @@ def analyze_table(
 
 def run_analysis(
     path: str | Path,
-    settings: AnalysisSettings,
+    settings: AnalysisConfig,
     out_dir: str | Path,
     *,
     plots: bool = True,
@@ -87,7 +87,7 @@ def run_analysis(
 
 def run_track_analysis(
     path: str | Path,
-    settings: AnalysisSettings,
+    settings: AnalysisConfig,
     out_dir: str | Path,
     *,
     plots: bool = True,

@@ -7,12 +7,12 @@ is the model's recipe (:mod:`holofit.analysis.recipes`):
 2. an optional constant drift (sedimentation) is removed: ``v = (r_last - r_first) / T``, the
    maximum-likelihood drift of Brownian motion, reported with its Brownian error. Removing it
    turns the path into a Brownian bridge, whose MSD is lower by exactly ``1 - tau / T``; the
-   translational MSD models carry that factor (:func:`holofit.analysis.fitting.linear_msd_model`),
+   translational MSD models carry that factor (:func:`holofit.analysis.linefit.linear_msd_model`),
    so the subtraction leaves the coefficients unbiased at any length, drift or no drift;
 3. orientation cleaning (:mod:`holofit.analysis.cleaning`): head-tail flips (rods), dropped
    excursions and rejected pairs (probability < 1e-4 under rotational diffusion with ``D_est``);
 4. lag statistics of the recipe's observables (:mod:`holofit.analysis.msd`) and fits whose
-   errors include the correlations between lags (:mod:`holofit.analysis.fitting`: generalised
+   errors include the correlations between lags (:mod:`holofit.analysis.linefit`: generalised
    least squares with the MSDs' analytic covariance; for the projection correlation a weighted
    fit with a simulated covariance), over a fit range that grows with the measured
    localisation error (:func:`_adaptive_last_lag`);
@@ -37,7 +37,7 @@ from holofit.analysis.cleaning import (
     clean_orientations,
 )
 from holofit.analysis.errors import AnalysisError
-from holofit.analysis.fitting import CurveModel, FitResult, fit_lag_statistics
+from holofit.analysis.linefit import CurveModel, FitResult, fit_lag_statistics
 from holofit.analysis.measurement import Measurement
 from holofit.analysis.msd import (
     LagStatistics,
@@ -48,14 +48,14 @@ from holofit.analysis.msd import (
 )
 from holofit.analysis.recipes import MODELS, Probe, Recipe, recipe_for
 from holofit.analysis.results import AnalysisResult
-from holofit.analysis.settings import AnalysisSettings
+from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.summary import summary_rows
 from holofit.analysis.trajectory import Trajectory
 
 __all__ = [
     "MODELS",
+    "AnalysisConfig",
     "AnalysisResult",
-    "AnalysisSettings",
     "Measurement",
     "analyze_trajectory",
 ]
@@ -206,7 +206,7 @@ class _Pass:
     """
 
     def __init__(
-        self, traj: Trajectory, settings: AnalysisSettings, recipe: Recipe, pos: NDArray,
+        self, traj: Trajectory, settings: AnalysisConfig, recipe: Recipe, pos: NDArray,
         ranges: dict[str, tuple[int, int]], bridge_s: float | None = None,
     ) -> None:
         self.traj = traj
@@ -332,7 +332,7 @@ class _Pass:
 
 
 def _sensitivity(
-    core: _Core, traj: Trajectory, s: AnalysisSettings, recipe: Recipe, pos: NDArray,
+    core: _Core, traj: Trajectory, s: AnalysisConfig, recipe: Recipe, pos: NDArray,
     ranges: dict[str, tuple[int, int]], bridge_s: float | None,
 ) -> None:
     """Redo the measurement with the rejection's ``D_est`` scaled by each sensitivity factor
@@ -386,7 +386,7 @@ def _effective_radii(result: AnalysisResult) -> None:
         result.measured[name] = Measurement(1e3 * val, 1e3 * math.hypot(err_d, err_t), "nm")
 
 
-def _analyze(traj: Trajectory, s: AnalysisSettings) -> AnalysisResult:
+def _analyze(traj: Trajectory, s: AnalysisConfig) -> AnalysisResult:
     recipe = recipe_for(s.model)
     if traj.valid.sum() < MIN_FRAMES:
         raise AnalysisError(f"only {int(traj.valid.sum())} frames with a fit "
@@ -425,7 +425,7 @@ def _analyze(traj: Trajectory, s: AnalysisSettings) -> AnalysisResult:
     return result
 
 
-def analyze_trajectory(traj: Trajectory, settings: AnalysisSettings) -> AnalysisResult:
+def analyze_trajectory(traj: Trajectory, settings: AnalysisConfig) -> AnalysisResult:
     """Diffusion analysis of one trajectory (see the module docstring).
 
     Raises

@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from holofit.analysis.fitting import FitResult
+from holofit.analysis.linefit import FitResult
 from holofit.analysis.msd import LagStatistics
 from holofit.analysis.projection import projection_correlation
 from holofit.analysis.recipes import MsdPanel, recipe_for

@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import holofit.analysis.hydrodynamics as hd
-from holofit.analysis.fitting import (
+from holofit.analysis.linefit import (
     CurveModel,
     FitResult,
     combine,
@@ -80,7 +80,7 @@ Predictions = dict[str, tuple[hd.Prediction, str, str]]
 
 
 class MeasureOptions(Protocol):
-    """The settings a measurement reads (:class:`holofit.analysis.settings.AnalysisSettings`)."""
+    """The settings a measurement reads (:class:`holofit.analysis.settings.AnalysisConfig`)."""
 
     projection_amplitude: bool
 

@@ -9,11 +9,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.analysis.cleaning import OrientationCleaning
-from holofit.analysis.fitting import FitResult
 from holofit.analysis.hydrodynamics import Prediction
+from holofit.analysis.linefit import FitResult
 from holofit.analysis.measurement import Measurement
 from holofit.analysis.msd import LagStatistics
-from holofit.analysis.settings import AnalysisSettings
+from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.trajectory import Trajectory
 
 __all__ = ["AnalysisResult", "Measurement"]
@@ -28,7 +28,7 @@ class AnalysisResult:
 
     Attributes
     ----------
-    settings : AnalysisSettings
+    settings : AnalysisConfig
         How it was analysed.
     trajectory : Trajectory
         What was analysed.
@@ -56,7 +56,7 @@ class AnalysisResult:
         The Brownian 1-sigma error of the end-to-end drift velocity, um/s (NaN if unknown).
     """
 
-    settings: AnalysisSettings
+    settings: AnalysisConfig
     trajectory: Trajectory
     valid: NDArray[np.bool_]
     drift_um_s: NDArray[np.float64]

@@ -1,6 +1,6 @@
-"""How to analyse a trajectory: :class:`AnalysisSettings`, checked like a configuration file.
+"""How to analyse a trajectory: :class:`AnalysisConfig`, checked like a configuration file.
 
-Numeric settings are held to the rules of :mod:`holofit.validation` (the configuration files'
+Numeric settings are held to the rules of :mod:`holofit.config_schema` (the configuration files'
 validation library), so a temperature given in kelvin or a radius given in nanometres is
 refused with the same advice wherever it comes from: a keyword argument, or a ``holofit
 analyze`` option (the command line names the option, see :class:`SettingError`).
@@ -12,9 +12,9 @@ import math
 from dataclasses import dataclass
 
 from holofit.analysis.recipes import RECIPES, recipe_for
-from holofit.validation import SIZE_RANGE_UM, Spec, celsius_hint, nm_hint, number_problem
+from holofit.config_schema import SIZE_RANGE_UM, Spec, celsius_hint, nm_hint, number_problem
 
-__all__ = ["SETTING_SPECS", "AnalysisSettings", "SettingError"]
+__all__ = ["SETTING_SPECS", "AnalysisConfig", "SettingError"]
 
 #: the rule of every numeric setting (checked when it is not None)
 SETTING_SPECS: dict[str, Spec] = {
@@ -39,7 +39,7 @@ class SettingError(ValueError):
     Attributes
     ----------
     setting : str
-        The field of :class:`AnalysisSettings`.
+        The field of :class:`AnalysisConfig`.
     problem : str
         What is wrong with it (without the field's name, so that a caller can name the
         setting its own way, e.g. as a command-line option).
@@ -52,7 +52,7 @@ class SettingError(ValueError):
 
 
 @dataclass
-class AnalysisSettings:
+class AnalysisConfig:
     """How to analyse a trajectory.
 
     Parameters

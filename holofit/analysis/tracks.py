@@ -35,7 +35,7 @@ from scipy.stats import chi2 as chi2_dist
 from holofit.analysis.errors import AnalysisError
 from holofit.analysis.pipeline import analyze_trajectory
 from holofit.analysis.results import AnalysisResult
-from holofit.analysis.settings import AnalysisSettings
+from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.trajectory import Trajectory
 from holofit.io.tables import sidecar_path, write_table
 from holofit.provenance import sidecar
@@ -259,7 +259,7 @@ def _pool(quantity: str, tracks: list[TrackResult], sigma: float) -> PooledEstim
     )
 
 
-def _analyse_track(particle: int, rows: pd.DataFrame, settings: AnalysisSettings,
+def _analyse_track(particle: int, rows: pd.DataFrame, settings: AnalysisConfig,
                    pooling: TrackPooling, source: str, dt: float | None) -> TrackResult:
     status = rows["status"].astype(str).str.strip().str.lower()
     n_ok, n_poor = int((status == OK).sum()), int((status == POOR_FIT).sum())
@@ -283,7 +283,7 @@ def _analyse_track(particle: int, rows: pd.DataFrame, settings: AnalysisSettings
     return track
 
 
-def analyze_tracks(path: str | Path, settings: AnalysisSettings, *,
+def analyze_tracks(path: str | Path, settings: AnalysisConfig, *,
                    pooling: TrackPooling | None = None,
                    frame_interval_s: float | None = None) -> TracksResult:
     """Analyse every track of a multi-particle fit table and pool them.
@@ -292,7 +292,7 @@ def analyze_tracks(path: str | Path, settings: AnalysisSettings, *,
     ----------
     path : str or Path
         A fit table with a ``particle`` column (and its sidecar, for the frame interval).
-    settings : AnalysisSettings
+    settings : AnalysisConfig
         How each track is analysed (the same for all).
     pooling : TrackPooling, optional
         Which tracks are analysed and pooled.

@@ -1,7 +1,7 @@
 """The stage's choice of the objective's numerical aperture: keep the instrument's, none (the
 ideal model), or a value given on the command line; the instrument a fit then runs with.
 
-The model kit (:mod:`holofit.fitting.aperture`) fits an NA from a start value; reading the
+The model kit (:mod:`holofit.holomodel.aperture`) fits an NA from a start value; reading the
 choice and applying it to an :class:`~holofit.config.Instrument` belongs to the stages.
 """
 

@@ -12,7 +12,7 @@ from holofit.analysis.recipes import MODELS
 from holofit.cli.common import out_dir_option
 from holofit.io.tables import sidecar_path
 
-#: the option that sets each field of AnalysisSettings (to name it in messages)
+#: the option that sets each field of AnalysisConfig (to name it in messages)
 OPTION_OF_SETTING = {
     "model": "--model",
     "temperature_c": "--temperature-c",
@@ -152,7 +152,7 @@ def analyze(
     (OUT/tracks.csv, OUT/pooled.csv, tracks.png, track_msds.png).
     """
     from holofit.analysis import (
-        AnalysisSettings,
+        AnalysisConfig,
         SettingError,
         TrackPooling,
         format_report,
@@ -169,7 +169,7 @@ def analyze(
         click.echo(f"model: {model} ({why})", err=True)
 
     try:
-        settings = AnalysisSettings(
+        settings = AnalysisConfig(
             model=model, temperature_c=temperature_c, temperature_err_c=temperature_err_c,
             a_um=a_um, b_um=b_um, a_err_um=da_um, b_err_um=db_um, head_tail=head_tail,
             reject=reject, reject_probability=reject_p, d_est=d_est, eps_r_est=eps_r_est,

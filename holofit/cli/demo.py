@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from holofit.demo import DEMO_PARTICLES, run_demo
+from holofit.demo.rod import DEMO_PARTICLES, run_demo
 
 
 @click.command()

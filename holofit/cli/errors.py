@@ -43,7 +43,7 @@ DEBUG_ENV = "HOLOFIT_DEBUG"
 #: holofit's error types for foreseeable failures, by defining module (looked up only in modules
 #: already imported: an exception of a type whose module was never imported cannot occur)
 FORESEEABLE: tuple[tuple[str, str], ...] = (
-    ("holofit.validation", "ConfigError"),
+    ("holofit.config_schema", "ConfigError"),
     ("holofit.crop.errors", "CropError"),
     ("holofit.tables.cropset", "CropSetError"),
     ("holofit.io.movie", "MovieError"),

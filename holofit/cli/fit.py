@@ -22,8 +22,8 @@ from holofit.cli.stage_options import (
     parse_int_list,
     quality_options,
 )
-from holofit.fit.continuity import ContinuityOptions
-from holofit.fit.frame import FrameFitOptions
+from holofit.fit.continuity import ContinuitySettings
+from holofit.fit.frame import FrameFitSettings
 from holofit.fit.stage import (
     PASSES,
     TMATRIX_CHOICES,
@@ -32,7 +32,7 @@ from holofit.fit.stage import (
     fixable_names,
     run_fit,
 )
-from holofit.fitting.result import QualityLimits
+from holofit.holomodel.result import QualityLimits
 from holofit.scattering.select import ENGINE_CHOICES
 
 
@@ -150,7 +150,7 @@ def fit(
     """
     cfg = load_particle_arg(particle)
     inst = load_instrument_arg(instrument) if instrument else None
-    opts = FrameFitOptions(n_starts=n_starts, mirror=not no_mirror,
+    opts = FrameFitSettings(n_starts=n_starts, mirror=not no_mirror,
                            ambiguity_chi2=ambiguity_chi2, pixel_fraction=pixel_fraction,
                            saturation=saturation, noise_sd=noise_sd, far_field=far_field,
                            quality=QualityLimits(max_chi2_red, min_r2))
@@ -168,7 +168,7 @@ def fit(
                   plot_frames=parse_int_list(plot_frames, "--plot-frames"),
                   outlier_factor=outlier_factor,
                   numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na,
-                  continuity=ContinuityOptions(enabled=not no_continuity,
+                  continuity=ContinuitySettings(enabled=not no_continuity,
                                                 flag_probability=flag_probability))
     _report(run)
 

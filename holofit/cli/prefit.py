@@ -16,9 +16,9 @@ from holofit.cli.stage_options import (
     parse_int_list,
     quality_options,
 )
-from holofit.fitting.result import QualityLimits
+from holofit.holomodel.result import QualityLimits
 from holofit.prefit.estimate import SearchSpace
-from holofit.prefit.sphere import FitOptions
+from holofit.prefit.sphere import SphereFitSettings
 from holofit.prefit.stage import run_prefit
 
 
@@ -117,7 +117,7 @@ def prefit(
         raise click.BadParameter(str(exc), param_hint="--z-range / --radius-range / "
                                  "--index-range") from None
     try:
-        fit = FitOptions(fix_alpha=fix_alpha, index_imag=index_imag, saturation=saturation,
+        fit = SphereFitSettings(fix_alpha=fix_alpha, index_imag=index_imag, saturation=saturation,
                          pixel_fraction=pixel_fraction, noise_sd=noise_sd, search=search,
                          quality=QualityLimits(max_chi2_red, min_r2), fit_na=fit_na)
     except ValueError as exc:

@@ -19,7 +19,7 @@ from holofit.cli.common import (
 from holofit.cli.errors import HolofitGroup
 from holofit.cli.simulate_field import simulate_field_cmd
 from holofit.cli.simulate_trajectory import simulate_trajectory_cmd
-from holofit.models import ParticleModel, Sphere
+from holofit.particles import ParticleModel, Sphere
 from holofit.progress import progress_bar
 from holofit.scattering.select import ENGINE_CHOICES
 from holofit.simulate.holograms import SimulationError, check_positions, simulate_movie

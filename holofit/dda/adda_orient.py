@@ -2,7 +2,7 @@
 
 A user with an ADDA shape file and ADDA's ``-orient alpha beta gamma`` (zyz, degrees) gets the
 same physical configuration in holofit by reading the file as a
-:class:`~holofit.models.VoxelShape` (its frame is then holofit's particle frame, unchanged) and
+:class:`~holofit.particles.VoxelShape` (its frame is then holofit's particle frame, unchanged) and
 giving the orientation returned here.
 
 ADDA rotates the particle by ``R_adda = Rz(alpha) Ry(beta) Rz(gamma)`` into a lab where the

@@ -42,8 +42,8 @@ from holofit.dda.tmatrix import TMatrix
 from holofit.dda.tmatrix_wave import TMatrixWave
 from holofit.dda.voxelize import voxelize
 from holofit.dda.wigner import rotate_coefficients
-from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 from holofit.scattering.mie import CrossSections
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 

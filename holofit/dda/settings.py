@@ -6,9 +6,9 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from holofit.models import ParticleModel
+from holofit.config_schema import ConfigError, Spec, validate_table
 from holofit.optics import Optics
-from holofit.validation import ConfigError, Spec, validate_table
+from holofit.particles import ParticleModel
 
 __all__ = ["DDASettings"]
 

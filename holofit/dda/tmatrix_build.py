@@ -66,8 +66,8 @@ from holofit.dda.tmatrix_waves import (
     plane_wave_coefficients,
 )
 from holofit.dda.voxelize import voxelize
-from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 
 __all__ = [
     "DEFAULT_TRUNCATION",

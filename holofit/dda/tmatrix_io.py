@@ -30,8 +30,8 @@ from holofit.cache import LRUCache
 from holofit.dda.lattice import Lattice
 from holofit.dda.settings import DDASettings
 from holofit.dda.tmatrix import TMatrix
-from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 
 __all__ = [
     "FORMAT",

@@ -16,7 +16,7 @@ linear in its coefficients), so
 
 gives the scattered field, its derivative with respect to the Euler angle theta, and its
 derivative with respect to a rotation of the particle about a lab axis (``R -> exp(eps [axis]x)
-R``, what :class:`holofit.fitting.forward.HologramModel` uses), all per radian, incident phase
+R``, what :class:`holofit.holomodel.forward.HologramModel` uses), all per radian, incident phase
 included, with the same conventions as every
 :class:`~holofit.scattering.theory.ScatteredWave` (``field_on_detector`` and ``field_at`` too).
 ``wave.field_and_rotation_derivatives(position, xs, ys, axes)`` gives the field and the
@@ -44,8 +44,8 @@ from holofit.dda.multipole import (
 from holofit.dda.tmatrix import LabCoefficients, TMatrix
 from holofit.dda.tmatrix_waves import pack
 from holofit.dda.wigner import EULER_ANGLES
-from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 from holofit.scattering.theory import Orientation, ScatteredWave
 
 __all__ = ["ExpansionWave", "NearField", "TMatrixWave"]

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from holofit.dda.lattice import Lattice
 from holofit.io.shapefile import read_shape_file
-from holofit.models import (
+from holofit.particles import (
     Cluster,
     CoatedSphere,
     Cylinder,

@@ -49,8 +49,8 @@ from holofit.library.search import Candidate
 from holofit.status import NOT_CONVERGED, OK, POOR_FIT
 
 __all__ = [
-    "ContinuityOptions",
     "ContinuityReport",
+    "ContinuitySettings",
     "FlagBars",
     "NeighbourStart",
     "chi2_bar",
@@ -70,7 +70,7 @@ _REFITTABLE = (OK, POOR_FIT, NOT_CONVERGED)
 
 
 @dataclass(frozen=True)
-class ContinuityOptions:
+class ContinuitySettings:
     """How the continuity sweeps run.
 
     Attributes
@@ -328,7 +328,7 @@ def _angle(u: NDArray[np.float64], v: NDArray[np.float64], head_tail: bool) -> N
     return np.arccos(np.clip(dot, -1.0, 1.0))
 
 
-def suspects(table: pd.DataFrame, opts: ContinuityOptions, head_tail: bool,
+def suspects(table: pd.DataFrame, opts: ContinuitySettings, head_tail: bool,
              bar: float | None = None) -> NDArray[np.bool_]:
     """Which rows of a frame-sorted fit table may sit in a wrong minimum (see module doc).
 
@@ -336,7 +336,7 @@ def suspects(table: pd.DataFrame, opts: ContinuityOptions, head_tail: bool,
     ----------
     table : DataFrame
         Fit table sorted by frame.
-    opts : ContinuityOptions
+    opts : ContinuitySettings
         Bars.
     head_tail : bool
         Whether u and -u are one orientation.
@@ -388,7 +388,7 @@ def sources(table: pd.DataFrame, bar: float) -> NDArray[np.bool_]:
 
 
 def neighbour_starts(table: pd.DataFrame, suspect: NDArray[np.bool_], source: NDArray[np.bool_],
-                     opts: ContinuityOptions,
+                     opts: ContinuitySettings,
                      tried: set[tuple[int, int, float, float]]) -> dict[int, NeighbourStart]:
     """Starts for each suspect frame from its nearest sources (not tried before).
 
@@ -400,7 +400,7 @@ def neighbour_starts(table: pd.DataFrame, suspect: NDArray[np.bool_], source: ND
         From :func:`suspects`.
     source : ndarray of bool
         From :func:`sources`.
-    opts : ContinuityOptions
+    opts : ContinuitySettings
         ``max_gap``.
     tried : set
         ``(frame, source frame, theta, psi)`` already tried; updated with the new starts.
@@ -509,7 +509,7 @@ def _winning_source(row: Mapping[str, object], start: NeighbourStart | None) -> 
 def repair_by_continuity(
     table: pd.DataFrame,
     refit: Callable[[int, dict[int, NeighbourStart]], pd.DataFrame],
-    opts: ContinuityOptions,
+    opts: ContinuitySettings,
     *,
     head_tail: bool,
     ambiguity_chi2: float,
@@ -524,12 +524,12 @@ def repair_by_continuity(
     refit : callable
         ``refit(sweep, starts)`` fits the frames of ``starts`` from their neighbour starts and
         returns their rows (the stage runs it through the batch runner).
-    opts : ContinuityOptions
+    opts : ContinuitySettings
         Settings.
     head_tail : bool
         Whether u and -u are one orientation.
     ambiguity_chi2 : float
-        As :class:`holofit.fit.frame.FrameFitOptions`.
+        As :class:`holofit.fit.frame.FrameFitSettings`.
     refinish : callable, optional
         Re-applied to the table after each merge (the movie's outlier rule).
 

@@ -25,22 +25,22 @@ from numpy.typing import NDArray
 
 from holofit.cache import LRUCache
 from holofit.conventions import euler_zyz
-from holofit.fitting.aperture import aperture_start
-from holofit.fitting.forward import HologramModel, InvalidParameters
-from holofit.fitting.leastsq import Solution, solve_least_squares
-from holofit.fitting.parameters import APERTURE, ParameterSpace, State, static_values
-from holofit.fitting.pixels import PixelSelection, select_pixels
-from holofit.fitting.result import FitResult, QualityLimits, fit_result
-from holofit.fitting.statistics import estimate_noise_sd
+from holofit.holomodel.aperture import aperture_start
+from holofit.holomodel.forward import HologramModel, InvalidParameters
+from holofit.holomodel.leastsq import Solution, solve_least_squares
+from holofit.holomodel.parameters import APERTURE, ParameterSpace, State, static_values
+from holofit.holomodel.pixels import PixelSelection, select_pixels
+from holofit.holomodel.result import FitResult, QualityLimits, fit_result
+from holofit.holomodel.statistics import estimate_noise_sd
 from holofit.library.search import Candidate
-from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 from holofit.scattering.theory import ScatteringTheory
 
 __all__ = [
     "RUNNER_UP_COLUMNS",
     "CarriedRunnerUp",
-    "FrameFitOptions",
+    "FrameFitSettings",
     "WarmFit",
     "fit_frame",
     "fit_frame_warm",
@@ -62,7 +62,7 @@ SAME_BASIN_Z_UM = 0.1
 
 
 @dataclass(frozen=True)
-class FrameFitOptions:
+class FrameFitSettings:
     """How a frame is fitted.
 
     Attributes
@@ -167,7 +167,7 @@ class _FrameFit:
 
     def __init__(self, crop: NDArray, corner_rc: tuple[int, int], pixel_size_um: float,
                  theory: ScatteringTheory, model: ParticleModel, optics: Optics,
-                 opts: FrameFitOptions, rng: np.random.Generator, free: Sequence[str]) -> None:
+                 opts: FrameFitSettings, rng: np.random.Generator, free: Sequence[str]) -> None:
         self.theory, self.model, self.optics, self.opts, self.rng = (
             theory, model, optics, opts, rng)
         self.pix = select_pixels(crop, corner_rc, pixel_size_um, saturation=opts.saturation,
@@ -253,7 +253,7 @@ def _rss(branch: _Branch) -> float:
 
 
 def _library_starts(model: ParticleModel, candidates: Sequence[Candidate],
-                    opts: FrameFitOptions) -> list[Candidate | None]:
+                    opts: FrameFitSettings) -> list[Candidate | None]:
     """The distinct starts of a frame: the best candidates and the mirror of the first."""
     if not model.anisotropic:
         return [None]
@@ -320,7 +320,7 @@ def fit_frame(
     alpha: float,
     candidates: Sequence[Candidate],
     free: Sequence[str],
-    options: FrameFitOptions | None = None,
+    options: FrameFitSettings | None = None,
     seed: int = 0,
 ) -> FitResult:
     """Fit the DDA hologram of ``model`` to one crop from the library's starts.
@@ -349,7 +349,7 @@ def fit_frame(
     free : sequence of str
         Fitted parameters: position and static names, ``alpha``, ``orientation``,
         ``numerical_aperture`` (starting from the optics' NA).
-    options : FrameFitOptions, optional
+    options : FrameFitSettings, optional
         Settings.
     seed : int
         Seed of the random pixel subsets.
@@ -360,7 +360,7 @@ def fit_frame(
         With ``extra`` = :data:`RUNNER_UP_COLUMNS` and ``n_masked``.
     """
     t0 = time.perf_counter()
-    opts = options or FrameFitOptions()
+    opts = options or FrameFitSettings()
     rng = np.random.default_rng(seed)
     fit = _FrameFit(crop, corner_rc, pixel_size_um, theory, model, optics, opts, rng, free)
     starts = _library_starts(model, candidates, opts)
@@ -435,7 +435,7 @@ def fit_frame_warm(
     optics: Optics,
     start: State,
     free: Sequence[str],
-    options: FrameFitOptions | None = None,
+    options: FrameFitSettings | None = None,
     seed: int = 0,
     carried: CarriedRunnerUp | None = None,
     refit_margin_chi2: float = 16.0,
@@ -465,7 +465,7 @@ def fit_frame_warm(
     WarmFit
     """
     t0 = time.perf_counter()
-    opts = options or FrameFitOptions()
+    opts = options or FrameFitSettings()
     rng = np.random.default_rng(seed)
     fit = _FrameFit(crop, corner_rc, pixel_size_um, theory, model, optics, opts, rng, free)
     if fit.na_start is not None and start.numerical_aperture is None:

@@ -43,7 +43,7 @@ from holofit.batch.stage import (
     stage_inputs,
 )
 from holofit.config import Instrument, ParticleConfig
-from holofit.fit.continuity import ContinuityOptions, ContinuityReport
+from holofit.fit.continuity import ContinuityReport, ContinuitySettings
 from holofit.fit.defaults import (
     INITIAL_MAX,
     INITIAL_MIN,
@@ -51,7 +51,7 @@ from holofit.fit.defaults import (
     default_initial_frames,
 )
 from holofit.fit.errors import FitStageError
-from holofit.fit.frame import FrameFitOptions
+from holofit.fit.frame import FrameFitSettings
 from holofit.fit.static import read_static, static_average, static_doc, write_static
 from holofit.fit.sweeps import continuity_sweeps
 from holofit.fit.task import (
@@ -64,12 +64,12 @@ from holofit.fit.task import (
     fixable_names,
 )
 from holofit.fit.tmatrix_policy import TMATRIX_CHOICES, check_policy, final_tmatrix
-from holofit.fitting.finish import outlier_rule, outlier_sidecar
-from holofit.fitting.parameters import particle_with, static_parameters
-from holofit.fitting.pictures import write_frame_pictures
+from holofit.holomodel.finish import outlier_rule, outlier_sidecar
+from holofit.holomodel.parameters import particle_with, static_parameters
+from holofit.holomodel.pictures import write_frame_pictures
 from holofit.io.tables import read_table
 from holofit.library.search import Candidate
-from holofit.models import ParticleModel
+from holofit.particles import ParticleModel
 from holofit.scattering.theory import ScatteringTheory
 from holofit.status import FIT_STATUS_MEANINGS, FITTABLE_CROP_STATUSES, describe
 from holofit.tables.cropset import CropSet
@@ -116,11 +116,11 @@ def run_fit(
     particle: ParticleConfig, out_dir: str | Path, *, pass_name: str = "both",
     initial_frames: int | None = None, static: str | Path | None = None,
     instrument: Instrument | None = None, override_instrument: bool = False,
-    options: FrameFitOptions | None = None, engine: str | None = None,
+    options: FrameFitSettings | None = None, engine: str | None = None,
     fixed: tuple[str, ...] = (), tmatrix: str = "auto", frames: list[int] | None = None,
     batch: BatchOptions | None = None, plot: bool = True, plot_frames: list[int] | None = None,
     outlier_factor: float = 4.0, numerical_aperture: ApertureChoice = FROM_INSTRUMENT,
-    fit_na: bool = False, continuity: ContinuityOptions | None = None,
+    fit_na: bool = False, continuity: ContinuitySettings | None = None,
 ) -> FitRun:
     """The DDA fit of a crop folder (see the module docstring).
 
@@ -155,7 +155,7 @@ def run_fit(
         As for :func:`holofit.prefit.run_prefit`.
     fit_na : bool
         Fit the NA in every frame of both passes, starting from the one chosen.
-    continuity : ContinuityOptions, optional
+    continuity : ContinuitySettings, optional
         The continuity sweeps after the final pass (default: on).
 
     Raises
@@ -174,8 +174,8 @@ def run_fit(
             fit_na) as given:
         passes = _FitPasses.open(
             given, particle, Path(prefit), None if library is None else Path(library),
-            Path(out_dir), run, options or FrameFitOptions(), engine, tuple(fixed), fit_na,
-            batch, plot, plot_frames, outlier_factor, continuity or ContinuityOptions())
+            Path(out_dir), run, options or FrameFitSettings(), engine, tuple(fixed), fit_na,
+            batch, plot, plot_frames, outlier_factor, continuity or ContinuitySettings())
         static_path = Path(static) if static is not None else passes.out / "static.json"
         if pass_name in ("initial", "both"):
             run.static = passes.initial(initial_frames)
@@ -235,7 +235,7 @@ class _FitPasses:
     load: Any
     out: Path
     run: FitRun
-    opts: FrameFitOptions
+    opts: FrameFitSettings
     engine: str | None
     fixed: tuple[str, ...]
     fit_na: bool
@@ -243,7 +243,7 @@ class _FitPasses:
     plot: bool
     plot_frames: list[int] | None
     outlier_factor: float
-    cont: ContinuityOptions
+    cont: ContinuitySettings
 
     @classmethod
     def open(cls, given: StageInputs, particle: ParticleConfig, prefit: Path,
@@ -340,7 +340,7 @@ class _FitPasses:
 def _plots(path: Path, crops: CropSet, model: ParticleModel, theory: ScatteringTheory,
            inst: Instrument, out: Path, name: str, frames: list[int] | None,
            far_field: bool, stem: str) -> None:
-    from holofit.fitting.plots import plot_table
+    from holofit.holomodel.plots import plot_table
 
     panels = [("x_um", "x (um)"), ("y_um", "y (um)"), ("z_um", "z (um)")]
     if model.anisotropic:

@@ -17,9 +17,9 @@ import pandas as pd
 
 from holofit.config import ConfigError
 from holofit.fit.errors import FitStageError
-from holofit.fitting.parameters import static_parameters, static_values
+from holofit.holomodel.parameters import static_parameters, static_values
 from holofit.io.tables import write_json
-from holofit.models import ParticleModel
+from holofit.particles import ParticleModel
 from holofit.provenance import sidecar
 from holofit.status import OK
 

@@ -21,13 +21,13 @@ import pandas as pd
 from holofit.batch.runner import BatchOptions, Precomputed, run_batch, run_frame
 from holofit.batch.stage import fingerprint
 from holofit.fit.continuity import (
-    ContinuityOptions,
     ContinuityReport,
+    ContinuitySettings,
     NeighbourStart,
     repair_by_continuity,
 )
 from holofit.fit.task import FitConfig, FitPayload, fit_columns, fit_frame_task
-from holofit.fitting.result import flag_outliers
+from holofit.holomodel.result import flag_outliers
 from holofit.io.tables import read_table, sidecar_path, write_table
 
 __all__ = ["continuity_sweeps"]
@@ -43,7 +43,7 @@ _SERIAL_SWEEP_FRAMES = 8
 Loader = Callable[[int], Any]
 
 
-def continuity_sweeps(path: Path, cfg: FitConfig, load: Loader, cont: ContinuityOptions,
+def continuity_sweeps(path: Path, cfg: FitConfig, load: Loader, cont: ContinuitySettings,
                       batch: BatchOptions | None, outlier_factor: float) -> ContinuityReport:
     """Run the continuity sweeps on the final pass's table and write it back (atomically).
 

@@ -20,11 +20,11 @@ from numpy.typing import NDArray
 from holofit.batch.stage import fingerprint
 from holofit.cache import LRUCache
 from holofit.config import Instrument, ParticleConfig
-from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitOptions, fit_frame
-from holofit.fitting.parameters import APERTURE, static_parameters
-from holofit.fitting.result import result_columns, result_row
+from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitSettings, fit_frame
+from holofit.holomodel.parameters import APERTURE, static_parameters
+from holofit.holomodel.result import result_columns, result_row
 from holofit.library.search import Candidate
-from holofit.models import ParticleModel
+from holofit.particles import ParticleModel
 from holofit.scattering.theory import ScatteringTheory
 
 __all__ = [
@@ -50,8 +50,8 @@ def _free(model: ParticleModel, pass_name: str, fixed: tuple[str, ...] = (),
 def fixable_names() -> dict[str, tuple[str, ...]]:
     """The static fit parameters of each particle model (``--fix`` can hold them), by kind;
     a voxel file's are ``n1, n2, ...`` (one per domain)."""
-    from holofit.fitting.parameters import index_column
-    from holofit.models import MODEL_TYPES
+    from holofit.holomodel.parameters import index_column
+    from holofit.particles import MODEL_TYPES
 
     return {kind: (*cls.size_fields, *cls.nonnegative_fields,
                    *(index_column(f) for f in cls.index_fields))
@@ -95,7 +95,7 @@ class FitConfig:
         Optics and pixel size.
     pass_name : {"initial", "final"}
         Which pass.
-    options : FrameFitOptions
+    options : FrameFitSettings
         How each frame is fitted.
     engine : str, optional
         Scattering engine (default: the particle config's).
@@ -111,7 +111,7 @@ class FitConfig:
     particle: ParticleConfig
     instrument: Instrument
     pass_name: str
-    options: FrameFitOptions = field(default_factory=FrameFitOptions)
+    options: FrameFitSettings = field(default_factory=FrameFitSettings)
     engine: str | None = None
     fixed: tuple[str, ...] = ()
     tmatrix: str | None = None

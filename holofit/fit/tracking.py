@@ -25,7 +25,7 @@ that fails. Along one track (frames in time order):
 Chunks of one track overlap by a few frames; :func:`stitch_chunks` joins them and reports where
 the overlaps disagree (position or axis beyond tolerance).
 
-Each row has the fit table's columns (:func:`holofit.fitting.result.result_row`, with
+Each row has the fit table's columns (:func:`holofit.holomodel.result.result_row`, with
 :data:`holofit.fit.frame.RUNNER_UP_COLUMNS`) and :data:`TRACK_COLUMNS`.
 """
 
@@ -43,16 +43,16 @@ from numpy.typing import NDArray
 from holofit.conventions import euler_zyz
 from holofit.fit.frame import (
     CarriedRunnerUp,
-    FrameFitOptions,
+    FrameFitSettings,
     WarmFit,
     fit_frame,
     fit_frame_warm,
 )
-from holofit.fitting.parameters import State, static_values
-from holofit.fitting.result import FitResult, result_row
+from holofit.holomodel.parameters import State, static_values
+from holofit.holomodel.result import FitResult, result_row
 from holofit.library.search import Candidate
-from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 from holofit.scattering.theory import ScatteringTheory
 from holofit.status import OK, POOR_FIT
 
@@ -109,7 +109,7 @@ class TrackOptions:
 
     Attributes
     ----------
-    frame : FrameFitOptions
+    frame : FrameFitSettings
         Each fit's settings (warm fits, library fits and re-acquisitions alike).
     max_step_um, max_axis_step_rad : float, optional
         Largest smooth step between consecutive frames (position, um; axis, rad), e.g. a few
@@ -135,7 +135,7 @@ class TrackOptions:
         False: every frame is an independent library fit (``--no-tracking``).
     """
 
-    frame: FrameFitOptions = field(default_factory=FrameFitOptions)
+    frame: FrameFitSettings = field(default_factory=FrameFitSettings)
     max_step_um: float | None = None
     max_axis_step_rad: float | None = None
     step_factor: float = 5.0

@@ -34,8 +34,8 @@ from numpy.typing import NDArray
 from holofit.cache import LRUCache
 from holofit.conventions import axis_from_angles, euler_zyz
 from holofit.library.polar import PolarGrid
-from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 from holofit.scattering.camera import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 

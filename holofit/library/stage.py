@@ -219,7 +219,7 @@ def run_library(
 
         def pictures(table_path: Path) -> Path:
             """``library.png`` (:func:`run_stage`'s ``complete``)."""
-            from holofit.fitting.plots import plot_table
+            from holofit.holomodel.plots import plot_table
 
             return plot_table(
                 table_path, out / "library.png",

@@ -10,16 +10,16 @@ every crop from an automatic start, as the starting point of the DDA stages.
 """
 
 from holofit.prefit.estimate import ProfileStart, SearchSpace, estimate_starts
-from holofit.prefit.sphere import SPHERE_COLUMNS, FitOptions, fit_sphere_crop
+from holofit.prefit.sphere import SPHERE_COLUMNS, SphereFitSettings, fit_sphere_crop
 from holofit.prefit.stage import PREFIT_COLUMNS, PrefitConfig, prefit_frame, run_prefit
 
 __all__ = [
     "PREFIT_COLUMNS",
     "SPHERE_COLUMNS",
-    "FitOptions",
     "PrefitConfig",
     "ProfileStart",
     "SearchSpace",
+    "SphereFitSettings",
     "estimate_starts",
     "fit_sphere_crop",
     "prefit_frame",

@@ -26,8 +26,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from holofit.models import Sphere
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.prefit.profile import RadialProfile, annulus_mean_radius, profile_terms
 from holofit.scattering.lens_lines import SphereLensLines
 from holofit.scattering.mie import MieWave

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from holofit.fitting.plots import plot_table
+from holofit.holomodel.plots import plot_table
 
 __all__ = ["PREFIT_PANELS", "plot_prefit"]
 

@@ -8,15 +8,15 @@ briefly on a random subset of the pixels and the best one is fitted on all of th
 With an objective lens in the optics (a numerical aperture), the model, the start estimator's
 profiles and the fit all use the lens image (:mod:`holofit.scattering.lens`), which is defined
 at every height, below the focal plane too; the NA can also be fitted (``fit_na``: an optics
-parameter, :mod:`holofit.fitting.parameters`), starting from the optics' NA (at most the
+parameter, :mod:`holofit.holomodel.parameters`), starting from the optics' NA (at most the
 medium's index).
 
-The fit is holofit's one least-squares fit (:func:`holofit.fitting.leastsq.solve_least_squares`)
-of the forward model (:class:`holofit.fitting.forward.HologramModel` with the exact Lorenz-Mie
+The fit is holofit's one least-squares fit (:func:`holofit.holomodel.leastsq.solve_least_squares`)
+of the forward model (:class:`holofit.holomodel.forward.HologramModel` with the exact Lorenz-Mie
 engine) to the unmasked pixels: NaN pixels (masked or saturated by the crop stage) and pixels at
 or above an optional saturation level are left out, and an optional random subset keeps only a
 fraction of the rest (seeded, so a fit is reproducible). The result is a
-:class:`~holofit.fitting.result.FitResult`, the same type the DDA fit returns; a converged fit
+:class:`~holofit.holomodel.result.FitResult`, the same type the DDA fit returns; a converged fit
 whose parameters leave the search range, or that is far from the data, is ``poor_fit``.
 """
 
@@ -29,21 +29,21 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.fitting.aperture import aperture_start
-from holofit.fitting.forward import HologramModel, InvalidParameters
-from holofit.fitting.leastsq import Solution, solve_least_squares
-from holofit.fitting.parameters import ParameterSpace, State
-from holofit.fitting.pixels import select_pixels
-from holofit.fitting.result import FitResult, QualityLimits, fit_result
-from holofit.fitting.statistics import estimate_noise_sd
-from holofit.models import Sphere
+from holofit.holomodel.aperture import aperture_start
+from holofit.holomodel.forward import HologramModel, InvalidParameters
+from holofit.holomodel.leastsq import Solution, solve_least_squares
+from holofit.holomodel.parameters import ParameterSpace, State
+from holofit.holomodel.pixels import select_pixels
+from holofit.holomodel.result import FitResult, QualityLimits, fit_result
+from holofit.holomodel.statistics import estimate_noise_sd
 from holofit.optics import Optics
+from holofit.particles import Sphere
 from holofit.prefit.estimate import ProfileStart, SearchSpace, estimate_starts, profile_table
 from holofit.prefit.profile import radial_profile
 from holofit.scattering.mie import LorenzMie
 from holofit.status import POOR_FIT
 
-__all__ = ["SPHERE_COLUMNS", "FitOptions", "fit_sphere_crop"]
+__all__ = ["SPHERE_COLUMNS", "SphereFitSettings", "fit_sphere_crop"]
 
 #: the fitted quantities of a sphere, in table order
 SPHERE_COLUMNS = ("x_um", "y_um", "z_um", "radius_um", "n", "alpha")
@@ -57,7 +57,7 @@ START_COLUMNS = ("n_starts", "start_z_um", "start_radius_um", "start_n", "start_
 
 
 @dataclass(frozen=True)
-class FitOptions:
+class SphereFitSettings:
     """Settings of a sphere fit.
 
     Attributes
@@ -139,7 +139,7 @@ class FitOptions:
             raise ValueError("seed_only fits no numerical aperture (fit_na)")
 
 
-def _limits(opts: FitOptions, n_medium: float) -> QualityLimits:
+def _limits(opts: SphereFitSettings, n_medium: float) -> QualityLimits:
     """The quality limits with the search space's radius and index range (5 % margin)."""
     space = opts.search
     a0, a1 = space.radius_range_um
@@ -183,7 +183,7 @@ def fit_sphere_crop(
     centre_xy_um: tuple[float, float],
     optics: Optics,
     pixel_size_um: float,
-    options: FitOptions | None = None,
+    options: SphereFitSettings | None = None,
     seed: int = 0,
 ) -> FitResult:
     """Fit the exact Lorenz-Mie hologram to one normalised crop, from an automatic start.
@@ -200,7 +200,7 @@ def fit_sphere_crop(
         Illumination and medium.
     pixel_size_um : float
         Pixel pitch in the sample plane, um.
-    options : FitOptions, optional
+    options : SphereFitSettings, optional
         Fit settings (``seed_only``: the short seed fit of a non-spherical particle).
     seed : int
         Seed of the random pixel subsets (use the frame number for reproducible batches).
@@ -221,7 +221,7 @@ def fit_sphere_crop(
         have none.
     """
     t0 = time.perf_counter()
-    opts = options or FitOptions()
+    opts = options or SphereFitSettings()
     opts.search.check_heights(optics.numerical_aperture is not None)
     rng = np.random.default_rng(seed)
     crop_fit = _CropFit(crop, corner_rc, centre_xy_um, optics, pixel_size_um, opts, rng)
@@ -256,7 +256,7 @@ class _CropFit:
 
     def __init__(self, crop: NDArray, corner_rc: tuple[int, int],
                  centre_xy_um: tuple[float, float], optics: Optics, pixel_size_um: float,
-                 opts: FitOptions, rng: np.random.Generator) -> None:
+                 opts: SphereFitSettings, rng: np.random.Generator) -> None:
         self.optics, self.opts, self.rng = optics, opts, rng
         self.na_start = aperture_start(optics) if opts.fit_na else None
         self.data = np.asarray(crop, dtype=float)
@@ -330,7 +330,7 @@ class _CropFit:
                 n_eval += sol.n_eval
                 if np.isfinite(sol.rss) and sol.rss < best_cost:
                     best_cost, chosen, space, vector = sol.rss, s, cand, sol.vector
-        if opts.fit_na:  # the screened state, the aperture free (holofit.fitting.leastsq)
+        if opts.fit_na:  # the screened state, the aperture free (holofit.holomodel.leastsq)
             free = (*self.screen_free, "numerical_aperture")
             space = ParameterSpace(space.model, free, space.state(vector),
                                    step_overrides=EXACT_STEPS)

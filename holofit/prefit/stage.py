@@ -23,12 +23,12 @@ from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed
 from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage, stage_inputs
 from holofit.config import ConfigError, Instrument
-from holofit.fitting.finish import outlier_rule, outlier_sidecar
-from holofit.fitting.pictures import write_frame_pictures
-from holofit.fitting.result import result_row
+from holofit.holomodel.finish import outlier_rule, outlier_sidecar
+from holofit.holomodel.pictures import write_frame_pictures
+from holofit.holomodel.result import result_row
 from holofit.io.tables import read_table
-from holofit.models import Sphere
-from holofit.prefit.sphere import FitOptions, fit_sphere_crop
+from holofit.particles import Sphere
+from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.provenance import sidecar
 from holofit.scattering.mie import LorenzMie
 from holofit.tables.cropset import CropSet
@@ -54,12 +54,12 @@ class PrefitConfig:
     ----------
     instrument : Instrument
         Optics and pixel size.
-    fit : FitOptions
+    fit : SphereFitSettings
         Fit settings.
     """
 
     instrument: Instrument
-    fit: FitOptions = field(default_factory=FitOptions)
+    fit: SphereFitSettings = field(default_factory=SphereFitSettings)
 
     def as_dict(self) -> dict[str, Any]:
         """Plain form for the sidecar and the fingerprint."""
@@ -128,7 +128,7 @@ def run_prefit(
     out_dir: str | Path,
     *,
     instrument: Instrument | None = None,
-    fit: FitOptions | None = None,
+    fit: SphereFitSettings | None = None,
     frames: list[int] | None = None,
     batch: BatchOptions | None = None,
     plot: bool = True,
@@ -148,7 +148,7 @@ def run_prefit(
     instrument : Instrument, optional
         The instrument, if the crop stage recorded none; replacing a recorded one that differs
         in wavelength, medium, pixel size or polarisation needs ``override_instrument``.
-    fit : FitOptions, optional
+    fit : SphereFitSettings, optional
         Fit settings.
     frames, batch
         Only these frames (default: all); parallel backend, resumption.
@@ -161,9 +161,9 @@ def run_prefit(
         Allow ``instrument`` to differ from the one the crops were made with.
     outlier_factor : float
         An ok frame whose reduced chi^2 exceeds this times the movie's median becomes
-        ``poor_fit`` (:func:`holofit.fitting.result.flag_outliers`).
+        ``poor_fit`` (:func:`holofit.holomodel.result.flag_outliers`).
     numerical_aperture : float, None or "instrument"
-        The objective's NA the model is imaged with (:mod:`holofit.fitting.aperture`): the
+        The objective's NA the model is imaged with (:mod:`holofit.holomodel.aperture`): the
         instrument's (default), another value, or None for the ideal model (no lens). With
         ``fit.fit_na`` it is the start of the fitted NA.
 
@@ -183,7 +183,7 @@ def run_prefit(
         If earlier results in ``out_dir`` came from other settings (see ``overwrite``).
     """
     out = Path(out_dir)
-    fit = fit or FitOptions()
+    fit = fit or SphereFitSettings()
     with stage_inputs(crop_dir, frames, instrument, override_instrument, numerical_aperture,
                       fit.fit_na) as given:
         try:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 import holofit
-from holofit.analysis.settings import AnalysisSettings, SettingError
+from holofit.analysis.settings import AnalysisConfig, SettingError
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
 from holofit.io.atomic import atomic_write_text
 from holofit.io.movie import MovieError, open_movie
@@ -306,7 +306,7 @@ def _check_engine_and_analysis(cfg: ParticleConfig, engine: str | None, model: s
         cfg.theory(engine)  # an engine that cannot handle the particle: ConfigError now
     analysis = analysis_model_for(cfg.model.kind, model)
     try:
-        AnalysisSettings(model=analysis, temperature_c=temperature_c)
+        AnalysisConfig(model=analysis, temperature_c=temperature_c)
     except SettingError as exc:
         raise RunFolderError(f"analysis {exc.setting}: {exc.problem}") from None
     return analysis

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from holofit.validation import ConfigError
+from holofit.config_schema import ConfigError
 
 __all__ = ["RunFolderError"]
 
@@ -11,6 +11,6 @@ class RunFolderError(ConfigError):
     """A run folder cannot be written as asked: a missing or unreadable input, a path that make
     cannot handle, an option the Makefile sets itself, or a Makefile that exists already.
 
-    A :class:`~holofit.validation.ConfigError` (the configuration of a run), so the command
+    A :class:`~holofit.config_schema.ConfigError` (the configuration of a run), so the command
     line reports it as one line.
     """

@@ -14,7 +14,7 @@ import shlex
 from holofit.crop.errors import CropError
 from holofit.crop.stage import DEFAULT_CROP_SIZE, check_crop_settings
 from holofit.fit.defaults import INITIAL_MAX, INITIAL_MIN, INITIAL_SHARE, default_initial_frames
-from holofit.models import ParticleModel
+from holofit.particles import ParticleModel
 from holofit.runfolder.errors import RunFolderError
 
 __all__ = ["check_crop_options", "check_fit_options", "initial_pass_note", "option_value"]

@@ -64,8 +64,8 @@ from holofit.dda.multipole import MultipoleExpansion
 from holofit.dda.tmatrix import TMatrix
 from holofit.dda.tmatrix_wave import TMatrixWave
 from holofit.dda.tmatrix_waves import n_terms, term_indices, unpack
-from holofit.models import Cluster, Dimer, ParticleModel, Sphere
 from holofit.optics import Optics
+from holofit.particles import Cluster, Dimer, ParticleModel, Sphere
 from holofit.scattering.mie_coefficients import mie_coefficients, n_stop
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 from holofit.scattering.translation import axial_entries, translation_matrix, wigner_matrix

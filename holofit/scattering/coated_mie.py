@@ -33,8 +33,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from holofit.models import CoatedSphere, ParticleModel
 from holofit.optics import Optics
+from holofit.particles import CoatedSphere, ParticleModel
 from holofit.scattering.mie import CrossSections, bh_frame
 from holofit.scattering.mie_coefficients import n_stop, riccati_xi
 from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, field_on_pixels
@@ -275,7 +275,7 @@ class CoatedSphereWave(ScatteredWave):
 
 
 class CoatedMie(ScatteringTheory):
-    """Exact Lorenz-Mie theory for coated spheres (:class:`holofit.models.CoatedSphere`)."""
+    """Exact Lorenz-Mie theory for coated spheres (:class:`holofit.particles.CoatedSphere`)."""
 
     name = "coated_sphere"
 

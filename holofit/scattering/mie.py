@@ -15,8 +15,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.conventions import rotation_z
-from holofit.models import ParticleModel, Sphere
 from holofit.optics import Optics
+from holofit.particles import ParticleModel, Sphere
 from holofit.scattering.mie_coefficients import mie_coefficients
 from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, field_on_pixels
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory

@@ -15,7 +15,7 @@ name (the built-in DDA unless they say ``adda``):
 from __future__ import annotations
 
 from holofit.dda.settings import DDASettings
-from holofit.models import Cluster, CoatedSphere, Dimer, ParticleModel, Sphere
+from holofit.particles import Cluster, CoatedSphere, Dimer, ParticleModel, Sphere
 from holofit.scattering.registry import get_theory
 from holofit.scattering.theory import ScatteringTheory
 

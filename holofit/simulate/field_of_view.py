@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.camera import Camera
 from holofit.config import Instrument
 from holofit.conventions import hologram_intensity, pixel_centres
-from holofit.models import ParticleModel
+from holofit.particles import ParticleModel
 from holofit.scattering.camera import recorded_field
 from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory

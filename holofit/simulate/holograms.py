@@ -23,7 +23,7 @@ from holofit.conventions import DetectorGrid
 from holofit.hologram import calc_hologram
 from holofit.io.tables import write_table
 from holofit.io.tiffstack import TiffStackWriter
-from holofit.models import ParticleModel
+from holofit.particles import ParticleModel
 from holofit.provenance import sidecar
 from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteringTheory

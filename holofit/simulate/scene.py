@@ -33,10 +33,10 @@ import numpy as np
 
 from holofit.analysis.hydrodynamics import sphere_diffusion
 from holofit.config import Instrument, load_instrument, load_particle, resolve_config
-from holofit.models import Sphere
+from holofit.config_schema import ConfigError, Spec, read_toml, validate_table
+from holofit.particles import Sphere
 from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
 from holofit.simulate.field_of_view import ParticleInView
-from holofit.validation import ConfigError, Spec, read_toml, validate_table
 
 __all__ = ["Scene", "load_scene"]
 

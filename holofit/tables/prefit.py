@@ -9,8 +9,8 @@ library and fit stages through :func:`holofit.tables.inputs.read_stage_table`.
 
 from __future__ import annotations
 
-from holofit.fitting.parameters import APERTURE
-from holofit.fitting.result import result_columns
+from holofit.holomodel.parameters import APERTURE
+from holofit.holomodel.result import result_columns
 from holofit.status import FIT_STATUS_MEANINGS, describe
 from holofit.tables.fit import column_unit
 

@@ -56,8 +56,8 @@ from holofit.dda.adda.run import AddaResult, adda_command, run_adda
 from holofit.dda.lattice import Lattice
 from holofit.dda.settings import DDASettings
 from holofit.dda.voxelize import voxelize
-from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["AddaEngine", "AddaWave"]

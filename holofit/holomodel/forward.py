@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.cache import LRUCache
-from holofit.fitting.parameters import ParameterSpace, State
+from holofit.holomodel.parameters import ParameterSpace, State
 from holofit.optics import Optics
 from holofit.scattering.camera import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory

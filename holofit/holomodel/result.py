@@ -29,9 +29,9 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.conventions import r_squared
-from holofit.fitting.leastsq import Solution
-from holofit.fitting.parameters import APERTURE, ParameterSpace
-from holofit.fitting.statistics import covariance_from_jacobian
+from holofit.holomodel.leastsq import Solution
+from holofit.holomodel.parameters import APERTURE, ParameterSpace
+from holofit.holomodel.statistics import covariance_from_jacobian
 from holofit.status import FAILED, NOT_CONVERGED, OK, POOR_FIT
 
 __all__ = [

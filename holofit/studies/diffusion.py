@@ -28,7 +28,7 @@ from scipy.optimize import least_squares
 from holofit.analysis.hydrodynamics import sphere_diffusion
 from holofit.analysis.pipeline import analyze_trajectory
 from holofit.analysis.projection import projection_correlation
-from holofit.analysis.settings import AnalysisSettings
+from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.trajectory import Trajectory
 from holofit.conventions import rotation_from_vector
 from holofit.simulate.brownian import (
@@ -116,13 +116,13 @@ def rod_study(
     n_frames: int = 2000,
     frame_rate: float = 100.0,
     first_seed: int = 0,
-    settings: AnalysisSettings | None = None,
+    settings: AnalysisConfig | None = None,
 ) -> dict[str, StudyRow]:
     """Analyse ``n_seeds`` simulated rods (seeds ``first_seed`` ...) and collect the results."""
     r = PAPER_ROD
     params = BrownianParameters(n_frames, 1.0 / frame_rate, r["d_par"], r["d_perp"], r["d_r"])
     noise = MeasurementNoise(r["eps_um"], None, r["eps_r"], r["flip"], r["mirror"])
-    settings = settings or AnalysisSettings("rod")
+    settings = settings or AnalysisConfig("rod")
     truth = {
         "D_par": r["d_par"],
         "D_perp": r["d_perp"],
@@ -164,7 +164,7 @@ def projection_study(
 ) -> list[ProjectionRun]:
     """Isotropic rotational diffusion (noise-free), analysed as a Janus particle (psi only)."""
     runs = []
-    settings = AnalysisSettings(
+    settings = AnalysisConfig(
         "janus", max_lag=max(int(2.0 / (d_r * frame_interval_s)), 20), projection_amplitude=True
     )
     for seed in range(first_seed, first_seed + n_runs):
@@ -320,7 +320,7 @@ def calibration_case(
     :meth:`holofit.analysis.measurement.Measurement.pull`)."""
     keys = CALIBRATION_QUANTITIES[model]
     truth = calibration_truth(model)
-    settings = AnalysisSettings(model, temperature_c=CALIBRATION_T_C)
+    settings = AnalysisConfig(model, temperature_c=CALIBRATION_T_C)
     got: dict[str, list[tuple[float, float, float]]] = {k: [] for k in keys}
     failed = 0
     for i in range(n_seeds):

@@ -1,18 +1,18 @@
 """The one least-squares entry point of holofit's fits.
 
 Levenberg-Marquardt (``scipy.optimize.least_squares``, MINPACK's ``lmder``) of a
-:class:`~holofit.fitting.forward.HologramModel` to the data on its pixels, with the model's own
+:class:`~holofit.holomodel.forward.HologramModel` to the data on its pixels, with the model's own
 Jacobian and ``x_scale="jac"`` (the parameters differ in scale by orders of magnitude: um,
 rad, refractive index). A step that leaves the physical domain (negative size, detector inside
 the particle) gets a large constant residual, so the trust region rejects it instead of the fit
 aborting.
 
 A fit of the objective's numerical aperture goes in three steps, because the misfit is rugged
-in NA alone (:mod:`holofit.fitting.aperture`) and a scan over NA is only as good as the other
+in NA alone (:mod:`holofit.holomodel.aperture`) and a scan over NA is only as good as the other
 parameters it holds: every other parameter is fitted at the start NA, the NA of least misfit
-on a grid is found with those held (:func:`holofit.fitting.aperture.scan_aperture`), and
+on a grid is found with those held (:func:`holofit.holomodel.aperture.scan_aperture`), and
 everything is fitted from each of the scan's three deepest minima
-(:func:`holofit.fitting.aperture.aperture_minima`), the best fit kept.
+(:func:`holofit.holomodel.aperture.aperture_minima`), the best fit kept.
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from holofit.fitting.aperture import aperture_minima, scan_aperture
-from holofit.fitting.forward import HologramModel, InvalidParameters
-from holofit.fitting.parameters import APERTURE
+from holofit.holomodel.aperture import aperture_minima, scan_aperture
+from holofit.holomodel.forward import HologramModel, InvalidParameters
+from holofit.holomodel.parameters import APERTURE
 
 __all__ = ["CONVERGED_CODES", "Solution", "solve_least_squares"]
 
@@ -57,7 +57,7 @@ class Solution:
         The optimiser's message.
     aperture_scan : tuple of ndarray, optional
         ``(grid, rss)`` of the numerical-aperture scan the fit started from (a fitted NA
-        only; :func:`holofit.fitting.aperture.scan_aperture`).
+        only; :func:`holofit.holomodel.aperture.scan_aperture`).
     """
 
     vector: NDArray[np.float64]

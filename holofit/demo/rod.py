@@ -7,7 +7,7 @@ exactly as the command line does: crop, Lorenz-Mie prefit, orientation library, 
 initial pass with every parameter free on the first frames, then a final pass with the sizes and
 index fixed, served from the rod's T-matrix) and the diffusion analysis. It prints what each
 stage recovered against the truth and against the spherocylinder prediction. ``holofit demo
---particle sphere`` runs the shorter sphere demo (:mod:`holofit.demo_sphere`).
+--particle sphere`` runs the shorter sphere demo (:mod:`holofit.demo.sphere`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from holofit.analysis import AnalysisSettings, run_analysis
+from holofit.analysis import AnalysisConfig, run_analysis
 from holofit.analysis.hydrodynamics import spherocylinder_diffusion
 from holofit.batch import BatchOptions
 from holofit.config import (
@@ -33,10 +33,10 @@ from holofit.config import (
     resolve_config,
 )
 from holofit.crop import run_crop
-from holofit.demo_sphere import run_sphere_demo
+from holofit.demo.sphere import run_sphere_demo
 from holofit.fit.stage import run_fit
 from holofit.library.stage import run_library
-from holofit.models import Spherocylinder
+from holofit.particles import Spherocylinder
 from holofit.prefit import run_prefit
 from holofit.simulate.brownian import BrownianParameters
 from holofit.simulate.scenarios import diffusing_movie
@@ -199,7 +199,7 @@ def _analyze(demo: _Demo) -> tuple[dict[str, float], dict]:
     """Step 6: the diffusion analysis against the truth and the spherocylinder prediction."""
     echo = demo.echo
     t0 = time.perf_counter()
-    settings = AnalysisSettings(model="rod", temperature_c=TEMPERATURE_C)
+    settings = AnalysisConfig(model="rod", temperature_c=TEMPERATURE_C)
     result, _ = run_analysis(demo.final_table, settings, demo.out / "analysis")
     demo.timed("analyze", t0)
     theory = spherocylinder_diffusion(ROD.a_um, ROD.b_um, TEMPERATURE_C)

@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from holofit.analysis import AnalysisSettings, format_report, run_analysis
+from holofit.analysis import AnalysisConfig, format_report, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument, resolve_config
 from holofit.crop import run_crop
-from holofit.models import Sphere
+from holofit.particles import Sphere
 from holofit.prefit import run_prefit
 from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
 from holofit.simulate.holograms import simulate_movie
@@ -91,7 +91,7 @@ def run_sphere_demo(out: Path, echo: Callable[[str], None] = print, workers: int
          f"({time.perf_counter() - t0:.1f} s, {workers} workers)")
 
     t0 = time.perf_counter()
-    settings = AnalysisSettings(model="sphere", temperature_c=TEMPERATURE_C)
+    settings = AnalysisConfig(model="sphere", temperature_c=TEMPERATURE_C)
     result, _ = run_analysis(pre.table, settings, out / "analysis")
     echo(f"4. analyze ({time.perf_counter() - t0:.1f} s):")
     for line in format_report(result).splitlines():

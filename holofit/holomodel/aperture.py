@@ -23,8 +23,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.fitting.forward import HologramModel, InvalidParameters
-from holofit.fitting.parameters import APERTURE
+from holofit.holomodel.forward import HologramModel, InvalidParameters
+from holofit.holomodel.parameters import APERTURE
 from holofit.optics import Optics
 
 __all__ = [

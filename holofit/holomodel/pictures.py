@@ -19,12 +19,12 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.conventions import DetectorGrid
-from holofit.fitting.crops import CropSource
-from holofit.fitting.parameters import APERTURE, particle_with, static_parameters
-from holofit.fitting.plots import plot_frame_fit
 from holofit.hologram import hologram
-from holofit.models import ParticleModel
+from holofit.holomodel.crops import CropSource
+from holofit.holomodel.parameters import APERTURE, particle_with, static_parameters
+from holofit.holomodel.plots import plot_frame_fit
 from holofit.optics import Optics
+from holofit.particles import ParticleModel
 from holofit.scattering.theory import Orientation, ScatteringTheory
 from holofit.status import NOT_CONVERGED, OK, POOR_FIT
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import pandas as pd
 
-from holofit.fitting.result import flag_outliers
+from holofit.holomodel.result import flag_outliers
 
 __all__ = ["outlier_rule", "outlier_sidecar"]
 

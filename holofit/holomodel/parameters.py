@@ -31,14 +31,14 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.config_schema import INDEX_RANGE
 from holofit.conventions import (
     axis_from_angles,
     euler_zyz,
     euler_zyz_from_matrix,
     rotation_from_vector,
 )
-from holofit.models import Cluster, ParticleModel, VoxelShape
-from holofit.validation import INDEX_RANGE
+from holofit.particles import Cluster, ParticleModel, VoxelShape
 
 __all__ = [
     "APERTURE",

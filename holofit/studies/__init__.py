@@ -1,0 +1,1 @@
+"""Studies of holofit's accuracy on simulated data with known truth."""
