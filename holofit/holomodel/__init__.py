@@ -1,4 +1,4 @@
-"""The fitting kit shared by the prefit and the DDA fit: one forward model, one least-squares
+"""The hologram model kit shared by the prefit and the DDA fit: one forward model, one least-squares
 entry point, one result type.
 
 - :mod:`~holofit.holomodel.pixels`: which pixels a fit uses (NaN / saturation mask, random
