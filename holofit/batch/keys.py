@@ -7,6 +7,12 @@ columns (e.g. ``("particle", "frame")`` for a movie with several particles) give
 a tuple of the same length; the batch runner, its journal and the stage skeleton
 (:mod:`holofit.batch.stage`) treat a key only through the functions here, so they need no
 change for such a stage.
+
+A *multi-row item* (a chunk of a track: several frames fitted in one go) returns several rows,
+each with its own key; one of them has the item's key (:func:`item_rows` checks it and puts it
+last). The batch counts items by their own key: an item is done when its row is in the
+journal or the table, and since that row is written after the item's other rows, the others
+are then there too. Resuming therefore never redoes a finished multi-row item.
 """
 
 from __future__ import annotations
@@ -15,7 +21,15 @@ import numbers
 from collections.abc import Hashable, Mapping, Sequence
 from typing import Any
 
-__all__ = ["FRAME_KEY", "Key", "check_key_columns", "key_of_row", "key_row", "normal_key"]
+__all__ = [
+    "FRAME_KEY",
+    "Key",
+    "check_key_columns",
+    "item_rows",
+    "key_of_row",
+    "key_row",
+    "normal_key",
+]
 
 #: an item's key: a frame number, or a tuple with one value per key column
 Key = Hashable
@@ -73,3 +87,33 @@ def key_of_row(row: Mapping[str, Any], key_columns: Sequence[str]) -> Key:
     if len(key_columns) == 1:
         return _plain(row[key_columns[0]])
     return tuple(_plain(row[c]) for c in key_columns)
+
+
+def item_rows(rows: Sequence[Mapping[str, Any]], key: Key, key_columns: Sequence[str]
+              ) -> list[dict[str, Any]]:
+    """The rows of a multi-row item, the one whose key is the item's own ``key`` last.
+
+    Raises
+    ------
+    ValueError
+        No row has the item's key, a row lacks a key column, or two rows share a key.
+    """
+    own = normal_key(key, key_columns)
+    out: list[dict[str, Any]] = []
+    last: dict[str, Any] | None = None
+    seen: set[Key] = set()
+    for row in rows:
+        missing = [c for c in key_columns if c not in row]
+        if missing:
+            raise ValueError(f"item {own!r}: a row without key column(s) {missing}")
+        k = key_of_row(row, key_columns)
+        if k in seen:
+            raise ValueError(f"item {own!r}: two rows with key {k!r}")
+        seen.add(k)
+        if k == own:
+            last = dict(row)
+        else:
+            out.append(dict(row))
+    if last is None:
+        raise ValueError(f"item {own!r}: none of its {len(out)} rows has the item's key")
+    return [*out, last]

@@ -68,7 +68,15 @@ from holofit.batch.backends import (
 )
 from holofit.batch.errors import BatchError, WorkerLost
 from holofit.batch.journal import Journal, JournalError, read_journal
-from holofit.batch.keys import FRAME_KEY, Key, check_key_columns, key_of_row, key_row, normal_key
+from holofit.batch.keys import (
+    FRAME_KEY,
+    Key,
+    check_key_columns,
+    item_rows,
+    key_of_row,
+    key_row,
+    normal_key,
+)
 from holofit.batch.mainguard import GUARD_ADVICE, refuse_while_worker_starts
 from holofit.io.lock import output_lock
 from holofit.io.tables import read_table, sidecar_path, write_table
@@ -198,19 +206,28 @@ def make_backend(options: BatchOptions) -> Backend:
 
 
 def run_frame(
-    func: Callable[[Any, Any, Any], dict[str, Any]], config: Any, frame: Key, payload: Any,
+    func: Callable[[Any, Any, Any], Any], config: Any, frame: Key, payload: Any,
     key_columns: Sequence[str] = FRAME_KEY,
-) -> dict[str, Any]:
+) -> dict[str, Any] | list[dict[str, Any]]:
     """Run the frame function for one item (a frame), turning an exception into an ``error``
     row.
 
     This is what a worker executes. The item's key columns (:mod:`holofit.batch.keys`) are
     set from its key; ``fit_time_s`` (wall time in the worker) is added if the frame function
-    did not set it.
+    did not set it. A *multi-row item* (e.g. a chunk of a track: :mod:`holofit.fit.tracked`)
+    returns a list of rows, each with its own key columns, one of them the item's own key:
+    that row is put last (:func:`holofit.batch.keys.item_rows`), so that a journal holding
+    it holds the whole item.
     """
     t0 = time.perf_counter()
     try:
-        row = dict(func(config, frame, payload))
+        got = func(config, frame, payload)
+        if isinstance(got, list):
+            rows = item_rows(got, frame, key_columns)
+            for row in rows:
+                row.setdefault("fit_time_s", (time.perf_counter() - t0) / len(rows))
+            return rows
+        row = dict(got)
     except Exception as exc:
         where = traceback.extract_tb(exc.__traceback__)[-1]
         row = {
@@ -476,11 +493,13 @@ class _BatchRun:
         if failure:
             raise BatchError(failure)
 
-    def record(self, row: dict[str, Any]) -> None:
-        """File one finished frame: rows, journal, progress."""
-        full = self.files.complete(row)
-        self.rows[key_of_row(full, self.files.key_columns)] = full
-        self.journal.append(full)
+    def record(self, row: dict[str, Any] | list[dict[str, Any]]) -> None:
+        """File one finished item (one row, or a multi-row item's rows, its own last): rows,
+        journal, progress."""
+        for one in row if isinstance(row, list) else [row]:
+            full = self.files.complete(one)
+            self.rows[key_of_row(full, self.files.key_columns)] = full
+            self.journal.append(full)
         self.summary.n_run += 1
         if full["status"] in FAILED_STATUSES:
             self.n_failed += 1
