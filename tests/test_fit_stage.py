@@ -16,10 +16,11 @@ from holofit.batch import BatchOptions
 from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
-from holofit.fit import stage, task, tmatrix_policy
+from holofit.fit import stage, task, tmatrix_policy, tracking
 from holofit.fit.continuity import ContinuitySettings
 from holofit.fit.frame import FrameFitSettings
 from holofit.fit.stage import run_fit
+from holofit.fit.tracking import TrackOptions
 from holofit.library.stage import LibrarySettings, run_library
 from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
@@ -149,11 +150,37 @@ def test_missing_prefit_rows_and_unfittable_frames_are_recorded_and_the_batch_go
     monkeypatch.setattr(task, "fit_frame", failing)
     run = run_fit(root / "crop", pre, root / "lib", particle, tmp_path / "fit",
                   pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False,
-                  options=FrameFitSettings(mirror=False))
+                  options=FrameFitSettings(mirror=False),
+                  tracking=TrackOptions(warm=False))  # independent frames
     out = pd.read_csv(run.final).set_index("frame")
     assert out.loc[0, "status"] == "ok"
     assert out.loc[1, "status"] == "skipped" and "prefit: no row" in out.loc[1, "message"]
     assert out.loc[2, "status"] == "error" and "frame 2 cannot be fitted" in out.loc[2, "message"]
+
+
+def test_tracked_final_pass_records_failing_frames_and_goes_on(movie, tmp_path, monkeypatch):
+    """The tracked final pass (the default): a frame whose fit raises is an error row, and
+    the frame after it is fitted along the track from the last accepted fit."""
+    root, particle, _ = movie
+    monkeypatch.setattr(tracking, "fit_frame_warm", _raising_on(1, tracking.fit_frame_warm))
+    monkeypatch.setattr(tracking, "fit_frame", _raising_on(1, tracking.fit_frame))
+    run = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "fit",
+                  pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False,
+                  options=FrameFitSettings(mirror=False))
+    out = pd.read_csv(run.final).set_index("frame")
+    assert out.loc[0, "status"] == "ok" and out.loc[0, "track_source"] == "library"
+    assert out.loc[1, "status"] == "error" and "frame 1 cannot be fitted" in out.loc[1, "message"]
+    assert out.loc[2, "status"] == "ok" and out.loc[2, "track_source"] == "warm"
+    assert (tmp_path / "fit" / "fit_chunks.csv").exists()
+
+
+def _raising_on(frame, real):
+    def fit(*args, seed=0, **kwargs):
+        if seed == frame:
+            raise ValueError(f"the hologram of frame {frame} cannot be fitted")
+        return real(*args, seed=seed, **kwargs)
+
+    return fit
 
 
 def _static(tmp_path):

@@ -32,6 +32,7 @@ from holofit.fit.stage import (
     fixable_names,
     run_fit,
 )
+from holofit.fit.tracking import TrackOptions
 from holofit.holomodel.result import QualityLimits
 from holofit.scattering.select import ENGINE_CHOICES
 
@@ -79,6 +80,11 @@ from holofit.scattering.select import ENGINE_CHOICES
 @click.option("--no-continuity", is_flag=True,
               help="Skip the continuity sweeps (final-pass frames that look like a wrong "
                    "minimum refitted from their neighbours' orientations).")
+@click.option("--no-tracking", is_flag=True,
+              help="Final pass: fit every frame independently from the library's starts "
+                   "(default for a non-spherical particle: follow the track, each frame "
+                   "from its predecessor's fit, re-acquired from the library where that "
+                   "fails).")
 @click.option("--flag-probability", type=click.FloatRange(min=0, max=0.5, min_open=True,
                                                           max_open=True),
               default=1e-4, show_default=True,
@@ -118,6 +124,7 @@ def fit(
     n_starts: int,
     no_mirror: bool,
     no_continuity: bool,
+    no_tracking: bool,
     flag_probability: float,
     ambiguity_chi2: float,
     pixel_fraction: float,
@@ -169,7 +176,8 @@ def fit(
                   outlier_factor=outlier_factor,
                   numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na,
                   continuity=ContinuitySettings(enabled=not no_continuity,
-                                                flag_probability=flag_probability))
+                                                flag_probability=flag_probability),
+                  tracking=TrackOptions(warm=not no_tracking))
     _report(run)
 
 

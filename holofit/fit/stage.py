@@ -7,7 +7,13 @@
   static parameters' robust average over the ``ok`` frames (median, with the spread as 1.4826
   times the median absolute deviation) goes to ``static.json``.
 - **Final pass** (``fit.csv``): the static parameters fixed to those values (or to a
-  ``static.json`` given), position, orientation and alpha fitted on every frame.
+  ``static.json`` given), position, orientation and alpha fitted on every frame. For an
+  anisotropic particle it follows the track (:mod:`holofit.fit.tracked`, the algorithm:
+  :mod:`holofit.fit.tracking`): each frame fitted from its predecessor's fit, re-acquired from
+  the library where that fails; chunks of the track are the batch items
+  (``fit_chunks.csv``), stitched into ``fit.csv`` (disagreeing overlaps:
+  ``track_overlaps.csv``). ``tracking=TrackOptions(warm=False)`` (``--no-tracking``):
+  every frame fitted independently from the library's starts.
 - **Continuity sweeps** (:mod:`holofit.fit.sweeps`; the rule: :mod:`holofit.fit.continuity`):
   frames of the final pass that look like a wrong local minimum are refitted from their good
   neighbours' orientations (each sweep a batch of its own, ``continuity/sweep_K.csv``,
@@ -25,7 +31,9 @@ frames. ``static.json``: :mod:`holofit.fit.static`; the T-matrix policy:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import json
+import os
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -33,7 +41,7 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
-from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed
+from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, partial_path
 from holofit.batch.stage import (
     FrameLoader,
     StageInputs,
@@ -64,10 +72,21 @@ from holofit.fit.task import (
     fixable_names,
 )
 from holofit.fit.tmatrix_policy import TMATRIX_CHOICES, check_policy, final_tmatrix
+from holofit.fit.tracked import (
+    CHUNK_KEY,
+    OVERLAP,
+    TrackedConfig,
+    bar_from_initial,
+    chunk_loader,
+    plan_chunks,
+    stitch_table,
+    track_chunk_task,
+)
+from holofit.fit.tracking import TRACK_COLUMNS, TrackOptions
 from holofit.holomodel.finish import outlier_rule, outlier_sidecar
 from holofit.holomodel.parameters import particle_with, static_parameters
 from holofit.holomodel.pictures import write_frame_pictures
-from holofit.io.tables import read_table
+from holofit.io.tables import read_table, sidecar_path, write_table
 from holofit.library.search import Candidate
 from holofit.particles import ParticleModel
 from holofit.scattering.theory import ScatteringTheory
@@ -121,6 +140,7 @@ def run_fit(
     batch: BatchOptions | None = None, plot: bool = True, plot_frames: list[int] | None = None,
     outlier_factor: float = 4.0, numerical_aperture: ApertureChoice = FROM_INSTRUMENT,
     fit_na: bool = False, continuity: ContinuitySettings | None = None,
+    tracking: TrackOptions | None = None,
 ) -> FitRun:
     """The DDA fit of a crop folder (see the module docstring).
 
@@ -157,6 +177,10 @@ def run_fit(
         Fit the NA in every frame of both passes, starting from the one chosen.
     continuity : ContinuitySettings, optional
         The continuity sweeps after the final pass (default: on).
+    tracking : TrackOptions, optional
+        How the final pass follows the track of an anisotropic particle
+        (:mod:`holofit.fit.tracked`; default: tracked); ``TrackOptions(warm=False)``:
+        independent frames (``--no-tracking``).
 
     Raises
     ------
@@ -175,7 +199,8 @@ def run_fit(
         passes = _FitPasses.open(
             given, particle, Path(prefit), None if library is None else Path(library),
             Path(out_dir), run, options or FrameFitSettings(), engine, tuple(fixed), fit_na,
-            batch, plot, plot_frames, outlier_factor, continuity or ContinuitySettings())
+            batch, plot, plot_frames, outlier_factor, continuity or ContinuitySettings(),
+            tracking or TrackOptions())
         static_path = Path(static) if static is not None else passes.out / "static.json"
         if pass_name in ("initial", "both"):
             run.static = passes.initial(initial_frames)
@@ -244,6 +269,8 @@ class _FitPasses:
     plot_frames: list[int] | None
     outlier_factor: float
     cont: ContinuitySettings
+    tracking: TrackOptions
+    frame_loader: FrameLoader | None = None
 
     @classmethod
     def open(cls, given: StageInputs, particle: ParticleConfig, prefit: Path,
@@ -261,9 +288,10 @@ class _FitPasses:
                                       "give the output of `holofit library` (--library)")
             lib_table, lib_meta = read_stage_table(library, crops, "library")
             _check_library(lib_meta, particle, library)
-        loader = partial(_load, FrameLoader(crops, pre, lib_table))
+        frame_loader = FrameLoader(crops, pre, lib_table)
         inputs = [crops.table_path, prefit, *([library] if library else [])]
-        return cls(given, particle, inputs, loader, out, *args)
+        return cls(given, particle, inputs, partial(_load, frame_loader), out, *args,
+                   frame_loader=frame_loader)
 
     def initial(self, initial_frames: int | None) -> Path:
         """The initial pass on the first fittable frames; writes ``static.json``, its path."""
@@ -293,9 +321,12 @@ class _FitPasses:
         self.run.notes += tm.notes
         if tm.path is not None:
             self.run.tmatrix, self.run.tmatrix_s = tm.path, tm.seconds
+        tm_path = None if tm.path is None else str(tm.path)
+        if self.tracking.warm and model.anisotropic:
+            self.run.final = self.tracked_pass(settled, static_doc(static_path), tm_path)
+            return
         self.run.final = self.one_pass("final", settled, self.given.frames, "fit.csv",
-                                       static_doc(static_path),
-                                       None if tm.path is None else str(tm.path))
+                                       static_doc(static_path), tm_path)
 
     def one_pass(self, name: str, particle: ParticleConfig, frames: list[int],
                  table_name: str, static: dict[str, Any] | None = None,
@@ -308,6 +339,52 @@ class _FitPasses:
             fit_frame_task, cfg, frames, self.load, table, batch=self.batch,
             complete=partial(self.complete, cfg, table.path.stem))
         return table.path
+
+    def tracked_pass(self, particle: ParticleConfig, static: dict[str, Any],
+                     tmatrix: str | None) -> Path:
+        """The final pass along the track (:mod:`holofit.fit.tracked`): the chunks through the
+        stage skeleton into ``fit_chunks.csv``, stitched into ``fit.csv`` (outliers flagged,
+        overlaps' disagreements in ``track_overlaps.csv``), then sweeps and pictures."""
+        cfg = FitConfig(particle, self.given.instrument, "final", self.opts, self.engine,
+                        self.fixed, tmatrix=tmatrix, fit_na=self.fit_na)
+        bar, note = bar_from_initial(self.out / "initial.csv", self.cont.chi2_sigmas)
+        self.run.notes.append(note)
+        tcfg = TrackedConfig(cfg, replace(self.tracking, frame=self.opts), bar)
+        chunks = plan_chunks(self.given.frames)
+        fit_table = self.table(cfg, "fit.csv", static)
+        columns = (*fit_table.columns, *TRACK_COLUMNS)
+        key = fingerprint({"tracked": tcfg.as_dict(), "crops": self.given.crops.fingerprint(),
+                           "outlier_factor": self.outlier_factor})
+        meta = {**fit_table.meta, "tracking": {**tcfg.as_dict(), "chi2_bar_note": note,
+                                               "chunks": [[c[0], c[-1]] for c in chunks]}}
+        assert self.frame_loader is not None
+        chunk_table = StageTable(self.out / "fit_chunks.csv", ("chunk", *columns), meta, key,
+                                 "fit (final, tracked chunks)", key_columns=CHUNK_KEY)
+        self.run.summaries["final"], _ = run_stage(
+            track_chunk_task, tcfg, [(i, c[0]) for i, c in enumerate(chunks)],
+            chunk_loader(self.frame_loader, chunks, cfg.instrument.frame_rate_hz),
+            chunk_table, batch=self.batch)
+        self.run.notes.append(f"final pass along the track: {len(chunks)} chunk(s) of up to "
+                              f"{max((len(c) for c in chunks), default=0)} frames (the batch's items), "
+                              f"overlapping by {OVERLAP}")
+        path, staged = self.out / "fit.csv", partial_path(self.out / "fit.csv")
+        if self.run.summaries["final"].n_run == 0 and _fingerprint_of(path) == key:
+            self.complete(cfg, "fit", path)  # complete before this run (as one_pass does)
+            return path
+        table, overlaps = stitch_table(chunk_table.path, chunks,
+                                       particle.model.head_tail_symmetric)
+        write_table(self.out / "track_overlaps.csv", overlaps)
+        if len(overlaps):
+            self.run.notes.append(f"tracking: {len(overlaps)} overlap frame(s) of the chunks "
+                                  "disagree (track_overlaps.csv)")
+        outlier_rule(self.outlier_factor)(table)
+        meta["tracking"]["overlap_disagreements"] = len(overlaps)
+        meta["batch"] = {"fingerprint": key, "complete": True, "frames_total": len(table)}
+        write_table(staged, table.reindex(columns=list(columns)), meta)
+        self.complete(cfg, "fit", staged)
+        os.replace(sidecar_path(staged), sidecar_path(path))
+        os.replace(staged, path)  # the last file written: the run is complete
+        return path
 
     def table(self, cfg: FitConfig, table_name: str,
               static: dict[str, Any] | None) -> StageTable:
@@ -335,6 +412,17 @@ class _FitPasses:
             _plots(table, self.given.crops, cfg.particle.model, cfg.particle.theory(self.engine),
                    cfg.instrument, self.out, cfg.pass_name, self.plot_frames,
                    self.opts.far_field, stem)
+
+
+def _fingerprint_of(path: Path) -> str | None:
+    """The batch fingerprint in ``path``'s sidecar (None: no table or no sidecar)."""
+    side = sidecar_path(path)
+    if not path.exists() or not side.exists():
+        return None
+    try:
+        return json.loads(side.read_text()).get("batch", {}).get("fingerprint")
+    except (OSError, ValueError):
+        return None
 
 
 def _plots(path: Path, crops: CropSet, model: ParticleModel, theory: ScatteringTheory,

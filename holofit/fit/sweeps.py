@@ -67,7 +67,8 @@ def continuity_sweeps(path: Path, cfg: FitConfig, load: Loader, cont: Continuity
         refinish=lambda t: flag_outliers(t, outlier_factor))
     meta["continuity"] = {**report.as_dict(), "key": key, "settings": asdict(cont),
                           "sweeps_folder": str(sweeps.folder)}
-    write_table(path, table[list(columns)], meta)
+    extra = [c for c in table.columns if c not in columns]  # e.g. the tracking's columns
+    write_table(path, table[[*columns, *extra]], meta)
     return report
 
 

@@ -34,6 +34,7 @@ __all__ = [
     "fit_columns",
     "fit_frame_task",
     "fixable_names",
+    "worker_theory",
 ]
 
 
@@ -145,18 +146,26 @@ class FitPayload:
 _THEORIES: LRUCache[str, ScatteringTheory] = LRUCache(2)
 
 
-def fit_frame_task(config: FitConfig, frame: int, payload: FitPayload) -> dict[str, Any]:
-    """Fit one frame; the frame function of both passes."""
+def worker_theory(config: FitConfig) -> ScatteringTheory:
+    """The engine this worker keeps for ``config``'s particle (and T-matrix), with its
+    caches: made on first use, then reused by every frame (or chunk) of the pass."""
     inst = config.instrument
     key = json.dumps({"particle": config.particle.as_dict(), "engine": config.engine},
                      sort_keys=True, default=str)
+
     def make_theory() -> ScatteringTheory:
         theory = config.particle.theory(config.engine, fixed_lattice_for=inst.optics)
         if config.tmatrix is not None:
             theory.tmatrix(config.particle.model, inst.optics, path=config.tmatrix)
         return theory
 
-    theory = _THEORIES.get_or_create(key + str(config.tmatrix), make_theory)
+    return _THEORIES.get_or_create(key + str(config.tmatrix), make_theory)
+
+
+def fit_frame_task(config: FitConfig, frame: int, payload: FitPayload) -> dict[str, Any]:
+    """Fit one frame; the frame function of both passes."""
+    inst = config.instrument
+    theory = worker_theory(config)
     start = payload.start
     result = fit_frame(payload.crop, payload.corner, inst.pixel_size_um, theory,
                        config.particle.model, inst.optics,

@@ -21,6 +21,8 @@ that fails. Along one track (frames in time order):
    independent frame; the better of the two fits (lower chi^2) is kept. A re-acquired frame
    that is still above the bar becomes ``poor_fit``; one whose step is not smooth keeps its
    status but is flagged (``track_jump`` 1 and a message), never silently ``ok``.
+5. A frame whose fit raises is an ``error`` row; the next frame starts from the last
+   accepted fit.
 
 Chunks of one track overlap by a few frames; :func:`stitch_chunks` joins them and reports where
 the overlaps disagree (position or axis beyond tolerance).
@@ -54,7 +56,7 @@ from holofit.library.search import Candidate
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
 from holofit.scattering.theory import ScatteringTheory
-from holofit.status import OK, POOR_FIT
+from holofit.status import ERROR, OK, POOR_FIT
 
 __all__ = [
     "TRACK_COLUMNS",
@@ -315,9 +317,23 @@ def track_chunk(
         acc = _Accepted(frames[0].frame - 1, state_of(start, model), None, [], [])
     rows = []
     for f in frames:
-        row, acc = _track_frame(fitter, f, acc, chi2_bar)
+        try:
+            row, acc = _track_frame(fitter, f, acc, chi2_bar)
+        except Exception as exc:  # this frame is an error; the track goes on from the last
+            row = _error_row(f, exc)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _error_row(f: ChunkFrame, exc: Exception) -> dict[str, Any]:
+    """The ``error`` row of a frame whose fit raised (as the batch runner writes one)."""
+    import traceback
+    from pathlib import Path
+
+    where = traceback.extract_tb(exc.__traceback__)[-1]
+    return {"frame": f.frame, "time_s": f.time_s, "status": ERROR,
+            "message": f"{type(exc).__name__}: {exc} "
+                       f"(at {Path(where.filename).name}:{where.lineno})"}
 
 
 def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar: float | None

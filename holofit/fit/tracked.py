@@ -1,0 +1,200 @@
+"""The tracking final pass as a batch: chunks of the track are the items.
+
+The final pass follows the track (:mod:`holofit.fit.tracking`): each frame is fitted from its
+predecessor's fit. To run in parallel and resume, the track (today one per crop folder) is
+cut into *chunks* (:func:`plan_chunks`): consecutive runs of frames, each starting with a full
+library fit and reaching ``overlap`` frames into the next chunk. A chunk is one item of the
+batch runner (:mod:`holofit.batch.runner`), a *multi-row item*: its rows are keyed by
+``(chunk, frame)`` in ``fit_chunks.csv`` (journal, partial table and resume as for any stage;
+a finished chunk is never redone). :func:`stitch_table` joins the chunks into one row per
+frame (:func:`holofit.fit.tracking.stitch_chunks`: in an overlap the earlier chunk's warm row
+is kept unless the two disagree and the later fits better) and lists where the overlaps
+disagree.
+
+The movie's chi^2 bar (:func:`holofit.fit.continuity.chi2_bar`, as the continuity sweeps
+compute it) is taken from the initial pass's table (:func:`bar_from_initial`): the final pass
+needs it before any of its chunks runs, and the initial pass is the one table of this movie
+fitted before it (at least 10 converged frames needed; otherwise no bar: a warm fit is then
+checked by its status and its step only, and the sweeps' bar on the final table remains).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from holofit.batch.runner import Precomputed
+from holofit.batch.stage import FrameLoader
+from holofit.fit.continuity import chi2_bar
+from holofit.fit.task import FitConfig, worker_theory
+from holofit.fit.tracking import ChunkFrame, TrackOptions, stitch_chunks, track_chunk
+from holofit.io.tables import read_table
+from holofit.status import ERROR
+
+__all__ = [
+    "CHUNK_KEY",
+    "ChunkPayload",
+    "TrackedConfig",
+    "bar_from_initial",
+    "chunk_loader",
+    "plan_chunks",
+    "stitch_table",
+    "track_chunk_task",
+]
+
+#: the key columns of the chunk table
+CHUNK_KEY = ("chunk", "frame")
+#: longest chunk (frames before the overlap)
+MAX_CHUNK = 100
+#: a short movie is still cut into up to this many chunks (parallel work) ...
+MIN_CHUNKS = 8
+#: ... of at least this many frames each
+MIN_CHUNK = 12
+#: frames a chunk reaches into the next one
+OVERLAP = 3
+
+
+def plan_chunks(frames: Sequence[int], overlap: int = OVERLAP,
+                max_chunk: int = MAX_CHUNK) -> list[list[int]]:
+    """Cut a track's frames (time order) into overlapping chunks.
+
+    The number of chunks is ``ceil(n / max_chunk)``, raised for a short movie to up to
+    :data:`MIN_CHUNKS` of at least :data:`MIN_CHUNK` frames so that the workers share it; it
+    depends on the frames only (not on the workers), so a rerun with other workers resumes the
+    same chunks. Each chunk is its share of the frames plus the next share's first
+    ``overlap`` frames.
+
+    Returns
+    -------
+    list of list of int
+        The chunks' frames, in time order.
+    """
+    frames = sorted(int(f) for f in frames)
+    n = len(frames)
+    if n == 0:
+        return []
+    if overlap < 0 or max_chunk < 1:
+        raise ValueError("chunks: overlap >= 0 and max_chunk >= 1 needed")
+    count = max(math.ceil(n / max_chunk), min(MIN_CHUNKS, n // MIN_CHUNK), 1)
+    size = math.ceil(n / count)
+    starts = list(range(0, n, size))
+    return [frames[s:min(s + size + overlap, n)] for s in starts]
+
+
+def bar_from_initial(path: Path, sigmas: float) -> tuple[float | None, str]:
+    """The movie's chi^2 bar from the initial pass's table, and where it came from.
+
+    Returns ``(None, reason)`` when there is no such table or it has fewer than 10 converged
+    frames.
+    """
+    if not path.exists():
+        return None, f"no chi^2 bar for the tracking ({path.name} not found): warm fits " \
+                     "checked by status and step only"
+    bar = chi2_bar(read_table(path), sigmas)
+    if not math.isfinite(bar):
+        return None, (f"no chi^2 bar for the tracking (fewer than 10 converged frames in "
+                      f"{path.name}): warm fits checked by status and step only")
+    return bar, f"tracking chi^2 bar {bar:.4g} (reduced; median + {sigmas:g} lower-half " \
+                f"spreads of {path.name})"
+
+
+@dataclass(frozen=True)
+class TrackedConfig:
+    """Everything a worker needs for the chunks of the tracking final pass (picklable).
+
+    Attributes
+    ----------
+    fit : FitConfig
+        The final pass's settings (statics fixed, the T-matrix).
+    options : TrackOptions
+        How the track is followed.
+    chi2_bar : float, optional
+        The movie's bar on the reduced chi^2 (None: status and step only).
+    """
+
+    fit: FitConfig
+    options: TrackOptions
+    chi2_bar: float | None
+
+    def as_dict(self) -> dict[str, Any]:
+        opts = asdict(self.options)
+        opts.pop("frame")  # in the fit config's options
+        return {"fit": self.fit.as_dict(), "tracking": opts, "chi2_bar": self.chi2_bar,
+                "chunks": {"max": MAX_CHUNK, "min": MIN_CHUNK, "count": MIN_CHUNKS,
+                           "overlap": OVERLAP}}
+
+
+@dataclass(frozen=True)
+class ChunkPayload:
+    """What the driver sends a worker for one chunk: the frames to fit and the rows of the
+    frames the loader skipped (their crop, prefit or library row says they cannot be fitted)."""
+
+    frames: tuple[ChunkFrame, ...]
+    skipped: tuple[dict[str, Any], ...]
+
+
+def chunk_loader(loader: FrameLoader, chunks: Sequence[Sequence[int]],
+                 frame_rate_hz: float | None) -> Callable[[Any], ChunkPayload]:
+    """The batch loader of chunk items ``(chunk, first frame)``."""
+
+    def load(key: Any) -> ChunkPayload:
+        frames, skipped = [], []
+        for f in chunks[int(key[0])]:
+            got = loader(f)
+            if isinstance(got, Precomputed):
+                skipped.append({**got.row, "frame": f})
+                continue
+            s = got.start
+            frames.append(ChunkFrame(
+                f, got.crop, got.corner, (s["x_um"], s["y_um"], s["z_um"]), s["alpha"],
+                tuple(got.candidates),  # type: ignore[arg-type]
+                f / frame_rate_hz if frame_rate_hz else math.nan))
+        return ChunkPayload(tuple(frames), tuple(skipped))
+
+    return load
+
+
+def track_chunk_task(config: TrackedConfig, key: Any, payload: ChunkPayload
+                     ) -> list[dict[str, Any]]:
+    """Fit one chunk along the track; its rows, keyed ``(chunk, frame)`` (a multi-row item)."""
+    from holofit.library.search import Candidate
+
+    fit, inst = config.fit, config.fit.instrument
+    frames = [ChunkFrame(f.frame, f.crop, f.corner, f.position_um, f.alpha,
+                         tuple(Candidate(*c) for c in f.candidates), f.time_s)
+              for f in payload.frames]
+    table = track_chunk(frames, worker_theory(fit), fit.particle.model, inst.optics,
+                        inst.pixel_size_um, fit.free, config.chi2_bar, config.options)
+    rows = [*table.to_dict("records"), *(dict(r) for r in payload.skipped)]
+    for row in rows:
+        row["chunk"] = int(key[0])
+    return rows
+
+
+def stitch_table(path: Path, chunks: Sequence[Sequence[int]], head_tail: bool
+                 ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """One row per frame from the chunk table at ``path``, and the overlaps' disagreements.
+
+    A chunk that failed as a whole (one ``error`` row) gives its frames ``error`` rows with
+    the chunk's message.
+    """
+    table = read_table(path)
+    parts, failed = [], []
+    for i, frames in enumerate(chunks):
+        part = table[table["chunk"] == i].drop(columns="chunk")
+        if len(part) == 1 and len(frames) > 1 and part["status"].iloc[0] == ERROR:
+            msg = f"chunk {i} (frames {frames[0]}-{frames[-1]}): {part['message'].iloc[0]}"
+            failed += [{"frame": f, "status": ERROR, "message": msg} for f in frames]
+            continue
+        parts.append(part)
+    rows, disagreements = stitch_chunks(parts, head_tail)
+    have = set(rows["frame"].astype(int)) if len(rows) else set()
+    extra = pd.DataFrame([r for r in failed if r["frame"] not in have])
+    out = pd.concat([rows, extra], ignore_index=True) if len(extra) else rows
+    out = out.drop_duplicates("frame").sort_values("frame").reset_index(drop=True)
+    return out, disagreements

@@ -1,0 +1,45 @@
+"""The tracked final pass's chunks: every frame in a chunk, neighbours overlapping, the plan
+independent of the workers; stitching a chunk table (a failed chunk's frames are errors)."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from holofit.fit.tracked import MAX_CHUNK, OVERLAP, plan_chunks, stitch_table
+from holofit.io.tables import write_table
+
+
+def test_chunks_cover_every_frame_and_overlap():
+    for n in (1, 5, 24, 500, 2000, 2001):
+        frames = list(range(10, 10 + n))
+        chunks = plan_chunks(frames)
+        assert sorted({f for c in chunks for f in c}) == frames
+        assert all(len(c) <= MAX_CHUNK + OVERLAP for c in chunks)
+        for a, b in zip(chunks, chunks[1:], strict=False):
+            assert a[-OVERLAP:] == b[:OVERLAP]  # each reaches into the next
+    assert len(plan_chunks(range(24))) == 2  # a short movie still shared by workers
+    assert len(plan_chunks(range(2000))) == 20
+    assert plan_chunks([]) == []
+
+
+def _row(chunk, frame, x, status="ok", message=""):
+    return {"chunk": chunk, "frame": frame, "x_um": x, "y_um": 0.0, "z_um": 5.0,
+            "ux": 0.0, "uy": 0.0, "uz": 1.0, "chi2": 10.0 + x, "status": status,
+            "message": message}
+
+
+def test_stitch_keeps_the_earlier_row_and_fills_a_failed_chunk(tmp_path):
+    chunks = [[0, 1, 2, 3], [2, 3, 4, 5], [4, 5, 6]]
+    rows = [_row(0, f, 0.0) for f in chunks[0]]
+    rows += [_row(1, 2, 0.0), _row(1, 3, 0.5)]  # frame 3 disagrees (0.5 um), worse chi2
+    rows += [_row(1, f, 0.0) for f in (4, 5)]
+    rows += [_row(2, 4, 0.0, "error", "RuntimeError: broke")]  # chunk 2 failed whole
+    path = tmp_path / "chunks.csv"
+    write_table(path, pd.DataFrame(rows))
+    table, bad = stitch_table(path, chunks, head_tail=True)
+    assert table["frame"].tolist() == list(range(7))
+    assert table.set_index("frame").loc[3, "x_um"] == 0.0  # the earlier (better) kept
+    assert bad["frame"].tolist() == [3] and bad["kept"].tolist() == ["earlier"]
+    six = table.set_index("frame").loc[6]
+    assert six["status"] == "error" and "chunk 2 (frames 4-6)" in six["message"]
+    assert table.set_index("frame").loc[4, "status"] == "ok"  # chunk 1 reached it
