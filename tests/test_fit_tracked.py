@@ -3,6 +3,8 @@ independent of the workers; stitching a chunk table (a failed chunk's frames are
 
 from __future__ import annotations
 
+import itertools
+
 import pandas as pd
 
 from holofit.fit.tracked import MAX_CHUNK, OVERLAP, plan_chunks, stitch_table
@@ -15,7 +17,7 @@ def test_chunks_cover_every_frame_and_overlap():
         chunks = plan_chunks(frames)
         assert sorted({f for c in chunks for f in c}) == frames
         assert all(len(c) <= MAX_CHUNK + OVERLAP for c in chunks)
-        for a, b in zip(chunks, chunks[1:], strict=False):
+        for a, b in itertools.pairwise(chunks):
             assert a[-OVERLAP:] == b[:OVERLAP]  # each reaches into the next
     assert len(plan_chunks(range(24))) == 2  # a short movie still shared by workers
     assert len(plan_chunks(range(2000))) == 20

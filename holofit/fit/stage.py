@@ -364,9 +364,9 @@ class _FitPasses:
             track_chunk_task, tcfg, [(i, c[0]) for i, c in enumerate(chunks)],
             chunk_loader(self.frame_loader, chunks, cfg.instrument.frame_rate_hz),
             chunk_table, batch=self.batch)
+        longest = max((len(c) for c in chunks), default=0)
         self.run.notes.append(f"final pass along the track: {len(chunks)} chunk(s) of up to "
-                              f"{max((len(c) for c in chunks), default=0)} frames (the batch's items), "
-                              f"overlapping by {OVERLAP}")
+                              f"{longest} frames (the batch's items), overlapping by {OVERLAP}")
         path, staged = self.out / "fit.csv", partial_path(self.out / "fit.csv")
         if self.run.summaries["final"].n_run == 0 and _fingerprint_of(path) == key:
             self.complete(cfg, "fit", path)  # complete before this run (as one_pass does)
