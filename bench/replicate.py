@@ -40,6 +40,7 @@ from holofit.fit.stage import run_fit
 from holofit.library.stage import run_library
 from holofit.particles import JanusSphere, Spherocylinder
 from holofit.prefit import run_prefit
+from holofit.prefit.sphere import SphereFitSettings
 from holofit.simulate.brownian import BrownianParameters
 from holofit.simulate.scenarios import diffusing_movie
 
@@ -71,7 +72,9 @@ def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dy
                  frame_shape=(192, 192), seed=seed)
     _stage(times, "crop", run_crop, sim.movie.movie, sim.movie.background, inst, out / "crop",
            size=140)
-    _stage(times, "prefit", run_prefit, out / "crop", out / "prefit", batch=batch)
+    # a non-spherical particle's prefit seeds its position only (as `holofit init` sets it)
+    prefit_fit = SphereFitSettings(seed_only=config.model.anisotropic)
+    _stage(times, "prefit", run_prefit, out / "crop", out / "prefit", batch=batch, fit=prefit_fit)
     _stage(times, "library", run_library, out / "crop", out / "prefit", config,
            out / "library", batch=batch)
     run = _stage(times, "fit", run_fit, out / "crop", out / "prefit", out / "library", config,
@@ -80,6 +83,14 @@ def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dy
     result, files = _stage(times, "analyze", run_analysis, run.final, settings,
                            out / "analysis")
     fit = pd.read_csv(run.final).set_index("frame")
+    if "track_source" in fit:
+        print(f"  tracking: {fit['track_source'].value_counts().to_dict()}, "
+              f"{int(fit['track_jump'].fillna(0).sum())} jump(s), evaluations per frame "
+              f"{fit['n_eval'].mean():.1f}; runner-up refit "
+              f"{fit['runner_up_refit'].value_counts().to_dict()}; "
+              f"statuses {fit['status'].value_counts().to_dict()}", flush=True)
+    for note in run.notes:
+        print(f"  note: {note}", flush=True)
     tr = sim.trajectory.truth.set_index("frame").loc[fit.index]
     truth_result = _analyse_truth(tr, run.final, settings, out / "analysis_truth")
     static = json.loads(run.static.read_text())

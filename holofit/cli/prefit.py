@@ -59,6 +59,11 @@ def _range(value: str | None, name: str) -> tuple[float, float] | None:
               help="Radii searched by the automatic start, um [default: 0.2,1.6].")
 @click.option("--index-range", default=None, metavar="MIN,MAX",
               help="Absolute indices searched [default: 1.02 to 1.30 times the medium's].")
+@click.option("--seed-only", is_flag=True,
+              help="Seed x, y, z and alpha only, at a sphere prefit's cost (a non-spherical "
+                   "particle, whose sizes the DDA fit's initial pass finds; `holofit init` "
+                   "sets it for one): radius and index stay at the radial profile's "
+                   "estimate.")
 @aperture_options
 @quality_options
 @batch_options
@@ -74,6 +79,7 @@ def prefit(
     z_range: str | None,
     radius_range: str | None,
     index_range: str | None,
+    seed_only: bool,
     numerical_aperture: str | None,
     fit_na: bool,
     max_chi2_red: float,
@@ -119,9 +125,10 @@ def prefit(
     try:
         fit = SphereFitSettings(fix_alpha=fix_alpha, index_imag=index_imag, saturation=saturation,
                          pixel_fraction=pixel_fraction, noise_sd=noise_sd, search=search,
-                         quality=QualityLimits(max_chi2_red, min_r2), fit_na=fit_na)
+                         quality=QualityLimits(max_chi2_red, min_r2), fit_na=fit_na,
+                         seed_only=seed_only)
     except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--fix-alpha") from None
+        raise click.BadParameter(str(exc), param_hint="--fix-alpha / --seed-only") from None
     batch = make_batch_options(workers, scheduler, dask_local, retry_failed, overwrite, progress)
     result = run_prefit(
         crop_dir, out, instrument=inst, fit=fit, frames=frame_list(crop_dir, frame_range),

@@ -321,6 +321,9 @@ def _check_options(options: Mapping[str, str] | None, cfg: ParticleConfig,
     if unknown:
         raise RunFolderError(f"options for unknown stage(s) {', '.join(unknown)}; stages: "
                              f"{', '.join(STAGES)}")
+    if cfg.model.anisotropic and "--seed-only" not in opts.get("prefit", "").split():
+        # the prefit only seeds a non-spherical particle's position (holofit.prefit.sphere)
+        opts["prefit"] = f"--seed-only {opts.get('prefit', '')}".strip()
     opts = {stage: check_stage_options(stage, text) for stage, text in opts.items() if text}
     check_crop_options(opts.get("crop", ""), frame_shape)
     check_fit_options(opts.get("fit", ""), cfg.model)
