@@ -38,6 +38,7 @@ from holofit.fit.stage import run_fit
 from holofit.library.stage import run_library
 from holofit.particles import Spherocylinder
 from holofit.prefit import run_prefit
+from holofit.prefit.sphere import SphereFitSettings
 from holofit.simulate.brownian import BrownianParameters
 from holofit.simulate.scenarios import diffusing_movie
 from holofit.status import FITTABLE_CROP_STATUSES, OK, POOR_FIT
@@ -146,10 +147,12 @@ def _prefit_and_library(demo: _Demo, config: ParticleConfig, batch: BatchOptions
     """Steps 3 and 4: the Lorenz-Mie prefit and the orientation library."""
     out, truth = demo.out, demo.truth
     t0 = time.perf_counter()
-    pre = run_prefit(out / "crop", out / "prefit", batch=batch)
+    # a rod's prefit only seeds x, y, z and alpha (holofit init sets --seed-only for it)
+    pre = run_prefit(out / "crop", out / "prefit", batch=batch,
+                     fit=SphereFitSettings(seed_only=True))
     p = pd.read_csv(pre.table).set_index("frame")
     dz = (p["z_um"] - truth["z_um"]).dropna()
-    demo.echo(f"3. prefit (a sphere's model of a rod: a start, not a measurement): "
+    demo.echo(f"3. prefit (a sphere's model of a rod, seed only: a start, not a measurement): "
               f"{int(p['status'].isin([OK, POOR_FIT]).sum())}/{demo.n_frames} converged, z off "
               f"by {1e3 * dz.median():+.0f} nm (median), sphere radius "
               f"{p['radius_um'].median():.3f} um")

@@ -306,8 +306,12 @@ class _FitPasses:
                 f"{len(fittable)} frames that can be fitted: the default, 1 in "
                 f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX} "
                 "(--initial-frames N to choose)")
-        self.run.initial = self.one_pass("initial", self.particle, fittable[:n_initial],
-                                         "initial.csv")
+        if self.tracking.warm and self.tracking.initial and self.particle.model.anisotropic:
+            self.run.initial = self.tracked_pass("initial", self.particle,
+                                                 fittable[:n_initial], "initial.csv")
+        else:
+            self.run.initial = self.one_pass("initial", self.particle, fittable[:n_initial],
+                                             "initial.csv")
         return write_static(self.out / "static.json", self.run.initial,
                             read_table(self.run.initial), self.particle.model)
 
@@ -323,7 +327,8 @@ class _FitPasses:
             self.run.tmatrix, self.run.tmatrix_s = tm.path, tm.seconds
         tm_path = None if tm.path is None else str(tm.path)
         if self.tracking.warm and model.anisotropic:
-            self.run.final = self.tracked_pass(settled, static_doc(static_path), tm_path)
+            self.run.final = self.tracked_pass("final", settled, self.given.frames,
+                                               "fit.csv", static_doc(static_path), tm_path)
             return
         self.run.final = self.one_pass("final", settled, self.given.frames, "fit.csv",
                                        static_doc(static_path), tm_path)
@@ -340,48 +345,55 @@ class _FitPasses:
             complete=partial(self.complete, cfg, table.path.stem))
         return table.path
 
-    def tracked_pass(self, particle: ParticleConfig, static: dict[str, Any],
-                     tmatrix: str | None) -> Path:
-        """The final pass along the track (:mod:`holofit.fit.tracked`): the chunks through the
-        stage skeleton into ``fit_chunks.csv``, stitched into ``fit.csv`` (outliers flagged,
-        overlaps' disagreements in ``track_overlaps.csv``), then sweeps and pictures."""
-        cfg = FitConfig(particle, self.given.instrument, "final", self.opts, self.engine,
+    def tracked_pass(self, name: str, particle: ParticleConfig, frames: list[int],
+                     table_name: str, static: dict[str, Any] | None = None,
+                     tmatrix: str | None = None) -> Path:
+        """A pass along the track (:mod:`holofit.fit.tracked`): the chunks through the stage
+        skeleton into ``<stem>_chunks.csv``, stitched into the pass's table (outliers flagged,
+        overlaps' disagreements in ``<stem>_overlaps.csv``), then sweeps and pictures."""
+        cfg = FitConfig(particle, self.given.instrument, name, self.opts, self.engine,
                         self.fixed, tmatrix=tmatrix, fit_na=self.fit_na)
-        bar, note = bar_from_initial(self.out / "initial.csv", self.cont.chi2_sigmas)
+        if name == "final":
+            bar, note = bar_from_initial(self.out / "initial.csv", self.cont.chi2_sigmas)
+        else:
+            bar, note = None, (f"{name} pass along the track: no chi^2 bar yet (warm fits "
+                               "checked by status and step)")
         self.run.notes.append(note)
         tcfg = TrackedConfig(cfg, replace(self.tracking, frame=self.opts), bar)
-        chunks = plan_chunks(self.given.frames)
-        fit_table = self.table(cfg, "fit.csv", static)
-        columns = (*fit_table.columns, *TRACK_COLUMNS)
+        chunks = plan_chunks(frames)
+        pass_table = self.table(cfg, table_name, static)
+        path = pass_table.path
+        columns = (*pass_table.columns, *TRACK_COLUMNS)
         key = fingerprint({"tracked": tcfg.as_dict(), "crops": self.given.crops.fingerprint(),
-                           "outlier_factor": self.outlier_factor})
-        meta = {**fit_table.meta, "tracking": {**tcfg.as_dict(), "chi2_bar_note": note,
-                                               "chunks": [[c[0], c[-1]] for c in chunks]}}
+                           "outlier_factor": self.outlier_factor, "frames": frames})
+        meta = {**pass_table.meta, "tracking": {**tcfg.as_dict(), "chi2_bar_note": note,
+                                                "chunks": [[c[0], c[-1]] for c in chunks]}}
         assert self.frame_loader is not None
-        chunk_table = StageTable(self.out / "fit_chunks.csv", ("chunk", *columns), meta, key,
-                                 "fit (final, tracked chunks)", key_columns=CHUNK_KEY)
-        self.run.summaries["final"], _ = run_stage(
+        chunk_table = StageTable(self.out / f"{path.stem}_chunks.csv", ("chunk", *columns),
+                                 meta, key, f"fit ({name}, tracked chunks)",
+                                 key_columns=CHUNK_KEY)
+        self.run.summaries[name], _ = run_stage(
             track_chunk_task, tcfg, [(i, c[0]) for i, c in enumerate(chunks)],
             chunk_loader(self.frame_loader, chunks, cfg.instrument.frame_rate_hz),
             chunk_table, batch=self.batch)
         longest = max((len(c) for c in chunks), default=0)
-        self.run.notes.append(f"final pass along the track: {len(chunks)} chunk(s) of up to "
+        self.run.notes.append(f"{name} pass along the track: {len(chunks)} chunk(s) of up to "
                               f"{longest} frames (the batch's items), overlapping by {OVERLAP}")
-        path, staged = self.out / "fit.csv", partial_path(self.out / "fit.csv")
-        if self.run.summaries["final"].n_run == 0 and _fingerprint_of(path) == key:
-            self.complete(cfg, "fit", path)  # complete before this run (as one_pass does)
+        if self.run.summaries[name].n_run == 0 and _fingerprint_of(path) == key:
+            self.complete(cfg, path.stem, path)  # complete before this run (as one_pass)
             return path
         table, overlaps = stitch_table(chunk_table.path, chunks,
                                        particle.model.head_tail_symmetric)
-        write_table(self.out / "track_overlaps.csv", overlaps)
+        write_table(self.out / f"{path.stem}_overlaps.csv", overlaps)
         if len(overlaps):
-            self.run.notes.append(f"tracking: {len(overlaps)} overlap frame(s) of the chunks "
-                                  "disagree (track_overlaps.csv)")
+            self.run.notes.append(f"{name} pass: {len(overlaps)} overlap frame(s) of the "
+                                  f"chunks disagree ({path.stem}_overlaps.csv)")
         outlier_rule(self.outlier_factor)(table)
         meta["tracking"]["overlap_disagreements"] = len(overlaps)
         meta["batch"] = {"fingerprint": key, "complete": True, "frames_total": len(table)}
+        staged = partial_path(path)
         write_table(staged, table.reindex(columns=list(columns)), meta)
-        self.complete(cfg, "fit", staged)
+        self.complete(cfg, path.stem, staged)
         os.replace(sidecar_path(staged), sidecar_path(path))
         os.replace(staged, path)  # the last file written: the run is complete
         return path

@@ -135,6 +135,8 @@ class TrackOptions:
         ``ambiguity_chi2 + refit_margin_chi2`` of the best (:func:`fit_frame_warm`).
     warm : bool
         False: every frame is an independent library fit (``--no-tracking``).
+    initial : bool
+        The fit stage's initial pass (sizes free) follows the track too (with ``warm``).
     """
 
     frame: FrameFitSettings = field(default_factory=FrameFitSettings)
@@ -150,6 +152,7 @@ class TrackOptions:
     extrapolate: bool = True
     refit_margin_chi2: float = 16.0
     warm: bool = True
+    initial: bool = True
 
     def __post_init__(self) -> None:
         if not (self.step_factor > 0 and self.history >= self.min_history >= 1
