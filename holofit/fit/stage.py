@@ -12,7 +12,8 @@
   :mod:`holofit.fit.tracking`): each frame fitted from its predecessor's fit, re-acquired from
   the library where that fails; chunks of the track are the batch items
   (``fit_chunks.csv``), stitched into ``fit.csv`` (disagreeing overlaps:
-  ``track_overlaps.csv``). ``tracking=TrackOptions(warm=False)`` (``--no-tracking``):
+  ``fit_overlaps.csv``); the initial pass follows the track too.
+  ``tracking=TrackOptions(warm=False)`` (``--no-tracking``):
   every frame fitted independently from the library's starts.
 - **Continuity sweeps** (:mod:`holofit.fit.sweeps`; the rule: :mod:`holofit.fit.continuity`):
   frames of the final pass that look like a wrong local minimum are refitted from their good
