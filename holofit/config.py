@@ -31,9 +31,9 @@ from pathlib import Path
 from typing import Any
 
 from holofit.dda.settings import DDASettings
+from holofit.engines.select import select_theory
 from holofit.models import MODEL_TYPES, ParticleModel, Sphere
 from holofit.optics import Optics
-from holofit.scattering.select import select_theory
 from holofit.scattering.theory import ScatteringTheory
 from holofit.validation import (
     INDEX_RANGE,
@@ -296,7 +296,7 @@ class ParticleConfig:
 
     def theory(self, engine: str | None = None, fixed_lattice_for: Optics | None = None
                ) -> ScatteringTheory:
-        """The scattering engine for this particle (:func:`holofit.scattering.select.select_theory`:
+        """The scattering engine for this particle (:func:`holofit.engines.select.select_theory`:
         Lorenz-Mie for a sphere without a ``[dda]`` table, else the table's engine), or the one
         ``engine`` names.
 

@@ -9,10 +9,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.conventions import DetectorGrid, hologram_intensity
+from holofit.engines.select import select_theory
 from holofit.models import ParticleModel
 from holofit.optics import Optics
 from holofit.scattering.lens import lens_field_on_detector
-from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["calc_hologram", "hologram"]

@@ -22,11 +22,11 @@ from holofit.cli.stage_options import (
     parse_int_list,
     quality_options,
 )
+from holofit.engines.select import ENGINE_CHOICES
 from holofit.fit.continuity import ContinuityOptions
 from holofit.fit.frame import FrameFitOptions
 from holofit.fit.stage import PASSES, TMATRIX_CHOICES, check_fixed, fixable_names, run_fit
 from holofit.fitting.result import QualityLimits
-from holofit.scattering.select import ENGINE_CHOICES
 
 
 @click.command()

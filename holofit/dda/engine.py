@@ -9,7 +9,7 @@ Solving a particle (``BuiltinDDA.solve``):
 3. the returned :class:`DDAWave` knows the exact scattered field everywhere outside the
    particle: a multipole expansion (built lazily from the far-field pattern) serves points
    outside twice the circumscribing sphere, direct dipole summation the points closer in; on a
-   camera plane the expansion is evaluated through :mod:`holofit.dda.multipole`'s
+   camera plane the expansion is evaluated through :mod:`holofit.scattering.multipole`'s
    interpolated grid, so a new particle position costs milliseconds, not a new solve.
 """
 
@@ -26,7 +26,13 @@ from holofit.conventions import PROPAGATION_DIRECTION, euler_zyz, incident_phase
 from holofit.dda.dipoles import DipoleSolution, DipoleSystem, incident_field
 from holofit.dda.farfield import adda_amplitude_matrix, far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
-from holofit.dda.multipole import (
+from holofit.dda.nearfield import direct_field
+from holofit.dda.settings import DDASettings
+from holofit.dda.voxelize import voxelize
+from holofit.models import ParticleModel
+from holofit.optics import Optics
+from holofit.scattering.mie import CrossSections
+from holofit.scattering.multipole import (
     NEAR_ZONE,
     MultipoleExpansion,
     PlaneGrid,
@@ -36,16 +42,10 @@ from holofit.dda.multipole import (
     project_far_field,
     quadrature,
 )
-from holofit.dda.nearfield import direct_field
-from holofit.dda.settings import DDASettings
-from holofit.dda.tmatrix import TMatrix
-from holofit.dda.tmatrix_wave import TMatrixWave
-from holofit.dda.voxelize import voxelize
-from holofit.dda.wigner import rotate_coefficients
-from holofit.models import ParticleModel
-from holofit.optics import Optics
-from holofit.scattering.mie import CrossSections
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.tmatrix import TMatrix
+from holofit.scattering.tmatrix_wave import TMatrixWave
+from holofit.scattering.wigner import rotate_coefficients
 
 __all__ = ["NEAR_ZONE", "BuiltinDDA", "DDAWave"]
 
@@ -320,7 +320,7 @@ class BuiltinDDA(ScatteringTheory):
                                       self.settings.polarizability, dtype))
         return key, system
 
-    # -- T-matrix (holofit.dda.tmatrix): every orientation without a solve -------------------
+    # -- T-matrix (holofit.scattering.tmatrix): every orientation without a solve ---------------
     def _tmatrix_key(self, model: ParticleModel, optics: Optics) -> tuple:
         return (model, self.dipole_size(model, optics), optics.wavelength_um, optics.n_medium)
 

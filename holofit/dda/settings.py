@@ -53,7 +53,7 @@ class DDASettings:
         relation (ADDA's default: use it to compare with ADDA), LDR with its direction- and
         polarisation-dependent S term replaced by the average 1/5 (``"ldr_avg"``), or
         Clausius-Mossotti. All but ``"ldr"`` are incidence-independent: the lattice then has a
-        T-matrix (:mod:`holofit.dda.tmatrix`).
+        T-matrix (:mod:`holofit.scattering.tmatrix`).
     tolerance : float
         Relative residual of the QMR solve (ADDA's default 1e-5).
     max_iterations : int

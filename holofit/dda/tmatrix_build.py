@@ -4,7 +4,7 @@ Construction (Mackowski 2002's "driving with regular waves", here with the latti
 symmetries): the lattice is driven by incident fields whose regular-wave coefficient vectors
 ``c_s`` are the symmetry-adapted design of :func:`holofit.dda.tmatrix_symmetry.design_vectors`;
 each field is synthesised on the dipoles from its plane-wave (Herglotz) density
-(:func:`holofit.dda.tmatrix_waves.incident_on_lattice`), solved with the engine's Krylov
+(:func:`holofit.dda.tmatrix_incident.incident_on_lattice`), solved with the engine's Krylov
 solver, and its far field on a Gauss-Legendre grid projected onto outgoing waves (``o_s``).
 Then ``T = sum_g rho(g) (sum_s o_s c_s^H) rho(g)^H`` exactly, with ``~N/|G|`` solves for
 ``N = 2L(L+2)`` columns (``|G|`` = 16 for a rod on its lattice, 8 for a Janus particle).
@@ -47,11 +47,10 @@ from threadpoolctl import threadpool_limits
 from holofit.dda.dipoles import DipoleSystem
 from holofit.dda.farfield import far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
-from holofit.dda.multipole import project_far_field
 from holofit.dda.polarizability import INCIDENCE_INDEPENDENT
 from holofit.dda.settings import DDASettings
 from holofit.dda.solver import ConvergenceError, SolveResult
-from holofit.dda.tmatrix import TMatrix, z_rotation_order
+from holofit.dda.tmatrix_incident import incident_on_lattice, incident_quadrature
 from holofit.dda.tmatrix_io import describe
 from holofit.dda.tmatrix_symmetry import (
     SymmetryGroup,
@@ -59,15 +58,12 @@ from holofit.dda.tmatrix_symmetry import (
     lattice_symmetries,
     symmetrize,
 )
-from holofit.dda.tmatrix_waves import (
-    incident_on_lattice,
-    incident_quadrature,
-    pack,
-    plane_wave_coefficients,
-)
 from holofit.dda.voxelize import voxelize
 from holofit.models import ParticleModel
 from holofit.optics import Optics
+from holofit.scattering.multipole import project_far_field
+from holofit.scattering.tmatrix import TMatrix, z_rotation_order
+from holofit.scattering.vsw import pack, plane_wave_coefficients
 
 __all__ = [
     "DEFAULT_TRUNCATION",
@@ -117,7 +113,7 @@ def choose_order(k: float, radii: NDArray, weights: NDArray,
 def _far_quadrature(order: int, k: float, radius: float) -> tuple[NDArray, NDArray, NDArray]:
     """Gauss-Legendre x uniform grid for projecting a far field onto orders <= L, exact for
     the degree ``L + K`` of the integrand (``K`` as in
-    :func:`~holofit.dda.tmatrix_waves.incident_quadrature`); weights without ``2 pi/n_phi``."""
+    :func:`~holofit.dda.tmatrix_incident.incident_quadrature`); weights without ``2 pi/n_phi``."""
     mu, w, phi = incident_quadrature(order, k, radius)
     return mu, w * phi.size / (2.0 * np.pi), phi
 

@@ -14,8 +14,8 @@ Why they save solves
 If ``S`` is such an operation, the DDA system commutes with it: the dipoles of the incident
 field ``S E(S^T r)`` are ``S P(S^T r)``, and their scattered coefficients are ``rho(S)`` times
 the original ones, where ``rho`` is the (block-diagonal, Wigner) representation of the group
-``G`` on coefficient vectors (:func:`holofit.dda.wigner.operation_blocks`). One DDA solve of an
-incident coefficient vector ``c`` with outgoing coefficients ``o`` therefore gives the pairs
+``G`` on coefficient vectors (:func:`holofit.scattering.wigner.operation_blocks`). One DDA
+solve of an incident coefficient vector ``c`` with outgoing coefficients ``o`` therefore gives the pairs
 ``(rho(g) c, rho(g) o)`` for all ``g`` in ``G``: up to ``|G|`` columns of the T-matrix.
 
 Design of the right-hand sides
@@ -47,8 +47,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.dda.lattice import Lattice
-from holofit.dda.tmatrix_waves import n_terms
-from holofit.dda.wigner import operation_blocks
+from holofit.scattering.vsw import n_terms
+from holofit.scattering.wigner import operation_blocks
 
 __all__ = ["SymmetryGroup", "design_vectors", "lattice_symmetries", "symmetrize"]
 

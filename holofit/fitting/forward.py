@@ -2,7 +2,7 @@
 
 One object serves the Lorenz-Mie prefit and the DDA fits alike: it works for any
 :class:`~holofit.scattering.theory.ScatteringTheory` through ``theory.solve`` and the field the
-camera records (:func:`holofit.scattering.camera.recorded_field`: the objective lens's image
+camera records (:func:`holofit.scattering.recorded_field.recorded_field`: the objective lens's image
 when the optics have a numerical aperture), and keeps a small cache of solved waves keyed by
 what a solve depends on (the static parameters and the orientation), so that
 
@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.cache import LRUCache
 from holofit.fitting.parameters import ParameterSpace, State
 from holofit.optics import Optics
-from holofit.scattering.camera import recorded_field
+from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["Evaluation", "HologramModel", "InvalidParameters"]

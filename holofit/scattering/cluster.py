@@ -2,7 +2,7 @@
 
 Each sphere ``i`` (centre ``x_i`` in the particle frame, radius ``a_i``) is a Lorenz-Mie
 scatterer, ``T_i = diag(-a_n)`` on N-type and ``diag(-b_n)`` on M-type coefficients
-(:func:`sphere_tmatrix`; the Bohren & Huffman coefficients in :mod:`holofit.dda.multipole`'s
+(:func:`sphere_tmatrix`; the Bohren & Huffman coefficients in :mod:`holofit.scattering.multipole`'s
 waves). Its scattered field ``p_i`` (outgoing about ``x_i``) answers the incident field and
 the fields of all the others (Mackowski 1996; Mackowski & Mishchenko 2011):
 
@@ -17,10 +17,10 @@ centre), so the cluster's T-matrix is
 
     T_cluster = K (I - T H)^-1 T J,
 
-an ordinary :class:`holofit.dda.tmatrix.TMatrix` in the particle frame: every orientation is
+an ordinary :class:`holofit.scattering.tmatrix.TMatrix` in the particle frame: every orientation is
 ``D T D^H a`` (Wigner rotation, no new solve), and the wave of an orientation is a
-:class:`holofit.dda.tmatrix_wave.TMatrixWave` (the camera plane's interpolated multipole grid,
-the lens model through its expansion, exact orientation derivatives). Points closer than
+:class:`holofit.scattering.tmatrix_wave.TMatrixWave` (the camera plane's interpolated multipole
+grid, the lens model through its expansion, exact orientation derivatives). Points closer than
 ``NEAR_ZONE`` circumscribing radii to the centre are summed from the spheres' own outgoing
 expansions (exact outside every sphere).
 
@@ -60,15 +60,15 @@ from scipy.special import spherical_jn, spherical_yn
 
 from holofit.cache import LRUCache
 from holofit.conventions import euler_zyz
-from holofit.dda.multipole import MultipoleExpansion
-from holofit.dda.tmatrix import TMatrix
-from holofit.dda.tmatrix_wave import TMatrixWave
-from holofit.dda.tmatrix_waves import n_terms, term_indices, unpack
 from holofit.models import Cluster, Dimer, ParticleModel, Sphere
 from holofit.optics import Optics
 from holofit.scattering.mie_coefficients import mie_coefficients, n_stop
+from holofit.scattering.multipole import MultipoleExpansion
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.tmatrix import TMatrix
+from holofit.scattering.tmatrix_wave import TMatrixWave
 from holofit.scattering.translation import axial_entries, translation_matrix, wigner_matrix
+from holofit.scattering.vsw import n_terms, term_indices, unpack
 
 __all__ = [
     "SPHERE_MARGIN",
@@ -260,7 +260,7 @@ def _hankel(n: NDArray[np.int64], x: float) -> NDArray[np.complex128]:
 
 class _Classes:
     """Flat coefficient indices grouped by ``m mod modulus``: each index's class and its rank
-    within it (the order of :meth:`holofit.dda.tmatrix.TMatrix.class_indices`)."""
+    within it (the order of :meth:`holofit.scattering.tmatrix.TMatrix.class_indices`)."""
 
     def __init__(self, m: NDArray[np.int64], modulus: int) -> None:
         self.cls = m % modulus
@@ -327,7 +327,7 @@ class SphereSumWave(ScatteredWave):
 
 class ClusterWave(TMatrixWave):
     """The scattered wave of a sphere cluster at one orientation (its T-matrix's
-    :class:`~holofit.dda.tmatrix_wave.TMatrixWave`, with the spheres' own expansions near
+    :class:`~holofit.scattering.tmatrix_wave.TMatrixWave`, with the spheres' own expansions near
     the particle)."""
 
     def __init__(self, model: ParticleModel, optics: Optics, orientation: Orientation,

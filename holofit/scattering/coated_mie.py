@@ -41,7 +41,7 @@ from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, fiel
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 if TYPE_CHECKING:
-    from holofit.dda.multipole import MultipoleExpansion
+    from holofit.scattering.multipole import MultipoleExpansion
 
 __all__ = [
     "CoatedMie",
@@ -228,11 +228,11 @@ class CoatedSphereWave(ScatteredWave):
     @property
     def expansion(self) -> MultipoleExpansion:
         """The scattered field's outgoing multipole expansion (lab frame,
-        :mod:`holofit.dda.multipole`): ``p = -a_n`` times the plane wave's N-type coefficients,
-        ``q = -b_n`` times its M-type ones (what the lens model images)."""
+        :mod:`holofit.scattering.multipole`): ``p = -a_n`` times the plane wave's N-type
+        coefficients, ``q = -b_n`` times its M-type ones (what the lens model images)."""
         from holofit.conventions import PROPAGATION_DIRECTION
-        from holofit.dda.multipole import MultipoleExpansion
-        from holofit.dda.tmatrix_waves import plane_wave_coefficients, term_indices, unpack
+        from holofit.scattering.multipole import MultipoleExpansion
+        from holofit.scattering.vsw import plane_wave_coefficients, term_indices, unpack
 
         order = self.a.size
         vec = plane_wave_coefficients(PROPAGATION_DIRECTION, self.optics.polarization, order)

@@ -115,7 +115,7 @@ def sphere_pixels(t, cq, sq, cb, sb, g0, g2, stencil, ex, ey):  # pragma: no cov
 def stencil_sum(plane, i0, j0, wr, wp):  # pragma: no cover - compiled
     """``sum_a wr[a] sum_b wp[b] plane[i0 + a, j0 + b]`` over the fixed 8 x 8 stencil (a
     constant trip count lets the compiler unroll and vectorise the inner sum); shared with the
-    multipole plane grid (:mod:`holofit.dda.multipole`)."""
+    multipole plane grid (:mod:`holofit.scattering.multipole`)."""
     s = 0.0
     for a in range(8):
         r = 0.0

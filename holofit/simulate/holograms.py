@@ -20,12 +20,12 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.camera import Camera
 from holofit.config import Instrument
 from holofit.conventions import DetectorGrid
+from holofit.engines.select import select_theory
 from holofit.hologram import calc_hologram
 from holofit.io.tables import write_table
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.models import ParticleModel
 from holofit.provenance import sidecar
-from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteringTheory
 
 __all__ = [

@@ -15,8 +15,8 @@ name (the built-in DDA unless they say ``adda``):
 from __future__ import annotations
 
 from holofit.dda.settings import DDASettings
+from holofit.engines.registry import get_theory
 from holofit.models import Cluster, CoatedSphere, Dimer, ParticleModel, Sphere
-from holofit.scattering.registry import get_theory
 from holofit.scattering.theory import ScatteringTheory
 
 __all__ = ["ENGINE_CHOICES", "exact_engine", "select_theory"]

@@ -2,9 +2,9 @@
 
 :class:`ExpansionWave` is any field known by its outgoing multipole expansion about the
 particle centre (lab frame): it evaluates the expansion outside ``NEAR_ZONE`` times the
-circumscribing radius (on a camera plane through :mod:`holofit.dda.multipole`'s interpolated
+circumscribing radius (on a camera plane through :mod:`holofit.scattering.multipole`'s interpolated
 grid) and asks a near-field callable for points closer in. :class:`TMatrixWave` is the wave of
-one orientation (``o_lab = D T D^H a``, :mod:`holofit.dda.tmatrix`); its
+one orientation (``o_lab = D T D^H a``, :mod:`holofit.scattering.tmatrix`); its
 :meth:`~TMatrixWave.orientation_derivative` is again an :class:`ExpansionWave`, whose "field" is
 the exact derivative of the scattered field with respect to one Euler angle (the expansion is
 linear in its coefficients), so
@@ -33,7 +33,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from holofit.cache import LRUCache
 from holofit.conventions import euler_zyz, euler_zyz_from_matrix, incident_phase_at
-from holofit.dda.multipole import (
+from holofit.models import ParticleModel
+from holofit.optics import Optics
+from holofit.scattering.multipole import (
     NEAR_ZONE,
     MultipoleExpansion,
     PlaneGrid,
@@ -41,12 +43,10 @@ from holofit.dda.multipole import (
     evaluate_planes_at,
     plane_grid,
 )
-from holofit.dda.tmatrix import LabCoefficients, TMatrix
-from holofit.dda.tmatrix_waves import pack
-from holofit.dda.wigner import EULER_ANGLES
-from holofit.models import ParticleModel
-from holofit.optics import Optics
 from holofit.scattering.theory import Orientation, ScatteredWave
+from holofit.scattering.tmatrix import LabCoefficients, TMatrix
+from holofit.scattering.vsw import pack
+from holofit.scattering.wigner import EULER_ANGLES
 
 __all__ = ["ExpansionWave", "NearField", "TMatrixWave"]
 
@@ -194,7 +194,7 @@ class TMatrixWave(ExpansionWave):
 
     @property
     def coefficients(self) -> NDArray[np.complex128]:
-        """Flat lab-frame outgoing coefficients (:mod:`holofit.dda.tmatrix_waves` layout)."""
+        """Flat lab-frame outgoing coefficients (:mod:`holofit.scattering.vsw` layout)."""
         return pack(self.expansion.p, self.expansion.q)
 
     def _direct_near(self, points: NDArray) -> NDArray[np.complex128]:

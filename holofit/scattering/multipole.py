@@ -35,7 +35,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.dda.legendre import legendre_tables
+from holofit.scattering.legendre import legendre_tables
 from holofit.scattering.lens_kernels import stencil_sum
 
 __all__ = [
@@ -375,7 +375,8 @@ class PlaneGrid:
 
 @lru_cache(maxsize=16)
 def _legendre_coefficients(lmax: int) -> tuple[NDArray, ...]:
-    """Recurrence coefficients of :func:`holofit.dda.legendre.legendre_tables` (per order)."""
+    """Recurrence coefficients of :func:`holofit.scattering.legendre.legendre_tables` (per
+    order)."""
     L = lmax
     a = np.zeros((L + 1, L + 1))
     b = np.zeros((L + 1, L + 1))
@@ -417,7 +418,7 @@ def _plane_fourier(p, q, mu, h, dx, hk, fac, rec_a, rec_b, rec_c, sect, n_ext, n
     for i in range(mu.shape[0]):
         x = mu[i]
         s = np.sqrt(max(0.0, 1.0 - x * x))
-        # Legendre tables (Condon-Shortley, orthonormal), as holofit.dda.legendre
+        # Legendre tables (Condon-Shortley, orthonormal), as holofit.scattering.legendre
         pb[0, 0] = p0
         if L >= 1:
             pb[1, 0] = np.sqrt(3.0) * x * p0
