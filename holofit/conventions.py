@@ -272,9 +272,14 @@ def hologram_intensity(
     ndarray of float
         Intensity relative to the background (background = 1).
     """
-    ex = np.cos(polarization_angle) + alpha * np.asarray(e_x)
-    ey = np.sin(polarization_angle) + alpha * np.asarray(e_y)
-    return ex.real**2 + ex.imag**2 + ey.real**2 + ey.imag**2
+    e_x, e_y = np.asarray(e_x), np.asarray(e_y)
+    # |cos + alpha e_x|^2 + |sin + alpha e_y|^2 on real and imaginary parts (no complex
+    # temporaries: the fits evaluate it at every step)
+    a_r = np.cos(polarization_angle) + alpha * e_x.real
+    a_i = alpha * e_x.imag
+    b_r = np.sin(polarization_angle) + alpha * e_y.real
+    b_i = alpha * e_y.imag
+    return a_r * a_r + a_i * a_i + b_r * b_r + b_i * b_i
 
 
 def r_squared(data: ArrayLike, model: ArrayLike, mask: ArrayLike | None = None) -> float:

@@ -15,7 +15,8 @@ If ``S`` is such an operation, the DDA system commutes with it: the dipoles of t
 field ``S E(S^T r)`` are ``S P(S^T r)``, and their scattered coefficients are ``rho(S)`` times
 the original ones, where ``rho`` is the (block-diagonal, Wigner) representation of the group
 ``G`` on coefficient vectors (:func:`holofit.scattering.wigner.operation_blocks`). One DDA
-solve of an incident coefficient vector ``c`` with outgoing coefficients ``o`` therefore gives the pairs
+solve of an incident coefficient vector ``c`` with outgoing coefficients ``o`` therefore gives
+the pairs
 ``(rho(g) c, rho(g) o)`` for all ``g`` in ``G``: up to ``|G|`` columns of the T-matrix.
 
 Design of the right-hand sides
