@@ -10,7 +10,11 @@ from holofit.models import ParticleModel
 from holofit.optics import Optics
 from holofit.validation import ConfigError, Spec, validate_table
 
-__all__ = ["DDASettings"]
+__all__ = ["DDA_ENGINES", "DDASettings"]
+
+#: the discrete-dipole engines a ``[dda]`` table may name (their classes' ``name``); the engine
+#: registry (:mod:`holofit.engines.registry`) lists them after the exact engines
+DDA_ENGINES: tuple[str, ...] = ("builtin", "adda")
 
 _SPECS: dict[str, Spec] = {
     "dipole_size_um": Spec("float", "the dipole size in um", 0.001, 1.0, required=False),
@@ -84,7 +88,7 @@ class DDASettings:
     def __post_init__(self) -> None:
         choices = {"filling": ("fractional", "binary"),
                    "polarizability": ("ldr", "ldr_avg", "cm", "fcd"),
-                   "precision": ("double", "single"), "engine": ("builtin", "adda"),
+                   "precision": ("double", "single"), "engine": DDA_ENGINES,
                    "solver": ("qmr", "bicgstab")}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:

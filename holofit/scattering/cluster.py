@@ -355,6 +355,11 @@ class ClusterTheory(ScatteringTheory):
     """
 
     name = "cluster"
+    handles = "spheres, dimers and sphere clusters"
+
+    @classmethod
+    def can_handle(cls, model: ParticleModel) -> bool:
+        return isinstance(model, Sphere | Dimer | Cluster)
     #: every solve is served from the cluster's T-matrix (the fit stage builds no other)
     own_tmatrix = True
 

@@ -131,9 +131,21 @@ class ScatteredWave(ABC):
 
 
 class ScatteringTheory(ABC):
-    """An engine that solves a particle model for a given orientation and illumination."""
+    """An engine that solves a particle model for a given orientation and illumination.
+
+    Its name is its entry in the engine registry (:mod:`holofit.engines.registry`);
+    :meth:`can_handle` says which models it solves (the ``auto`` choice of
+    :mod:`holofit.engines.select` asks the exact engines in turn).
+    """
 
     name: str = ""
+    #: the models it solves, in words (error messages)
+    handles: str = "any particle"
+
+    @classmethod
+    def can_handle(cls, model: ParticleModel) -> bool:
+        """True if this engine solves ``model`` (the default: any particle model)."""
+        return True
 
     @abstractmethod
     def solve(
