@@ -136,7 +136,7 @@ def euler_zyz(psi: float, theta: float, phi: float = 0.0) -> NDArray[np.float64]
         ADDA's ``-orient alpha beta gamma`` has the same zyz form, but in ADDA's lab, where the
         light travels along +z: ADDA's angles are *not* holofit's. A shape in ADDA's particle
         frame at ADDA's orientation ``R_adda`` has ``R = Rz(beta_pol) Rx(pi) R_adda`` here
-        (:func:`holofit.dda.adda_orient.orientation_from_adda`); reusing the angles directly
+        (:func:`holofit.dda.adda.frames.orientation_from_adda`); reusing the angles directly
         mirrors any particle that is not symmetric under ``Rx(pi)``, e.g. a Janus sphere.
     """
     return rotation_z(psi) @ rotation_y(theta) @ rotation_z(phi)

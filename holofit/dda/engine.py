@@ -23,8 +23,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from holofit.cache import LRUCache
 from holofit.conventions import PROPAGATION_DIRECTION, euler_zyz
+from holofit.dda.adda.frames import adda_amplitude_matrix, lab_map
 from holofit.dda.dipoles import DipoleSolution, DipoleSystem, incident_field
-from holofit.dda.farfield import adda_amplitude_matrix, far_field, far_field_on_grid
+from holofit.dda.farfield import far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
 from holofit.dda.nearfield import direct_field
 from holofit.dda.settings import DDASettings
@@ -53,8 +54,6 @@ MAX_STORED_SOLUTIONS = 6
 MAX_WARM_BASIS = 4
 #: relative size below which trailing multipole orders are dropped (numerical noise)
 COEFF_FLOOR = 1e-13
-#: holofit lab -> ADDA lab for x polarisation: Rx(pi) (ADDA's light travels along +z)
-_T = np.diag([1.0, -1.0, -1.0])
 
 
 def _trim(expansion: MultipoleExpansion) -> MultipoleExpansion:
@@ -113,9 +112,8 @@ class DDAWave(ExpansionWave):
 
     def _adda_lab(self) -> NDArray[np.float64]:
         """holofit lab -> ADDA's lab for this instrument: light along +z, the instrument's
-        polarisation along x (``Rx(pi) Rz(-beta)``)."""
-        c, s = np.cos(self.optics.polarization_rad), np.sin(self.optics.polarization_rad)
-        return _T @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        polarisation along x (:func:`holofit.dda.adda.frames.lab_map`)."""
+        return lab_map(self.optics.polarization_rad)
 
     def _cross_polarised(self) -> DipoleSolution:
         """The solution for the orthogonal polarisation (ADDA's "Y"), solved on first use."""
