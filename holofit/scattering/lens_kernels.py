@@ -6,8 +6,9 @@ Kept apart from :mod:`holofit.scattering.lens` so that the physics there reads a
   it is stable, ``m <= x``; Miller's backward recurrence above, matched at ``m = floor(x)``);
 * :func:`sphere_pixels`: the image of a sphere at a list of pixels from two radial tables
   (azimuthal orders 0 and 2 only);
-* :func:`polar_pixels`: any image from its samples on a polar ``(rho, phi)`` grid (an 8 x 8
-  stencil, :data:`POLAR_STENCIL`).
+* :func:`polar_interpolate` (:func:`polar_pixels` for one grid): any image from its samples
+  on a polar ``(rho, phi)`` grid (an 8 x 8 stencil, :data:`POLAR_STENCIL`); the multipole plane
+  grid of :mod:`holofit.scattering.multipole` is interpolated by the same kernel.
 
 The callers pass each pixel's fractional row ``t = rho / h + n_ext`` (radial tables sampled at
 ``rho_j = (j - n_ext) h``, rows ``j < n_ext`` holding negative ``rho``, the point reflection, so
@@ -126,24 +127,50 @@ def stencil_sum(plane, i0, j0, wr, wp):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True, fastmath=FASTMATH)
-def polar_pixels(t, u, g, ex, ey):  # pragma: no cover - compiled
-    """Lagrange interpolation (8 x 8 stencil) of a polar grid at fractional rows ``t`` and
-    columns ``u``.
+def polar_interpolate(gs, t, u, pad, fac, skip, ex, ey):  # pragma: no cover - compiled
+    """Lagrange interpolation (8 x 8 stencil) of polar grids at fractional rows ``t`` and
+    columns ``u``: the one interpolator of the lens image and of the multipole plane grid.
 
-    ``g`` holds the grid as four real planes, ``(Re E_x, Im E_x, Re E_y, Im E_y)``, shape
-    ``(4, rows, columns)``: planes of reals let each stencil sum run over contiguous doubles
-    (3-4x faster than complex pairs). Columns are padded (the grid repeats its period on both
-    sides), so that a stencil never wraps.
+    ``gs`` holds ``F`` fields of one geometry, each as four real planes ``(Re E_x, Im E_x,
+    Re E_y, Im E_y)``, shape ``(F, 4, rows, columns)``: planes of reals let each stencil sum
+    run over contiguous doubles (3-4x faster than complex pairs). Columns are padded (the grid
+    repeats its period on both sides, ``pad`` columns before column 0 that ``u`` does not
+    count), so that a stencil never wraps. The weights are computed once per point for all
+    fields. ``fac`` (length 0: none) multiplies each point's result; points where ``skip``
+    (length 0: none) is True are left as they are. ``ex, ey`` have shape ``(F, points)``.
     """
     n = t.shape[0]
+    half = POLAR_STENCIL // 2 - 1
     c = _node_factors(POLAR_STENCIL)
     wr = np.empty(POLAR_STENCIL)
     wp = np.empty(POLAR_STENCIL)
-    g0, g1, g2, g3 = g[0], g[1], g[2], g[3]
+    has_fac = fac.shape[0] > 0
+    has_skip = skip.shape[0] > 0
     for q in range(n):
-        i0 = int(t[q]) - 3
+        if has_skip and skip[q]:
+            continue
+        i0 = int(t[q]) - half
         _weights(t[q] - i0, POLAR_STENCIL, c, wr)
-        j0 = int(u[q]) - 3
+        j0 = int(u[q]) - half
         _weights(u[q] - j0, POLAR_STENCIL, c, wp)
-        ex[q] = complex(stencil_sum(g0, i0, j0, wr, wp), stencil_sum(g1, i0, j0, wr, wp))
-        ey[q] = complex(stencil_sum(g2, i0, j0, wr, wp), stencil_sum(g3, i0, j0, wr, wp))
+        j0 += pad
+        for f in range(gs.shape[0]):
+            g = gs[f]
+            vx = complex(stencil_sum(g[0], i0, j0, wr, wp), stencil_sum(g[1], i0, j0, wr, wp))
+            vy = complex(stencil_sum(g[2], i0, j0, wr, wp), stencil_sum(g[3], i0, j0, wr, wp))
+            if has_fac:
+                vx *= fac[q]
+                vy *= fac[q]
+            ex[f, q] = vx
+            ey[f, q] = vy
+
+
+_NO_FACTOR = np.empty(0, dtype=complex)
+_NO_SKIP = np.empty(0, dtype=np.bool_)
+
+
+def polar_pixels(t: np.ndarray, u: np.ndarray, g: np.ndarray, ex: np.ndarray,
+                 ey: np.ndarray) -> None:
+    """:func:`polar_interpolate` of one grid ``g`` (shape ``(4, rows, columns)``, columns
+    already padded in ``u``) at fractional rows ``t`` and columns ``u``, into ``ex, ey``."""
+    polar_interpolate(g[None], t, u, 0, _NO_FACTOR, _NO_SKIP, ex[None], ey[None])
