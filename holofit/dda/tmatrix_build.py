@@ -192,15 +192,42 @@ def build_lattice_tmatrix(
         order, estimate = choose_order(k, radii, weight, truncation)
     else:
         estimate = truncation_estimate(k, radii, weight, order)
-    if use_symmetry:
-        eps = system.eps_rel
-        ops = lattice_symmetries(lattice, eps, per_axis=eps.ndim == 2)
-    else:
-        ops = [np.eye(3, dtype=np.int64)]
+    eps = system.eps_rel
+    ops = (lattice_symmetries(lattice, eps, per_axis=eps.ndim == 2) if use_symmetry
+           else [np.eye(3, dtype=np.int64)])
     group = SymmetryGroup.from_operations(ops, order)
     design = design_vectors(group)
     n_solves = design.shape[1]
-    grid = _far_quadrature(order, k, float(radii.max()))
+    out, iterations = _solve_design(system, design, alpha, order, float(radii.max()),
+                                    tolerance, max_iterations, progress)
+    dense = symmetrize(out @ design.conj().T, group)
+    radius = float(radii.max() + lattice.d * np.sqrt(3) / 2)
+    tm = TMatrix.from_dense(dense, order, k, radius, z_rotation_order(ops))
+    error = None
+    if validate:
+        check = system if precision == "double" else DipoleSystem(lattice, k, n_medium,
+                                                                  polarizability)
+        error = _validate(tm, check, tolerance, max_iterations)
+    stats = BuildStats(n_solves, iterations, time.perf_counter() - t0, len(ops), error)
+    tm.provenance.update({
+        "order": order, "truncation_estimate": estimate, "tolerance": tolerance,
+        "n_solves": n_solves, "iterations_total": int(sum(iterations)),
+        "symmetry_operations": len(ops), "validation_far_field_error": error,
+        "n_dipoles": lattice.n_dipoles, "build_precision": precision,
+        "build_seconds": stats.seconds,
+    })
+    return tm, stats
+
+
+def _solve_design(
+    system: DipoleSystem, design: NDArray, alpha: NDArray, order: int, radius_um: float,
+    tolerance: float, max_iterations: int, progress: Callable[[int, int], None] | None,
+) -> tuple[NDArray[np.complex128], list[int]]:
+    """Outgoing coefficients of every design vector (one DDA solve each, incident fields in
+    chunks of :data:`CHUNK`) and the solves' iteration counts."""
+    lattice, k = system.lattice, system.k
+    n_solves = design.shape[1]
+    grid = _far_quadrature(order, k, radius_um)
     out = np.empty_like(design)
     iterations = []
     for start in range(0, n_solves, CHUNK):
@@ -212,28 +239,7 @@ def build_lattice_tmatrix(
             out[:, start + j] = outgoing_coefficients(lattice, P, k, order, grid)
             if progress is not None:
                 progress(start + j + 1, n_solves)
-    dense = symmetrize(out @ design.conj().T, group)
-    radius = float(radii.max() + lattice.d * np.sqrt(3) / 2)
-    tm = TMatrix.from_dense(dense, order, k, radius, z_rotation_order(ops))
-    error = None
-    if validate:
-        check = system if precision == "double" else DipoleSystem(lattice, k, n_medium,
-                                                                  polarizability)
-        error = _validate(tm, check, tolerance, max_iterations)
-    stats = BuildStats(n_solves, iterations, time.perf_counter() - t0, len(ops), error)
-    tm.provenance.update({
-        "order": order,
-        "truncation_estimate": estimate,
-        "tolerance": tolerance,
-        "n_solves": n_solves,
-        "iterations_total": int(sum(iterations)),
-        "symmetry_operations": len(ops),
-        "validation_far_field_error": error,
-        "n_dipoles": lattice.n_dipoles,
-        "build_precision": precision,
-        "build_seconds": stats.seconds,
-    })
-    return tm, stats
+    return out, iterations
 
 
 def _solve(system: DipoleSystem, e_inc: NDArray, alpha: NDArray, tolerance: float,

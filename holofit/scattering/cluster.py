@@ -200,6 +200,25 @@ def solve_cluster(positions_um: ArrayLike, radii_um: ArrayLike, indices: ArrayLi
     modulus = 2 * big + 1 if axial else 1
     centre = _Classes(term_indices(big)[2], modulus)
     spheres = _Classes(np.concatenate([term_indices(L)[2] for L in orders]), modulus)
+    j_b, k_b, h_b = _translation_blocks(pos, k, orders, offsets, big, spheres, centre, axial)
+    blocks_t, blocks_x = _solve_blocks(modulus, spheres, centre, t_diag, scale, j_b, k_b, h_b)
+    build_s = time.perf_counter() - t0
+    provenance: dict[str, Any] = {
+        "engine": "cluster", "positions_um": pos.tolist(), "radii_um": radii.tolist(),
+        "indices": [str(v) for v in idx], "wavelength_um": optics.wavelength_um,
+        "n_medium": optics.n_medium, "order": big, "sphere_orders": list(orders),
+        "axial": axial, "build_s": build_s,
+    }
+    tm = TMatrix(big, k, radius, modulus, blocks_t, provenance)
+    return ClusterSolution(tm, pos, radii, orders, offsets, blocks_x, build_s)
+
+
+def _translation_blocks(
+    pos: NDArray, k: float, orders: tuple[int, ...], offsets: tuple[int, ...], big: int,
+    spheres: _Classes, centre: _Classes, axial: bool,
+) -> tuple[list[NDArray], list[NDArray], list[NDArray]]:
+    """The per-class blocks of the translations centre -> spheres (``J``), spheres -> centre
+    (``K``, both regular) and sphere -> sphere (``H``, outgoing) of :func:`solve_cluster`."""
     j_b = [np.zeros((a, b), dtype=complex) for a, b in zip(spheres.sizes, centre.sizes,
                                                            strict=True)]
     k_b = [np.zeros((b, a), dtype=complex) for a, b in zip(spheres.sizes, centre.sizes,
@@ -227,7 +246,15 @@ def solve_cluster(positions_um: ArrayLike, radii_um: ArrayLike, indices: ArrayLi
         for j, (oj, lj) in enumerate(zip(offsets, orders, strict=True)):
             if j != i:
                 add(h_b, spheres, spheres, oi, oj, pos[i] - pos[j], li, lj, "outgoing")
+    return j_b, k_b, h_b
 
+
+def _solve_blocks(
+    modulus: int, spheres: _Classes, centre: _Classes, t_diag: NDArray, scale: NDArray,
+    j_b: list[NDArray], k_b: list[NDArray], h_b: list[NDArray],
+) -> tuple[list[NDArray], list[tuple[NDArray, NDArray, NDArray]]]:
+    """The cluster T-matrix's blocks ``K x`` and the spheres' solutions ``x`` per class, from
+    ``(1 - T H) x = T J`` (:func:`solve_cluster`)."""
     blocks_t: list[NDArray] = []
     blocks_x: list[tuple[NDArray, NDArray, NDArray]] = []
     for r in range(modulus):
@@ -243,15 +270,7 @@ def solve_cluster(positions_um: ArrayLike, radii_um: ArrayLike, indices: ArrayLi
         x = np.linalg.solve(system, (sc * t)[:, None] * j_b[r]) / sc[:, None]
         blocks_t.append(k_b[r] @ x)
         blocks_x.append((rows, cols, x))
-    build_s = time.perf_counter() - t0
-    provenance: dict[str, Any] = {
-        "engine": "cluster", "positions_um": pos.tolist(), "radii_um": radii.tolist(),
-        "indices": [str(v) for v in idx], "wavelength_um": optics.wavelength_um,
-        "n_medium": optics.n_medium, "order": big, "sphere_orders": list(orders),
-        "axial": axial, "build_s": build_s,
-    }
-    tm = TMatrix(big, k, radius, modulus, blocks_t, provenance)
-    return ClusterSolution(tm, pos, radii, orders, offsets, blocks_x, build_s)
+    return blocks_t, blocks_x
 
 
 def _hankel(n: NDArray[np.int64], x: float) -> NDArray[np.complex128]:
