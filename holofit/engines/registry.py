@@ -53,9 +53,11 @@ _EXACT: dict[str, Callable[[], type[ScatteringTheory]]] = {
     "cluster": _cluster,
     "coated_sphere": _coated_sphere,
 }
-#: engine name -> loader of its class: the exact engines, then the discrete-dipole ones
+#: engine name -> loader of its class (Lorenz-Mie, the discrete-dipole engines, the other
+#: exact ones: the order ``--engine`` lists them in)
 _CLASSES: dict[str, Callable[[], type[ScatteringTheory]]] = {
-    **_EXACT, **{name: _dda(name) for name in DDA_ENGINES}}
+    "mie": _mie, **{name: _dda(name) for name in DDA_ENGINES},
+    **{name: load for name, load in _EXACT.items() if name != "mie"}}
 EXACT_ENGINES: tuple[str, ...] = tuple(_EXACT)
 ENGINE_NAMES: tuple[str, ...] = tuple(_CLASSES)
 
@@ -88,7 +90,7 @@ ENGINES: dict[str, Callable[..., ScatteringTheory]] = {name: _factory(name)
 
 def get_theory(name: str, **options: Any) -> ScatteringTheory:
     """The scattering engine called ``name`` (one of :data:`ENGINE_NAMES`: ``mie``,
-    ``cluster``, ``coated_sphere``, ``builtin``, ``adda``).
+    ``builtin``, ``adda``, ``cluster``, ``coated_sphere``).
 
     Parameters
     ----------

@@ -45,7 +45,7 @@ def select_theory(
         The particle.
     settings : DDASettings, optional
         The particle's DDA settings (its config's ``[dda]`` table); None if it has none.
-    engine : {"auto", "mie", "cluster", "coated_sphere", "builtin", "adda"}, optional
+    engine : {"auto", "mie", "builtin", "adda", "cluster", "coated_sphere"}, optional
         Overrides the choice; ``auto`` (default) as in the module docstring.
 
     Raises
