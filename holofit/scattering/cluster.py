@@ -374,11 +374,8 @@ class ClusterTheory(ScatteringTheory):
     """
 
     name = "cluster"
+    models = (Sphere, Dimer, Cluster)
     handles = "spheres, dimers and sphere clusters"
-
-    @classmethod
-    def can_handle(cls, model: ParticleModel) -> bool:
-        return isinstance(model, Sphere | Dimer | Cluster)
     #: every solve is served from the cluster's T-matrix (the fit stage builds no other)
     own_tmatrix = True
 

@@ -194,19 +194,14 @@ class CoatedMie(ScatteringTheory):
     """Exact Lorenz-Mie theory for coated spheres (:class:`holofit.models.CoatedSphere`)."""
 
     name = "coated_sphere"
+    models = (CoatedSphere,)
     handles = "coated spheres"
-
-    @classmethod
-    def can_handle(cls, model: ParticleModel) -> bool:
-        return isinstance(model, CoatedSphere)
 
     def __init__(self, **_ignored: object) -> None:
         pass
 
     def solve(self, model: ParticleModel, optics: Optics,
               orientation: Orientation | None = None) -> CoatedSphereWave:
-        if not self.can_handle(model):
-            raise TypeError(f"coated-sphere Lorenz-Mie handles coated spheres only, not "
-                            f"{model.kind!r}")
+        self.check_model(model)
         return CoatedSphereWave(model.radius_um, model.bounding_radius_um, model.index_core,
                                 model.index_shell, optics)

@@ -249,15 +249,11 @@ class LorenzMie(ScatteringTheory):
     """Exact Lorenz-Mie theory for homogeneous spheres."""
 
     name = "mie"
+    models = (Sphere,)
     handles = "spheres"
-
-    @classmethod
-    def can_handle(cls, model: ParticleModel) -> bool:
-        return isinstance(model, Sphere)
 
     def solve(
         self, model: ParticleModel, optics: Optics, orientation: Orientation | None = None
     ) -> MieWave:
-        if not self.can_handle(model):
-            raise TypeError(f"Lorenz-Mie theory handles spheres only, not {model.kind!r}")
+        self.check_model(model)
         return MieWave(model, optics)
