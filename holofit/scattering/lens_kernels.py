@@ -113,10 +113,9 @@ def sphere_pixels(t, cq, sq, cb, sb, g0, g2, stencil, ex, ey):  # pragma: no cov
 
 
 @numba.njit(cache=True, nogil=True, fastmath=FASTMATH, inline="always")
-def stencil_sum(plane, i0, j0, wr, wp):  # pragma: no cover - compiled
+def _stencil(plane, i0, j0, wr, wp):  # pragma: no cover - compiled
     """``sum_a wr[a] sum_b wp[b] plane[i0 + a, j0 + b]`` over the fixed 8 x 8 stencil (a
-    constant trip count lets the compiler unroll and vectorise the inner sum); shared with the
-    multipole plane grid (:mod:`holofit.scattering.multipole`)."""
+    constant trip count lets the compiler unroll and vectorise the inner sum)."""
     s = 0.0
     for a in range(8):
         r = 0.0
@@ -155,9 +154,8 @@ def polar_interpolate(gs, t, u, pad, fac, skip, ex, ey):  # pragma: no cover - c
         _weights(u[q] - j0, POLAR_STENCIL, c, wp)
         j0 += pad
         for f in range(gs.shape[0]):
-            g = gs[f]
-            vx = complex(stencil_sum(g[0], i0, j0, wr, wp), stencil_sum(g[1], i0, j0, wr, wp))
-            vy = complex(stencil_sum(g[2], i0, j0, wr, wp), stencil_sum(g[3], i0, j0, wr, wp))
+            vx = complex(_stencil(gs[f, 0], i0, j0, wr, wp), _stencil(gs[f, 1], i0, j0, wr, wp))
+            vy = complex(_stencil(gs[f, 2], i0, j0, wr, wp), _stencil(gs[f, 3], i0, j0, wr, wp))
             if has_fac:
                 vx *= fac[q]
                 vy *= fac[q]
