@@ -194,16 +194,7 @@ class SphereSeriesWave(ScatteredWave):
     def field_on_pixels(
         self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike, far_field: bool = False
     ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
-        """Transverse field ``(E_x, E_y)`` at a list of pixel centres, incident phase included.
-
-        Parameters
-        ----------
-        position_um : array_like, shape (3,)
-            Full-frame particle centre ``(x, y, z)``, um.
-        xs_um, ys_um : array_like, shape (N,)
-            Full-frame sample-plane coordinates of the pixel centres, um (x along columns).
-        far_field : bool
-            Asymptotic far-field form instead of the exact field.
+        """:meth:`ScatteredWave.field_on_pixels` by the compiled series (B&H frame).
 
         Raises
         ------
