@@ -88,8 +88,8 @@ class DDAWave(ExpansionWave):
                  solution: DipoleSolution, rotation: NDArray[np.float64],
                  system: DipoleSystem | None = None, tolerance: float = 1e-5) -> None:
         lat = solution.lattice
-        super().__init__(optics, None, radius_um=float(np.sqrt((lat.positions**2).sum(axis=1))
-                                                       .max() + lat.d * np.sqrt(3) / 2))
+        radius = float(np.sqrt((lat.positions**2).sum(axis=1)).max() + lat.d * np.sqrt(3) / 2)
+        super().__init__(optics, None, radius_um=radius)  # expansion: built on first use
         self.model = model
         self.orientation = orientation
         self.solution = solution
