@@ -6,9 +6,10 @@ Kept apart from :mod:`holofit.scattering.lens` so that the physics there reads a
   it is stable, ``m <= x``; Miller's backward recurrence above, matched at ``m = floor(x)``);
 * :func:`sphere_pixels`: the image of a sphere at a list of pixels from two radial tables
   (azimuthal orders 0 and 2 only);
-* :func:`polar_interpolate` (:func:`polar_pixels` for one grid): any image from its samples
-  on a polar ``(rho, phi)`` grid (an 8 x 8 stencil, :data:`POLAR_STENCIL`); the multipole plane
-  grid of :mod:`holofit.scattering.multipole` is interpolated by the same kernel.
+* :func:`polar_interpolate`: any image from its samples on a polar ``(rho, phi)`` grid (an
+  8 x 8 Lagrange stencil, :data:`POLAR_STENCIL`), several fields at once, with a factor and a
+  mask per point: the multipole plane grid of :mod:`holofit.scattering.multipole`;
+  :func:`polar_pixels` is its one-field loop for the lens image (same weights and sums).
 
 The callers pass each pixel's fractional row ``t = rho / h + n_ext`` (radial tables sampled at
 ``rho_j = (j - n_ext) h``, rows ``j < n_ext`` holding negative ``rho``, the point reflection, so
@@ -163,12 +164,22 @@ def polar_interpolate(gs, t, u, pad, fac, skip, ex, ey):  # pragma: no cover - c
             ey[f, q] = vy
 
 
-_NO_FACTOR = np.empty(0, dtype=complex)
-_NO_SKIP = np.empty(0, dtype=np.bool_)
-
-
-def polar_pixels(t: np.ndarray, u: np.ndarray, g: np.ndarray, ex: np.ndarray,
-                 ey: np.ndarray) -> None:
+@numba.njit(cache=True, nogil=True, fastmath=FASTMATH)
+def polar_pixels(t, u, g, ex, ey):  # pragma: no cover - compiled
     """:func:`polar_interpolate` of one grid ``g`` (shape ``(4, rows, columns)``, columns
-    already padded in ``u``) at fractional rows ``t`` and columns ``u``, into ``ex, ey``."""
-    polar_interpolate(g[None], t, u, 0, _NO_FACTOR, _NO_SKIP, ex[None], ey[None])
+    already padded in ``u``), without factor or mask: the lens image's loop, with the same
+    weights and stencil sums, its planes taken out of the pixel loop (the several-field loop
+    of :func:`polar_interpolate` is 20-25 % slower for one field, measured)."""
+    n = t.shape[0]
+    half = POLAR_STENCIL // 2 - 1
+    c = _node_factors(POLAR_STENCIL)
+    wr = np.empty(POLAR_STENCIL)
+    wp = np.empty(POLAR_STENCIL)
+    g0, g1, g2, g3 = g[0], g[1], g[2], g[3]
+    for q in range(n):
+        i0 = int(t[q]) - half
+        _weights(t[q] - i0, POLAR_STENCIL, c, wr)
+        j0 = int(u[q]) - half
+        _weights(u[q] - j0, POLAR_STENCIL, c, wp)
+        ex[q] = complex(_stencil(g0, i0, j0, wr, wp), _stencil(g1, i0, j0, wr, wp))
+        ey[q] = complex(_stencil(g2, i0, j0, wr, wp), _stencil(g3, i0, j0, wr, wp))
