@@ -21,13 +21,15 @@ noise is ~1e-2 of the field); ``STEP = 0.5`` and the node rule below cost 0.6 of
 
 Bessel tables of many orders (any image but a sphere's) are kept in single precision
 (:data:`TABLE_DTYPE`), and their products with the pupil field are single-precision matrix
-products: the rounding (~6e-8 of each term) adds at most ~1e-7 of the image's largest value
-(the DDA rod of tests/test_lens.py against the brute-force integral: 4e-8 -> 9e-8 at NA 1.2,
-2e-8 -> 6e-8 at NA 1.45, 1.2e-7 -> 2.0e-7 at NA 0.9; the tests' bound is 1e-6); the table
+products: the rounding (~6e-8 of each term) adds ~1e-7 of the image's largest value (the DDA
+rod of tests/test_lens.py against the brute-force integral, double -> single precision tables,
+FFT and planes: 4e-8 -> 1.7e-7 at NA 1.2, 2e-8 -> 8e-8 at NA 1.45, 1.2e-7 -> 2.0e-7 at NA 0.9;
+the tests' bound is 1e-6, the pixel noise of a fit ~1e-2); the table
 takes half the memory and the product, which reads the whole table once per image, runs about
-twice as fast. A table is built once per pupil rule and
-radial step with every order the source can need (:func:`radial_transform`'s ``max_orders``), so
-that waves of the same particle whose small high orders were trimmed away share it.
+twice as fast. The polar grid's FFT and planes stay in single precision (half the memory the
+pixel interpolation reads). A table is built once per pupil rule and radial step with every
+order the source can need (:func:`radial_transform`'s ``max_orders``), so that waves of the
+same particle whose small high orders were trimmed away share it.
 """
 
 from __future__ import annotations
@@ -178,6 +180,12 @@ def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
     max_orders : int, optional
         The most orders the same source can ask for (its untrimmed highest order): a new
         table is built with them, when it fits the cache, so that it is built once.
+
+    Returns
+    -------
+    ndarray of complex, shape (n_orders, n_rho, n_cols)
+        Double precision for a sphere (``orders`` None), :data:`TABLE_DTYPE`'s complex type
+        otherwise.
     """
     n_orders, n_nodes, n_cols = h.shape
     sphere = orders is None
@@ -200,7 +208,7 @@ def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
         for start in range(0, n_rho, block):
             rows = range(start, min(n_rho, start + block))
             out[:, rows.start:rows.stop] = np.matmul(_bessel_rows(x_step, rows, orders), hr)
-    return out.view(cplx).astype(np.complex128, copy=False)
+    return out.view(cplx)
 
 
 # -- what the pixels are interpolated from ---------------------------------------------------
@@ -221,9 +229,9 @@ def sphere_tables(a: NDArray, b: NDArray, base: NDArray, x_step: NDArray, n_rho:
 
 
 def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray, n_rho: int,
-               key: tuple, max_order: int | None = None) -> NDArray[np.float64]:
+               key: tuple, max_order: int | None = None) -> NDArray[np.floating]:
     """The image ``(E_x, E_y)`` on a polar grid ``[rho row, phi column]``, as the four real
-    planes ``(Re E_x, Im E_x, Re E_y, Im E_y)`` that :func:`~holofit.scattering.lens_kernels.
+    planes (in the tables' precision) ``(Re E_x, Im E_x, Re E_y, Im E_y)`` that :func:`~holofit.scattering.lens_kernels.
     polar_pixels` interpolates (shape ``(4, rows, columns)``).
 
     ``E_+- = -sum_m i^m exp(i m ph) G_m^+-`` (an FFT over m per row) for the circular
@@ -249,9 +257,10 @@ def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray
     # costs pocketfft several times more)
     n_phi = 2 * sfft.next_fast_len(max(int(np.ceil(np.pi * (mmax + 1) / PHI_STEP)),
                                        mmax + 1), real=False)
-    spec = np.zeros((2, n_rho, n_phi), dtype=complex)
-    up = (1j**m)[:, None, None] * g[:, :, 0::2]  # orders +m, columns (X, Y)
-    down = (1j ** (-m[1:]))[:, None, None] * g[1:, :, 1::2]  # orders -m, m >= 1
+    # in the tables' precision (single: see the module docstring)
+    spec = np.zeros((2, n_rho, n_phi), dtype=g.dtype)
+    up = (1j**m).astype(g.dtype)[:, None, None] * g[:, :, 0::2]  # orders +m, columns (X, Y)
+    down = (1j ** (-m[1:])).astype(g.dtype)[:, None, None] * g[1:, :, 1::2]  # orders -m
     spec[:, :, : mmax + 1] = np.transpose(up, (2, 1, 0))
     spec[:, :, n_phi - mmax :] = np.transpose(down[::-1], (2, 1, 0))
     fields = sfft.ifft(spec, axis=2, norm="forward", overwrite_x=True)
@@ -270,7 +279,7 @@ def _padded_planes(fields: NDArray[np.complex128]) -> NDArray[np.float64]:
     period in ``ph``."""
     _, n_rho, n_phi = fields.shape
     s = STENCIL
-    out = np.empty((4, n_rho + s, n_phi + 2 * s))
+    out = np.empty((4, n_rho + s, n_phi + 2 * s), dtype=fields.real.dtype)
     core = out[:, s:, s : s + n_phi]
     core[0::2] = fields.real
     core[1::2] = fields.imag
