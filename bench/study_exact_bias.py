@@ -186,8 +186,9 @@ def linear_case(case: str, dpls: list[float], o_index: int = 0,
         bias = cov @ (jac.T @ (h0 - hd))
         rows = {n: {"bias": float(b), "error": float(e), "bias_over_error": float(b / e)}
                 for n, b, e in zip(names, bias, sigma, strict=True)}
-        out.append({"case": case, "dpl": dpl, "d_um": d, "settings": settings, "dipoles": int(wave.solution.P.shape[0]) if hasattr(
-                    wave, "solution") else -1, "solve_s": wall,
+        n_dip = int(wave.solution.P.shape[0]) if hasattr(wave, "solution") else -1
+        out.append({"case": case, "dpl": dpl, "d_um": d, "settings": settings,
+                    "dipoles": n_dip, "solve_s": wall,
                     "one_minus_r2": float(np.sum((h0 - hd) ** 2)
                                           / np.sum((h0 - h0.mean()) ** 2)),
                     "pixel_noise": float(noise), "params": rows})

@@ -231,8 +231,9 @@ def sphere_tables(a: NDArray, b: NDArray, base: NDArray, x_step: NDArray, n_rho:
 def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray, n_rho: int,
                key: tuple, max_order: int | None = None) -> NDArray[np.floating]:
     """The image ``(E_x, E_y)`` on a polar grid ``[rho row, phi column]``, as the four real
-    planes (in the tables' precision) ``(Re E_x, Im E_x, Re E_y, Im E_y)`` that :func:`~holofit.scattering.lens_kernels.
-    polar_pixels` interpolates (shape ``(4, rows, columns)``).
+    planes ``(Re E_x, Im E_x, Re E_y, Im E_y)`` (in the tables' precision) that
+    :func:`~holofit.scattering.lens_kernels.polar_pixels` interpolates (shape
+    ``(4, rows, columns)``).
 
     ``E_+- = -sum_m i^m exp(i m ph) G_m^+-`` (an FFT over m per row) for the circular
     components ``T_+- = T_x +- i T_y`` of the pupil field, ``E_x = (E_+ + E_-)/2``,
