@@ -59,3 +59,20 @@ def test_a_table_is_built_once_for_every_order_of_its_source(monkeypatch):
     ref = np.einsum("oji,oic->ojc", special.jv(np.arange(10)[:, None, None], arg[None]), h)
     assert np.abs(got - ref).max() < 1e-6 * np.abs(h).sum(axis=1).max()
     lt.clear_cache()
+
+
+def test_tables_too_big_for_the_cache_are_computed_in_row_blocks(monkeypatch):
+    rng = np.random.default_rng(1)
+    x_step = np.linspace(0.01, 0.5, 30)
+    for orders in (None, 6):
+        n = 2 if orders is None else orders + 1
+        h = rng.normal(size=(n, 30, 2)) + 1j * rng.normal(size=(n, 30, 2))
+        lt.clear_cache()
+        cached = lt.radial_transform(x_step, h, 150, orders, ("blocks", orders))
+        monkeypatch.setattr(lt, "BESSEL_CACHE_BYTES", 1000)
+        monkeypatch.setattr(lt, "BLOCK_BYTES", 2000)
+        blocks = lt.radial_transform(x_step, h, 150, orders, ("blocks", orders))
+        monkeypatch.undo()
+        assert blocks.dtype == cached.dtype and blocks.shape == cached.shape == (n, 150, 2)
+        np.testing.assert_allclose(blocks, cached, rtol=0, atol=1e-12)
+    lt.clear_cache()
