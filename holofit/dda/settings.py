@@ -22,6 +22,8 @@ _SPECS: dict[str, Spec] = {
         "float", "dipoles per wavelength in the particle", 3.0, 100.0, required=False,
         default=10.0,
     ),
+    "layer_dipoles": Spec(
+        "float", "dipoles across the thinnest layer (shell, cap)", 1.0, 50.0, required=False),
     "filling": Spec("str", "'fractional' or 'binary'", required=False, default="fractional"),
     "polarizability": Spec("str", "'fcd', 'ldr', 'ldr_avg' or 'cm'", required=False,
                            default="fcd"),
@@ -48,6 +50,11 @@ class DDASettings:
         Fits must keep it fixed (the fit stage freezes it at its first model).
     dipoles_per_wavelength : float
         ``d = lambda_medium / (dpl * max |m|)``; 10 is ADDA's rule.
+    layer_dipoles : float or None
+        Also ``d <= t / layer_dipoles`` for the thinnest layer ``t`` of a coated or Janus
+        sphere (None: off, the default). A thin high-index shell needs far more dipoles than
+        the wavelength rule gives to be fitted without bias; this buys it at a cost of
+        ``~layer_dipoles^3`` (see :func:`holofit.dda.voxelize.dipole_size`).
     filling : {"fractional", "binary"}
         Smooth fractional filling (default) or centre-inside voxels.
     polarizability : {"fcd", "ldr", "ldr_avg", "cm"}
@@ -76,6 +83,7 @@ class DDASettings:
 
     dipole_size_um: float | None = None
     dipoles_per_wavelength: float = 10.0
+    layer_dipoles: float | None = None
     filling: str = "fractional"
     polarizability: str = "fcd"
     tolerance: float = 1e-5
@@ -110,13 +118,14 @@ class DDASettings:
 
     def dipole_size_for(self, model: ParticleModel, optics: Optics) -> float:
         """The lattice spacing for ``model``: ``dipole_size_um`` if set, else the
-        dipoles-per-wavelength rule (:func:`holofit.dda.voxelize.dipole_size`), um."""
+        dipoles-per-wavelength rule, and the thin-layer rule if ``layer_dipoles`` is set
+        (:func:`holofit.dda.voxelize.dipole_size`), um."""
         if self.dipole_size_um is not None:
             return self.dipole_size_um
         from holofit.dda.voxelize import dipole_size
 
         return dipole_size(model, optics.wavelength_medium_um, optics.n_medium,
-                           self.dipoles_per_wavelength)
+                           self.dipoles_per_wavelength, self.layer_dipoles)
 
     def replace(self, **changes: Any) -> DDASettings:
         values = {f.name: getattr(self, f.name) for f in fields(self)}

@@ -3,7 +3,8 @@
 Kept apart from :mod:`holofit.scattering.lens` so that the physics there reads as array code:
 
 * :func:`bessel_table`: ``J_m(x)`` for ``m = 0..M`` at many arguments (forward recurrence where
-  it is stable, ``m <= x``; Miller's backward recurrence above, matched at ``m = floor(x)``);
+  it is stable, ``m <= x``; Miller's backward recurrence above, matched at ``m = floor(x)``),
+  and :func:`bessel_planes`, the same stored order-major;
 * :func:`sphere_pixels`: the image of a sphere at a list of pixels from two radial tables
   (azimuthal orders 0 and 2 only);
 * :func:`polar_interpolate`: any image from its samples on a polar ``(rho, phi)`` grid (an
@@ -27,6 +28,34 @@ FASTMATH = {"contract", "reassoc", "nsz", "arcp"}
 POLAR_STENCIL = 8
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bessel_point(xv, j0v, j1v, mmax, start, back, col):  # pragma: no cover - compiled
+    """``col[m] = J_m(xv)`` for ``m = 0..mmax`` (see :func:`bessel_table`)."""
+    col[0] = j0v
+    if mmax >= 1:
+        col[1] = j1v
+    if xv == 0.0:
+        for m in range(1, mmax + 1):
+            col[m] = 0.0
+        return
+    m_fwd = min(int(xv), mmax)
+    for m in range(1, m_fwd):
+        col[m + 1] = 2.0 * m / xv * col[m] - col[m - 1]
+    if m_fwd >= mmax:
+        return
+    # backward from `start` down to m_fwd (>= 0), rescaled to the forward value there
+    back[start + 1] = 0.0
+    back[start] = 1e-300
+    for m in range(start, m_fwd, -1):
+        back[m - 1] = 2.0 * m / xv * back[m] - back[m + 1]
+        if abs(back[m - 1]) > 1e250:  # rescale to avoid overflow
+            for q in range(m - 1, start + 2):
+                back[q] *= 1e-250
+    scale = col[m_fwd] / back[m_fwd]
+    for m in range(m_fwd + 1, mmax + 1):
+        col[m] = back[m] * scale
+
+
 @numba.njit(cache=True, nogil=True)
 def bessel_table(x, j0, j1, mmax, out):  # pragma: no cover - compiled
     """``out[p, m] = J_m(x[p])`` for ``m = 0..mmax``, given ``J_0`` and ``J_1`` at ``x >= 0``.
@@ -36,34 +65,23 @@ def bessel_table(x, j0, j1, mmax, out):  # pragma: no cover - compiled
     matched to the forward value at ``m = floor(x)``, where ``J_m(x)`` is positive and of order
     ``m^(-1/3)``, far from its zeros.
     """
-    npts = x.shape[0]
     start = mmax + int(np.sqrt(160.0 * max(mmax, 1))) + 12
     back = np.empty(start + 2)
-    for p in range(npts):
-        xv = x[p]
-        out[p, 0] = j0[p]
-        if mmax >= 1:
-            out[p, 1] = j1[p]
-        if xv == 0.0:
-            for m in range(1, mmax + 1):
-                out[p, m] = 0.0
-            continue
-        m_fwd = min(int(xv), mmax)
-        for m in range(1, m_fwd):
-            out[p, m + 1] = 2.0 * m / xv * out[p, m] - out[p, m - 1]
-        if m_fwd >= mmax:
-            continue
-        # backward from `start` down to m_fwd (>= 0), rescaled to the forward value there
-        back[start + 1] = 0.0
-        back[start] = 1e-300
-        for m in range(start, m_fwd, -1):
-            back[m - 1] = 2.0 * m / xv * back[m] - back[m + 1]
-            if abs(back[m - 1]) > 1e250:  # rescale to avoid overflow
-                for q in range(m - 1, start + 2):
-                    back[q] *= 1e-250
-        scale = out[p, m_fwd] / back[m_fwd]
-        for m in range(m_fwd + 1, mmax + 1):
-            out[p, m] = back[m] * scale
+    for p in range(x.shape[0]):
+        _bessel_point(x[p], j0[p], j1[p], mmax, start, back, out[p])
+
+
+@numba.njit(cache=True, nogil=True)
+def bessel_planes(x, j0, j1, mmax, out):  # pragma: no cover - compiled
+    """``out[m, p] = J_m(x[p])``: :func:`bessel_table` in double precision, stored
+    order-major in ``out`` of any float type (the lens's single-precision tables)."""
+    start = mmax + int(np.sqrt(160.0 * max(mmax, 1))) + 12
+    back = np.empty(start + 2)
+    col = np.empty(mmax + 1)
+    for p in range(x.shape[0]):
+        _bessel_point(x[p], j0[p], j1[p], mmax, start, back, col)
+        for m in range(mmax + 1):
+            out[m, p] = col[m]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
