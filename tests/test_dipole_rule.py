@@ -13,8 +13,8 @@ from holofit.dda.engine import BuiltinDDA
 from holofit.dda.settings import DDASettings
 from holofit.dda.voxelize import dipole_size, thinnest_layer_um
 from holofit.hologram import calc_hologram
-from holofit.models import CoatedSphere, JanusSphere, Sphere
 from holofit.optics import Optics
+from holofit.particles import CoatedSphere, JanusSphere, Sphere
 from holofit.scattering.coated_mie import CoatedMie
 
 OPTICS = Optics(0.66, 1.33, 0.0)
