@@ -1,19 +1,21 @@
-"""The package's large-scale shape: dependencies run one way, and nothing imports in a circle.
+"""The package's structure: dependencies that run one way between layers, no import cycles
+between modules or between subpackages, every module importable on its own and in any order,
+the public API of ``holofit/__init__`` resolvable, and the README's layout complete.
 
 The layers, lowest first (a module may import from its own layer and the layers below it):
 
-0. foundation - conventions, units, statuses, particle models, optics, file I/O, the
-   configuration-file schema;
+0. foundation - conventions, statuses, particle models, optics, file I/O, the configuration-file
+   schema, the camera model, provenance, progress, the cache;
 1. ``scattering`` - the scattering theories that need no dipoles: Mie, coated sphere, sphere
    clusters, multipole expansions, T-matrices, the lens;
 2. ``dda`` - the discrete dipole approximation (and ADDA), built on ``scattering``;
-3. engines and configuration - the one list of engines, the choice among them, and the config
-   files that name them;
+3. engines and configuration - the one list of engines, the choice among them, a particle's
+   hologram with the engine chosen (``hologram``), and the config files that name them;
 4. ``holomodel`` - the hologram model kit: parameters, forward model, least squares, results;
 5. stage infrastructure - the tables and their schemas, the batch runner and the stage skeleton;
 6. stages - crop, prefit, library, fit, analysis, simulate;
 7. applications - run folders, demos, studies;
-8. ``cli``, and the package's own ``__init__`` (the public API).
+8. ``cli``, and the package's own ``__init__`` (the public API, lazy: it may name everything).
 
 Every import counts, including those inside functions (a lazy import is still a dependency).
 """
@@ -21,77 +23,128 @@ Every import counts, including those inside functions (a lazy import is still a 
 from __future__ import annotations
 
 import ast
-from collections import defaultdict
+import json
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1] / "holofit"
+import holofit
+
+PACKAGE = Path(holofit.__file__).resolve().parent
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts.pop()
+        out[".".join(parts)] = path
+    return out
+
+
+def _imports(name: str, path: Path, known: set[str]) -> set[str]:
+    """holofit modules that ``name`` imports anywhere in its body (lazy imports included)."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            candidates = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                module = ".".join([*base, node.module] if node.module else base)
+            else:
+                module = node.module or ""
+            candidates = [f"{module}.{a.name}" for a in node.names] + [module]
+        else:
+            continue
+        for cand in candidates:
+            while cand and cand not in known:
+                cand = cand.rpartition(".")[0]
+            if cand and cand not in (name, "holofit"):
+                found.add(cand)
+    return found
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (iterative Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+    counter = 0
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = counter
+                    counter += 1
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                parent = work[-1][0]
+                low[parent] = min(low[parent], low[node])
+            if low[node] == index[node]:
+                comp = []
+                while True:
+                    top = stack.pop()
+                    on_stack.discard(top)
+                    comp.append(top)
+                    if top == node:
+                        break
+                if len(comp) > 1:
+                    out.append(sorted(comp))
+    return out
+
 
 LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"conventions", "status", "cache", "progress", "provenance", "camera", "io",
                "config_schema", "optics", "particles"}),
     frozenset({"scattering"}),
     frozenset({"dda"}),
-    frozenset({"engines", "config"}),
+    frozenset({"engines", "config", "hologram"}),
     frozenset({"holomodel"}),
     frozenset({"tables", "batch"}),
     frozenset({"crop", "prefit", "library", "fit", "analysis", "simulate"}),
     frozenset({"runfolder", "demo", "studies"}),
-    frozenset({"cli", "__init__"}),
+    frozenset({"cli"}),
 )
 LAYER_OF = {unit: i for i, layer in enumerate(LAYERS) for unit in layer}
-
-
-def _module_name(path: Path) -> str:
-    parts = path.relative_to(ROOT.parent).with_suffix("").parts
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
-
-
-def _modules() -> dict[str, Path]:
-    return {_module_name(p): p for p in sorted(ROOT.rglob("*.py"))}
-
-
-def _imports(name: str, path: Path, known: set[str]) -> set[str]:
-    """The holofit modules ``name`` imports (``from holofit.x import y`` counts ``holofit.x.y``
-    when that is a module, else ``holofit.x``)."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    found: set[str] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            targets = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                anchor = package.split(".")
-                anchor = anchor[: len(anchor) - node.level + 1]
-                base = ".".join([*anchor, base] if base else anchor)
-            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base
-                       for a in node.names]
-        else:
-            continue
-        found.update(t for t in targets if t == "holofit" or t.startswith("holofit."))
-    found.discard(name)
-    found.discard("holofit")  # the root only lends its __version__; its API is lazy
-    return {t for t in found if t in known}
 
 
 def _unit(module: str) -> str:
     """The layer unit of a module: its subpackage, or the top-level module's own name."""
     parts = module.split(".")
-    return "__init__" if len(parts) == 1 else parts[1]
+    return "holofit" if len(parts) == 1 else parts[1]
 
 
 @pytest.fixture(scope="module")
 def graph() -> dict[str, set[str]]:
     mods = _modules()
-    known = set(mods)
-    return {name: _imports(name, path, known) for name, path in mods.items()}
+    return {name: _imports(name, path, set(mods)) for name, path in mods.items()}
 
 
-def test_every_unit_has_a_layer(graph: dict[str, set[str]]) -> None:
-    missing = sorted({_unit(m) for m in graph} - set(LAYER_OF))
+def test_every_subpackage_and_top_level_module_has_a_layer(graph: dict[str, set[str]]) -> None:
+    missing = sorted({_unit(m) for m in graph} - set(LAYER_OF) - {"holofit"})
     assert not missing, f"put these in a layer of LAYERS: {missing}"
 
 
@@ -100,68 +153,107 @@ def test_dependencies_run_one_way(graph: dict[str, set[str]]) -> None:
     for mod, deps in graph.items():
         if mod == "holofit":  # the lazy public API may name everything
             continue
-        here = LAYER_OF.get(_unit(mod))
+        here = LAYER_OF[_unit(mod)]
         for dep in deps:
-            there = LAYER_OF.get(_unit(dep))
-            if here is not None and there is not None and there > here:
+            there = LAYER_OF[_unit(dep)]
+            if there > here:
                 wrong.append(f"{mod} (layer {here}) imports {dep} (layer {there})")
     assert not wrong, "\n".join(sorted(wrong))
 
 
-def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
-    """Strongly connected components with more than one member (Tarjan)."""
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on_stack: set[str] = set()
-    out: list[list[str]] = []
-
-    def visit(v: str) -> None:
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on_stack.add(v)
-        for w in edges.get(v, ()):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on_stack:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on_stack.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
-            if len(comp) > 1:
-                out.append(sorted(comp))
-
-    for v in sorted(edges):
-        if v not in index:
-            visit(v)
-    return out
-
-
-def test_no_module_cycles(graph: dict[str, set[str]]) -> None:
-    # a package's __init__ re-exporting its modules is not a cycle of the code's logic
-    edges = {m: {d for d in deps if not (graph.get(d) is not None and d == m.rpartition(".")[0])}
-             for m, deps in graph.items()}
-    assert _cycles(edges) == []
-
-
-def test_no_package_cycles(graph: dict[str, set[str]]) -> None:
-    edges: dict[str, set[str]] = defaultdict(set)
+def test_no_import_cycles_between_subpackages(graph: dict[str, set[str]]) -> None:
+    units: dict[str, set[str]] = {}
     for mod, deps in graph.items():
         if mod == "holofit":
             continue
-        for dep in deps:
-            if _unit(dep) != _unit(mod) and dep != "holofit":
-                edges[_unit(mod)].add(_unit(dep))
-    assert _cycles(edges) == []
+        units.setdefault(_unit(mod), set()).update(
+            _unit(d) for d in deps if _unit(d) not in (_unit(mod), "holofit"))
+    for deps in list(units.values()):
+        for d in deps:
+            units.setdefault(d, set())
+    assert _cycles(units) == []
 
 
-def test_cycle_finder_finds_a_cycle() -> None:
-    # the checks above are only as good as the cycle finder
-    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
-    assert _cycles({"a": {"b"}, "b": set()}) == []
+def test_cycle_finder_finds_a_planted_cycle() -> None:
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": set()}
+    assert _cycles(graph) == [["a", "b", "c"]]
+
+
+def test_no_import_cycles_inside_the_package() -> None:
+    mods = _modules()
+    graph = {name: _imports(name, path, set(mods)) for name, path in mods.items()}
+    assert _cycles(graph) == []
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_every_module_imports_in_a_fresh_interpreter_in_any_order(seed: int) -> None:
+    names = [n for n in _modules() if not n.endswith("__main__")]
+    code = (
+        "import importlib, json, random, sys\n"
+        f"names = json.loads({json.dumps(json.dumps(names))})\n"
+        f"random.Random({seed}).shuffle(names)\n"
+        "for n in names:\n"
+        "    importlib.import_module(n)\n"
+        "print('imported', len(names))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert f"imported {len(names)}" in proc.stdout
+
+
+def test_public_api_names_resolve() -> None:
+    for name in holofit.__all__:
+        assert getattr(holofit, name) is not None, name
+    with pytest.raises(AttributeError):
+        holofit.no_such_thing  # noqa: B018
+
+
+def test_the_names_the_docs_promise_are_exported() -> None:
+    """Every name of the package docstring's API table and every ``holofit.<name>`` the
+    README's Python examples use is exported."""
+    doc = holofit.__doc__ or ""
+    table = doc[doc.index("The public API"):doc.index("Names are imported")]
+    promised = set(re.findall(r"\b([A-Za-z_][A-Za-z0-9_]*)\b", table.split("::", 1)[1]))
+    promised -= {"stages", "simulation", "configuration", "particles", "geometry", "engines",
+                 "holograms", "fitting", "tables"}
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    promised |= set(re.findall(r"\bholofit\.([A-Za-z_][A-Za-z0-9_]*)\(", readme))
+    missing = sorted(n for n in promised if n not in holofit.__all__)
+    assert not missing, missing
+
+
+def test_the_readme_layout_names_every_module() -> None:
+    """The README's package tree ("Repository layout") has a line for every module and
+    subpackage of holofit, and none that does not exist."""
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    section = readme[readme.index("## Repository layout"):]
+    tree = section[section.index("```") + 3:]
+    tree = tree[:tree.index("```")]
+    listed: set[str] = set()
+    stack: list[tuple[int, str]] = []  # (indent, folder)
+    for line in tree.splitlines():
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        indent = len(line) - len(line.lstrip())
+        name = stripped.split()[0]
+        while stack and stack[-1][0] >= indent:
+            stack.pop()
+        path = "/".join([f for _, f in stack] + [name.rstrip("/")])
+        if name.endswith("/"):
+            stack.append((indent, name.rstrip("/")))
+        if path.startswith("holofit"):
+            listed.add(path)
+    package = root / "holofit"
+    # a subpackage's __init__ is its folder's line
+    actual = {str(p.relative_to(root)) for p in package.rglob("*.py")
+              if "__pycache__" not in p.parts
+              and (p.name != "__init__.py" or p.parent == package)}
+    actual |= {str(p.relative_to(root)) for p in package.rglob("*")
+               if p.is_dir() and "__pycache__" not in p.parts and any(p.glob("*.py"))}
+    actual.add("holofit")
+    assert sorted(actual - listed) == [], "modules missing from the README's layout"
+    extra = {p for p in listed - actual if not (root / p).is_file()}  # an __init__ may be named
+    assert sorted(extra) == [], "README lists modules that do not exist"

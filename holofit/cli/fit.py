@@ -22,6 +22,7 @@ from holofit.cli.stage_options import (
     parse_int_list,
     quality_options,
 )
+from holofit.engines.select import ENGINE_CHOICES
 from holofit.fit.continuity import ContinuitySettings
 from holofit.fit.frame import FrameFitSettings
 from holofit.fit.stage import (
@@ -34,7 +35,6 @@ from holofit.fit.stage import (
 )
 from holofit.fit.tracking import TrackOptions
 from holofit.holomodel.result import QualityLimits
-from holofit.scattering.select import ENGINE_CHOICES
 
 
 @click.command()

@@ -13,6 +13,7 @@ engine rotates the incident wave and the observation directions into it.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -205,16 +206,7 @@ class DipoleSystem:
             mv_time[0] += clock() - t0
             return out
 
-        known: dict[str, NDArray] = {}
-        if x0 is None:
-            # ADDA's 'auto': start from b if that beats zero (residual |b - Ab| vs |b|); the
-            # product A b is then the initial residual's (x0 = b) or the first Lanczos
-            # product's (x0 = 0, r0 = b), so it is not wasted
-            ab = mv(b).copy()
-            start = b if np.linalg.norm(b - ab) < np.linalg.norm(b) else None
-            known = {"a_x0": ab} if start is not None else {"a_r0": ab}
-        else:
-            start = np.asarray(x0, dtype=complex).ravel()
+        start, known = _initial_guess(mv, b, x0)
         t_x0 = clock()
         mv_time[0] = 0.0
         if method == "qmr":
@@ -237,3 +229,19 @@ class DipoleSystem:
             x=result.x, P=P, iterations=result.iterations, residual=result.residual,
             timings=timings,
         )
+
+
+def _initial_guess(mv: Callable[[NDArray], NDArray], b: NDArray, x0: NDArray | None
+                   ) -> tuple[NDArray | None, dict[str, NDArray]]:
+    """The Krylov solver's start and the products it already knows.
+
+    Without ``x0``, ADDA's ``-init_field auto``: start from ``b`` if that beats zero
+    (residual ``|b - A b|`` against ``|b|``); the product ``A b`` is then the initial
+    residual's (``x0 = b``) or the first Lanczos product's (``x0 = 0, r0 = b``), so it is not
+    wasted.
+    """
+    if x0 is not None:
+        return np.asarray(x0, dtype=complex).ravel(), {}
+    ab = mv(b).copy()
+    start = b if np.linalg.norm(b - ab) < np.linalg.norm(b) else None
+    return start, ({"a_x0": ab} if start is not None else {"a_r0": ab})

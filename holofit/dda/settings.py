@@ -10,7 +10,11 @@ from holofit.config_schema import ConfigError, Spec, validate_table
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
 
-__all__ = ["DDASettings"]
+__all__ = ["DDA_ENGINES", "DDASettings"]
+
+#: the discrete-dipole engines a ``[dda]`` table may name (their classes' ``name``); the engine
+#: registry (:mod:`holofit.engines.registry`) lists them after the exact engines
+DDA_ENGINES: tuple[str, ...] = ("builtin", "adda")
 
 _SPECS: dict[str, Spec] = {
     "dipole_size_um": Spec("float", "the dipole size in um", 0.001, 1.0, required=False),
@@ -18,6 +22,8 @@ _SPECS: dict[str, Spec] = {
         "float", "dipoles per wavelength in the particle", 3.0, 100.0, required=False,
         default=10.0,
     ),
+    "layer_dipoles": Spec(
+        "float", "dipoles across the thinnest layer (shell, cap)", 1.0, 50.0, required=False),
     "filling": Spec("str", "'fractional' or 'binary'", required=False, default="fractional"),
     "polarizability": Spec("str", "'fcd', 'ldr', 'ldr_avg' or 'cm'", required=False,
                            default="fcd"),
@@ -44,6 +50,11 @@ class DDASettings:
         Fits must keep it fixed (the fit stage freezes it at its first model).
     dipoles_per_wavelength : float
         ``d = lambda_medium / (dpl * max |m|)``; 10 is ADDA's rule.
+    layer_dipoles : float or None
+        Also ``d <= t / layer_dipoles`` for the thinnest layer ``t`` of a coated or Janus
+        sphere (None: off, the default). A thin high-index shell needs far more dipoles than
+        the wavelength rule gives to be fitted without bias; this buys it at a cost of
+        ``~layer_dipoles^3`` (see :func:`holofit.dda.voxelize.dipole_size`).
     filling : {"fractional", "binary"}
         Smooth fractional filling (default) or centre-inside voxels.
     polarizability : {"fcd", "ldr", "ldr_avg", "cm"}
@@ -53,7 +64,7 @@ class DDASettings:
         relation (ADDA's default: use it to compare with ADDA), LDR with its direction- and
         polarisation-dependent S term replaced by the average 1/5 (``"ldr_avg"``), or
         Clausius-Mossotti. All but ``"ldr"`` are incidence-independent: the lattice then has a
-        T-matrix (:mod:`holofit.dda.tmatrix`).
+        T-matrix (:mod:`holofit.scattering.tmatrix`).
     tolerance : float
         Relative residual of the QMR solve (ADDA's default 1e-5).
     max_iterations : int
@@ -72,6 +83,7 @@ class DDASettings:
 
     dipole_size_um: float | None = None
     dipoles_per_wavelength: float = 10.0
+    layer_dipoles: float | None = None
     filling: str = "fractional"
     polarizability: str = "fcd"
     tolerance: float = 1e-5
@@ -84,7 +96,7 @@ class DDASettings:
     def __post_init__(self) -> None:
         choices = {"filling": ("fractional", "binary"),
                    "polarizability": ("ldr", "ldr_avg", "cm", "fcd"),
-                   "precision": ("double", "single"), "engine": ("builtin", "adda"),
+                   "precision": ("double", "single"), "engine": DDA_ENGINES,
                    "solver": ("qmr", "bicgstab")}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
@@ -106,13 +118,14 @@ class DDASettings:
 
     def dipole_size_for(self, model: ParticleModel, optics: Optics) -> float:
         """The lattice spacing for ``model``: ``dipole_size_um`` if set, else the
-        dipoles-per-wavelength rule (:func:`holofit.dda.voxelize.dipole_size`), um."""
+        dipoles-per-wavelength rule, and the thin-layer rule if ``layer_dipoles`` is set
+        (:func:`holofit.dda.voxelize.dipole_size`), um."""
         if self.dipole_size_um is not None:
             return self.dipole_size_um
         from holofit.dda.voxelize import dipole_size
 
         return dipole_size(model, optics.wavelength_medium_um, optics.n_medium,
-                           self.dipoles_per_wavelength)
+                           self.dipoles_per_wavelength, self.layer_dipoles)
 
     def replace(self, **changes: Any) -> DDASettings:
         values = {f.name: getattr(self, f.name) for f in fields(self)}

@@ -23,6 +23,7 @@ from pathlib import Path, PurePosixPath
 import holofit
 from holofit.analysis.settings import AnalysisConfig, SettingError
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
+from holofit.engines.select import ENGINE_CHOICES
 from holofit.io.atomic import atomic_write_text
 from holofit.io.movie import MovieError, open_movie
 from holofit.provenance import command_line
@@ -41,7 +42,6 @@ from holofit.runfolder.spec import (
     check_stage_options,
 )
 from holofit.runfolder.stagecheck import check_crop_options, check_fit_options, initial_pass_note
-from holofit.scattering.select import ENGINE_CHOICES
 
 __all__ = ["RunFolder", "default_holofit_command", "init_run", "write_batch_makefile"]
 
@@ -253,38 +253,56 @@ def init_run(
     RunFolderError, ConfigError
         Naming the input, option or file at fault; nothing is written then.
     """
-    run = Path(run_dir)
-    _check_run_dir(run, force, batch_makefile)
-    backgrounds = [str(b) for b in backgrounds]
-    darks = [str(d) for d in darks]
-    _check_light(backgrounds, darks, dark_count, normalized)
-    movie_abs, n_frames, frame_shape = _read_input(movie, "movie")
-    bg_abs = tuple(_input(b, "background") for b in backgrounds)
-    dark_abs = tuple(_input(d, "dark frame") for d in darks)
-
-    inst_source = resolve_config(instrument, "instruments")
-    load_instrument(inst_source)
-    part_source = resolve_config(particle, "particles")
-    cfg = load_particle(part_source)
-    _check_particle(cfg, part_source)
-    shape = _shape_file(part_source) if cfg.model.kind == "voxels" else None
+    run = _check_run_dir(Path(run_dir), force, batch_makefile)
+    movie_abs, n_frames, frame_shape, bg_abs, dark_abs = _light_inputs(
+        movie, backgrounds, darks, dark_count, normalized)
+    inst_source, part_source, cfg, shape = _configs(instrument, particle)
     analysis = _check_engine_and_analysis(cfg, engine, model, temperature_c)
     opts, notes = _check_options(options, cfg, frame_shape, n_frames)
-
-    now = _dt.datetime.now().astimezone().replace(microsecond=0).isoformat()
     spec = RunSpec(
         movie=movie_abs, backgrounds=bg_abs, darks=dark_abs, dark_count=dark_count,
         normalized=normalized, particle_kind=cfg.model.kind, anisotropic=cfg.model.anisotropic,
         analysis_model=analysis, temperature_c=float(temperature_c), engine=engine,
         options=opts, holofit=holofit_command or default_holofit_command(),
         instrument_source=str(inst_source.resolve()), particle_source=str(part_source.resolve()),
-        header=(f"holofit run folder: written by `holofit init` (holofit {holofit.__version__}), "
-                f"{now}", _command()),
+        header=_header(),
     )
     return _write_folder(run, spec, inst_source, part_source, shape, notes, batch_makefile)
 
 
-def _check_run_dir(run: Path, force: bool, batch_makefile: bool) -> None:
+def _header() -> tuple[str, str]:
+    """The Makefile's first lines: who wrote it, when, and the command."""
+    now = _dt.datetime.now().astimezone().replace(microsecond=0).isoformat()
+    return (f"holofit run folder: written by `holofit init` (holofit {holofit.__version__}), "
+            f"{now}", _command())
+
+
+def _light_inputs(movie: str | Path, backgrounds: Sequence[str | Path],
+                  darks: Sequence[str | Path], dark_count: float | None, normalized: bool
+                  ) -> tuple[str, int, tuple[int, int], tuple[str, ...], tuple[str, ...]]:
+    """The movie (absolute path, frames, frame shape) and its background and dark files,
+    checked."""
+    bgs = [str(b) for b in backgrounds]
+    dks = [str(d) for d in darks]
+    _check_light(bgs, dks, dark_count, normalized)
+    movie_abs, n_frames, frame_shape = _read_input(movie, "movie")
+    return (movie_abs, n_frames, frame_shape, tuple(_input(b, "background") for b in bgs),
+            tuple(_input(d, "dark frame") for d in dks))
+
+
+def _configs(instrument: str | Path, particle: str | Path
+             ) -> tuple[Path, Path, ParticleConfig, PurePosixPath | None]:
+    """The two config files (by name or path), loaded and checked; a voxel model's shape file."""
+    inst_source = resolve_config(instrument, "instruments")
+    load_instrument(inst_source)
+    part_source = resolve_config(particle, "particles")
+    cfg = load_particle(part_source)
+    _check_particle(cfg, part_source)
+    return (inst_source, part_source, cfg,
+            _shape_file(part_source) if cfg.model.kind == "voxels" else None)
+
+
+def _check_run_dir(run: Path, force: bool, batch_makefile: bool) -> Path:
     """Refuse to overwrite a run folder without ``force``, or a file where the folder goes."""
     if (run / "Makefile").exists() and not force:
         raise RunFolderError(f"{run / 'Makefile'} exists: {run} is a run folder already (force "
@@ -294,6 +312,7 @@ def _check_run_dir(run: Path, force: bool, batch_makefile: bool) -> None:
         raise RunFolderError(f"{run}: exists and is not a folder")
     if batch_makefile:
         check_make_path(run.resolve().name, "run folder name")
+    return run
 
 
 def _check_engine_and_analysis(cfg: ParticleConfig, engine: str | None, model: str | None,

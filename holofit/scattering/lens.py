@@ -165,7 +165,8 @@ class LensImage:
         if isinstance(self.source, SpherePupil):
             a, b = sphere_tables(*pupil.modes, base, x_step, n_rho, bkey)
         else:
-            a, b = polar_grid(*pupil.modes, base, x_step, n_rho, bkey), None
+            a, b = polar_grid(*pupil.modes, base, x_step, n_rho, bkey,
+                              self.source.order + 1), None
         tables = _Tables(step, n_rho, a, b)
         with self._lock:
             self._tables[key] = tables

@@ -18,6 +18,18 @@ at most 2.2e-7 of the field at ``STEP = 0.5`` (NA 0.8, z 25 um, reach 15 um; 1e-
 elsewhere), 4e-8 at ``STEP = 0.4``, 1e-6 at ``STEP = 0.7``. The fits need far less (the pixel
 noise is ~1e-2 of the field); ``STEP = 0.5`` and the node rule below cost 0.6 of the
 ``STEP = 0.4`` rule that keeps 1e-10 everywhere.
+
+Bessel tables of many orders (any image but a sphere's) are kept in single precision
+(:data:`TABLE_DTYPE`), and their products with the pupil field are single-precision matrix
+products: the rounding (~6e-8 of each term) adds ~1e-7 of the image's largest value (the DDA
+rod of tests/test_lens.py against the brute-force integral, double -> single precision tables,
+FFT and planes: 4e-8 -> 1.7e-7 at NA 1.2, 2e-8 -> 8e-8 at NA 1.45, 1.2e-7 -> 2.0e-7 at NA 0.9;
+the tests' bound is 1e-6, the pixel noise of a fit ~1e-2); the table
+takes half the memory and the product, which reads the whole table once per image, runs about
+twice as fast. The polar grid's FFT and planes stay in single precision (half the memory the
+pixel interpolation reads). A table is built once per pupil rule and radial step with every
+order the source can need (:func:`radial_transform`'s ``max_orders``), so that waves of the
+same particle whose small high orders were trimmed away share it.
 """
 
 from __future__ import annotations
@@ -30,7 +42,7 @@ import scipy.fft as sfft
 from numpy.typing import NDArray
 from scipy import special
 
-from holofit.scattering.lens_kernels import POLAR_STENCIL, bessel_table
+from holofit.scattering.lens_kernels import POLAR_STENCIL, bessel_planes
 
 __all__ = ["MAX_NODES", "STENCIL", "STEP", "node_count", "polar_grid", "radial_transform",
            "sphere_tables"]
@@ -49,7 +61,12 @@ NODES_EXTRA = 16
 NODES_ROUND = 16
 #: the Bessel tables kept, in bytes; a single table bigger than this is computed in row blocks
 BESSEL_CACHE_BYTES = 128 * 2**20
+#: element type of the tables of many orders (the sphere's two orders stay double precision)
+TABLE_DTYPE = np.float32
+#: a new table of many orders gets this many times the rows asked for
+ROW_MARGIN = 1.05
 BLOCK_BYTES = 32 * 2**20
+BLOCK_TABLE_BYTES = 2**19
 
 
 #: most Gauss-Legendre nodes over the pupil (~z = 2 mm at NA 1.2): beyond, a fit's trial step
@@ -89,7 +106,8 @@ def clear_cache() -> None:
 def _bessel_rows(x_step: NDArray, rows: range, orders: int | None) -> NDArray:
     """``J_m(j x_step[i])`` for j in ``rows``: shape (n_orders, len(rows), n_nodes).
 
-    ``orders`` None: the sphere's orders 0 and 2; an int M: every order 0..M.
+    ``orders`` None: the sphere's orders 0 and 2 (double precision); an int M: every order
+    0..M (:data:`TABLE_DTYPE`), in the (order, row, node) layout of the matrix products.
     """
     j = np.arange(rows.start, rows.stop, dtype=float)
     x = j[:, None] * x_step[None, :]
@@ -98,10 +116,20 @@ def _bessel_rows(x_step: NDArray, rows: range, orders: int | None) -> NDArray:
         with np.errstate(divide="ignore", invalid="ignore"):
             j2 = np.where(x > 0, 2.0 * special.j1(x) / x - j0, 0.0)
         return np.stack([j0, j2])
-    flat = np.ascontiguousarray(x.ravel())
-    out = np.empty((flat.size, orders + 1))
-    bessel_table(flat, special.j0(flat), special.j1(flat), orders, out)
-    return np.ascontiguousarray(out.T.reshape(orders + 1, j.size, x_step.size))
+    out = np.empty((orders + 1, j.size, x_step.size), dtype=TABLE_DTYPE)
+    # a block of rows at a time, so that the block's orders stay in cache
+    block = max(1, BLOCK_TABLE_BYTES // (out.itemsize * (orders + 1) * x_step.size))
+    for start in range(0, j.size, block):
+        stop = min(j.size, start + block)
+        flat = x[start:stop].ravel()
+        view = out[:, start:stop].reshape(orders + 1, flat.size)
+        bessel_planes(flat, special.j0(flat), special.j1(flat), orders, view)
+    return out
+
+
+def _table_bytes(n_orders: int, n_rho: int, n_nodes: int, sphere: bool) -> int:
+    """Size of a Bessel table, bytes."""
+    return n_orders * n_rho * n_nodes * (8 if sphere else np.dtype(TABLE_DTYPE).itemsize)
 
 
 def _cached_table(x_step: NDArray, n_rho: int, orders: int | None, key: tuple) -> NDArray:
@@ -118,9 +146,11 @@ def _cached_table(x_step: NDArray, n_rho: int, orders: int | None, key: tuple) -
             return table
     if table is not None:  # grow, with a little room for the next few moves
         rows = table.shape[1]
-        n_rho = max(n_rho, int(1.3 * rows)) if rows < n_rho else rows
+        n_rho = max(n_rho, int(1.1 * rows)) if rows < n_rho else rows
         if orders is not None:
             orders = max(orders, table.shape[0] - 1)
+    elif orders is not None:  # room for a fit's small moves of the particle
+        n_rho = int(ROW_MARGIN * n_rho)
     table = _bessel_rows(x_step, range(n_rho), orders)
     with _BESSEL_LOCK:
         _BESSEL[key] = table
@@ -131,7 +161,8 @@ def _cached_table(x_step: NDArray, n_rho: int, orders: int | None, key: tuple) -
 
 
 def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
-                     orders: int | None, key: tuple) -> NDArray[np.complex128]:
+                     orders: int | None, key: tuple,
+                     max_orders: int | None = None) -> NDArray[np.complex128]:
     """``G[o, j, c] = sum_i J_{m_o}(j x_step[i]) h[o, i, c]`` for ``j = 0..n_rho-1``.
 
     Parameters
@@ -146,18 +177,38 @@ def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
         None: orders (0, 2) (a sphere); M: orders 0..M.
     key : tuple
         Identifies ``x_step`` (the nodes and the radial step) for the Bessel cache.
+    max_orders : int, optional
+        The most orders the same source can ask for (its untrimmed highest order): a new
+        table is built with them, when it fits the cache, so that it is built once.
+
+    Returns
+    -------
+    ndarray of complex, shape (n_orders, n_rho, n_cols)
+        Double precision for a sphere (``orders`` None), :data:`TABLE_DTYPE`'s complex type
+        otherwise.
     """
     n_orders, n_nodes, n_cols = h.shape
-    hr = np.ascontiguousarray(h).view(np.float64)  # (o, i, 2c): real and imaginary parts
-    if n_orders * n_rho * n_nodes * 8 <= BESSEL_CACHE_BYTES:
-        table = _cached_table(x_step, n_rho, orders, (orders is None, *key))
-        return np.matmul(table[:n_orders, :n_rho], hr).view(np.complex128)
-    out = np.empty((n_orders, n_rho, 2 * n_cols))
-    block = max(1, BLOCK_BYTES // (n_orders * n_nodes * 8))
-    for start in range(0, n_rho, block):
-        rows = range(start, min(n_rho, start + block))
-        out[:, rows.start:rows.stop] = np.matmul(_bessel_rows(x_step, rows, orders), hr)
-    return out.view(np.complex128)
+    sphere = orders is None
+    if _table_bytes(n_orders, n_rho, n_nodes, sphere) <= BESSEL_CACHE_BYTES:
+        if not sphere and max_orders is not None and max_orders > orders and _table_bytes(
+                max_orders + 1, int(ROW_MARGIN * n_rho), n_nodes, sphere) <= BESSEL_CACHE_BYTES:
+            orders = max_orders
+        table = _cached_table(x_step, n_rho, orders, (sphere, *key))[:n_orders, :n_rho]
+    else:
+        table = None
+    real = np.dtype(np.float64 if sphere else TABLE_DTYPE)
+    cplx = np.result_type(real, np.complex64)
+    # (o, i, 2c): real and imaginary parts as columns of reals
+    hr = np.ascontiguousarray(h, dtype=cplx).view(real)
+    if table is not None:
+        out = np.matmul(table, hr)
+    else:
+        out = np.empty((n_orders, n_rho, 2 * n_cols), dtype=real)
+        block = max(1, BLOCK_BYTES // _table_bytes(n_orders, 1, n_nodes, sphere))
+        for start in range(0, n_rho, block):
+            rows = range(start, min(n_rho, start + block))
+            out[:, rows.start:rows.stop] = np.matmul(_bessel_rows(x_step, rows, orders), hr)
+    return out.view(cplx)
 
 
 # -- what the pixels are interpolated from ---------------------------------------------------
@@ -178,15 +229,18 @@ def sphere_tables(a: NDArray, b: NDArray, base: NDArray, x_step: NDArray, n_rho:
 
 
 def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray, n_rho: int,
-               key: tuple) -> NDArray[np.float64]:
+               key: tuple, max_order: int | None = None) -> NDArray[np.floating]:
     """The image ``(E_x, E_y)`` on a polar grid ``[rho row, phi column]``, as the four real
-    planes ``(Re E_x, Im E_x, Re E_y, Im E_y)`` that :func:`~holofit.scattering.lens_kernels.
-    polar_pixels` interpolates (shape ``(4, rows, columns)``).
+    planes ``(Re E_x, Im E_x, Re E_y, Im E_y)`` (in the tables' precision) that
+    :func:`~holofit.scattering.lens_kernels.polar_pixels` interpolates (shape
+    ``(4, rows, columns)``).
 
     ``E_+- = -sum_m i^m exp(i m ph) G_m^+-`` (an FFT over m per row) for the circular
     components ``T_+- = T_x +- i T_y`` of the pupil field, ``E_x = (E_+ + E_-)/2``,
     ``E_y = (E_+ - E_-)/(2i)``. Rows ``< STENCIL`` hold negative ``rho``
     (``E(-rho, ph) = E(rho, ph + pi)``); ``STENCIL`` columns on each side repeat the period.
+    ``max_order``: the highest azimuthal order the source can have (see
+    :func:`radial_transform`).
     """
     mmax = (t_plus.shape[1] - 1) // 2
     m = np.arange(mmax + 1)
@@ -199,14 +253,15 @@ def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray
     for c, t in enumerate((tx, ty)):
         h[:, :, 2 * c] = t[:, mmax:].T
         h[:, :, 2 * c + 1] = t[:, mmax::-1].T * sign
-    g = radial_transform(x_step, h, n_rho, mmax, key)  # (|m|, rho, column)
+    g = radial_transform(x_step, h, n_rho, mmax, key, max_order)  # (|m|, rho, column)
     # even (rho -> -rho is a shift by half a period) and FFT-friendly (a large prime factor
     # costs pocketfft several times more)
     n_phi = 2 * sfft.next_fast_len(max(int(np.ceil(np.pi * (mmax + 1) / PHI_STEP)),
                                        mmax + 1), real=False)
-    spec = np.zeros((2, n_rho, n_phi), dtype=complex)
-    up = (1j**m)[:, None, None] * g[:, :, 0::2]  # orders +m, columns (X, Y)
-    down = (1j ** (-m[1:]))[:, None, None] * g[1:, :, 1::2]  # orders -m, m >= 1
+    # in the tables' precision (single: see the module docstring)
+    spec = np.zeros((2, n_rho, n_phi), dtype=g.dtype)
+    up = (1j**m).astype(g.dtype)[:, None, None] * g[:, :, 0::2]  # orders +m, columns (X, Y)
+    down = (1j ** (-m[1:])).astype(g.dtype)[:, None, None] * g[1:, :, 1::2]  # orders -m
     spec[:, :, : mmax + 1] = np.transpose(up, (2, 1, 0))
     spec[:, :, n_phi - mmax :] = np.transpose(down[::-1], (2, 1, 0))
     fields = sfft.ifft(spec, axis=2, norm="forward", overwrite_x=True)
@@ -225,7 +280,7 @@ def _padded_planes(fields: NDArray[np.complex128]) -> NDArray[np.float64]:
     period in ``ph``."""
     _, n_rho, n_phi = fields.shape
     s = STENCIL
-    out = np.empty((4, n_rho + s, n_phi + 2 * s))
+    out = np.empty((4, n_rho + s, n_phi + 2 * s), dtype=fields.real.dtype)
     core = out[:, s:, s : s + n_phi]
     core[0::2] = fields.real
     core[1::2] = fields.imag
