@@ -7,7 +7,7 @@ import itertools
 
 import pandas as pd
 
-from holofit.fit.tracked import MAX_CHUNK, OVERLAP, plan_chunks, stitch_table
+from holofit.fit.tracked import INITIAL_OVERLAP, MAX_CHUNK, OVERLAP, plan_chunks, stitch_table
 from holofit.io.tables import write_table
 
 
@@ -22,6 +22,9 @@ def test_chunks_cover_every_frame_and_overlap():
     assert len(plan_chunks(range(24))) == 2  # a short movie still shared by workers
     assert len(plan_chunks(range(2000))) == 20
     assert plan_chunks([]) == []
+    initial = plan_chunks(range(100), INITIAL_OVERLAP)  # the initial pass: one frame
+    assert all(a[-1] == b[0] for a, b in itertools.pairwise(initial))
+    assert sum(len(c) for c in initial) == 100 + len(initial) - 1
 
 
 def _row(chunk, frame, x, status="ok", message=""):

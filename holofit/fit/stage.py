@@ -75,6 +75,7 @@ from holofit.fit.task import (
 from holofit.fit.tmatrix_policy import TMATRIX_CHOICES, check_policy, final_tmatrix
 from holofit.fit.tracked import (
     CHUNK_KEY,
+    INITIAL_OVERLAP,
     OVERLAP,
     TrackedConfig,
     bar_from_initial,
@@ -360,8 +361,9 @@ class _FitPasses:
             bar, note = None, (f"{name} pass along the track: no chi^2 bar yet (warm fits "
                                "checked by status and step)")
         self.run.notes.append(note)
-        tcfg = TrackedConfig(cfg, replace(self.tracking, frame=self.opts), bar)
-        chunks = plan_chunks(frames)
+        overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
+        tcfg = TrackedConfig(cfg, replace(self.tracking, frame=self.opts), bar, overlap)
+        chunks = plan_chunks(frames, overlap)
         pass_table = self.table(cfg, table_name, static)
         path = pass_table.path
         columns = (*pass_table.columns, *TRACK_COLUMNS)
@@ -379,7 +381,7 @@ class _FitPasses:
             chunk_table, batch=self.batch)
         longest = max((len(c) for c in chunks), default=0)
         self.run.notes.append(f"{name} pass along the track: {len(chunks)} chunk(s) of up to "
-                              f"{longest} frames (the batch's items), overlapping by {OVERLAP}")
+                              f"{longest} frames (the batch's items), overlapping by {overlap}")
         if self.run.summaries[name].n_run == 0 and _fingerprint_of(path) == key:
             self.complete(cfg, path.stem, path)  # complete before this run (as one_pass)
             return path

@@ -38,6 +38,8 @@ from holofit.status import ERROR
 
 __all__ = [
     "CHUNK_KEY",
+    "INITIAL_OVERLAP",
+    "OVERLAP",
     "ChunkPayload",
     "TrackedConfig",
     "bar_from_initial",
@@ -55,8 +57,11 @@ MAX_CHUNK = 100
 MIN_CHUNKS = 8
 #: ... of at least this many frames each
 MIN_CHUNK = 12
-#: frames a chunk reaches into the next one
+#: frames a chunk of the final pass reaches into the next one
 OVERLAP = 3
+#: ... and of the initial pass (direct DDA solves with sizes free: an overlap frame costs
+#: seconds; one frame still compares the two chunks)
+INITIAL_OVERLAP = 1
 
 
 def plan_chunks(frames: Sequence[int], overlap: int = OVERLAP,
@@ -115,18 +120,21 @@ class TrackedConfig:
         How the track is followed.
     chi2_bar : float, optional
         The movie's bar on the reduced chi^2 (None: status and step only).
+    overlap : int
+        Frames a chunk reaches into the next one.
     """
 
     fit: FitConfig
     options: TrackOptions
     chi2_bar: float | None
+    overlap: int = OVERLAP
 
     def as_dict(self) -> dict[str, Any]:
         opts = asdict(self.options)
         opts.pop("frame")  # in the fit config's options
         return {"fit": self.fit.as_dict(), "tracking": opts, "chi2_bar": self.chi2_bar,
                 "chunks": {"max": MAX_CHUNK, "min": MIN_CHUNK, "count": MIN_CHUNKS,
-                           "overlap": OVERLAP}}
+                           "overlap": self.overlap}}
 
 
 @dataclass(frozen=True)
