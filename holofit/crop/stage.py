@@ -64,9 +64,9 @@ from holofit.crop.detect import (
 from holofit.crop.errors import CropError
 from holofit.crop.follow import FOLLOW_MODES, Follower, off_track
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
+from holofit.crop.reference import read_dark, read_reference_frame
 from holofit.crop.track_crops import TrackPlan, link_detections, one_per_frame, track_rows
 from holofit.crop.tracks import LinkOptions
-from holofit.crop.reference import read_dark, read_reference_frame
 from holofit.io.lock import output_lock
 from holofit.io.movie import Movie, MovieError, open_movie
 from holofit.io.tables import read_table, sidecar_path

@@ -19,6 +19,7 @@ __all__ = [
     "CROP_UNITS",
     "REQUIRED_CROP_COLUMNS",
     "crop_extra",
+    "keyed_columns",
     "stack_header",
     "write_candidates",
     "write_crop_table",
@@ -68,6 +69,12 @@ REQUIRED_CROP_COLUMNS: tuple[str, ...] = (
 )
 
 
+def keyed_columns(columns: tuple[str, ...], key_columns: tuple[str, ...]) -> tuple[str, ...]:
+    """A stage table's ``columns`` with the key columns it lacks in front (``particle`` for
+    crops of several tracks)."""
+    return (*(c for c in key_columns if c not in columns), *columns)
+
+
 def stack_header(size: int, n_frames: int) -> dict[str, Any]:
     """The description stored in the crop stack (``crops.tif``) itself."""
     return {
@@ -95,7 +102,8 @@ def crop_extra(settings: dict[str, Any], movie: dict[str, Any], stack: Path, tab
             "page_shape": [size, size],
             "dtype": "float32",
             "contents": "normalised hologram (background ~1), one page per row of the "
-            "table, in its order (frame, then particle); NaN marks masked pixels (background ~0 or saturated); frames with "
+            "table, in its order (frame, then particle); NaN marks masked pixels "
+            "(background ~0 or saturated); frames with "
             "status no_particle or error get an all-NaN page",
             "coordinates": "crop pixel [i, j] is full-frame pixel "
             "[corner_row + i, corner_col + j] (corner_* in the table)",
