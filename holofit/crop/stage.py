@@ -444,6 +444,11 @@ class _CropJob:
                     self.inst.pixel_size_um, writer, self.progress)
                 warnings = (_mark_off_track(rows, self.follower.max_jump_px)
                             if self.settings["follow"] != "nearest" else [])
+                if self.settings["follow"] == TRACKS and not any(
+                        int(d.get("n_found") or 0) for d in detections.values()):
+                    warnings.append("no hologram found in any frame: no track, every frame "
+                                    "no_particle (is it the right movie and background? "
+                                    "--min-score and --vote-radius set what is found)")
             frames = _frame_table(rows, self.movie_path)
             paths.remove_stale()  # a rerun must not leave an old table beside the new stack
         counts = {s: int((frames["status"] == s).sum()) for s in CROP_STATUSES}

@@ -54,12 +54,13 @@ def _track_table(path: Path | None, crops: CropSet, what: str, particle: int,
         return None
     table, meta = read_stage_table(path, crops, what)
     rows = table[table["particle"] == particle].drop(columns="particle").reset_index(drop=True)
-    extra = dict(meta.get("extra") or {})
-    if "crops" in extra:
-        extra["crops"] = view.fingerprint()
-    extra["track_of"] = {"table": str(path), "particle": int(particle)}
+    meta = dict(meta)
+    for where in (meta, meta.get("extra")):  # the sidecar names the crops it was made from
+        if isinstance(where, dict) and "crops" in where:
+            where["crops"] = view.fingerprint()
+    meta["track_of"] = {"table": str(path), "particle": int(particle)}
     target = out / f"{what}.csv"
-    write_table(target, rows, {**meta, "extra": extra})
+    write_table(target, rows, meta)
     return target
 
 
