@@ -255,3 +255,5 @@ def _report(result: CropResult) -> None:
         click.echo(f"  error: {message}", err=True)
     if len(errors) > 5:
         click.echo(f"  ... {len(errors) - 5} more frame errors in {result.table}", err=True)
+    for note in result.notes:
+        click.echo(f"holofit crop: note: {note}", err=True)

@@ -98,7 +98,7 @@ DEFAULT_CROP_SIZE = 140
 #: every hologram linked into tracks (:mod:`holofit.crop.track_crops`; the default)
 TRACKS = "tracks"
 #: what ``follow`` may be: tracks, or one hologram per frame (:mod:`holofit.crop.follow`)
-CROP_MODES = (TRACKS, *FOLLOW_MODES)
+CROP_MODES = (*FOLLOW_MODES, TRACKS)
 
 
 def check_crop_settings(
@@ -163,6 +163,8 @@ class CropResult:
     warnings : list of str
         What is doubtful about the result as a whole (e.g. the strongest hologram jumping to
         another particle), also in the sidecars.
+    notes : list of str
+        Why the result is empty (no hologram in any frame), also in the sidecars' settings.
     """
 
     out_dir: Path
@@ -174,6 +176,7 @@ class CropResult:
     counts: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
 
 def _resolve_instrument(instrument: Instrument | str | Path) -> Instrument:
@@ -446,7 +449,7 @@ class _CropJob:
                             if self.settings["follow"] != "nearest" else [])
                 if self.settings["follow"] == TRACKS and not any(
                         int(d.get("n_found") or 0) for d in detections.values()):
-                    warnings.append("no hologram found in any frame: no track, every frame "
+                    self.settings["tracks"]["note"] = ("no hologram found in any frame: no track, every frame "
                                     "no_particle (is it the right movie and background? "
                                     "--min-score and --vote-radius set what is found)")
             frames = _frame_table(rows, self.movie_path)
@@ -463,8 +466,10 @@ class _CropJob:
                            len(frames), size, counts, warnings)
         write_crop_table(paths.table, paths.stack, frames, self.inst.as_dict(), self.inputs,
                          extra)
+        note = self.settings.get("tracks", {}).get("note")
         return CropResult(self.out, paths.stack, paths.table, paths.candidates, made_plot,
-                          frames, counts, list(movie.problems), warnings)
+                          frames, counts, list(movie.problems), warnings,
+                          [note] if note else [])
 
 
 #: the candidates of every frame searched so far (removed when the crop folder is complete)

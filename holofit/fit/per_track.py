@@ -31,7 +31,7 @@ from holofit.config import ParticleConfig
 from holofit.fit.errors import FitStageError
 from holofit.fit.stage import FitRun, run_fit
 from holofit.fit.static import write_static
-from holofit.io.tables import read_table, sidecar_path, write_table
+from holofit.io.tables import read_table, sidecar_path, write_json, write_table
 from holofit.tables.cropset import CropSet, write_track_view
 from holofit.tables.inputs import read_stage_table
 
@@ -181,8 +181,28 @@ def _fit_views(views: dict[int, tuple[Path, Path | None, Path | None]],
     _merge(combined, runs, "final" if pass_name == "final" else None)
     if combined.initial is None:
         combined.initial = _combine(runs, "initial", out, "initial.csv")
+    if combined.static is None and pass_name in ("both", "initial"):
+        combined.static = _static_index(runs, out)
     combined.final = _combine(runs, "final", out, "fit.csv")
     return combined
+
+
+def _static_index(runs: dict[int, FitRun], out: Path) -> Path | None:
+    """``OUT/static.json`` of per-track static parameters: each track's values and where its
+    own ``static.json`` is (the file ``make`` waits for after the initial pass)."""
+    import json
+
+    tracks = {}
+    for p, run in runs.items():
+        if run.static is None or not Path(run.static).exists():
+            return None
+        doc = json.loads(Path(run.static).read_text())
+        tracks[str(p)] = {"file": str(run.static),
+                          **{k: doc[k] for k in ("values", "spread", "n_frames") if k in doc}}
+    path = out / "static.json"
+    write_json(path, {"kind": "static parameters per track (each track's final pass uses its "
+                              "own static.json)", "static_mode": "per-track", "tracks": tracks})
+    return path
 
 
 def _merge(combined: FitRun, runs: dict[int, FitRun], only: str | None) -> None:
