@@ -449,9 +449,10 @@ class _CropJob:
                             if self.settings["follow"] != "nearest" else [])
                 if self.settings["follow"] == TRACKS and not any(
                         int(d.get("n_found") or 0) for d in detections.values()):
-                    self.settings["tracks"]["note"] = ("no hologram found in any frame: no track, every frame "
-                                    "no_particle (is it the right movie and background? "
-                                    "--min-score and --vote-radius set what is found)")
+                    self.settings["tracks"]["note"] = (
+                        "no hologram found in any frame: no track, every frame no_particle (is "
+                        "it the right movie and background? --min-score and --vote-radius set "
+                        "what is found)")
             frames = _frame_table(rows, self.movie_path)
             paths.remove_stale()  # a rerun must not leave an old table beside the new stack
         counts = {s: int((frames["status"] == s).sum()) for s in CROP_STATUSES}
