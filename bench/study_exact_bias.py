@@ -36,12 +36,12 @@ from holofit.camera import Camera
 from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
+from holofit.engines.select import select_theory
 from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.hologram import calc_hologram
 from holofit.holomodel.parameters import static_parameters
 from holofit.library.search import Candidate
 from holofit.particles import CoatedSphere, Dimer, ParticleModel
-from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation
 
 CROP = 140

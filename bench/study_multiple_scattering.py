@@ -27,9 +27,9 @@ from holofit.config import load_instrument, resolve_config
 from holofit.conventions import hologram_intensity, pixel_centres
 from holofit.optics import Optics
 from holofit.particles import Sphere
-from holofit.scattering.camera import recorded_field
 from holofit.scattering.cluster import SphereSumWave, solve_cluster
 from holofit.scattering.mie import MieWave
+from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation
 
 RADIUS_UM, INDEX, HEIGHT_UM = 0.5, 1.59, 12.0

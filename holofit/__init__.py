@@ -77,8 +77,8 @@ _API: dict[str, str] = {
     "AddaEngine": "holofit.dda.adda.engine",
     "ClusterTheory": "holofit.scattering.cluster",
     "CoatedMie": "holofit.scattering.coated_mie",
-    "select_theory": "holofit.scattering.select",
-    "get_theory": "holofit.scattering.registry",
+    "select_theory": "holofit.engines.select",
+    "get_theory": "holofit.engines.registry",
     # holograms
     "hologram": "holofit.hologram",
     "calc_hologram": "holofit.hologram",

@@ -40,9 +40,9 @@ from holofit.config_schema import (
     validate_table,
 )
 from holofit.dda.settings import DDASettings
+from holofit.engines.select import select_theory
 from holofit.optics import Optics
 from holofit.particles import MODEL_TYPES, ParticleModel, Sphere
-from holofit.scattering.select import select_theory
 from holofit.scattering.theory import ScatteringTheory
 
 __all__ = [
@@ -296,7 +296,7 @@ class ParticleConfig:
 
     def theory(self, engine: str | None = None, fixed_lattice_for: Optics | None = None
                ) -> ScatteringTheory:
-        """The scattering engine for this particle (:func:`holofit.scattering.select.select_theory`:
+        """The scattering engine for this particle (:func:`holofit.engines.select.select_theory`:
         Lorenz-Mie for a sphere without a ``[dda]`` table, else the table's engine), or the one
         ``engine`` names.
 

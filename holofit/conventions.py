@@ -136,7 +136,7 @@ def euler_zyz(psi: float, theta: float, phi: float = 0.0) -> NDArray[np.float64]
         ADDA's ``-orient alpha beta gamma`` has the same zyz form, but in ADDA's lab, where the
         light travels along +z: ADDA's angles are *not* holofit's. A shape in ADDA's particle
         frame at ADDA's orientation ``R_adda`` has ``R = Rz(beta_pol) Rx(pi) R_adda`` here
-        (:func:`holofit.dda.adda_orient.orientation_from_adda`); reusing the angles directly
+        (:func:`holofit.dda.adda.frames.orientation_from_adda`); reusing the angles directly
         mirrors any particle that is not symmetric under ``Rx(pi)``, e.g. a Janus sphere.
     """
     return rotation_z(psi) @ rotation_y(theta) @ rotation_z(phi)
@@ -272,9 +272,14 @@ def hologram_intensity(
     ndarray of float
         Intensity relative to the background (background = 1).
     """
-    ex = np.cos(polarization_angle) + alpha * np.asarray(e_x)
-    ey = np.sin(polarization_angle) + alpha * np.asarray(e_y)
-    return ex.real**2 + ex.imag**2 + ey.real**2 + ey.imag**2
+    e_x, e_y = np.asarray(e_x), np.asarray(e_y)
+    # |cos + alpha e_x|^2 + |sin + alpha e_y|^2 on real and imaginary parts (no complex
+    # temporaries: the fits evaluate it at every step)
+    a_r = np.cos(polarization_angle) + alpha * e_x.real
+    a_i = alpha * e_x.imag
+    b_r = np.sin(polarization_angle) + alpha * e_y.real
+    b_i = alpha * e_y.imag
+    return a_r * a_r + a_i * a_i + b_r * b_r + b_i * b_i
 
 
 def r_squared(data: ArrayLike, model: ArrayLike, mask: ArrayLike | None = None) -> float:

@@ -1,7 +1,8 @@
-"""Holograms on a detector: the scattered field of a solved particle, interfered with the
-incident plane wave (formula in :mod:`holofit.conventions`). With an objective NA in the optics
-the field is the lens image of :mod:`holofit.scattering.lens`; without, the field in the focal
-plane itself (the ideal model)."""
+"""Holograms on a detector: the field the camera records
+(:func:`holofit.scattering.recorded_field.recorded_field`, the one rule that simulate, the fits
+and the pictures share: with an objective NA in the optics the lens image of
+:mod:`holofit.scattering.lens`; without, the field in the focal plane itself), interfered with
+the incident plane wave (:func:`holofit.conventions.hologram_intensity`)."""
 
 from __future__ import annotations
 
@@ -9,10 +10,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.conventions import DetectorGrid, hologram_intensity
+from holofit.engines.select import select_theory
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
-from holofit.scattering.lens import lens_field_on_detector
-from holofit.scattering.select import select_theory
+from holofit.scattering.recorded_field import recorded_field_on_detector
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["calc_hologram", "hologram"]
@@ -48,10 +49,7 @@ def calc_hologram(
     ndarray, shape ``grid.shape``
         Intensity relative to the background.
     """
-    if wave.optics.numerical_aperture is not None:
-        ex, ey = lens_field_on_detector(wave, position_um, grid)
-    else:
-        ex, ey = wave.field_on_detector(position_um, grid, far_field=far_field)
+    ex, ey = recorded_field_on_detector(wave, position_um, grid, far_field)
     return hologram_intensity(ex, ey, wave.optics.polarization_rad, alpha)
 
 

@@ -18,8 +18,8 @@ from scipy.spatial import cKDTree
 
 from holofit.conventions import euler_zyz, euler_zyz_from_matrix, rotation_y, rotation_z
 from holofit.dda import adda as ae
+from holofit.dda.adda.frames import adda_amplitude_matrix
 from holofit.dda.engine import BuiltinDDA
-from holofit.dda.farfield import adda_amplitude_matrix
 from holofit.dda.voxelize import voxelize
 from holofit.io.shapefile import read_shape_file
 from holofit.optics import Optics

@@ -22,10 +22,10 @@ import pytest
 
 from holofit.conventions import DetectorGrid, euler_zyz, hologram_intensity
 from holofit.dda import adda as ae
+from holofit.engines.registry import get_theory
 from holofit.hologram import calc_hologram
 from holofit.optics import Optics
 from holofit.particles import JanusSphere, Spherocylinder
-from holofit.scattering.registry import get_theory
 from holofit.scattering.theory import Orientation
 
 STUB = Path(__file__).parent / "stubs" / "fake_adda.py"

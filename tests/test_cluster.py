@@ -10,9 +10,7 @@ import pytest
 from scipy.special import spherical_jn
 
 from holofit.config import ConfigError, load_particle
-from holofit.dda.legendre import legendre_tables
-from holofit.dda.multipole import MultipoleExpansion, _sum_points
-from holofit.dda.tmatrix_waves import n_terms, unpack
+from holofit.engines.select import select_theory
 from holofit.optics import Optics
 from holofit.particles import Cluster, CoatedSphere, Dimer, Sphere, Spherocylinder
 from holofit.scattering.cluster import (
@@ -21,10 +19,12 @@ from holofit.scattering.cluster import (
     SphereSumWave,
     solve_cluster,
 )
+from holofit.scattering.legendre import legendre_tables
 from holofit.scattering.mie import MieWave, cross_sections
-from holofit.scattering.select import select_theory
+from holofit.scattering.multipole import MultipoleExpansion, _sum_points
 from holofit.scattering.theory import Orientation
 from holofit.scattering.translation import translation_matrix
+from holofit.scattering.vsw import n_terms, unpack
 
 OPTICS = Optics(0.66, 1.33, 0.3)
 K = OPTICS.k
@@ -154,7 +154,7 @@ def _absorption(sol, wave: ClusterWave) -> float:
                                 model.indices, strict=True):
         t = sphere_tmatrix(n_abs / OPTICS.n_medium, K * rad, L)
         e = p / t
-        from holofit.dda.tmatrix_waves import term_indices
+        from holofit.scattering.vsw import term_indices
 
         _, nn, _ = term_indices(L)
         total += -np.sum(nn * (nn + 1) * (np.abs(p) ** 2 + (np.conj(e) * p).real)) / K**2

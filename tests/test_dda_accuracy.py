@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from holofit.conventions import DetectorGrid, r_squared
+from holofit.dda.adda.frames import adda_amplitude_matrix
 from holofit.dda.dipoles import DipoleSystem
 from holofit.dda.engine import BuiltinDDA
-from holofit.dda.farfield import adda_amplitude_matrix, far_field
+from holofit.dda.farfield import far_field
 from holofit.dda.voxelize import voxelize
 from holofit.hologram import calc_hologram
 from holofit.optics import Optics

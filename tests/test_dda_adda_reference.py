@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from holofit.conventions import euler_zyz
+from holofit.dda.adda.frames import adda_amplitude_matrix
 from holofit.dda.dipoles import DipoleSystem, incident_field
-from holofit.dda.farfield import adda_amplitude_matrix, far_field
+from holofit.dda.farfield import far_field
 from holofit.dda.polarizability import polarizability
 from holofit.dda.voxelize import voxelize
 from holofit.io.shapefile import read_shape_file

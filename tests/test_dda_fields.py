@@ -9,17 +9,17 @@ import pytest
 
 from holofit.conventions import DetectorGrid, incident_phase_at
 from holofit.dda.engine import NEAR_ZONE, BuiltinDDA
-from holofit.dda.multipole import (
-    default_order,
-    evaluate_plane,
-    expansion_from_far_field,
-    plane_grid,
-)
 from holofit.dda.nearfield import direct_field
 from holofit.hologram import calc_hologram
 from holofit.optics import Optics
 from holofit.particles import Dimer, JanusSphere, Sphere, Spherocylinder
 from holofit.scattering.mie import LorenzMie
+from holofit.scattering.multipole import (
+    default_order,
+    evaluate_plane,
+    expansion_from_far_field,
+    plane_grid,
+)
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, np.radians(20))

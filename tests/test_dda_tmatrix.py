@@ -18,14 +18,14 @@ from holofit.dda.engine import BuiltinDDA
 from holofit.dda.settings import DDASettings
 from holofit.dda.tmatrix_build import build_lattice_tmatrix, build_tmatrix
 from holofit.dda.tmatrix_io import TMatrixMismatch, clear_cache, load_tmatrix, save_tmatrix
-from holofit.dda.tmatrix_wave import TMatrixWave
-from holofit.dda.tmatrix_waves import plane_wave_coefficients
 from holofit.dda.voxelize import voxelize
 from holofit.hologram import calc_hologram
 from holofit.io.shapefile import write_shape_file
 from holofit.optics import Optics
 from holofit.particles import Dimer, JanusSphere, Sphere, Spherocylinder, VoxelShape
 from holofit.scattering.theory import Orientation
+from holofit.scattering.tmatrix_wave import TMatrixWave
+from holofit.scattering.vsw import plane_wave_coefficients
 
 OPTICS = Optics(0.66, 1.33, np.radians(20))
 GRID = DetectorGrid((60, 60), 0.15)
@@ -353,7 +353,7 @@ def test_field_and_rotation_derivatives_in_one_pass(engines):
 def test_holograms_through_the_objective_lens(engines):
     """The lens image (finite NA) is built from the wave's expansion: a T-matrix wave gives the
     direct solve's, above and below the focal plane (one T-matrix serves every NA)."""
-    from holofit.scattering.camera import recorded_field
+    from holofit.scattering.recorded_field import recorded_field
 
     model, fast, direct = engines["rod"]
     lens = Optics(OPTICS.wavelength_um, OPTICS.n_medium, OPTICS.polarization_rad,

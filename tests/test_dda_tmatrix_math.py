@@ -13,25 +13,25 @@ import pytest
 from scipy.special import spherical_jn
 
 from holofit.conventions import euler_zyz, euler_zyz_from_matrix
-from holofit.dda.multipole import _full_tables
-from holofit.dda.tmatrix import TMatrix
+from holofit.dda.tmatrix_incident import incident_on_lattice
 from holofit.dda.tmatrix_symmetry import SymmetryGroup, design_vectors, lattice_symmetries
-from holofit.dda.tmatrix_waves import (
-    incident_on_lattice,
+from holofit.dda.voxelize import voxelize
+from holofit.io.shapefile import write_shape_file
+from holofit.particles import Dimer, JanusSphere, Sphere, Spherocylinder, VoxelShape
+from holofit.scattering.multipole import _full_tables
+from holofit.scattering.tmatrix import TMatrix
+from holofit.scattering.vsw import (
     n_terms,
     pack,
     plane_wave_coefficients,
     unpack,
 )
-from holofit.dda.voxelize import voxelize
-from holofit.dda.wigner import (
+from holofit.scattering.wigner import (
     apply_blocks,
     operation_blocks,
     rotation_blocks,
     wigner_d_all,
 )
-from holofit.io.shapefile import write_shape_file
-from holofit.particles import Dimer, JanusSphere, Sphere, Spherocylinder, VoxelShape
 
 K = 12.66
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from holofit.conventions import euler_zyz
-from holofit.dda.adda_orient import orientation_from_adda
+from holofit.dda.adda.frames import orientation_from_adda
 from holofit.dda.engine import BuiltinDDA
 from holofit.dda.nearfield import direct_field
 from holofit.optics import Optics

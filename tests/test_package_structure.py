@@ -7,7 +7,8 @@ The layers, lowest first (a module may import from its own layer and the layers 
 1. ``scattering`` - the scattering theories that need no dipoles: Mie, coated sphere, sphere
    clusters, multipole expansions, T-matrices, the lens;
 2. ``dda`` - the discrete dipole approximation (and ADDA), built on ``scattering``;
-3. engines and configuration - the one list of engines, the choice among them, and the config
+3. engines and configuration - the one list of engines, the choice among them, a particle's
+   hologram with the engine chosen (``hologram``), and the config
    files that name them;
 4. ``holomodel`` - the hologram model kit: parameters, forward model, least squares, results;
 5. stage infrastructure - the tables and their schemas, the batch runner and the stage skeleton;
@@ -33,7 +34,7 @@ LAYERS: tuple[frozenset[str], ...] = (
                "config_schema", "optics", "particles"}),
     frozenset({"scattering"}),
     frozenset({"dda"}),
-    frozenset({"engines", "config"}),
+    frozenset({"engines", "config", "hologram"}),
     frozenset({"holomodel"}),
     frozenset({"tables", "batch"}),
     frozenset({"crop", "prefit", "library", "fit", "analysis", "simulate"}),

@@ -22,6 +22,7 @@ from holofit.cli.stage_options import (
     parse_int_list,
     quality_options,
 )
+from holofit.engines.select import ENGINE_CHOICES
 from holofit.fit.continuity import ContinuitySettings
 from holofit.fit.frame import FrameFitSettings
 from holofit.fit.per_track import STATIC_MODES, run_fit_tracks
@@ -33,7 +34,6 @@ from holofit.fit.stage import (
     fixable_names,
 )
 from holofit.holomodel.result import QualityLimits
-from holofit.scattering.select import ENGINE_CHOICES
 
 
 @click.command()

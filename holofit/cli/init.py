@@ -14,8 +14,8 @@ from holofit.cli.crop import crop
 from holofit.cli.fit import fit
 from holofit.cli.library import library
 from holofit.cli.prefit import prefit
+from holofit.engines.select import ENGINE_CHOICES
 from holofit.runfolder import init_run
-from holofit.scattering.select import ENGINE_CHOICES
 
 #: stage -> its command (to check extra options against the command's own parser)
 _COMMANDS = {"crop": crop, "prefit": prefit, "library": library, "fit": fit, "analyze": analyze}

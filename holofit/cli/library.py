@@ -14,8 +14,8 @@ from holofit.cli.common import (
     particle_option,
 )
 from holofit.cli.stage_options import batch_options, frame_list, make_batch_options
+from holofit.engines.select import ENGINE_CHOICES
 from holofit.library.stage import LibrarySettings, run_library
-from holofit.scattering.select import ENGINE_CHOICES
 
 
 @click.command()

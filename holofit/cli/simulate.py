@@ -19,9 +19,9 @@ from holofit.cli.common import (
 from holofit.cli.errors import HolofitGroup
 from holofit.cli.simulate_field import simulate_field_cmd
 from holofit.cli.simulate_trajectory import simulate_trajectory_cmd
+from holofit.engines.select import ENGINE_CHOICES
 from holofit.particles import ParticleModel, Sphere
 from holofit.progress import progress_bar
-from holofit.scattering.select import ENGINE_CHOICES
 from holofit.simulate.holograms import SimulationError, check_positions, simulate_movie
 
 POSITIVE = click.FloatRange(min=0, min_open=True)

@@ -9,7 +9,7 @@ Solving a particle (``BuiltinDDA.solve``):
 3. the returned :class:`DDAWave` knows the exact scattered field everywhere outside the
    particle: a multipole expansion (built lazily from the far-field pattern) serves points
    outside twice the circumscribing sphere, direct dipole summation the points closer in; on a
-   camera plane the expansion is evaluated through :mod:`holofit.dda.multipole`'s
+   camera plane the expansion is evaluated through :mod:`holofit.scattering.multipole`'s
    interpolated grid, so a new particle position costs milliseconds, not a new solve.
 """
 
@@ -22,30 +22,28 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.cache import LRUCache
-from holofit.conventions import PROPAGATION_DIRECTION, euler_zyz, incident_phase_at
+from holofit.conventions import PROPAGATION_DIRECTION, euler_zyz
+from holofit.dda.adda.frames import adda_amplitude_matrix, lab_map
 from holofit.dda.dipoles import DipoleSolution, DipoleSystem, incident_field
-from holofit.dda.farfield import adda_amplitude_matrix, far_field, far_field_on_grid
+from holofit.dda.farfield import far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
-from holofit.dda.multipole import (
-    NEAR_ZONE,
+from holofit.dda.nearfield import direct_field
+from holofit.dda.settings import DDASettings
+from holofit.dda.voxelize import voxelize
+from holofit.optics import Optics
+from holofit.particles import ParticleModel
+from holofit.scattering.expansion_wave import NEAR_ZONE, ExpansionWave
+from holofit.scattering.mie import CrossSections
+from holofit.scattering.multipole import (
     MultipoleExpansion,
-    PlaneGrid,
     default_order,
-    evaluate_plane_at,
-    plane_grid,
     project_far_field,
     quadrature,
 )
-from holofit.dda.nearfield import direct_field
-from holofit.dda.settings import DDASettings
-from holofit.dda.tmatrix import TMatrix
-from holofit.dda.tmatrix_wave import TMatrixWave
-from holofit.dda.voxelize import voxelize
-from holofit.dda.wigner import rotate_coefficients
-from holofit.optics import Optics
-from holofit.particles import ParticleModel
-from holofit.scattering.mie import CrossSections
-from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteringTheory
+from holofit.scattering.tmatrix import TMatrix
+from holofit.scattering.tmatrix_wave import TMatrixWave
+from holofit.scattering.wigner import rotate_coefficients
 
 __all__ = ["NEAR_ZONE", "BuiltinDDA", "DDAWave"]
 
@@ -56,8 +54,6 @@ MAX_STORED_SOLUTIONS = 6
 MAX_WARM_BASIS = 4
 #: relative size below which trailing multipole orders are dropped (numerical noise)
 COEFF_FLOOR = 1e-13
-#: holofit lab -> ADDA lab for x polarisation: Rx(pi) (ADDA's light travels along +z)
-_T = np.diag([1.0, -1.0, -1.0])
 
 
 def _trim(expansion: MultipoleExpansion) -> MultipoleExpansion:
@@ -70,8 +66,11 @@ def _trim(expansion: MultipoleExpansion) -> MultipoleExpansion:
                               expansion.radius_um)
 
 
-class DDAWave(ScatteredWave):
+class DDAWave(ExpansionWave):
     """A solved DDA problem: particle, orientation and illumination fixed.
+
+    An :class:`~holofit.scattering.expansion_wave.ExpansionWave` whose expansion is built on
+    first use from the far-field pattern and whose near field is the direct dipole sum.
 
     Attributes
     ----------
@@ -88,19 +87,16 @@ class DDAWave(ScatteredWave):
     def __init__(self, model: ParticleModel, optics: Optics, orientation: Orientation,
                  solution: DipoleSolution, rotation: NDArray[np.float64],
                  system: DipoleSystem | None = None, tolerance: float = 1e-5) -> None:
+        lat = solution.lattice
+        radius = float(np.sqrt((lat.positions**2).sum(axis=1)).max() + lat.d * np.sqrt(3) / 2)
+        super().__init__(optics, None, radius_um=radius)  # expansion: built on first use
         self.model = model
-        self.optics = optics
         self.orientation = orientation
         self.solution = solution
         self.rotation = rotation
         self._system = system
         self._tolerance = tolerance
         self._cross_solution: DipoleSolution | None = None
-        lat = solution.lattice
-        self.radius_um = float(np.sqrt((lat.positions**2).sum(axis=1)).max()
-                               + lat.d * np.sqrt(3) / 2)
-        self._expansion: MultipoleExpansion | None = None
-        self._grids: LRUCache[tuple, PlaneGrid] = LRUCache(4)
 
     # -- far field ----------------------------------------------------------------------
     @property
@@ -116,9 +112,8 @@ class DDAWave(ScatteredWave):
 
     def _adda_lab(self) -> NDArray[np.float64]:
         """holofit lab -> ADDA's lab for this instrument: light along +z, the instrument's
-        polarisation along x (``Rx(pi) Rz(-beta)``)."""
-        c, s = np.cos(self.optics.polarization_rad), np.sin(self.optics.polarization_rad)
-        return _T @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        polarisation along x (:func:`holofit.dda.adda.frames.lab_map`)."""
+        return lab_map(self.optics.polarization_rad)
 
     def _cross_polarised(self) -> DipoleSolution:
         """The solution for the orthogonal polarisation (ADDA's "Y"), solved on first use."""
@@ -210,70 +205,15 @@ class DDAWave(ScatteredWave):
             self._expansion = _trim(MultipoleExpansion(k, p, q, self.radius_um))
         return self._expansion
 
-    # -- fields ---------------------------------------------------------------------------
+    # -- fields: the expansion beyond NEAR_ZONE radii (ExpansionWave), dipole sums within ---
+    def _near_field(self, points_lab: NDArray) -> NDArray[np.complex128]:
+        return self._direct_lab(points_lab)
+
     def _direct_lab(self, points_lab: NDArray) -> NDArray[np.complex128]:
+        """Scattered field (N, 3) at lab points by direct dipole sums (any distance)."""
         pts_p = points_lab @ self.rotation
         e_p = direct_field(pts_p, self.lattice.positions, self.solution.P, self.optics.k)
         return e_p @ self.rotation.T
-
-    def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
-        """Scattered field (N, 3) at lab points relative to the particle centre.
-
-        Points within ``NEAR_ZONE`` circumscribing radii: direct dipole sums; beyond: the
-        multipole expansion's compiled series (a 240 x 240 camera in about a second). For the
-        pixels of a camera plane :meth:`field_on_pixels` /
-        :meth:`field_on_detector` are much faster still (tens of milliseconds: an
-        interpolated grid of the same expansion, transverse components only).
-        """
-        pts = np.atleast_2d(np.asarray(points_um, dtype=float))
-        r = np.linalg.norm(pts, axis=1)
-        out = np.empty((pts.shape[0], 3), dtype=complex)
-        if far_field:
-            k = self.optics.k
-            n = pts / r[:, None]
-            f = self.far_field_amplitude(n)
-            return f * (np.exp(1j * k * r) / (-1j * k * r))[:, None]
-        near = r < NEAR_ZONE * self.radius_um
-        if np.any(near):
-            out[near] = self._direct_lab(pts[near])
-        if np.any(~near):
-            out[~near] = self.expansion.field_at(pts[~near])
-        return out
-
-    def _plane_grid(self, z_p: float, delta_max: float, far: bool) -> PlaneGrid:
-        key = (z_p, far)
-        grid = self._grids.get(key)
-        if grid is None or grid.delta_max < delta_max:
-            # a little margin so that small lateral moves reuse the grid
-            margin = min(0.03 * delta_max + 0.01, 0.5 * (np.pi / 2 - delta_max))
-            grid = self._grids.put(key, plane_grid(self.expansion, z_p, delta_max + margin, far))
-        return grid
-
-    def field_on_pixels(
-        self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike, far_field: bool = False
-    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
-        """Transverse field at pixel centres: the interpolated multipole grid of the camera
-        plane, direct dipole sums for pixels within the near zone (see the module docstring)."""
-        xp, yp, zp = (float(v) for v in position_um)
-        dx = np.asarray(xs_um, dtype=float).ravel() - xp
-        dy = np.asarray(ys_um, dtype=float).ravel() - yp
-        if dx.size == 0:
-            return np.zeros(0, dtype=complex), np.zeros(0, dtype=complex)
-        rho_max = float(np.sqrt(np.max(dx * dx + dy * dy)))
-        delta_max = float(np.arctan2(rho_max, abs(zp)))
-        phase = complex(incident_phase_at(zp, self.optics.k))
-        skip = None
-        if not far_field and abs(zp) < NEAR_ZONE * self.radius_um:
-            skip = dx * dx + dy * dy + zp * zp < (NEAR_ZONE * self.radius_um) ** 2
-        pg = self._plane_grid(zp, delta_max, far_field)
-        ex, ey = evaluate_plane_at(pg, dx, dy, phase, skip)
-        if skip is not None and np.any(skip):
-            idx = np.flatnonzero(skip)
-            pts = np.column_stack([dx[idx], dy[idx], np.full(idx.size, -zp)])
-            e = self._direct_lab(pts) * phase
-            ex[idx] = e[:, 0]
-            ey[idx] = e[:, 1]
-        return ex, ey
 
 
 class BuiltinDDA(ScatteringTheory):
@@ -320,7 +260,7 @@ class BuiltinDDA(ScatteringTheory):
                                       self.settings.polarizability, dtype))
         return key, system
 
-    # -- T-matrix (holofit.dda.tmatrix): every orientation without a solve -------------------
+    # -- T-matrix (holofit.scattering.tmatrix): every orientation without a solve ---------------
     def _tmatrix_key(self, model: ParticleModel, optics: Optics) -> tuple:
         return (model, self.dipole_size(model, optics), optics.wavelength_um, optics.n_medium)
 

@@ -18,7 +18,6 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.dda.lattice import Lattice
 
 __all__ = [
-    "adda_amplitude_matrix",
     "dipole_sum",
     "dipole_sum_on_grid",
     "far_field",
@@ -60,33 +59,6 @@ def far_field(
     s = dipole_sum(lattice, P, k, n_dir)
     s_perp = s - n_dir * np.sum(n_dir * s, axis=1, keepdims=True)
     return -1j * k**3 * s_perp
-
-
-def adda_amplitude_matrix(
-    f_x: NDArray[np.complex128], f_y: NDArray[np.complex128], theta: ArrayLike, phi: ArrayLike
-) -> NDArray[np.complex128]:
-    """Amplitude matrix ``[S1, S2, S3, S4]`` (M, 4) in ADDA's (Bohren & Huffman) basis.
-
-    Parameters
-    ----------
-    f_x, f_y : ndarray, shape (M, 3)
-        Far-field vectors in the *lab* frame of ADDA (light along +z) for incident
-        polarisation along lab x and lab y.
-    theta, phi : array_like
-        Scattering angles of the directions, rad.
-    """
-    th = np.asarray(theta, dtype=float)
-    ph = np.asarray(phi, dtype=float)
-    e_th = np.stack([np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph), -np.sin(th)], axis=-1)
-    e_per = -np.stack([-np.sin(ph), np.cos(ph), np.zeros_like(ph)], axis=-1)  # -e_phi
-    fx_t, fy_t = np.sum(f_x * e_th, axis=1), np.sum(f_y * e_th, axis=1)
-    fx_p, fy_p = np.sum(f_x * e_per, axis=1), np.sum(f_y * e_per, axis=1)
-    c, s = np.cos(ph), np.sin(ph)
-    s2 = c * fx_t + s * fy_t
-    s3 = s * fx_t - c * fy_t
-    s4 = c * fx_p + s * fy_p
-    s1 = s * fx_p - c * fy_p
-    return np.stack([s1, s2, s3, s4], axis=1)
 
 
 def dipole_sum_on_grid(

@@ -12,7 +12,7 @@ LDR with the averaged S term (``"ldr_avg"``): ``S`` replaced by its mean over pr
 directions and polarisations, ``<S> = 3 <a_x^2 e_x^2> = 1/5`` (from the isotropic fourth-rank
 average of an orthonormal pair). Its polarisability, like Clausius-Mossotti's and the filtered
 coupled dipoles', does not depend on the incident wave, so the lattice has a T-matrix
-(:mod:`holofit.dda.tmatrix`).
+(:mod:`holofit.scattering.tmatrix`).
 """
 
 from __future__ import annotations

@@ -10,7 +10,11 @@ from holofit.config_schema import ConfigError, Spec, validate_table
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
 
-__all__ = ["DDASettings"]
+__all__ = ["DDA_ENGINES", "DDASettings"]
+
+#: the discrete-dipole engines a ``[dda]`` table may name (their classes' ``name``); the engine
+#: registry (:mod:`holofit.engines.registry`) lists them after the exact engines
+DDA_ENGINES: tuple[str, ...] = ("builtin", "adda")
 
 _SPECS: dict[str, Spec] = {
     "dipole_size_um": Spec("float", "the dipole size in um", 0.001, 1.0, required=False),
@@ -53,7 +57,7 @@ class DDASettings:
         relation (ADDA's default: use it to compare with ADDA), LDR with its direction- and
         polarisation-dependent S term replaced by the average 1/5 (``"ldr_avg"``), or
         Clausius-Mossotti. All but ``"ldr"`` are incidence-independent: the lattice then has a
-        T-matrix (:mod:`holofit.dda.tmatrix`).
+        T-matrix (:mod:`holofit.scattering.tmatrix`).
     tolerance : float
         Relative residual of the QMR solve (ADDA's default 1e-5).
     max_iterations : int
@@ -84,7 +88,7 @@ class DDASettings:
     def __post_init__(self) -> None:
         choices = {"filling": ("fractional", "binary"),
                    "polarizability": ("ldr", "ldr_avg", "cm", "fcd"),
-                   "precision": ("double", "single"), "engine": ("builtin", "adda"),
+                   "precision": ("double", "single"), "engine": DDA_ENGINES,
                    "solver": ("qmr", "bicgstab")}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:

@@ -4,7 +4,7 @@ Construction (Mackowski 2002's "driving with regular waves", here with the latti
 symmetries): the lattice is driven by incident fields whose regular-wave coefficient vectors
 ``c_s`` are the symmetry-adapted design of :func:`holofit.dda.tmatrix_symmetry.design_vectors`;
 each field is synthesised on the dipoles from its plane-wave (Herglotz) density
-(:func:`holofit.dda.tmatrix_waves.incident_on_lattice`), solved with the engine's Krylov
+(:func:`holofit.dda.tmatrix_incident.incident_on_lattice`), solved with the engine's Krylov
 solver, and its far field on a Gauss-Legendre grid projected onto outgoing waves (``o_s``).
 Then ``T = sum_g rho(g) (sum_s o_s c_s^H) rho(g)^H`` exactly, with ``~N/|G|`` solves for
 ``N = 2L(L+2)`` columns (``|G|`` = 16 for a rod on its lattice, 8 for a Janus particle).
@@ -47,11 +47,10 @@ from threadpoolctl import threadpool_limits
 from holofit.dda.dipoles import DipoleSystem
 from holofit.dda.farfield import far_field, far_field_on_grid
 from holofit.dda.lattice import Lattice
-from holofit.dda.multipole import project_far_field
 from holofit.dda.polarizability import INCIDENCE_INDEPENDENT
 from holofit.dda.settings import DDASettings
 from holofit.dda.solver import ConvergenceError, SolveResult
-from holofit.dda.tmatrix import TMatrix, z_rotation_order
+from holofit.dda.tmatrix_incident import incident_on_lattice, incident_quadrature
 from holofit.dda.tmatrix_io import describe
 from holofit.dda.tmatrix_symmetry import (
     SymmetryGroup,
@@ -59,15 +58,12 @@ from holofit.dda.tmatrix_symmetry import (
     lattice_symmetries,
     symmetrize,
 )
-from holofit.dda.tmatrix_waves import (
-    incident_on_lattice,
-    incident_quadrature,
-    pack,
-    plane_wave_coefficients,
-)
 from holofit.dda.voxelize import voxelize
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
+from holofit.scattering.multipole import project_far_field
+from holofit.scattering.tmatrix import TMatrix, z_rotation_order
+from holofit.scattering.vsw import pack, plane_wave_coefficients
 
 __all__ = [
     "DEFAULT_TRUNCATION",
@@ -117,7 +113,7 @@ def choose_order(k: float, radii: NDArray, weights: NDArray,
 def _far_quadrature(order: int, k: float, radius: float) -> tuple[NDArray, NDArray, NDArray]:
     """Gauss-Legendre x uniform grid for projecting a far field onto orders <= L, exact for
     the degree ``L + K`` of the integrand (``K`` as in
-    :func:`~holofit.dda.tmatrix_waves.incident_quadrature`); weights without ``2 pi/n_phi``."""
+    :func:`~holofit.dda.tmatrix_incident.incident_quadrature`); weights without ``2 pi/n_phi``."""
     mu, w, phi = incident_quadrature(order, k, radius)
     return mu, w * phi.size / (2.0 * np.pi), phi
 
@@ -196,15 +192,42 @@ def build_lattice_tmatrix(
         order, estimate = choose_order(k, radii, weight, truncation)
     else:
         estimate = truncation_estimate(k, radii, weight, order)
-    if use_symmetry:
-        eps = system.eps_rel
-        ops = lattice_symmetries(lattice, eps, per_axis=eps.ndim == 2)
-    else:
-        ops = [np.eye(3, dtype=np.int64)]
+    eps = system.eps_rel
+    ops = (lattice_symmetries(lattice, eps, per_axis=eps.ndim == 2) if use_symmetry
+           else [np.eye(3, dtype=np.int64)])
     group = SymmetryGroup.from_operations(ops, order)
     design = design_vectors(group)
     n_solves = design.shape[1]
-    grid = _far_quadrature(order, k, float(radii.max()))
+    out, iterations = _solve_design(system, design, alpha, order, float(radii.max()),
+                                    tolerance, max_iterations, progress)
+    dense = symmetrize(out @ design.conj().T, group)
+    radius = float(radii.max() + lattice.d * np.sqrt(3) / 2)
+    tm = TMatrix.from_dense(dense, order, k, radius, z_rotation_order(ops))
+    error = None
+    if validate:
+        check = system if precision == "double" else DipoleSystem(lattice, k, n_medium,
+                                                                  polarizability)
+        error = _validate(tm, check, tolerance, max_iterations)
+    stats = BuildStats(n_solves, iterations, time.perf_counter() - t0, len(ops), error)
+    tm.provenance.update({
+        "order": order, "truncation_estimate": estimate, "tolerance": tolerance,
+        "n_solves": n_solves, "iterations_total": int(sum(iterations)),
+        "symmetry_operations": len(ops), "validation_far_field_error": error,
+        "n_dipoles": lattice.n_dipoles, "build_precision": precision,
+        "build_seconds": stats.seconds,
+    })
+    return tm, stats
+
+
+def _solve_design(
+    system: DipoleSystem, design: NDArray, alpha: NDArray, order: int, radius_um: float,
+    tolerance: float, max_iterations: int, progress: Callable[[int, int], None] | None,
+) -> tuple[NDArray[np.complex128], list[int]]:
+    """Outgoing coefficients of every design vector (one DDA solve each, incident fields in
+    chunks of :data:`CHUNK`) and the solves' iteration counts."""
+    lattice, k = system.lattice, system.k
+    n_solves = design.shape[1]
+    grid = _far_quadrature(order, k, radius_um)
     out = np.empty_like(design)
     iterations = []
     for start in range(0, n_solves, CHUNK):
@@ -216,28 +239,7 @@ def build_lattice_tmatrix(
             out[:, start + j] = outgoing_coefficients(lattice, P, k, order, grid)
             if progress is not None:
                 progress(start + j + 1, n_solves)
-    dense = symmetrize(out @ design.conj().T, group)
-    radius = float(radii.max() + lattice.d * np.sqrt(3) / 2)
-    tm = TMatrix.from_dense(dense, order, k, radius, z_rotation_order(ops))
-    error = None
-    if validate:
-        check = system if precision == "double" else DipoleSystem(lattice, k, n_medium,
-                                                                  polarizability)
-        error = _validate(tm, check, tolerance, max_iterations)
-    stats = BuildStats(n_solves, iterations, time.perf_counter() - t0, len(ops), error)
-    tm.provenance.update({
-        "order": order,
-        "truncation_estimate": estimate,
-        "tolerance": tolerance,
-        "n_solves": n_solves,
-        "iterations_total": int(sum(iterations)),
-        "symmetry_operations": len(ops),
-        "validation_far_field_error": error,
-        "n_dipoles": lattice.n_dipoles,
-        "build_precision": precision,
-        "build_seconds": stats.seconds,
-    })
-    return tm, stats
+    return out, iterations
 
 
 def _solve(system: DipoleSystem, e_inc: NDArray, alpha: NDArray, tolerance: float,

@@ -29,9 +29,9 @@ import holofit
 from holofit.cache import LRUCache
 from holofit.dda.lattice import Lattice
 from holofit.dda.settings import DDASettings
-from holofit.dda.tmatrix import TMatrix
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
+from holofit.scattering.tmatrix import TMatrix
 
 __all__ = [
     "FORMAT",

@@ -14,8 +14,9 @@ Why they save solves
 If ``S`` is such an operation, the DDA system commutes with it: the dipoles of the incident
 field ``S E(S^T r)`` are ``S P(S^T r)``, and their scattered coefficients are ``rho(S)`` times
 the original ones, where ``rho`` is the (block-diagonal, Wigner) representation of the group
-``G`` on coefficient vectors (:func:`holofit.dda.wigner.operation_blocks`). One DDA solve of an
-incident coefficient vector ``c`` with outgoing coefficients ``o`` therefore gives the pairs
+``G`` on coefficient vectors (:func:`holofit.scattering.wigner.operation_blocks`). One DDA
+solve of an incident coefficient vector ``c`` with outgoing coefficients ``o`` therefore gives
+the pairs
 ``(rho(g) c, rho(g) o)`` for all ``g`` in ``G``: up to ``|G|`` columns of the T-matrix.
 
 Design of the right-hand sides
@@ -41,14 +42,15 @@ one more random element of the algebra.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from holofit.dda.lattice import Lattice
-from holofit.dda.tmatrix_waves import n_terms
-from holofit.dda.wigner import operation_blocks
+from holofit.scattering.vsw import n_terms
+from holofit.scattering.wigner import operation_blocks
 
 __all__ = ["SymmetryGroup", "design_vectors", "lattice_symmetries", "symmetrize"]
 
@@ -257,38 +259,9 @@ def design_vectors(group: SymmetryGroup, seed: int = 20140101) -> NDArray[np.com
             q = vecs[:, labels == gam]
             w, u = np.linalg.eigh(q.conj().T @ a @ q)
             comps[int(gam)].append((b, w, q @ u))
-    columns_per_irrep = []
-    for gam in range(n_irreps):
-        items = comps[gam]
-        w_all = np.concatenate([w for _, w, _ in items])
-        span = float(np.abs(w_all).max()) or 1.0
-        sub = _cluster(w_all, 1e-7 * span)
-        dim = int(sub.max()) + 1
-        # E_1 basis (multiplicity directions) and the maps E_1 -> E_i, per block
-        mult_vectors = []  # list of (block, list over i of unit vectors in E_i)
-        p0 = 0
-        for b, w, u in items:
-            s = sub[p0 : p0 + w.size]
-            p0 += w.size
-            kind, n, _ = slices[b]
-            counts = np.bincount(s, minlength=dim)
-            if np.any(counts != counts[0]):
-                raise RuntimeError("symmetry decomposition failed: unequal eigenspaces")
-            a_map = element(kind, n, r_map)
-            spaces = [u[:, s == i] for i in range(dim)]
-            for col in range(counts[0]):
-                w1 = spaces[0][:, col]
-                images = [w1]
-                for i in range(1, dim):
-                    e_i = spaces[i]
-                    img = e_i @ (e_i.conj().T @ (a_map @ w1))
-                    norm = np.linalg.norm(img)
-                    if norm < 1e-6:
-                        raise RuntimeError("symmetry decomposition failed: degenerate map")
-                    images.append(img / norm)
-                mult_vectors.append((b, n, images))
-        mult_vectors.sort(key=lambda t: (t[1], t[0]))  # low orders first
-        columns_per_irrep.append((dim, mult_vectors))
+    columns_per_irrep = [_irrep_vectors(comps[gam], slices,
+                                        lambda kind, n: element(kind, n, r_map))
+                         for gam in range(n_irreps)]
     n_solves = max(-(-len(mv) // dim) for dim, mv in columns_per_irrep)
     design = np.zeros((size, n_solves), dtype=complex)
     for dim, mv in columns_per_irrep:
@@ -298,6 +271,48 @@ def design_vectors(group: SymmetryGroup, seed: int = 20140101) -> NDArray[np.com
             for i, (b, _, images) in enumerate(chunk):
                 design[slices[b][2], s] += scale_g * images[i]
     return design
+
+
+def _irrep_vectors(
+    items: list[tuple[int, NDArray, NDArray]], slices: list,
+    map_block: Callable[[int, int], NDArray],
+) -> tuple[int, list[tuple[int, int, list[NDArray]]]]:
+    """One isotypic component of :func:`design_vectors`: its irrep's dimension ``d`` and, per
+    multiplicity direction, ``(block, n, [unit vectors in E_1 .. E_d])``, low orders first.
+
+    ``items`` are ``(block, eigenvalues, eigenvectors)`` of a random Hermitian algebra element
+    in the component; ``map_block(kind, n)`` is a random algebra element's block, which maps
+    ``E_1`` to every other ``E_i``.
+    """
+    w_all = np.concatenate([w for _, w, _ in items])
+    span = float(np.abs(w_all).max()) or 1.0
+    sub = _cluster(w_all, 1e-7 * span)
+    dim = int(sub.max()) + 1
+    # E_1 basis (multiplicity directions) and the maps E_1 -> E_i, per block
+    mult_vectors = []  # list of (block, n, list over i of unit vectors in E_i)
+    p0 = 0
+    for b, w, u in items:
+        s = sub[p0 : p0 + w.size]
+        p0 += w.size
+        kind, n, _ = slices[b]
+        counts = np.bincount(s, minlength=dim)
+        if np.any(counts != counts[0]):
+            raise RuntimeError("symmetry decomposition failed: unequal eigenspaces")
+        a_map = map_block(kind, n)
+        spaces = [u[:, s == i] for i in range(dim)]
+        for col in range(counts[0]):
+            w1 = spaces[0][:, col]
+            images = [w1]
+            for i in range(1, dim):
+                e_i = spaces[i]
+                img = e_i @ (e_i.conj().T @ (a_map @ w1))
+                norm = np.linalg.norm(img)
+                if norm < 1e-6:
+                    raise RuntimeError("symmetry decomposition failed: degenerate map")
+                images.append(img / norm)
+            mult_vectors.append((b, n, images))
+    mult_vectors.sort(key=lambda t: (t[1], t[0]))  # low orders first
+    return dim, mult_vectors
 
 
 def _monomial(group: SymmetryGroup, g: int) -> tuple[NDArray, NDArray] | None:

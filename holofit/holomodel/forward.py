@@ -2,7 +2,7 @@
 
 One object serves the Lorenz-Mie prefit and the DDA fits alike: it works for any
 :class:`~holofit.scattering.theory.ScatteringTheory` through ``theory.solve`` and the field the
-camera records (:func:`holofit.scattering.camera.recorded_field`: the objective lens's image
+camera records (:func:`holofit.scattering.recorded_field.recorded_field`: the objective lens's image
 when the optics have a numerical aperture), and keeps a small cache of solved waves keyed by
 what a solve depends on (the static parameters and the orientation), so that
 
@@ -36,9 +36,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.cache import LRUCache
+from holofit.conventions import hologram_intensity
 from holofit.holomodel.parameters import ParameterSpace, State
 from holofit.optics import Optics
-from holofit.scattering.camera import recorded_field
+from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["Evaluation", "HologramModel", "InvalidParameters"]
@@ -169,13 +170,8 @@ class HologramModel:
 
     # -- holograms ----------------------------------------------------------------------
     def intensity(self, ex: NDArray, ey: NDArray, alpha: float) -> NDArray[np.float64]:
-        """``|e_pol + alpha E_perp|^2`` (the formula of :mod:`holofit.conventions`)."""
-        cp, sp = self._pol
-        a_r = cp + alpha * ex.real
-        a_i = alpha * ex.imag
-        b_r = sp + alpha * ey.real
-        b_i = alpha * ey.imag
-        return a_r * a_r + a_i * a_i + b_r * b_r + b_i * b_i
+        """``|e_pol + alpha E_perp|^2``: :func:`holofit.conventions.hologram_intensity`."""
+        return hologram_intensity(ex, ey, self.optics.polarization_rad, alpha)
 
     def evaluate(self, vector: ArrayLike) -> Evaluation:
         """Fields and hologram at an optimiser vector (the last one is cached)."""

@@ -36,7 +36,7 @@ from holofit.conventions import axis_from_angles, euler_zyz
 from holofit.library.polar import PolarGrid
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
-from holofit.scattering.camera import recorded_field
+from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["Candidate", "OrientationLibrary", "Tilt", "pick_candidates", "tilt_grid"]

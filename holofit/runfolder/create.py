@@ -23,6 +23,7 @@ from pathlib import Path, PurePosixPath
 import holofit
 from holofit.analysis.settings import AnalysisConfig, SettingError
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
+from holofit.engines.select import ENGINE_CHOICES
 from holofit.io.atomic import atomic_write_text
 from holofit.io.movie import MovieError, open_movie
 from holofit.provenance import command_line
@@ -41,7 +42,6 @@ from holofit.runfolder.spec import (
     check_stage_options,
 )
 from holofit.runfolder.stagecheck import check_crop_options, check_fit_options, initial_pass_note
-from holofit.scattering.select import ENGINE_CHOICES
 
 __all__ = ["RunFolder", "default_holofit_command", "init_run", "write_batch_makefile"]
 

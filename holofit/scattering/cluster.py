@@ -2,7 +2,7 @@
 
 Each sphere ``i`` (centre ``x_i`` in the particle frame, radius ``a_i``) is a Lorenz-Mie
 scatterer, ``T_i = diag(-a_n)`` on N-type and ``diag(-b_n)`` on M-type coefficients
-(:func:`sphere_tmatrix`; the Bohren & Huffman coefficients in :mod:`holofit.dda.multipole`'s
+(:func:`sphere_tmatrix`; the Bohren & Huffman coefficients in :mod:`holofit.scattering.multipole`'s
 waves). Its scattered field ``p_i`` (outgoing about ``x_i``) answers the incident field and
 the fields of all the others (Mackowski 1996; Mackowski & Mishchenko 2011):
 
@@ -17,10 +17,10 @@ centre), so the cluster's T-matrix is
 
     T_cluster = K (I - T H)^-1 T J,
 
-an ordinary :class:`holofit.dda.tmatrix.TMatrix` in the particle frame: every orientation is
+an ordinary :class:`holofit.scattering.tmatrix.TMatrix` in the particle frame: every orientation is
 ``D T D^H a`` (Wigner rotation, no new solve), and the wave of an orientation is a
-:class:`holofit.dda.tmatrix_wave.TMatrixWave` (the camera plane's interpolated multipole grid,
-the lens model through its expansion, exact orientation derivatives). Points closer than
+:class:`holofit.scattering.tmatrix_wave.TMatrixWave` (the camera plane's interpolated multipole
+grid, the lens model through its expansion, exact orientation derivatives). Points closer than
 ``NEAR_ZONE`` circumscribing radii to the centre are summed from the spheres' own outgoing
 expansions (exact outside every sphere).
 
@@ -60,15 +60,15 @@ from scipy.special import spherical_jn, spherical_yn
 
 from holofit.cache import LRUCache
 from holofit.conventions import euler_zyz
-from holofit.dda.multipole import MultipoleExpansion
-from holofit.dda.tmatrix import TMatrix
-from holofit.dda.tmatrix_wave import TMatrixWave
-from holofit.dda.tmatrix_waves import n_terms, term_indices, unpack
 from holofit.optics import Optics
 from holofit.particles import Cluster, Dimer, ParticleModel, Sphere
 from holofit.scattering.mie_coefficients import mie_coefficients, n_stop
+from holofit.scattering.multipole import MultipoleExpansion
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.tmatrix import TMatrix
+from holofit.scattering.tmatrix_wave import TMatrixWave
 from holofit.scattering.translation import axial_entries, translation_matrix, wigner_matrix
+from holofit.scattering.vsw import n_terms, term_indices, unpack
 
 __all__ = [
     "SPHERE_MARGIN",
@@ -200,6 +200,25 @@ def solve_cluster(positions_um: ArrayLike, radii_um: ArrayLike, indices: ArrayLi
     modulus = 2 * big + 1 if axial else 1
     centre = _Classes(term_indices(big)[2], modulus)
     spheres = _Classes(np.concatenate([term_indices(L)[2] for L in orders]), modulus)
+    j_b, k_b, h_b = _translation_blocks(pos, k, orders, offsets, big, spheres, centre, axial)
+    blocks_t, blocks_x = _solve_blocks(modulus, spheres, centre, t_diag, scale, j_b, k_b, h_b)
+    build_s = time.perf_counter() - t0
+    provenance: dict[str, Any] = {
+        "engine": "cluster", "positions_um": pos.tolist(), "radii_um": radii.tolist(),
+        "indices": [str(v) for v in idx], "wavelength_um": optics.wavelength_um,
+        "n_medium": optics.n_medium, "order": big, "sphere_orders": list(orders),
+        "axial": axial, "build_s": build_s,
+    }
+    tm = TMatrix(big, k, radius, modulus, blocks_t, provenance)
+    return ClusterSolution(tm, pos, radii, orders, offsets, blocks_x, build_s)
+
+
+def _translation_blocks(
+    pos: NDArray, k: float, orders: tuple[int, ...], offsets: tuple[int, ...], big: int,
+    spheres: _Classes, centre: _Classes, axial: bool,
+) -> tuple[list[NDArray], list[NDArray], list[NDArray]]:
+    """The per-class blocks of the translations centre -> spheres (``J``), spheres -> centre
+    (``K``, both regular) and sphere -> sphere (``H``, outgoing) of :func:`solve_cluster`."""
     j_b = [np.zeros((a, b), dtype=complex) for a, b in zip(spheres.sizes, centre.sizes,
                                                            strict=True)]
     k_b = [np.zeros((b, a), dtype=complex) for a, b in zip(spheres.sizes, centre.sizes,
@@ -227,7 +246,15 @@ def solve_cluster(positions_um: ArrayLike, radii_um: ArrayLike, indices: ArrayLi
         for j, (oj, lj) in enumerate(zip(offsets, orders, strict=True)):
             if j != i:
                 add(h_b, spheres, spheres, oi, oj, pos[i] - pos[j], li, lj, "outgoing")
+    return j_b, k_b, h_b
 
+
+def _solve_blocks(
+    modulus: int, spheres: _Classes, centre: _Classes, t_diag: NDArray, scale: NDArray,
+    j_b: list[NDArray], k_b: list[NDArray], h_b: list[NDArray],
+) -> tuple[list[NDArray], list[tuple[NDArray, NDArray, NDArray]]]:
+    """The cluster T-matrix's blocks ``K x`` and the spheres' solutions ``x`` per class, from
+    ``(1 - T H) x = T J`` (:func:`solve_cluster`)."""
     blocks_t: list[NDArray] = []
     blocks_x: list[tuple[NDArray, NDArray, NDArray]] = []
     for r in range(modulus):
@@ -243,15 +270,7 @@ def solve_cluster(positions_um: ArrayLike, radii_um: ArrayLike, indices: ArrayLi
         x = np.linalg.solve(system, (sc * t)[:, None] * j_b[r]) / sc[:, None]
         blocks_t.append(k_b[r] @ x)
         blocks_x.append((rows, cols, x))
-    build_s = time.perf_counter() - t0
-    provenance: dict[str, Any] = {
-        "engine": "cluster", "positions_um": pos.tolist(), "radii_um": radii.tolist(),
-        "indices": [str(v) for v in idx], "wavelength_um": optics.wavelength_um,
-        "n_medium": optics.n_medium, "order": big, "sphere_orders": list(orders),
-        "axial": axial, "build_s": build_s,
-    }
-    tm = TMatrix(big, k, radius, modulus, blocks_t, provenance)
-    return ClusterSolution(tm, pos, radii, orders, offsets, blocks_x, build_s)
+    return blocks_t, blocks_x
 
 
 def _hankel(n: NDArray[np.int64], x: float) -> NDArray[np.complex128]:
@@ -260,7 +279,7 @@ def _hankel(n: NDArray[np.int64], x: float) -> NDArray[np.complex128]:
 
 class _Classes:
     """Flat coefficient indices grouped by ``m mod modulus``: each index's class and its rank
-    within it (the order of :meth:`holofit.dda.tmatrix.TMatrix.class_indices`)."""
+    within it (the order of :meth:`holofit.scattering.tmatrix.TMatrix.class_indices`)."""
 
     def __init__(self, m: NDArray[np.int64], modulus: int) -> None:
         self.cls = m % modulus
@@ -327,7 +346,7 @@ class SphereSumWave(ScatteredWave):
 
 class ClusterWave(TMatrixWave):
     """The scattered wave of a sphere cluster at one orientation (its T-matrix's
-    :class:`~holofit.dda.tmatrix_wave.TMatrixWave`, with the spheres' own expansions near
+    :class:`~holofit.scattering.tmatrix_wave.TMatrixWave`, with the spheres' own expansions near
     the particle)."""
 
     def __init__(self, model: ParticleModel, optics: Optics, orientation: Orientation,
@@ -355,6 +374,8 @@ class ClusterTheory(ScatteringTheory):
     """
 
     name = "cluster"
+    models = (Sphere, Dimer, Cluster)
+    handles = "spheres, dimers and sphere clusters"
     #: every solve is served from the cluster's T-matrix (the fit stage builds no other)
     own_tmatrix = True
 

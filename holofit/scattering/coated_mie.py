@@ -28,20 +28,19 @@ is the homogeneous sphere's series with these coefficients (:class:`CoatedSphere
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.optics import Optics
 from holofit.particles import CoatedSphere, ParticleModel
-from holofit.scattering.mie import CrossSections, bh_frame
+from holofit.scattering.mie import (
+    CrossSections,
+    SphereSeriesWave,
+    series_amplitudes,
+    series_cross_sections,
+)
 from holofit.scattering.mie_coefficients import n_stop, riccati_xi
-from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, field_on_pixels
-from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
-
-if TYPE_CHECKING:
-    from holofit.dda.multipole import MultipoleExpansion
+from holofit.scattering.theory import Orientation, ScatteringTheory
 
 __all__ = [
     "CoatedMie",
@@ -156,35 +155,17 @@ def coated_amplitudes(
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
     """``S1(theta), S2(theta)`` of a coated sphere (B&H eq. 4.74 with its coefficients)."""
     a, b = coated_coefficients(m_core, m_shell, x, y)
-    return _amplitudes(a, b, theta)
-
-
-def _amplitudes(a: NDArray, b: NDArray, theta: ArrayLike) -> tuple[NDArray, NDArray]:
-    theta = np.asarray(theta, dtype=float)
-    n = np.arange(1, a.size + 1)
-    w = (2 * n + 1) / (n * (n + 1.0))
-    pi, tau = angular_pi_tau(np.ascontiguousarray(np.cos(theta).ravel()), a.size)
-    s1 = (w * a) @ pi + (w * b) @ tau
-    s2 = (w * a) @ tau + (w * b) @ pi
-    return s1.reshape(theta.shape), s2.reshape(theta.shape)
-
-
-def _cross_sections(a: NDArray, b: NDArray, k: float, radius_um: float) -> CrossSections:
-    n = np.arange(1, a.size + 1)
-    cext = 2 * np.pi / k**2 * float(np.sum((2 * n + 1) * (a + b).real))
-    csca = 2 * np.pi / k**2 * float(np.sum((2 * n + 1) * (abs(a) ** 2 + abs(b) ** 2)))
-    geo = np.pi * radius_um**2
-    return CrossSections(cext, csca, cext - csca, cext / geo, csca / geo, (cext - csca) / geo)
+    return series_amplitudes(a, b, theta)
 
 
 def coated_cross_sections(m_core: complex, m_shell: complex, core_radius_um: float,
                           outer_radius_um: float, k: float) -> CrossSections:
     """Cross sections (um^2) of a coated sphere; efficiencies per ``pi b^2``."""
     a, b = coated_coefficients(m_core, m_shell, k * core_radius_um, k * outer_radius_um)
-    return _cross_sections(a, b, k, outer_radius_um)
+    return series_cross_sections(a, b, k, outer_radius_um)
 
 
-class CoatedSphereWave(ScatteredWave):
+class CoatedSphereWave(SphereSeriesWave):
     """Scattered wave of a coated sphere centred at the origin of the particle frame.
 
     Parameters
@@ -197,95 +178,30 @@ class CoatedSphereWave(ScatteredWave):
         Illumination.
     """
 
-    exact_near_field = True
-
     def __init__(self, core_radius_um: float, outer_radius_um: float, n_core: complex,
                  n_shell: complex, optics: Optics) -> None:
         self.core_radius_um = float(core_radius_um)
         self.outer_radius_um = float(outer_radius_um)
-        self.optics = optics
         k = optics.k
         self.m_core = complex(n_core) / optics.n_medium
         self.m_shell = complex(n_shell) / optics.n_medium
-        self.a, self.b = coated_coefficients(self.m_core, self.m_shell,
-                                             k * self.core_radius_um, k * self.outer_radius_um)
-        n = np.arange(1, self.a.size + 1)
-        e_n = (1j) ** n * (2 * n + 1) / (n * (n + 1.0))
-        c1 = 1j * e_n * self.a
-        c2 = -e_n * self.b
-        self._coefs = tuple(np.ascontiguousarray(v) for v in (c1.real, c1.imag, c2.real, c2.imag))
-        self._frame = bh_frame(optics.polarization_rad)
-
-    def far_field_amplitudes(self, theta: ArrayLike) -> tuple[NDArray, NDArray]:
-        """``S1, S2`` at scattering angles ``theta`` (rad from the propagation direction)."""
-        return _amplitudes(self.a, self.b, theta)
-
-    @property
-    def radius_um(self) -> float:
-        """Outer radius, um (the lens model's source radius)."""
-        return self.outer_radius_um
-
-    @property
-    def expansion(self) -> MultipoleExpansion:
-        """The scattered field's outgoing multipole expansion (lab frame,
-        :mod:`holofit.dda.multipole`): ``p = -a_n`` times the plane wave's N-type coefficients,
-        ``q = -b_n`` times its M-type ones (what the lens model images)."""
-        from holofit.conventions import PROPAGATION_DIRECTION
-        from holofit.dda.multipole import MultipoleExpansion
-        from holofit.dda.tmatrix_waves import plane_wave_coefficients, term_indices, unpack
-
-        order = self.a.size
-        vec = plane_wave_coefficients(PROPAGATION_DIRECTION, self.optics.polarization, order)
-        _, n, _ = term_indices(order)
-        half = n.size // 2
-        vec = vec * np.concatenate([-self.a[n[:half] - 1], -self.b[n[half:] - 1]])
-        p, q = unpack(vec, order)
-        return MultipoleExpansion(self.optics.k, p, q, self.outer_radius_um)
-
-    def cross_sections(self) -> CrossSections:
-        """Extinction, scattering and absorption cross sections, um^2."""
-        return _cross_sections(self.a, self.b, self.optics.k, self.outer_radius_um)
-
-    def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
-        pts = np.atleast_2d(np.asarray(points_um, dtype=float))
-        inside = int(np.sum(np.linalg.norm(pts, axis=1) <= self.outer_radius_um))
-        if inside:
-            raise ValueError(f"the scattered-field series is valid outside the particle only; "
-                             f"{inside} point(s) lie within {self.outer_radius_um} um of its "
-                             "centre")
-        p_bh = np.ascontiguousarray(pts @ self._frame.T)
-        e_bh = np.empty((p_bh.shape[0], 3), dtype=complex)
-        field_at_points(p_bh, self.optics.k, *self._coefs, bool(far_field), e_bh)
-        return e_bh @ self._frame
-
-    def field_on_pixels(
-        self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike, far_field: bool = False
-    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
-        xp, yp, zp = (float(v) for v in position_um)
-        if abs(zp) <= self.outer_radius_um:
-            raise ValueError(f"|z| = {abs(zp):.4g} um is within the particle radius "
-                             f"{self.outer_radius_um:.4g} um: the detector plane cuts it")
-        xs = np.ascontiguousarray(xs_um, dtype=float).ravel()
-        ys = np.ascontiguousarray(ys_um, dtype=float).ravel()
-        ex = np.empty(xs.shape[0], dtype=complex)
-        ey = np.empty(xs.shape[0], dtype=complex)
-        field_on_pixels(xs, ys, xp, yp, zp, self._frame, self.optics.k, *self._coefs,
-                        bool(far_field), ex, ey)
-        return ex, ey
+        a, b = coated_coefficients(self.m_core, self.m_shell, k * self.core_radius_um,
+                                   k * self.outer_radius_um)
+        super().__init__(a, b, self.outer_radius_um, optics)
 
 
 class CoatedMie(ScatteringTheory):
     """Exact Lorenz-Mie theory for coated spheres (:class:`holofit.particles.CoatedSphere`)."""
 
     name = "coated_sphere"
+    models = (CoatedSphere,)
+    handles = "coated spheres"
 
     def __init__(self, **_ignored: object) -> None:
         pass
 
     def solve(self, model: ParticleModel, optics: Optics,
               orientation: Orientation | None = None) -> CoatedSphereWave:
-        if not isinstance(model, CoatedSphere):
-            raise TypeError(f"coated-sphere Lorenz-Mie handles coated spheres only, not "
-                            f"{model.kind!r}")
+        self.check_model(model)
         return CoatedSphereWave(model.radius_um, model.bounding_radius_um, model.index_core,
                                 model.index_shell, optics)

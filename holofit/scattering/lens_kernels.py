@@ -6,8 +6,10 @@ Kept apart from :mod:`holofit.scattering.lens` so that the physics there reads a
   it is stable, ``m <= x``; Miller's backward recurrence above, matched at ``m = floor(x)``);
 * :func:`sphere_pixels`: the image of a sphere at a list of pixels from two radial tables
   (azimuthal orders 0 and 2 only);
-* :func:`polar_pixels`: any image from its samples on a polar ``(rho, phi)`` grid (an 8 x 8
-  stencil, :data:`POLAR_STENCIL`).
+* :func:`polar_interpolate`: any image from its samples on a polar ``(rho, phi)`` grid (an
+  8 x 8 Lagrange stencil, :data:`POLAR_STENCIL`), several fields at once, with a factor and a
+  mask per point: the multipole plane grid of :mod:`holofit.scattering.multipole`;
+  :func:`polar_pixels` is its one-field loop for the lens image (same weights and sums).
 
 The callers pass each pixel's fractional row ``t = rho / h + n_ext`` (radial tables sampled at
 ``rho_j = (j - n_ext) h``, rows ``j < n_ext`` holding negative ``rho``, the point reflection, so
@@ -112,10 +114,9 @@ def sphere_pixels(t, cq, sq, cb, sb, g0, g2, stencil, ex, ey):  # pragma: no cov
 
 
 @numba.njit(cache=True, nogil=True, fastmath=FASTMATH, inline="always")
-def stencil_sum(plane, i0, j0, wr, wp):  # pragma: no cover - compiled
+def _stencil(plane, i0, j0, wr, wp):  # pragma: no cover - compiled
     """``sum_a wr[a] sum_b wp[b] plane[i0 + a, j0 + b]`` over the fixed 8 x 8 stencil (a
-    constant trip count lets the compiler unroll and vectorise the inner sum); shared with the
-    multipole plane grid (:mod:`holofit.dda.multipole`)."""
+    constant trip count lets the compiler unroll and vectorise the inner sum)."""
     s = 0.0
     for a in range(8):
         r = 0.0
@@ -126,24 +127,59 @@ def stencil_sum(plane, i0, j0, wr, wp):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True, fastmath=FASTMATH)
-def polar_pixels(t, u, g, ex, ey):  # pragma: no cover - compiled
-    """Lagrange interpolation (8 x 8 stencil) of a polar grid at fractional rows ``t`` and
-    columns ``u``.
+def polar_interpolate(gs, t, u, pad, fac, skip, ex, ey):  # pragma: no cover - compiled
+    """Lagrange interpolation (8 x 8 stencil) of polar grids at fractional rows ``t`` and
+    columns ``u``: the one interpolator of the lens image and of the multipole plane grid.
 
-    ``g`` holds the grid as four real planes, ``(Re E_x, Im E_x, Re E_y, Im E_y)``, shape
-    ``(4, rows, columns)``: planes of reals let each stencil sum run over contiguous doubles
-    (3-4x faster than complex pairs). Columns are padded (the grid repeats its period on both
-    sides), so that a stencil never wraps.
+    ``gs`` holds ``F`` fields of one geometry, each as four real planes ``(Re E_x, Im E_x,
+    Re E_y, Im E_y)``, shape ``(F, 4, rows, columns)``: planes of reals let each stencil sum
+    run over contiguous doubles (3-4x faster than complex pairs). Columns are padded (the grid
+    repeats its period on both sides, ``pad`` columns before column 0 that ``u`` does not
+    count), so that a stencil never wraps. The weights are computed once per point for all
+    fields. ``fac`` (length 0: none) multiplies each point's result; points where ``skip``
+    (length 0: none) is True are left as they are. ``ex, ey`` have shape ``(F, points)``.
     """
     n = t.shape[0]
+    half = POLAR_STENCIL // 2 - 1
+    c = _node_factors(POLAR_STENCIL)
+    wr = np.empty(POLAR_STENCIL)
+    wp = np.empty(POLAR_STENCIL)
+    has_fac = fac.shape[0] > 0
+    has_skip = skip.shape[0] > 0
+    for q in range(n):
+        if has_skip and skip[q]:
+            continue
+        i0 = int(t[q]) - half
+        _weights(t[q] - i0, POLAR_STENCIL, c, wr)
+        j0 = int(u[q]) - half
+        _weights(u[q] - j0, POLAR_STENCIL, c, wp)
+        j0 += pad
+        for f in range(gs.shape[0]):
+            vx = complex(_stencil(gs[f, 0], i0, j0, wr, wp), _stencil(gs[f, 1], i0, j0, wr, wp))
+            vy = complex(_stencil(gs[f, 2], i0, j0, wr, wp), _stencil(gs[f, 3], i0, j0, wr, wp))
+            if has_fac:
+                vx *= fac[q]
+                vy *= fac[q]
+            ex[f, q] = vx
+            ey[f, q] = vy
+
+
+@numba.njit(cache=True, nogil=True, fastmath=FASTMATH)
+def polar_pixels(t, u, g, ex, ey):  # pragma: no cover - compiled
+    """:func:`polar_interpolate` of one grid ``g`` (shape ``(4, rows, columns)``, columns
+    already padded in ``u``), without factor or mask: the lens image's loop, with the same
+    weights and stencil sums, its planes taken out of the pixel loop (the several-field loop
+    of :func:`polar_interpolate` is 20-25 % slower for one field, measured)."""
+    n = t.shape[0]
+    half = POLAR_STENCIL // 2 - 1
     c = _node_factors(POLAR_STENCIL)
     wr = np.empty(POLAR_STENCIL)
     wp = np.empty(POLAR_STENCIL)
     g0, g1, g2, g3 = g[0], g[1], g[2], g[3]
     for q in range(n):
-        i0 = int(t[q]) - 3
+        i0 = int(t[q]) - half
         _weights(t[q] - i0, POLAR_STENCIL, c, wr)
-        j0 = int(u[q]) - 3
+        j0 = int(u[q]) - half
         _weights(u[q] - j0, POLAR_STENCIL, c, wp)
-        ex[q] = complex(stencil_sum(g0, i0, j0, wr, wp), stencil_sum(g1, i0, j0, wr, wp))
-        ey[q] = complex(stencil_sum(g2, i0, j0, wr, wp), stencil_sum(g3, i0, j0, wr, wp))
+        ex[q] = complex(_stencil(g0, i0, j0, wr, wp), _stencil(g1, i0, j0, wr, wp))
+        ey[q] = complex(_stencil(g2, i0, j0, wr, wp), _stencil(g3, i0, j0, wr, wp))

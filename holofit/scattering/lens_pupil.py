@@ -50,7 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import special
 
 if TYPE_CHECKING:
-    from holofit.dda.multipole import MultipoleExpansion
+    from holofit.scattering.multipole import MultipoleExpansion
 
 __all__ = [
     "APODIZATIONS",
@@ -155,7 +155,7 @@ def expansion_pupil_modes(
     Parameters
     ----------
     expansion : MultipoleExpansion
-        Lab-frame outgoing expansion (:class:`holofit.dda.multipole.MultipoleExpansion`) of
+        Lab-frame outgoing expansion (:class:`holofit.scattering.multipole.MultipoleExpansion`) of
         order L.
     theta : array_like, shape (N,)
         Angles from the optical axis (downstream directions), rad.
@@ -198,7 +198,7 @@ def expansion_far_modes(
     Parameters
     ----------
     expansion : MultipoleExpansion
-        Coefficients ``p_nm, q_nm`` of ``N_nm, M_nm`` (:mod:`holofit.dda.multipole`).
+        Coefficients ``p_nm, q_nm`` of ``N_nm, M_nm`` (:mod:`holofit.scattering.multipole`).
     theta_s : array_like, shape (N,)
         Polar angles from +z, rad.
 
@@ -215,7 +215,7 @@ def expansion_far_modes(
     ``mY = m Pbar_n^m / sin th`` (``Pbar`` orthonormal, Condon-Shortley phase;
     ``Pbar_n^-m = (-1)^m Pbar_n^m``).
     """
-    from holofit.dda.legendre import legendre_tables
+    from holofit.scattering.legendre import legendre_tables
 
     theta_s = np.asarray(theta_s, dtype=float)
     L = expansion.order

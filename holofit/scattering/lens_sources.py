@@ -4,7 +4,7 @@
 * :class:`ExpansionPupil`: an outgoing multipole expansion of order L in the lab frame (orders
   ``|m| <= L + 1``): the built-in DDA's own :attr:`~holofit.dda.engine.DDAWave.expansion`, or
   the projection of any engine's ``far_field_amplitude`` (ADDA: one run on the quadrature grid
-  of :func:`holofit.dda.multipole.expansion_from_far_field`, exact for the band-limited far
+  of :func:`holofit.scattering.multipole.expansion_from_far_field`, exact for the band-limited far
   field of sources inside the circumscribing sphere).
 
 A source keeps what it needs and no reference to the wave, so a cache keyed weakly by the wave
@@ -23,7 +23,7 @@ from holofit.scattering.mie import MieWave, far_field_amplitudes
 from holofit.scattering.theory import ScatteredWave
 
 if TYPE_CHECKING:
-    from holofit.dda.multipole import MultipoleExpansion
+    from holofit.scattering.multipole import MultipoleExpansion
 
 __all__ = ["ExpansionPupil", "SpherePupil", "pupil_source", "wave_radius"]
 
@@ -90,7 +90,7 @@ def pupil_source(wave: ScatteredWave) -> SpherePupil | ExpansionPupil:
         raise TypeError(
             f"{type(wave).__name__} gives no far-field amplitudes: the lens model needs them"
         )
-    from holofit.dda.multipole import default_order, expansion_from_far_field
+    from holofit.scattering.multipole import default_order, expansion_from_far_field
 
     k = wave.optics.k
     radius = wave_radius(wave)

@@ -10,6 +10,7 @@ mapped through the rotation ``M = Rz(beta) Rx(pi)`` (:func:`bh_frame`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -21,13 +22,19 @@ from holofit.scattering.mie_coefficients import mie_coefficients
 from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, field_on_pixels
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
+if TYPE_CHECKING:
+    from holofit.scattering.multipole import MultipoleExpansion
+
 __all__ = [
     "CrossSections",
     "LorenzMie",
     "MieWave",
+    "SphereSeriesWave",
     "bh_frame",
     "cross_sections",
     "far_field_amplitudes",
+    "series_amplitudes",
+    "series_cross_sections",
 ]
 
 
@@ -58,11 +65,12 @@ def far_field_amplitudes(
     S1, S2 : ndarray of complex, shape of ``theta``
     """
     a, b = mie_coefficients(m, x, nmax)
-    return _amplitudes(a, b, theta)
+    return series_amplitudes(a, b, theta)
 
 
-def _amplitudes(a: NDArray, b: NDArray, theta: ArrayLike) -> tuple[NDArray, NDArray]:
-    """``S1, S2`` from the series coefficients."""
+def series_amplitudes(a: NDArray, b: NDArray, theta: ArrayLike) -> tuple[NDArray, NDArray]:
+    """``S1, S2`` at scattering angles ``theta`` (rad) from series coefficients ``a_n, b_n``
+    (B&H eq. 4.74; homogeneous and coated spheres alike)."""
     theta = np.asarray(theta, dtype=float)
     w = _series_weights(a.size)
     pi, tau = angular_pi_tau(np.ascontiguousarray(np.cos(theta).ravel()), a.size)
@@ -85,8 +93,13 @@ class CrossSections:
 
 def cross_sections(m: complex, radius_um: float, k: float) -> CrossSections:
     """Cross sections of a sphere of radius ``radius_um`` (um) for wavenumber ``k`` (rad/um)."""
-    x = k * radius_um
-    a, b = mie_coefficients(m, x)
+    a, b = mie_coefficients(m, k * radius_um)
+    return series_cross_sections(a, b, k, radius_um)
+
+
+def series_cross_sections(a: NDArray, b: NDArray, k: float, radius_um: float) -> CrossSections:
+    """Cross sections (um^2) of any sphere-series wave from its coefficients ``a_n, b_n``
+    (B&H eqs. 4.61-4.62); efficiencies per ``pi radius_um^2``."""
     n = np.arange(1, a.size + 1)
     cext = 2 * np.pi / k**2 * float(np.sum((2 * n + 1) * (a + b).real))
     csca = 2 * np.pi / k**2 * float(np.sum((2 * n + 1) * (abs(a) ** 2 + abs(b) ** 2)))
@@ -103,26 +116,33 @@ def bh_frame(polarization_rad: float) -> NDArray[np.float64]:
     return rotation_z(polarization_rad) @ np.diag([1.0, -1.0, -1.0])
 
 
-class MieWave(ScatteredWave):
-    """Scattered wave of a sphere, from its Lorenz-Mie coefficients.
+class SphereSeriesWave(ScatteredWave):
+    """Scattered wave of any spherically symmetric particle, from its series coefficients.
+
+    The field outside the particle is B&H's series (eq. 4.45) with the coefficients ``a_n``,
+    ``b_n`` of a homogeneous sphere (:class:`MieWave`) or of a coated one
+    (:class:`holofit.scattering.coated_mie.CoatedSphereWave`); this class holds everything
+    that follows from the coefficients: fields, far-field amplitudes, cross sections and the
+    outgoing multipole expansion.
 
     Parameters
     ----------
-    sphere : Sphere
-        The particle.
+    a, b : ndarray of complex, shape (nmax,)
+        Series coefficients, n = 1..nmax.
+    radius_um : float
+        Outer radius, um (the series is valid outside it).
     optics : Optics
         Illumination.
     """
 
     exact_near_field = True
+    #: what the error messages call the particle
+    _body = "particle"
 
-    def __init__(self, sphere: Sphere, optics: Optics) -> None:
-        self.sphere = sphere
+    def __init__(self, a: NDArray, b: NDArray, radius_um: float, optics: Optics) -> None:
+        self.a, self.b = a, b
+        self.radius_um = float(radius_um)
         self.optics = optics
-        k = optics.k
-        self.m = complex(sphere.index) / optics.n_medium
-        self.x = k * sphere.radius_um
-        self.a, self.b = mie_coefficients(self.m, self.x)
         n = np.arange(1, self.a.size + 1)
         e_n = (1j) ** n * (2 * n + 1) / (n * (n + 1.0))
         c1 = 1j * e_n * self.a
@@ -132,14 +152,35 @@ class MieWave(ScatteredWave):
 
     def far_field_amplitudes(self, theta: ArrayLike) -> tuple[NDArray, NDArray]:
         """``S1, S2`` at scattering angles ``theta`` (rad from the propagation direction)."""
-        return _amplitudes(self.a, self.b, theta)
+        return series_amplitudes(self.a, self.b, theta)
+
+    def cross_sections(self) -> CrossSections:
+        """Extinction, scattering and absorption cross sections, um^2."""
+        return series_cross_sections(self.a, self.b, self.optics.k, self.radius_um)
+
+    @property
+    def expansion(self) -> MultipoleExpansion:
+        """The scattered field's outgoing multipole expansion (lab frame,
+        :mod:`holofit.scattering.multipole`): ``p = -a_n`` times the plane wave's N-type
+        coefficients, ``q = -b_n`` times its M-type ones (what the lens model images)."""
+        from holofit.conventions import PROPAGATION_DIRECTION
+        from holofit.scattering.multipole import MultipoleExpansion
+        from holofit.scattering.vsw import plane_wave_coefficients, term_indices, unpack
+
+        order = self.a.size
+        vec = plane_wave_coefficients(PROPAGATION_DIRECTION, self.optics.polarization, order)
+        _, n, _ = term_indices(order)
+        half = n.size // 2
+        vec = vec * np.concatenate([-self.a[n[:half] - 1], -self.b[n[half:] - 1]])
+        p, q = unpack(vec, order)
+        return MultipoleExpansion(self.optics.k, p, q, self.radius_um)
 
     def _check_outside(self, distance_um: NDArray) -> None:
-        inside = int(np.sum(distance_um <= self.sphere.radius_um))
+        inside = int(np.sum(distance_um <= self.radius_um))
         if inside:
             raise ValueError(
-                f"the scattered-field series is valid outside the sphere only; {inside} "
-                f"point(s) lie within {self.sphere.radius_um} um of its centre"
+                f"the scattered-field series is valid outside the {self._body} only; {inside} "
+                f"point(s) lie within {self.radius_um} um of its centre"
             )
 
     def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
@@ -153,27 +194,18 @@ class MieWave(ScatteredWave):
     def field_on_pixels(
         self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike, far_field: bool = False
     ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
-        """Transverse field ``(E_x, E_y)`` at a list of pixel centres, incident phase included.
-
-        Parameters
-        ----------
-        position_um : array_like, shape (3,)
-            Full-frame particle centre ``(x, y, z)``, um.
-        xs_um, ys_um : array_like, shape (N,)
-            Full-frame sample-plane coordinates of the pixel centres, um (x along columns).
-        far_field : bool
-            Asymptotic far-field form instead of the exact field.
+        """:meth:`ScatteredWave.field_on_pixels` by the compiled series (B&H frame).
 
         Raises
         ------
         ValueError
-            If the detector plane cuts the sphere.
+            If the detector plane cuts the particle.
         """
         xp, yp, zp = (float(v) for v in position_um)
-        if abs(zp) <= self.sphere.radius_um:
+        if abs(zp) <= self.radius_um:
             raise ValueError(
-                f"|z| = {abs(zp):.4g} um is within the sphere radius {self.sphere.radius_um:.4g}"
-                " um: the detector plane cuts the sphere"
+                f"|z| = {abs(zp):.4g} um is within the {self._body} radius "
+                f"{self.radius_um:.4g} um: the detector plane cuts the {self._body}"
             )
         xs = np.ascontiguousarray(xs_um, dtype=float).ravel()
         ys = np.ascontiguousarray(ys_um, dtype=float).ravel()
@@ -184,14 +216,35 @@ class MieWave(ScatteredWave):
         return ex, ey
 
 
+class MieWave(SphereSeriesWave):
+    """Scattered wave of a sphere, from its Lorenz-Mie coefficients.
+
+    Parameters
+    ----------
+    sphere : Sphere
+        The particle.
+    optics : Optics
+        Illumination.
+    """
+
+    _body = "sphere"
+
+    def __init__(self, sphere: Sphere, optics: Optics) -> None:
+        self.sphere = sphere
+        self.m = complex(sphere.index) / optics.n_medium
+        self.x = optics.k * sphere.radius_um
+        super().__init__(*mie_coefficients(self.m, self.x), sphere.radius_um, optics)
+
+
 class LorenzMie(ScatteringTheory):
     """Exact Lorenz-Mie theory for homogeneous spheres."""
 
     name = "mie"
+    models = (Sphere,)
+    handles = "spheres"
 
     def solve(
         self, model: ParticleModel, optics: Optics, orientation: Orientation | None = None
     ) -> MieWave:
-        if not isinstance(model, Sphere):
-            raise TypeError(f"Lorenz-Mie theory handles spheres only, not {model.kind!r}")
+        self.check_model(model)
         return MieWave(model, optics)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -131,9 +132,29 @@ class ScatteredWave(ABC):
 
 
 class ScatteringTheory(ABC):
-    """An engine that solves a particle model for a given orientation and illumination."""
+    """An engine that solves a particle model for a given orientation and illumination.
+
+    Its name is its entry in the engine registry (:mod:`holofit.engines.registry`);
+    :meth:`can_handle` says which models it solves (the ``auto`` choice of
+    :mod:`holofit.engines.select` asks the exact engines in turn).
+    """
 
     name: str = ""
+    #: the model classes it solves (empty: any particle model)
+    models: ClassVar[tuple[type[ParticleModel], ...]] = ()
+    #: the models it solves, in words (error messages)
+    handles: str = "any particle"
+
+    @classmethod
+    def can_handle(cls, model: ParticleModel) -> bool:
+        """True if this engine solves ``model`` (an instance of :attr:`models`, if any)."""
+        return not cls.models or isinstance(model, cls.models)
+
+    def check_model(self, model: ParticleModel) -> None:
+        """TypeError naming the engine and what it handles if it cannot solve ``model``."""
+        if not self.can_handle(model):
+            raise TypeError(f"the {self.name} engine handles {self.handles} only, not "
+                            f"{model.kind!r}")
 
     @abstractmethod
     def solve(

@@ -1,10 +1,10 @@
 """The translation-addition theorem for vector spherical waves (holofit's VSWF conventions).
 
-The waves are those of :mod:`holofit.dda.multipole` (outgoing, ``h_n``) and
-:mod:`holofit.dda.tmatrix_waves` (regular, ``j_n``): ``M_nm = curl(r psi_nm)``,
+The waves are those of :mod:`holofit.scattering.multipole` (outgoing, ``h_n``) and
+:mod:`holofit.scattering.vsw` (regular, ``j_n``): ``M_nm = curl(r psi_nm)``,
 ``N_nm = curl(M_nm) / k`` with ``psi_nm = z_n(kr) Y_nm`` and orthonormal ``Y_nm``
 (Condon-Shortley phase). Coefficient vectors use the flat layout of
-:mod:`holofit.dda.tmatrix_waves` (N-type block, then M-type; ``n = 1..L``, ``m = -n..n``).
+:mod:`holofit.scattering.vsw` (N-type block, then M-type; ``n = 1..L``, ``m = -n..n``).
 
 A wave about a source centre is re-expanded about a receiving centre at ``source + d``
 (``r_source = r_receiver + d``):
@@ -36,7 +36,7 @@ RgM_{n+1,m} - k a_{n,m}/n RgM_{n-1,m}`` (``a_{n,m} = sqrt((n^2 - m^2)/((2n+1)(2n
     B_{n nu} = i kd mu / (n(n+1)) alpha_{n nu}        (d signed along z).
 
 Any other direction is the rotation to the axis, the axial translation and the rotation back
-(:func:`translation_matrix`, with :mod:`holofit.dda.wigner`'s matrices).
+(:func:`translation_matrix`, with :mod:`holofit.scattering.wigner`'s matrices).
 """
 
 from __future__ import annotations
@@ -47,9 +47,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import spherical_jn, spherical_yn
 
-from holofit.dda.legendre import legendre_tables
-from holofit.dda.tmatrix_waves import term_indices
-from holofit.dda.wigner import apply_blocks, rotation_blocks, wigner_d_all
+from holofit.scattering.legendre import legendre_tables
+from holofit.scattering.vsw import term_indices
+from holofit.scattering.wigner import apply_blocks, rotation_blocks, wigner_d_all
 
 __all__ = [
     "axial_entries",
@@ -166,7 +166,7 @@ def axial_translation(kd: float, order_to: int, order_from: int,
 def wigner_matrix(order: int, psi: float, theta: float, phi: float = 0.0
                   ) -> NDArray[np.complex128]:
     """Dense flat-layout matrix of the rotation ``Rz(psi) Ry(theta) Rz(phi)``: particle-frame
-    coefficients to lab-frame ones (:mod:`holofit.dda.wigner`)."""
+    coefficients to lab-frame ones (:mod:`holofit.scattering.wigner`)."""
     d = wigner_d_all(order, psi, theta, phi)
     kind, n, m = term_indices(order)
     same = (kind[:, None] == kind[None, :]) & (n[:, None] == n[None, :])

@@ -3,8 +3,8 @@
 Each particle has its own model, engine and trajectory; a particle may be outside the frame
 for part of the movie (its hologram then enters or leaves through an edge). The camera records
 the sum of the particles' scattered *fields* with the incident wave (superposition at the
-camera, :mod:`holofit.scattering.camera`), so overlapping holograms interfere as they do in a
-real microscope; multiple scattering between the particles is neglected (it is of the order of
+camera, :mod:`holofit.scattering.recorded_field`), so overlapping holograms interfere as they do
+in a real microscope; multiple scattering between the particles is neglected (it is of the order of
 the scattered amplitude at the neighbour's distance squared, see the multi-particle section of
 the README). The truth table is keyed by (``particle``, ``frame``).
 """
@@ -23,9 +23,9 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.camera import Camera
 from holofit.config import Instrument
 from holofit.conventions import hologram_intensity, pixel_centres
+from holofit.engines.select import select_theory
 from holofit.particles import ParticleModel
-from holofit.scattering.camera import recorded_field
-from holofit.scattering.select import select_theory
+from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 from holofit.simulate.holograms import (
     TRUTH_UNITS,

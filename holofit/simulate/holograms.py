@@ -20,12 +20,12 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.camera import Camera
 from holofit.config import Instrument
 from holofit.conventions import DetectorGrid
+from holofit.engines.select import select_theory
 from holofit.hologram import calc_hologram
 from holofit.io.tables import write_table
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.particles import ParticleModel
 from holofit.provenance import sidecar
-from holofit.scattering.select import select_theory
 from holofit.scattering.theory import Orientation, ScatteringTheory
 
 __all__ = [
@@ -34,8 +34,10 @@ __all__ = [
     "check_positions",
     "default_camera",
     "film",
+    "movie_holograms",
     "simulate_movie",
     "smooth_illumination",
+    "truth_table",
 ]
 
 TRUTH_UNITS = {
@@ -146,22 +148,11 @@ def smooth_illumination(
 
 
 def simulate_movie(
-    model: ParticleModel,
-    instrument: Instrument,
-    positions_um: ArrayLike,
-    frame_shape: tuple[int, int],
-    *,
-    orientations: ArrayLike | None = None,
-    alpha: float = 1.0,
-    theory: ScatteringTheory | None = None,
-    camera: Camera | None = None,
-    noise: bool = True,
-    seed: int = 0,
-    uneven_illumination: float = 0.0,
-    n_background: int = 5,
-    out_dir: str | Path | None = None,
-    keep_frames: bool = False,
-    progress: Any = None,
+    model: ParticleModel, instrument: Instrument, positions_um: ArrayLike,
+    frame_shape: tuple[int, int], *, orientations: ArrayLike | None = None, alpha: float = 1.0,
+    theory: ScatteringTheory | None = None, camera: Camera | None = None, noise: bool = True,
+    seed: int = 0, uneven_illumination: float = 0.0, n_background: int = 5,
+    out_dir: str | Path | None = None, keep_frames: bool = False, progress: Any = None,
 ) -> SimulatedMovie:
     """Simulate a movie of holograms of one particle.
 
@@ -209,28 +200,45 @@ def simulate_movie(
         (:func:`check_positions`), or orientations of the wrong shape; nothing is written.
     """
     pos = check_positions(model, positions_um, instrument.optics.numerical_aperture is not None)
-    n = pos.shape[0]
-    if orientations is None:
-        orient = np.zeros((n, 3))
-    else:
-        orient = np.atleast_2d(np.asarray(orientations, dtype=float))
-        if orient.shape != (n, 3):
-            raise SimulationError(
-                f"orientations must have shape ({n}, 3), got {orient.shape}"
-            )
+    orient = _check_orientations(orientations, pos.shape[0])
     theory = theory or select_theory(model)
     camera = camera or default_camera(instrument)
     rng = np.random.default_rng(seed)
-    illum = (
-        smooth_illumination(frame_shape, rng, uneven_illumination)
-        if uneven_illumination > 0
-        else None
-    )
+    illum = (smooth_illumination(frame_shape, rng, uneven_illumination)
+             if uneven_illumination > 0 else None)
     grid = DetectorGrid(frame_shape, instrument.pixel_size_um)
-    optics = instrument.optics
-    dt = 1.0 / instrument.frame_rate_hz if instrument.frame_rate_hz else 1.0
+    truth = truth_table(instrument, pos, orient, alpha)
+    meta_common = {
+        "instrument": instrument.as_dict(),
+        "particle": {"model": model.kind, **{k: v for k, v in model.parameters().items()}},
+        "engine": getattr(theory, "name", type(theory).__name__),
+        "camera": camera.__dict__, "noise": noise, "seed": seed, "alpha": alpha,
+        "uneven_illumination": uneven_illumination,
+    }
+    holograms = movie_holograms(model, theory, instrument, pos, orient, grid, alpha)
+    return film(
+        holograms, camera, rng, frame_shape, truth, TRUTH_UNITS, meta_common,
+        label="simulated movie", illumination=illum, noise=noise, n_background=n_background,
+        out_dir=out_dir, keep_frames=keep_frames, progress=progress,
+    )
 
-    truth = pd.DataFrame(
+
+def _check_orientations(orientations: ArrayLike | None, n: int) -> NDArray[np.float64]:
+    """The ``(n, 3)`` orientations (zeros if None); SimulationError for another shape."""
+    if orientations is None:
+        return np.zeros((n, 3))
+    orient = np.atleast_2d(np.asarray(orientations, dtype=float))
+    if orient.shape != (n, 3):
+        raise SimulationError(f"orientations must have shape ({n}, 3), got {orient.shape}")
+    return orient
+
+
+def truth_table(instrument: Instrument, pos: NDArray, orient: NDArray,
+                alpha: float) -> pd.DataFrame:
+    """The ground truth of a one-particle movie (columns and units of :data:`TRUTH_UNITS`)."""
+    n = pos.shape[0]
+    dt = 1.0 / instrument.frame_rate_hz if instrument.frame_rate_hz else 1.0
+    return pd.DataFrame(
         {
             "frame": np.arange(n),
             "time_s": np.arange(n) * dt,
@@ -245,34 +253,31 @@ def simulate_movie(
             "alpha": alpha,
         }
     )
-    meta_common = {
-        "instrument": instrument.as_dict(),
-        "particle": {
-            "model": model.kind,
-            **{k: v for k, v in model.parameters().items()},
-        },
-        "engine": getattr(theory, "name", type(theory).__name__),
-        "camera": camera.__dict__,
-        "noise": noise,
-        "seed": seed,
-        "alpha": alpha,
-        "uneven_illumination": uneven_illumination,
-    }
 
-    def holograms() -> Iterator[NDArray[np.float64]]:
-        wave = None
-        last_orientation: tuple[float, ...] | None = None
-        for k in range(n):
-            o = tuple(orient[k]) if model.anisotropic else (0.0, 0.0, 0.0)
-            if wave is None or o != last_orientation:
-                wave = theory.solve(model, optics, Orientation(*o))
-                last_orientation = o
-            yield calc_hologram(wave, pos[k], grid, alpha)
 
-    return film(
-        holograms(), camera, rng, frame_shape, truth, TRUTH_UNITS, meta_common,
-        label="simulated movie", illumination=illum, noise=noise, n_background=n_background,
-        out_dir=out_dir, keep_frames=keep_frames, progress=progress,
+def movie_holograms(
+    model: ParticleModel, theory: ScatteringTheory, instrument: Instrument, pos: NDArray,
+    orient: NDArray, grid: DetectorGrid, alpha: float,
+) -> Iterator[NDArray[np.float64]]:
+    """The normalised hologram of each frame (:func:`holofit.hologram.calc_hologram`, through
+    the recorded field), solving the particle again only when its orientation changes."""
+    wave = None
+    last_orientation: tuple[float, ...] | None = None
+    for k in range(pos.shape[0]):
+        o = tuple(orient[k]) if model.anisotropic else (0.0, 0.0, 0.0)
+        if wave is None or o != last_orientation:
+            wave = theory.solve(model, instrument.optics, Orientation(*o))
+            last_orientation = o
+        yield calc_hologram(wave, pos[k], grid, alpha)
+
+
+def default_camera(instrument: Instrument) -> Camera:
+    """The simulated camera of an instrument: its bit depth and read noise, background at
+    47 % of full scale."""
+    return Camera(
+        bit_depth=instrument.bit_depth,
+        background_counts=0.47 * (2**instrument.bit_depth - 1),
+        read_noise_counts=instrument.read_noise_counts or 0.8,
     )
 
 
@@ -328,8 +333,30 @@ def film(
     progress : callable, optional
         Called with 1 per frame done.
     """
-    frames: list[NDArray] = []
     out = Path(out_dir) if out_dir is not None else None
+    frames = _expose_movie(holograms, camera, rng, illumination, noise, out, label,
+                           keep_frames, progress)
+    if out is None:
+        return SimulatedMovie(None, None, None, truth, frames if keep_frames else None)
+    with TiffStackWriter(out / "background.tif", {"holofit": "simulated background"}) as bw:
+        for _ in range(max(n_background, 1)):
+            bw.write(camera.expose(np.ones(frame_shape), rng, illumination, noise))
+    table_path = write_table(
+        out / "truth.csv", truth,
+        sidecar(kind="simulation ground truth", units=units, extra={"truth": meta}),
+    )
+    return SimulatedMovie(out / "movie.tif", out / "background.tif", table_path, truth,
+                          frames if keep_frames else None)
+
+
+def _expose_movie(
+    holograms: Iterable[NDArray[np.float64]], camera: Camera, rng: np.random.Generator,
+    illumination: NDArray | None, noise: bool, out: Path | None, label: str,
+    keep_frames: bool, progress: Any,
+) -> list[NDArray]:
+    """Raw frames of the holograms, written to ``out/movie.tif`` frame by frame (removed again
+    if anything fails); the frames themselves are returned with ``keep_frames``."""
+    frames: list[NDArray] = []
     writer = None if out is None else TiffStackWriter(out / "movie.tif", {"holofit": label})
     try:
         for holo in holograms:
@@ -346,24 +373,4 @@ def film(
     finally:
         if writer is not None:
             writer.abort()
-    if out is None:
-        return SimulatedMovie(None, None, None, truth, frames if keep_frames else None)
-    with TiffStackWriter(out / "background.tif", {"holofit": "simulated background"}) as bw:
-        for _ in range(max(n_background, 1)):
-            bw.write(camera.expose(np.ones(frame_shape), rng, illumination, noise))
-    table_path = write_table(
-        out / "truth.csv", truth,
-        sidecar(kind="simulation ground truth", units=units, extra={"truth": meta}),
-    )
-    return SimulatedMovie(out / "movie.tif", out / "background.tif", table_path, truth,
-                          frames if keep_frames else None)
-
-
-def default_camera(instrument: Instrument) -> Camera:
-    """The simulated camera of an instrument: its bit depth and read noise, background at
-    47 % of full scale."""
-    return Camera(
-        bit_depth=instrument.bit_depth,
-        background_counts=0.47 * (2**instrument.bit_depth - 1),
-        read_noise_counts=instrument.read_noise_counts or 0.8,
-    )
+    return frames

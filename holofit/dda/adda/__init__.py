@@ -38,11 +38,13 @@ from holofit.dda.adda.files import (
 )
 from holofit.dda.adda.frames import (
     T_LAB,
+    adda_amplitude_matrix,
     adda_orientation_deg,
     amplitude_vectors,
     far_field_from_ampl,
     lab_map,
     lab_to_adda_angles,
+    orientation_from_adda,
     phase_origin_factor,
 )
 from holofit.dda.adda.run import AddaResult, adda_command, check_adda_output, run_adda
@@ -61,6 +63,7 @@ __all__ = [
     "AddaVersion",
     "AddaWarning",
     "AddaWave",
+    "adda_amplitude_matrix",
     "adda_command",
     "adda_geometry",
     "adda_orientation_deg",
@@ -71,6 +74,7 @@ __all__ = [
     "find_adda",
     "lab_map",
     "lab_to_adda_angles",
+    "orientation_from_adda",
     "parse_version",
     "phase_origin_factor",
     "read_ampl_scatgrid",

@@ -1,5 +1,9 @@
 """The frame algebra between holofit and ADDA: labs, particle frames, angles, amplitudes.
 
+All of it is here: the built-in engine's ADDA-convention amplitude matrix
+(:meth:`holofit.dda.engine.DDAWave.amplitude_matrix`) and the ADDA adapter use these
+functions, and :func:`orientation_from_adda` maps an ADDA run's ``-orient`` to holofit.
+
 holofit's lab has the light travelling along -z; ADDA's along +z. The rotation
 ``T = Rx(pi) = diag(1, -1, -1)`` maps one onto the other (x stays, y and z flip). ADDA always
 solves two incident polarisations, along its lab x ("X") and y ("Y"), with the LDR
@@ -21,6 +25,7 @@ particle centre relative to that point (lab frame) and ``a`` the propagation dir
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,11 +41,13 @@ from holofit.scattering.theory import Orientation
 
 __all__ = [
     "T_LAB",
+    "adda_amplitude_matrix",
     "adda_orientation_deg",
     "amplitude_vectors",
     "far_field_from_ampl",
     "lab_map",
     "lab_to_adda_angles",
+    "orientation_from_adda",
     "phase_origin_factor",
 ]
 
@@ -174,3 +181,77 @@ def far_field_from_ampl(
     f_lab = f_adda @ m  # rows: M^T F
     s_lab = np.asarray(rotation, dtype=float) @ np.asarray(centre_offset_um, dtype=float)
     return f_lab * phase_origin_factor(directions, s_lab, optics.k)[:, None]
+
+
+def adda_amplitude_matrix(
+    f_x: NDArray[np.complex128], f_y: NDArray[np.complex128], theta: ArrayLike, phi: ArrayLike
+) -> NDArray[np.complex128]:
+    """Amplitude matrix ``[S1, S2, S3, S4]`` (M, 4) in ADDA's (Bohren & Huffman) basis.
+
+    Parameters
+    ----------
+    f_x, f_y : ndarray, shape (M, 3)
+        Far-field vectors in the *lab* frame of ADDA (light along +z) for incident
+        polarisation along lab x and lab y.
+    theta, phi : array_like
+        Scattering angles of the directions, rad.
+    """
+    th = np.asarray(theta, dtype=float)
+    ph = np.asarray(phi, dtype=float)
+    e_th = np.stack([np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph), -np.sin(th)], axis=-1)
+    e_per = -np.stack([-np.sin(ph), np.cos(ph), np.zeros_like(ph)], axis=-1)  # -e_phi
+    fx_t, fy_t = np.sum(f_x * e_th, axis=1), np.sum(f_y * e_th, axis=1)
+    fx_p, fy_p = np.sum(f_x * e_per, axis=1), np.sum(f_y * e_per, axis=1)
+    c, s = np.cos(ph), np.sin(ph)
+    s2 = c * fx_t + s * fy_t
+    s3 = s * fx_t - c * fy_t
+    s4 = c * fx_p + s * fy_p
+    s1 = s * fx_p - c * fy_p
+    return np.stack([s1, s2, s3, s4], axis=1)
+
+
+def orientation_from_adda(orient_deg: Sequence[float] = (0.0, 0.0, 0.0),
+                          polarization_rad: float = 0.0) -> Orientation:
+    """holofit orientation of an ADDA shape file's particle for ADDA's ``-orient`` angles.
+
+    Parameters
+    ----------
+    orient_deg : sequence of 3 floats
+        ADDA's ``-orient alpha beta gamma``, degrees.
+    polarization_rad : float
+        The instrument's polarisation angle in holofit's lab; ADDA's "X" solution is the one
+        that corresponds to it.
+
+    Returns
+    -------
+    Orientation
+        ``(psi, theta, phi)`` with ``Rz(psi) Ry(theta) Rz(phi) = Rz(beta_pol) Rx(pi) R_adda``.
+
+    Notes
+    -----
+    A user with an ADDA shape file and ADDA's ``-orient alpha beta gamma`` (zyz, degrees) gets
+    the same physical configuration in holofit by reading the file as a
+    :class:`~holofit.particles.VoxelShape` (its frame is then holofit's particle frame, unchanged)
+    and giving the orientation returned here.
+
+    ADDA rotates the particle by ``R_adda = Rz(alpha) Ry(beta) Rz(gamma)`` into a lab where the
+    light travels along +z, polarised along x ("X") or y ("Y"). holofit's lab has the light along
+    -z, polarised at ``beta_pol`` from x; the rotation ``M = Rx(pi) Rz(-beta_pol)`` maps holofit's
+    lab onto ADDA's with the instrument's polarisation on ADDA's x. A particle-frame point at
+    ``r`` is at ``R_adda r`` in ADDA's lab and at ``R r`` in holofit's, so ``R_adda = M R`` and
+
+        R = Rz(beta_pol) Rx(pi) Rz(alpha) Ry(beta) Rz(gamma).
+
+    Taking holofit's ``(psi, theta, phi) = (alpha, beta, gamma)`` instead (the same zyz form,
+    but the wrong lab) differs by the ``Rx(pi)`` in front: harmless only for particles symmetric
+    under a rotation by pi about x (a sphere, a rod), but it puts a Janus cap on the wrong side.
+
+    Phase origin: ADDA refers phases to the centre of the dipole box; a ``VoxelShape`` with
+    ``centre_um = (0, 0, 0)`` does too.
+    """
+    if len(orient_deg) != 3:
+        raise ValueError(f"ADDA -orient takes three angles (alpha beta gamma), got {orient_deg}")
+    r_adda = euler_zyz(*np.radians(np.asarray(orient_deg, dtype=float)))
+    rot = lab_map(polarization_rad).T @ r_adda  # ADDA's lab back to holofit's
+    psi, theta, phi = (float(v) for v in euler_zyz_from_matrix(rot))
+    return Orientation(psi, theta, phi)

@@ -35,8 +35,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.dda.legendre import legendre_tables
-from holofit.scattering.lens_kernels import stencil_sum
+from holofit.scattering.legendre import legendre_tables
+from holofit.scattering.lens_kernels import POLAR_STENCIL, polar_interpolate
 
 __all__ = [
     "NEAR_ZONE",
@@ -327,12 +327,10 @@ def expansion_from_far_field(
 #: Lagrange stencil (points per axis) and grid step as a fraction of the shortest period of the
 #: band-limited U (degree 2L+2 in theta, L+1 in phi). Measured against exact Lorenz-Mie fields
 #: (tests/test_dda_fields.py): 8 points at 0.7 leave ~3e-11 of the field, 6 at 0.7 ~7e-9. The
-#: interpolation kernel is compiled for 8 (a constant trip count is what makes it fast).
-STENCIL = 8
+#: interpolation kernel (:func:`holofit.scattering.lens_kernels.polar_interpolate`, shared with
+#: the lens image) is compiled for 8 (a constant trip count is what makes it fast).
+STENCIL = POLAR_STENCIL
 STEP_FACTOR = 0.7
-#: floating-point licences of the interpolation kernel (reassociation lets the stencil sums
-#: vectorise; no change beyond rounding)
-FASTMATH = {"contract", "reassoc", "nsz", "arcp"}
 
 
 @dataclass
@@ -375,7 +373,8 @@ class PlaneGrid:
 
 @lru_cache(maxsize=16)
 def _legendre_coefficients(lmax: int) -> tuple[NDArray, ...]:
-    """Recurrence coefficients of :func:`holofit.dda.legendre.legendre_tables` (per order)."""
+    """Recurrence coefficients of :func:`holofit.scattering.legendre.legendre_tables` (per
+    order)."""
     L = lmax
     a = np.zeros((L + 1, L + 1))
     b = np.zeros((L + 1, L + 1))
@@ -417,7 +416,7 @@ def _plane_fourier(p, q, mu, h, dx, hk, fac, rec_a, rec_b, rec_c, sect, n_ext, n
     for i in range(mu.shape[0]):
         x = mu[i]
         s = np.sqrt(max(0.0, 1.0 - x * x))
-        # Legendre tables (Condon-Shortley, orthonormal), as holofit.dda.legendre
+        # Legendre tables (Condon-Shortley, orthonormal), as holofit.scattering.legendre
         pb[0, 0] = p0
         if L >= 1:
             pb[1, 0] = np.sqrt(3.0) * x * p0
@@ -527,59 +526,6 @@ def plane_grid(
                      n_phi=n_phi, n_ext=n_ext, z_p=float(z_p), k=k)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _lagrange_weights(t, n, c, w):  # pragma: no cover - compiled
-    """Weights of the n-point Lagrange interpolant at t (nodes 0..n-1):
-    ``w[a] = c[a] prod_{b != a} (t - b)`` with ``c[a] = 1 / prod_{b != a} (a - b)``, the
-    products from prefix and suffix products (no division, exact at the nodes)."""
-    left = 1.0
-    for a in range(n):
-        w[a] = c[a] * left
-        left *= t - a
-    right = 1.0
-    for a in range(n - 1, -1, -1):
-        w[a] *= right
-        right *= t - a
-
-
-@numba.njit(cache=True, nogil=True, fastmath=FASTMATH)
-def _interp_points(gs, step, n_phi, n_ext, pad, delta, phi, fac, skip, ex,
-                   ey):  # pragma: no cover - compiled
-    """``E_{x,y} = U(delta, phi) * fac`` at points of the plane for several fields at once:
-    ``U`` of field ``f`` interpolated on its packed planes ``gs[f]`` (:attr:`PlaneGrid.packed`,
-    all of one geometry) with 8 x 8-point Lagrange stencils (:data:`STENCIL`), the weights
-    computed once per point for all fields."""
-    n = 8
-    half = n // 2 - 1
-    c = np.empty(n)
-    for a in range(n):
-        v = 1.0
-        for b in range(n):
-            if b != a:
-                v *= a - b
-        c[a] = 1.0 / v
-    wt = np.empty(n)
-    wp = np.empty(n)
-    hphi = 2.0 * np.pi / n_phi
-    for p in range(delta.shape[0]):
-        if skip[p]:
-            continue
-        t = delta[p] / step + n_ext
-        i0 = int(t) - half
-        _lagrange_weights(t - i0, n, c, wt)
-        u = phi[p] / hphi
-        j0 = int(u) - half
-        _lagrange_weights(u - j0, n, c, wp)
-        j0 += pad
-        f_p = fac[p]
-        for f in range(gs.shape[0]):
-            g = gs[f]
-            ex[f, p] = complex(stencil_sum(g[0], i0, j0, wt, wp),
-                               stencil_sum(g[1], i0, j0, wt, wp)) * f_p
-            ey[f, p] = complex(stencil_sum(g[2], i0, j0, wt, wp),
-                               stencil_sum(g[3], i0, j0, wt, wp)) * f_p
-
-
 def evaluate_plane(
     grid: PlaneGrid, xs: NDArray, ys: NDArray, xp: float, yp: float,
     phase: complex = 1.0, skip: NDArray | None = None,
@@ -634,5 +580,7 @@ def evaluate_planes_at(
     phi[phi < 0.0] += 2.0 * np.pi
     kr = g0.k * np.sqrt(rho2 + az * az)
     fac = (np.cos(kr) + 1j * np.sin(kr)) * (complex(phase) / kr)
-    _interp_points(gs, g0.step, g0.n_phi, g0.n_ext, g0.stencil, delta, phi, fac, skip1, ex, ey)
+    t = delta / g0.step + g0.n_ext
+    u = phi / (2.0 * np.pi / g0.n_phi)
+    polar_interpolate(gs, t, u, g0.stencil, fac, skip1, ex, ey)
     return [(ex[f].reshape(shape), ey[f].reshape(shape)) for f in range(len(grids))]

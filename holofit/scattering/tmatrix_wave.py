@@ -1,10 +1,8 @@
 """Scattered waves served from a T-matrix: fields, holograms and exact orientation derivatives.
 
-:class:`ExpansionWave` is any field known by its outgoing multipole expansion about the
-particle centre (lab frame): it evaluates the expansion outside ``NEAR_ZONE`` times the
-circumscribing radius (on a camera plane through :mod:`holofit.dda.multipole`'s interpolated
-grid) and asks a near-field callable for points closer in. :class:`TMatrixWave` is the wave of
-one orientation (``o_lab = D T D^H a``, :mod:`holofit.dda.tmatrix`); its
+:class:`TMatrixWave` is an :class:`~holofit.scattering.expansion_wave.ExpansionWave` (a field
+known by its outgoing multipole expansion about the particle centre), the wave of
+one orientation (``o_lab = D T D^H a``, :mod:`holofit.scattering.tmatrix`); its
 :meth:`~TMatrixWave.orientation_derivative` is again an :class:`ExpansionWave`, whose "field" is
 the exact derivative of the scattered field with respect to one Euler angle (the expansion is
 linear in its coefficients), so
@@ -31,132 +29,23 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from holofit.cache import LRUCache
-from holofit.conventions import euler_zyz, euler_zyz_from_matrix, incident_phase_at
-from holofit.dda.multipole import (
-    NEAR_ZONE,
-    MultipoleExpansion,
-    PlaneGrid,
-    evaluate_plane_at,
+from holofit.conventions import euler_zyz, euler_zyz_from_matrix
+from holofit.optics import Optics
+from holofit.particles import ParticleModel
+from holofit.scattering.expansion_wave import ExpansionWave, NearField
+from holofit.scattering.multipole import (
     evaluate_planes_at,
     plane_grid,
 )
-from holofit.dda.tmatrix import LabCoefficients, TMatrix
-from holofit.dda.tmatrix_waves import pack
-from holofit.dda.wigner import EULER_ANGLES
-from holofit.optics import Optics
-from holofit.particles import ParticleModel
 from holofit.scattering.theory import Orientation, ScatteredWave
+from holofit.scattering.tmatrix import LabCoefficients, TMatrix
+from holofit.scattering.vsw import pack
+from holofit.scattering.wigner import EULER_ANGLES
 
-__all__ = ["ExpansionWave", "NearField", "TMatrixWave"]
+__all__ = ["ExpansionWave", "NearField", "TMatrixWave"]  # the first two re-exported
 
-#: ``points (N, 3) lab, relative to the centre -> field (N, 3)``, exact near the particle
-NearField = Callable[[NDArray[np.float64]], NDArray[np.complex128]]
 #: step of the central differences that give derivatives of the near field, rad
 NEAR_DERIVATIVE_STEP = 1e-4
-
-
-class ExpansionWave(ScatteredWave):
-    """A field given by its outgoing expansion (lab frame) about the particle centre.
-
-    Parameters
-    ----------
-    optics : Optics
-        The illumination (for the wavenumber and the incident phase at the particle).
-    expansion : MultipoleExpansion
-        The field outside the circumscribing sphere.
-    near_field : callable, optional
-        Exact field at points within ``NEAR_ZONE * radius`` (lab, relative to the centre);
-        without it such points raise ``ValueError``.
-    """
-
-    exact_near_field = True
-
-    def __init__(self, optics: Optics, expansion: MultipoleExpansion,
-                 near_field: NearField | None = None) -> None:
-        self.optics = optics
-        self._expansion = expansion
-        self.radius_um = float(expansion.radius_um)
-        self._near = near_field
-        self._grids: LRUCache[tuple, PlaneGrid] = LRUCache(4)
-
-    @property
-    def expansion(self) -> MultipoleExpansion:
-        """Outgoing multipole expansion about the particle centre (lab frame)."""
-        return self._expansion
-
-    def far_field_amplitude(self, directions: ArrayLike) -> NDArray[np.complex128]:
-        """``F(n)`` (lab frame) at lab unit directions, ``E_sca = exp(ikr)/(-ikr) F``."""
-        return -1j * self.expansion.far_amplitude(directions)
-
-    def _near_field(self, points: NDArray) -> NDArray[np.complex128]:
-        if self._near is None:
-            raise ValueError(
-                f"points within {NEAR_ZONE * self.radius_um:.3g} um of the particle centre need "
-                "the dipoles; this wave only has its multipole expansion"
-            )
-        return self._near(points)
-
-    def field_at(self, points_um: ArrayLike, far_field: bool = False) -> NDArray[np.complex128]:
-        pts = np.atleast_2d(np.asarray(points_um, dtype=float))
-        r = np.linalg.norm(pts, axis=1)
-        if far_field:
-            k = self.optics.k
-            f = self.far_field_amplitude(pts / r[:, None])
-            return f * (np.exp(1j * k * r) / (-1j * k * r))[:, None]
-        out = np.empty((pts.shape[0], 3), dtype=complex)
-        near = r < NEAR_ZONE * self.radius_um
-        if np.any(near):
-            out[near] = self._near_field(pts[near])
-        if np.any(~near):
-            out[~near] = self.expansion.field_at(pts[~near])
-        return out
-
-    def _plane_grid(self, z_p: float, delta_max: float, far: bool) -> PlaneGrid:
-        key = (z_p, far)
-        grid = self._grids.get(key)
-        if grid is None or grid.delta_max < delta_max:
-            margin = min(0.03 * delta_max + 0.01, 0.5 * (np.pi / 2 - delta_max))
-            grid = self._grids.put(key, plane_grid(self.expansion, z_p, delta_max + margin, far))
-        return grid
-
-    def _pixel_geometry(self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
-                        far_field: bool) -> tuple:
-        """Offsets, height, widest angle, incident phase and near-zone mask of the pixels."""
-        xp, yp, zp = (float(v) for v in position_um)
-        dx = np.asarray(xs_um, dtype=float).ravel() - xp
-        dy = np.asarray(ys_um, dtype=float).ravel() - yp
-        rho_max = float(np.sqrt(np.max(dx * dx + dy * dy))) if dx.size else 0.0
-        delta_max = float(np.arctan2(rho_max, abs(zp)))
-        phase = complex(incident_phase_at(zp, self.optics.k))
-        skip = None
-        if not far_field and abs(zp) < NEAR_ZONE * self.radius_um:
-            skip = dx * dx + dy * dy + zp * zp < (NEAR_ZONE * self.radius_um) ** 2
-        return dx, dy, zp, delta_max, phase, skip
-
-    def _fill_near(self, ex: NDArray, ey: NDArray, dx: NDArray, dy: NDArray, zp: float,
-                   phase: complex, skip: NDArray | None) -> None:
-        if skip is not None and np.any(skip):
-            idx = np.flatnonzero(skip)
-            pts = np.column_stack([dx[idx], dy[idx], np.full(idx.size, -zp)])
-            e = self._near_field(pts) * phase
-            ex[idx] = e[:, 0]
-            ey[idx] = e[:, 1]
-
-    def field_on_pixels(
-        self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike, far_field: bool = False
-    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
-        """Transverse field at pixel centres, incident phase included: the interpolated
-        multipole grid of the camera plane, the near-field callable for pixels within the near
-        zone."""
-        dx, dy, zp, delta_max, phase, skip = self._pixel_geometry(position_um, xs_um, ys_um,
-                                                                  far_field)
-        if dx.size == 0:
-            return np.zeros(0, dtype=complex), np.zeros(0, dtype=complex)
-        pg = self._plane_grid(zp, delta_max, far_field)
-        ex, ey = evaluate_plane_at(pg, dx, dy, phase, skip)
-        self._fill_near(ex, ey, dx, dy, zp, phase, skip)
-        return ex, ey
 
 
 class TMatrixWave(ExpansionWave):
@@ -194,7 +83,7 @@ class TMatrixWave(ExpansionWave):
 
     @property
     def coefficients(self) -> NDArray[np.complex128]:
-        """Flat lab-frame outgoing coefficients (:mod:`holofit.dda.tmatrix_waves` layout)."""
+        """Flat lab-frame outgoing coefficients (:mod:`holofit.scattering.vsw` layout)."""
         return pack(self.expansion.p, self.expansion.q)
 
     def _direct_near(self, points: NDArray) -> NDArray[np.complex128]:

@@ -2,8 +2,8 @@
 
 Basis
 -----
-The regular waves are those of :mod:`holofit.dda.multipole` with the spherical Bessel function
-``j_n`` in place of ``h_n``:
+The regular waves are those of :mod:`holofit.scattering.multipole` with the spherical Bessel
+function ``j_n`` in place of ``h_n``:
 
     RgM_nm = j_n(kr) [ (i m / sin th) Y_nm e_th - dY_nm/dth e_ph ]  = -j_n(kr) Phi_nm,
     RgN_nm = n(n+1) j_n(kr)/(kr) Y_nm e_r + (kr j_n(kr))'/(kr) Psi_nm,
@@ -17,7 +17,7 @@ Coefficient vectors
 A T-matrix acts on flat vectors of length ``2 L (L + 2)``: first the N-type coefficients
 (``a`` or ``p``), then the M-type ones (``b`` or ``q``), each ordered by ``n = 1..L`` and then
 ``m = -n..n`` (:func:`pack`, :func:`unpack` convert from and to the ``[n, m + L]`` arrays of
-:class:`~holofit.dda.multipole.MultipoleExpansion`).
+:class:`~holofit.scattering.multipole.MultipoleExpansion`).
 
 Plane wave
 ----------
@@ -36,7 +36,8 @@ with a Gauss-Legendre x uniform quadrature that is exact for the band limit of t
 (degree ``L`` of ``g`` plus the ``~kR`` of the plane waves over the lattice), and the sum over
 directions is separable on the dipole lattice (the adjoint of
 :func:`holofit.dda.farfield.dipole_sum_on_grid`), so the incident field of any coefficient
-vector on all dipoles costs a few small matrix products.
+vector on all dipoles costs a few small matrix products
+(:mod:`holofit.dda.tmatrix_incident`).
 """
 
 from __future__ import annotations
@@ -46,13 +47,10 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from holofit.dda.lattice import Lattice
-from holofit.dda.multipole import _full_tables
+from holofit.scattering.multipole import _full_tables
 
 __all__ = [
     "herglotz_density",
-    "incident_on_lattice",
-    "incident_quadrature",
     "n_terms",
     "pack",
     "plane_wave_coefficients",
@@ -175,71 +173,3 @@ def herglotz_density(
     gp = np.fft.ifft(full_p, axis=1, norm="forward")
     e_t, e_p = _spherical_basis(mu, phi)
     return gt[..., None] * e_t + gp[..., None] * e_p
-
-
-def incident_quadrature(order: int, k: float, radius_um: float) -> tuple[NDArray, NDArray,
-                                                                            NDArray]:
-    """Gauss-Legendre x uniform directions for the Herglotz sum over points within
-    ``radius_um``: exact for the degree ``L + K`` of the integrand, ``K = kR + 6 (kR)^(1/3) +
-    10`` (the effective band limit of ``exp(i k k^.r)`` for ``|r| <= R``).
-
-    Returns ``mu, weights, phi`` (weights include the ``2 pi / n_phi`` of the azimuths).
-    """
-    x = k * radius_um
-    band = order + int(np.ceil(x + 6.0 * x ** (1.0 / 3.0) + 10.0))
-    n_theta = band // 2 + 2
-    n_phi = band + 2
-    n_phi += n_phi % 2
-    mu, w = np.polynomial.legendre.leggauss(n_theta)
-    phi = 2.0 * np.pi * np.arange(n_phi) / n_phi
-    return mu, w * (2.0 * np.pi / n_phi), phi
-
-
-def incident_on_lattice(
-    lattice: Lattice, vecs: NDArray[np.complex128], k: float, order: int,
-) -> NDArray[np.complex128]:
-    """Incident field at every dipole of the regular waves with coefficients ``vecs``.
-
-    Parameters
-    ----------
-    lattice : Lattice
-        The dipoles (particle frame, positions relative to the expansion centre).
-    vecs : ndarray, shape (n_terms,) or (n_terms, n_fields)
-        Coefficient vector(s).
-    k : float
-        Wavenumber in the medium, rad/um.
-    order : int
-        ``L`` of the vectors.
-
-    Returns
-    -------
-    ndarray, shape (N, 3) or (n_fields, N, 3)
-    """
-    single = np.ndim(vecs) == 1
-    vecs = np.asarray(vecs, dtype=complex).reshape(n_terms(order), -1)
-    radius = float(np.sqrt((lattice.positions**2).sum(axis=1)).max())
-    mu, w, phi = incident_quadrature(order, k, radius)
-    nx, ny, nz = lattice.shape
-    d = lattice.d
-    ix, iy, iz = (np.arange(s) for s in lattice.shape)
-    st = np.sqrt(1.0 - mu**2)
-    cp, sp = np.cos(phi), np.sin(phi)
-    ox, oy, oz = lattice.origin
-    n_f = vecs.shape[1]
-    # s[i, x, y, f, c]: the x-y sums per polar angle
-    s = np.empty((mu.size, nx, ny, n_f, 3), dtype=complex)
-    dens = np.stack([herglotz_density(vecs[:, f], mu, phi, order) for f in range(n_f)],
-                    axis=2)  # (n_theta, n_phi, n_f, 3)
-    for i in range(mu.size):
-        kap = k * st[i] * d
-        ex = np.exp(1j * kap * np.outer(ix, cp))  # (nx, n_phi)
-        ey = np.exp(1j * kap * np.outer(iy, sp))  # (ny, n_phi)
-        phase = w[i] * np.exp(1j * k * (st[i] * (cp * ox + sp * oy) + mu[i] * oz))
-        h = (dens[i] * phase[:, None, None]).reshape(phi.size, -1)  # (n_phi, n_f*3)
-        t = ey.T[:, :, None] * h[:, None, :]  # (n_phi, ny, n_f*3)
-        s[i] = (ex @ t.reshape(phi.size, -1)).reshape(nx, ny, n_f, 3)
-    ez = np.exp(1j * k * d * np.outer(iz, mu))  # (nz, n_theta)
-    box = (ez @ s.reshape(mu.size, -1)).reshape(nz, nx, ny, n_f, 3)
-    box = box.transpose(3, 1, 2, 0, 4).reshape(n_f, nx * ny * nz, 3)
-    out = box[:, lattice.flat_index]
-    return out[0] if single else out

@@ -12,10 +12,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from holofit.conventions import DetectorGrid
 from holofit.scattering.lens import lens_field_on_pixels
 from holofit.scattering.theory import ScatteredWave
 
-__all__ = ["has_lens", "recorded_field"]
+__all__ = ["has_lens", "recorded_field", "recorded_field_on_detector"]
 
 
 def has_lens(wave: ScatteredWave) -> bool:
@@ -47,3 +48,12 @@ def recorded_field(
     if numerical_aperture is not None or has_lens(wave):
         return lens_field_on_pixels(wave, position_um, xs_um, ys_um, numerical_aperture)
     return wave.field_on_pixels(position_um, xs_um, ys_um, far_field)
+
+
+def recorded_field_on_detector(
+    wave: ScatteredWave, position_um: ArrayLike, grid: DetectorGrid, far_field: bool = False,
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    """:func:`recorded_field` at every pixel of ``grid`` (arrays of ``grid.shape``)."""
+    x, y = grid.coordinates()
+    ex, ey = recorded_field(wave, position_um, x.ravel(), y.ravel(), far_field)
+    return ex.reshape(grid.shape), ey.reshape(grid.shape)

@@ -1,7 +1,8 @@
 """Choosing the scattering engine for a particle: the one rule, used by every stage.
 
-``auto`` means the exact solution where one exists, and otherwise the engine the DDA settings
-name (the built-in DDA unless they say ``adda``):
+``auto`` means the exact solution where one exists (the first exact engine of
+:data:`holofit.engines.registry.EXACT_ENGINES` whose class can handle the model), and otherwise
+the engine the DDA settings name (the built-in DDA unless they say ``adda``):
 
 * a sphere without DDA settings: Lorenz-Mie (``mie``); a sphere with a ``[dda]`` table in its
   config is computed by the DDA (that is how the paper's DDA-vs-Mie validation is run);
@@ -15,30 +16,21 @@ name (the built-in DDA unless they say ``adda``):
 from __future__ import annotations
 
 from holofit.dda.settings import DDASettings
-from holofit.particles import Cluster, CoatedSphere, Dimer, ParticleModel, Sphere
-from holofit.scattering.registry import get_theory
+from holofit.engines.registry import ENGINE_NAMES, EXACT_ENGINES, engine_class, get_theory
+from holofit.particles import ParticleModel
 from holofit.scattering.theory import ScatteringTheory
 
 __all__ = ["ENGINE_CHOICES", "exact_engine", "select_theory"]
 
-ENGINE_CHOICES = ("auto", "mie", "builtin", "adda", "cluster", "coated_sphere")
-
-#: the exact engines and the models each one handles
-_EXACT: dict[str, tuple[type[ParticleModel], ...]] = {
-    "mie": (Sphere,),
-    "cluster": (Sphere, Dimer, Cluster),
-    "coated_sphere": (CoatedSphere,),
-}
+#: what ``--engine`` and a config's ``engine`` accept
+ENGINE_CHOICES: tuple[str, ...] = ("auto", *ENGINE_NAMES)
 
 
 def exact_engine(model: ParticleModel) -> str | None:
     """The exact engine ``auto`` picks for ``model`` without DDA settings, or None."""
-    if isinstance(model, Sphere):
-        return "mie"
-    if isinstance(model, Dimer | Cluster):
-        return "cluster"
-    if isinstance(model, CoatedSphere):
-        return "coated_sphere"
+    for name in EXACT_ENGINES:
+        if engine_class(name).can_handle(model):
+            return name
     return None
 
 
@@ -59,7 +51,7 @@ def select_theory(
     Raises
     ------
     ValueError
-        An unknown engine, or an exact engine asked for a particle it does not describe.
+        An unknown engine, or an engine asked for a particle it does not handle.
     """
     engine = engine or "auto"
     if engine not in ENGINE_CHOICES:
@@ -71,10 +63,9 @@ def select_theory(
             engine = dda_engine
         else:
             engine = exact
-    if engine in _EXACT:
-        if not isinstance(model, _EXACT[engine]):
-            what = {"mie": "spheres", "cluster": "spheres, dimers and sphere clusters",
-                    "coated_sphere": "coated spheres"}[engine]
-            raise ValueError(f"the {engine} engine handles {what} only, not {model.kind!r}")
+    cls = engine_class(engine)
+    if not cls.can_handle(model):
+        raise ValueError(f"the {engine} engine handles {cls.handles} only, not {model.kind!r}")
+    if engine in EXACT_ENGINES:
         return get_theory(engine)
     return get_theory(engine, settings=settings or DDASettings())

@@ -3,8 +3,8 @@
 With an incidence-independent polarisability (``"fcd"``, the engine's default, ``"ldr_avg"``
 or ``"cm"``, :mod:`holofit.dda.polarizability`), the DDA is one linear map from the incident
 field at the dipoles to their moments, so the lattice has a T-matrix: regular-wave
-coefficients of any incident field (:mod:`holofit.dda.tmatrix_waves`) to outgoing-wave
-coefficients of its scattered field (:mod:`holofit.dda.multipole`), both about the particle
+coefficients of any incident field (:mod:`holofit.scattering.vsw`) to outgoing-wave
+coefficients of its scattered field (:mod:`holofit.scattering.multipole`), both about the particle
 centre in the particle frame, truncated at order ``L``. It is built once from DDA solves
 (:func:`holofit.dda.tmatrix_build.build_tmatrix`) and then any orientation is
 
@@ -12,7 +12,7 @@ centre in the particle frame, truncated at order ``L``. It is built once from DD
 
 with ``a_lab`` the coefficients of the instrument's plane wave and ``D(R)`` the Wigner matrices
 of the particle-to-lab rotation ``R = Rz(psi) Ry(theta) Rz(phi)``
-(:mod:`holofit.dda.wigner`). Because ``T`` is the lattice's own linear map, the result equals
+(:mod:`holofit.scattering.wigner`). Because ``T`` is the lattice's own linear map, the result equals
 a fresh DDA solve of that lattice to truncation and solver precision at every orientation (not
 an interpolation). The derivatives with respect to the Euler angles are exact:
 ``d o_lab = (dD) T D^H a + D T (dD)^H a`` (one product of ``T`` with four vectors).
@@ -50,9 +50,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.conventions import PROPAGATION_DIRECTION
-from holofit.dda.multipole import MultipoleExpansion
-from holofit.dda.tmatrix_waves import n_terms, plane_wave_coefficients, term_indices, unpack
-from holofit.dda.wigner import EULER_ANGLES, wigner_d_all
+from holofit.scattering.multipole import MultipoleExpansion
+from holofit.scattering.vsw import n_terms, plane_wave_coefficients, term_indices, unpack
+from holofit.scattering.wigner import EULER_ANGLES, wigner_d_all
 
 __all__ = ["LabCoefficients", "TMatrix", "z_rotation_order"]
 
@@ -110,7 +110,7 @@ class TMatrix:
     ----------
     order : int
         Truncation order ``L``; vectors have ``2 L (L + 2)`` entries
-        (:mod:`holofit.dda.tmatrix_waves` layout).
+        (:mod:`holofit.scattering.vsw` layout).
     k : float
         Wavenumber in the medium, rad/um.
     radius_um : float

@@ -227,7 +227,7 @@ def apply_blocks(
     sign_n: NDArray | None = None, sign_m: NDArray | None = None, adjoint: bool = False,
 ) -> NDArray[np.complex128]:
     """Apply a block-diagonal representation (per-n blocks, same for N and M types, optional
-    per-n signs) to flat coefficient vectors (:mod:`holofit.dda.tmatrix_waves` layout), along
+    per-n signs) to flat coefficient vectors (:mod:`holofit.scattering.vsw` layout), along
     their first axis; ``adjoint`` applies its conjugate transpose."""
     vecs = np.asarray(vecs)
     out = np.empty(vecs.shape, dtype=complex)
