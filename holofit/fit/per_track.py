@@ -16,6 +16,11 @@ Static parameters (``static_mode``):
   of them (``OUT/static.json``), which every track's final pass uses (one batch of identical
   particles).
 
+Frames whose crop another track's hologram overlaps (the crop table's ``overlap``) and whose
+fit is not ``ok`` become ``overlap`` in ``OUT/fit.csv`` (:func:`mark_overlap`; ``holofit
+analyze`` uses ``ok`` rows only). The neighbour's field is not yet part of the fitted model
+(:mod:`holofit.holomodel.forward` takes a fixed extra field; the frame fit does not pass one).
+
 A crop folder of one track is fitted exactly as before, into ``OUT`` itself.
 """
 
@@ -32,10 +37,11 @@ from holofit.fit.errors import FitStageError
 from holofit.fit.stage import FitRun, run_fit
 from holofit.fit.static import write_static
 from holofit.io.tables import read_table, sidecar_path, write_json, write_table
+from holofit.status import OK, OVERLAP, SKIPPED
 from holofit.tables.cropset import CropSet, write_track_view
 from holofit.tables.inputs import read_stage_table
 
-__all__ = ["STATIC_MODES", "run_fit_tracks", "track_dir"]
+__all__ = ["STATIC_MODES", "mark_overlap", "run_fit_tracks", "track_dir"]
 
 #: how the static parameters of several tracks are found
 STATIC_MODES = ("per-track", "pooled")
@@ -64,7 +70,8 @@ def _track_table(path: Path | None, crops: CropSet, what: str, particle: int,
     return target
 
 
-def _combine(runs: dict[int, FitRun], attr: str, out: Path, name: str) -> Path | None:
+def _combine(runs: dict[int, FitRun], attr: str, out: Path, name: str,
+             overlaps: pd.DataFrame | None = None) -> Path | None:
     """Every track's table ``attr`` (initial or final) as one table with ``particle`` first."""
     parts, meta = [], None
     for p, run in runs.items():
@@ -79,6 +86,8 @@ def _combine(runs: dict[int, FitRun], attr: str, out: Path, name: str) -> Path |
                 meta = json.loads(sidecar_path(path).read_text())
     table = pd.concat(parts, ignore_index=True)
     table = table[["particle", *[c for c in table.columns if c != "particle"]]]
+    if overlaps is not None:
+        table = mark_overlap(table, overlaps)
     meta = dict(meta or {})
     meta["units"] = {"particle": "track id (the crop stage's tracks mode)",
                      **dict(meta.get("units") or {})}
@@ -134,7 +143,37 @@ def run_fit_tracks(crop_dir: str | Path, prefit: str | Path, library: str | Path
                 lib = _track_table(None if library is None else Path(library), crops,
                                    "library", p, view, tdir)
             views[p] = (vdir, pre, lib)
-    return _fit_views(views, particle, out, static_mode, kwargs, _frames_of(crops, ids, kwargs))
+    return _fit_views(views, particle, out, static_mode, kwargs, _frames_of(crops, ids, kwargs),
+                      _overlaps(crops))
+
+
+def _overlaps(crops: CropSet) -> pd.DataFrame:
+    """The crop rows marked ``overlap``: particle, frame, neighbour, neighbour_px."""
+    table = crops.table
+    if "overlap" not in table.columns:
+        return pd.DataFrame(columns=["particle", "frame", "neighbour", "neighbour_px"])
+    marked = table["overlap"].astype(str).str.lower().isin(["true", "1"])
+    return table.loc[marked, ["particle", "frame", "neighbour", "neighbour_px"]]
+
+
+def mark_overlap(table: pd.DataFrame, overlaps: pd.DataFrame) -> pd.DataFrame:
+    """Rows of a combined fit table whose crop overlaps another track's hologram and whose
+    fit is not ``ok`` (nor ``skipped``) get status ``overlap``, the old status and message
+    kept in the message; the others are unchanged."""
+    if overlaps.empty:
+        return table
+    marks = {(int(r.particle), int(r.frame)): (int(r.neighbour), float(r.neighbour_px))
+             for r in overlaps.itertuples()}
+    out = table.copy()
+    for i, row in out.iterrows():
+        hit = marks.get((int(row["particle"]), int(row["frame"])))
+        if hit is None or row["status"] in (OK, SKIPPED):
+            continue
+        msg = "" if pd.isna(row.get("message")) else str(row.get("message"))
+        out.at[i, "status"] = OVERLAP
+        out.at[i, "message"] = (f"track {hit[0]}'s hologram overlaps ({hit[1]:.0f} px away); "
+                                f"fit {row['status']}" + (f": {msg}" if msg else ""))
+    return out
 
 
 def _frames_of(crops: CropSet, ids: list[int], kwargs: dict[str, Any]
@@ -152,7 +191,8 @@ def _frames_of(crops: CropSet, ids: list[int], kwargs: dict[str, Any]
 
 def _fit_views(views: dict[int, tuple[Path, Path | None, Path | None]],
                particle: ParticleConfig, out: Path, static: str,
-               kwargs: dict[str, Any], cut: dict[int, dict[str, Any]]) -> FitRun:
+               kwargs: dict[str, Any], cut: dict[int, dict[str, Any]],
+               overlaps: pd.DataFrame) -> FitRun:
     runs: dict[int, FitRun] = {}
     combined = FitRun()
     pass_name = kwargs.pop("pass_name", "both")
@@ -183,7 +223,7 @@ def _fit_views(views: dict[int, tuple[Path, Path | None, Path | None]],
         combined.initial = _combine(runs, "initial", out, "initial.csv")
     if combined.static is None and pass_name in ("both", "initial"):
         combined.static = _static_index(runs, out)
-    combined.final = _combine(runs, "final", out, "fit.csv")
+    combined.final = _combine(runs, "final", out, "fit.csv", overlaps)
     return combined
 
 
