@@ -193,3 +193,18 @@ def test_fit_per_track_combines_the_tracks(scene, tmp_path):
     assert rms < 0.01  # 10 nm
     for p in mapping:
         assert (tmp_path / "fit" / f"particle_{p}" / "fit.csv").exists()
+
+
+def test_failed_fits_of_overlapping_frames_become_overlap():
+    from holofit.fit.per_track import mark_overlap
+
+    fit = pd.DataFrame({"particle": [0, 0, 0, 1], "frame": [1, 2, 3, 2],
+                        "status": ["poor_fit", "ok", "poor_fit", "failed"],
+                        "message": ["far above the noise", "", "x", ""]})
+    overlaps = pd.DataFrame({"particle": [0, 0, 1], "frame": [1, 2, 2], "neighbour": [1, 1, 0],
+                             "neighbour_px": [20.0, 18.0, 18.0]})
+    out = mark_overlap(fit, overlaps)
+    # overlapping and failing: overlap; overlapping and ok: ok; failing alone: unchanged
+    assert out["status"].tolist() == ["overlap", "ok", "poor_fit", "overlap"]
+    assert out["message"][0] == ("track 1's hologram overlaps (20 px away); fit poor_fit: far "
+                                 "above the noise")
