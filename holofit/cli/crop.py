@@ -245,9 +245,9 @@ def _report(result: CropResult) -> None:
     counts = ", ".join(f"{v} {k}" for k, v in result.counts.items() if v)
     n_tracks = (result.frames["particle"].nunique() if "particle" in result.frames.columns
                 else 1)
-    tracks = f"{n_tracks} tracks, " if n_tracks > 1 else ""
-    click.echo(f"wrote {result.crops} and {result.table} ({tracks}{len(result.frames)} frames: "
-               f"{counts})")
+    rows = (f"{n_tracks} tracks, {len(result.frames)} (particle, frame) rows" if n_tracks > 1
+            else f"{len(result.frames)} frames")
+    click.echo(f"wrote {result.crops} and {result.table} ({rows}: {counts})")
     for problem in [*result.problems, *result.warnings]:
         click.echo(f"holofit crop: warning: {problem}", err=True)
     errors = result.frames[result.frames["status"] == CROP_ERROR]
