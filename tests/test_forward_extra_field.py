@@ -13,8 +13,8 @@ from holofit.holomodel.leastsq import solve_least_squares
 from holofit.holomodel.parameters import ParameterSpace, State, static_values
 from holofit.optics import Optics
 from holofit.particles import Sphere
-from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.mie import LorenzMie
+from holofit.scattering.recorded_field import recorded_field
 
 OPTICS = Optics(0.66, 1.33, 0.0)
 A, B = Sphere(0.5, 1.59), Sphere(0.6, 1.59)
