@@ -208,3 +208,21 @@ def test_failed_fits_of_overlapping_frames_become_overlap():
     assert out["status"].tolist() == ["overlap", "ok", "poor_fit", "overlap"]
     assert out["message"][0] == ("track 1's hologram overlaps (20 px away); fit poor_fit: far "
                                  "above the noise")
+
+
+def test_fringes_of_a_strong_hologram_are_not_a_track():
+    """A steady weak 'centre' 20 px from a hologram three times as strong (its rings cut by
+    the frame edge) is left out and reported; a weak particle far away is kept."""
+    import json
+
+    det = {}
+    for k in range(12):
+        found = [[50.0 + 0.1 * k, 50.0, 300.0, 0.9, 0.99, "symmetry"],
+                 [70.0, 50.0 + 0.05 * k, 100.0, 0.5, 0.9, "symmetry"],
+                 [200.0 - 0.1 * k, 150.0, 90.0, 0.8, 0.95, "symmetry"]]
+        det[k] = {"status": "ok", "n_found": 3, "candidates": json.dumps(found)}
+    plan = link_detections(det, 12, 0.1, LinkOptions(min_track_length=4), 48)
+    assert sorted(plan.spans) == [0, 1]
+    assert plan.linked.groupby("particle")["x_px"].median().round().tolist() == [50.0, 199.0]
+    assert any("fringes of a stronger hologram" in w and "(70, 50) px" in w
+               for w in plan.warnings)

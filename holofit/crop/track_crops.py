@@ -17,6 +17,9 @@ each (particle, frame) with its nearest other track (:func:`holofit.crop.tracks.
   movie, as the single-particle modes give: the crops of a one-particle movie are the same in
   every mode.
 
+Tracks that are fringes of a stronger hologram (rings cut by the frame edge, or crossing, that
+the centre finder takes for centres) are left out and reported (:func:`drop_ghosts`).
+
 Two holograms whose centres are closer than half a crop's side overlap in the crop: the row's
 ``overlap`` is true, ``neighbour`` names the other track and ``neighbour_px`` the distance.
 """
@@ -34,8 +37,8 @@ from holofit.crop.detect import DETECTED, found_from_json
 from holofit.crop.errors import CropError
 from holofit.crop.tracks import LinkOptions, TrackError, link_tracks, mark_neighbours
 
-__all__ = ["TrackPlan", "effective_link_options", "link_detections", "one_per_frame",
-           "track_rows"]
+__all__ = ["GHOST_SCORE_RATIO", "TrackPlan", "drop_ghosts", "effective_link_options",
+           "link_detections", "one_per_frame", "track_rows"]
 
 
 def one_per_frame(detections: dict[int, dict[str, Any]]) -> bool:
@@ -123,10 +126,18 @@ def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_
     try:
         tracks = link_tracks(_candidates_table(detections), pixel_size_um, opts)
         linked = mark_neighbours(tracks.candidates)
+        linked, ghosts = drop_ghosts(linked, tracks.summary, size)
     except TrackError as exc:
         raise CropError(f"linking tracks: {exc}") from None
     warnings = []
-    dropped = tracks.summary[~tracks.summary["kept"].astype(bool)] if len(tracks.summary) else []
+    if ghosts:
+        warnings.append(f"{len(ghosts)} track(s) left out as fringes of a stronger hologram "
+                        f"(within {GHOST_REACH:g} crop of a track at least"
+                        f" {GHOST_SCORE_RATIO:g} times "
+                        f"as strong in most of their frames): " + "; ".join(ghosts[:5]))
+    summary = tracks.summary
+    dropped = (summary[~summary["kept"].astype(bool) & (summary["reason"] != GHOST_REASON)]
+               if len(summary) else [])
     if len(dropped):
         shown = "; ".join(f"frames {int(r.first_frame)}-{int(r.last_frame)} at "
                           f"({r.x_px_start:.0f}, {r.y_px_start:.0f}) px: {r.reason}"
@@ -154,6 +165,64 @@ def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_
         for p, track in linked.groupby("particle"):
             spans[int(p)] = (int(track["frame"].min()), int(track["frame"].max()))
     return TrackPlan(linked, tracks.summary, spans, warnings)
+
+
+#: a track this many times weaker than a neighbour within half a crop is that one's fringes
+GHOST_SCORE_RATIO = 2.0
+#: the summary's reason for such a track
+GHOST_REASON = "fringes of a stronger hologram"
+#: ... in at least this fraction of its frames
+GHOST_FRACTION = 0.8
+#: ... within this fraction of a crop's side (a hologram's fringes reach past its crop's half)
+GHOST_REACH = 0.75
+
+
+def drop_ghosts(linked: pd.DataFrame, summary: pd.DataFrame, size: int
+                ) -> tuple[pd.DataFrame, list[str]]:
+    """Leave out tracks that are fringes of a stronger hologram, not particles.
+
+    The centre finder also finds points where a hologram's rings are cut by the frame edge
+    or cross: near a strong hologram they form steady tracks. A track whose nearest other
+    track lies within :data:`GHOST_REACH` of a crop's side and scores at least
+    :data:`GHOST_SCORE_RATIO` times
+    higher in at least :data:`GHOST_FRACTION` of its frames is left out (reported), the ids
+    renumbered in order of first appearance, the neighbours marked again. The price: a real
+    particle much weaker than a neighbour that close is left out too; the centre finder does
+    not resolve such a pair anyway (it finds one centre, README: crop).
+
+    Returns
+    -------
+    linked : pandas.DataFrame
+        Without the ghosts' rows.
+    reasons : list of str
+        One line per track left out.
+    """
+    if linked.empty or linked["particle"].nunique() < 2:
+        return linked, []
+    score = linked.set_index(["particle", "frame"])["score"]
+    near = linked["neighbour_px"] < GHOST_REACH * size
+    keys = list(zip(linked["neighbour"], linked["frame"], strict=True))
+    other = np.array([score.get(k, np.nan) if n else np.nan
+                      for k, n in zip(keys, near, strict=True)], dtype=float)
+    weak = other >= GHOST_SCORE_RATIO * linked["score"].to_numpy(dtype=float)
+    share = pd.Series(weak, index=linked.index).groupby(linked["particle"]).mean()
+    ghosts = sorted(int(p) for p in share.index[share >= GHOST_FRACTION])
+    if not ghosts or len(ghosts) == linked["particle"].nunique():
+        return linked, []
+    reasons = []
+    for p in ghosts:
+        t = linked[linked["particle"] == p]
+        reasons.append(f"frames {int(t['frame'].min())}-{int(t['frame'].max())} at "
+                       f"({t['x_px'].median():.0f}, {t['y_px'].median():.0f}) px")
+    kept = linked[~linked["particle"].isin(ghosts)]
+    ids = {old: new for new, old in enumerate(sorted(kept["particle"].unique()))}
+    kept = kept.assign(particle=kept["particle"].map(ids)).drop(
+        columns=["neighbour", "neighbour_px"])
+    summary_ids = summary["particle"].isin(ghosts)
+    summary.loc[summary_ids, "kept"] = False
+    summary.loc[summary_ids, "reason"] = GHOST_REASON
+    summary["particle"] = [ids.get(p, -1) for p in summary["particle"]]
+    return mark_neighbours(kept.reset_index(drop=True)), reasons
 
 
 def track_rows(plan: TrackPlan, frame: int, size: int) -> list[tuple[int, dict[str, Any] | None]]:
