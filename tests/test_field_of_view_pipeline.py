@@ -223,6 +223,6 @@ def test_fringes_of_a_strong_hologram_are_not_a_track():
         det[k] = {"status": "ok", "n_found": 3, "candidates": json.dumps(found)}
     plan = link_detections(det, 12, 0.1, LinkOptions(min_track_length=4), 48)
     assert sorted(plan.spans) == [0, 1]
-    assert plan.linked.groupby("particle")["x_px"].median().round().tolist() == [50.0, 199.0]
+    assert plan.linked.groupby("particle")["x_px"].median().round().tolist() == [51.0, 199.0]
     assert any("fringes of a stronger hologram" in w and "(70, 50) px" in w
                for w in plan.warnings)
