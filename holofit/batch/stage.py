@@ -86,7 +86,7 @@ def check_frames(crops: CropSet, frames: Sequence[int] | None) -> list[Any]:
     unknown = sorted(set(asked or []) - set(crops.frames))
     if unknown:
         raise CropSetError(f"{crops.table_path}: no frame(s) {unknown[:5]}")
-    if crops.multi:  # several tracks: every (particle, frame) of the frames asked for
+    if getattr(crops, "multi", False):  # several tracks: each (particle, frame) of those frames
         return [k for k in crops.keys if asked is None or k[1] in set(asked)]
     return crops.frames if asked is None else asked
 
