@@ -70,7 +70,15 @@ def plot_overview(
     here = candidates[candidates["frame"] == k]
     ax.scatter(here["x_px"], here["y_px"], s=120, facecolors="none", edgecolors="yellow",
                label="candidates")  # fmt: skip
-    ax.plot(frames["x_px"], frames["y_px"], "-", color="tab:cyan", lw=1, label="track")
+    tracks = (list(frames.groupby("particle")) if "particle" in frames.columns
+              else [(0, frames)])
+    for i, (p, track) in enumerate(tracks):
+        ax.plot(track["x_px"], track["y_px"], "-", color="tab:cyan", lw=1,
+                label="track" if len(tracks) == 1 else ("tracks" if i == 0 else None))
+        if len(tracks) > 1 and track["x_px"].notna().any():
+            first = track[track["x_px"].notna()].iloc[0]
+            ax.annotate(str(p), (first["x_px"], first["y_px"]), color="tab:cyan",
+                        xytext=(6, 6), textcoords="offset points", fontsize=9)
     ax.add_patch(Rectangle((col0 - 0.5, row0 - 0.5), size, size, fill=False, ec="tab:red"))
     ax.set_title(f"frame {k}, normalised; crop {size} x {size}")
     ax.set_xlabel("x (column), px")
@@ -80,14 +88,18 @@ def plot_overview(
     crop = image[row0 : row0 + size, col0 : col0 + size]
     ax.imshow(crop, cmap="gray", interpolation="nearest",
               extent=(col0 - 0.5, col0 + size - 0.5, row0 + size - 0.5, row0 - 0.5))  # fmt: skip
-    sel = frames.loc[frames["frame"] == k]
+    sel = frames.loc[(frames["frame"] == k) & frames["x_px"].between(col0, col0 + size - 1)
+                     & frames["y_px"].between(row0, row0 + size - 1)]
     ax.plot(sel["x_px"], sel["y_px"], "+", color="tab:red", ms=14)
     ax.set_title(f"crop of frame {k} (+ = centre)")
     ax.set_xlabel("x (column), px")
     ax.set_ylabel("y (row), px")
     ax = axes[1, 0]
-    ax.plot(frames["frame"], frames["x_px"], ".-", ms=3, label="x (column)")
-    ax.plot(frames["frame"], frames["y_px"], ".-", ms=3, label="y (row)")
+    for i, (_, track) in enumerate(tracks):
+        ax.plot(track["frame"], track["x_px"], ".-", ms=3, color="tab:blue",
+                label="x (column)" if i == 0 else None)
+        ax.plot(track["frame"], track["y_px"], ".-", ms=3, color="tab:orange",
+                label="y (row)" if i == 0 else None)
     ax.set_xlabel("frame")
     ax.set_ylabel("centre, px")
     ax.legend(fontsize=8)
