@@ -299,6 +299,34 @@ def _remove_stale(paths: list[Path]) -> None:
             p.unlink()
 
 
+def _follower(follow: str, start: tuple[float, float] | None, max_jump_px: float | None,
+              size: int) -> Follower:
+    """The single-particle follower (tracks mode: the strongest hologram of the preview)."""
+    return Follower(follow if follow != TRACKS else "strongest", start,
+                    max_jump_px if max_jump_px is not None else size / 4.0)
+
+
+def _link_options(follow: str, link: LinkOptions | None, particle: int | None) -> LinkOptions:
+    """The linking options; refused with a single-particle ``follow``."""
+    if follow != TRACKS and (link is not None or particle is not None):
+        raise CropError("--particle and the linking options (--search-range-um, --memory, "
+                        "--min-track-length, --max-particles) need --follow tracks")
+    return link or LinkOptions()
+
+
+def _settings(size: int, follow: str, start: tuple[float, float] | None, follower: Follower,
+              finder: CenterFinder, norm_info: dict[str, Any], mask_saturated: bool,
+              link: LinkOptions, particle: int | None) -> dict[str, Any]:
+    """The crop's settings as its sidecar records them."""
+    settings = {"size_px": size, "follow": follow,
+                "start_px": list(start) if start is not None else None,
+                "max_jump_px": follower.max_jump_px, "finder": finder.as_dict(),
+                "normalization": {**norm_info, "mask_saturated": mask_saturated}}
+    if follow == TRACKS:
+        settings["tracks"] = {**link.as_dict(), "particle": particle}
+    return settings
+
+
 def run_crop(
     movie_path: str | Path, background_path: References | None,
     instrument: Instrument | str | Path, out_dir: str | Path, *, normalized: bool = False,
@@ -360,27 +388,18 @@ def run_crop(
         Unusable input (the message names the file, and the frame where one is at fault).
     """
     refuse_while_worker_starts("run_crop")
-    inst = _resolve_instrument(instrument)
-    size = int(size)
+    inst, size = _resolve_instrument(instrument), int(size)
     backgrounds = _check_arguments(size, background_path, normalized, dark)
     finder = finder or CenterFinder(radius_px=size / 2.0)
-    follower = Follower(follow if follow != TRACKS else "strongest", start,
-                        max_jump_px if max_jump_px is not None else size / 4.0)
-    if follow != TRACKS and (link is not None or particle is not None):
-        raise CropError("--particle and the linking options (--search-range-um, --memory, "
-                        "--min-track-length, --max-particles) need --follow tracks")
-    link = link or LinkOptions()
+    follower = _follower(follow, start, max_jump_px, size)
+    link = _link_options(follow, link, particle)
     with _open(movie_path) as movie:
         _check_for_movie(movie, movie_path, size, follow, start)
         saturation = _saturation(movie, inst) if mask_saturated else None
         normalizer, norm_info = _normalizer(movie, normalized, backgrounds, dark,
                                             min_background, saturation, inst)
-        settings = {"size_px": size, "follow": follow,
-                    "start_px": list(start) if start is not None else None,
-                    "max_jump_px": follower.max_jump_px, "finder": finder.as_dict(),
-                    "normalization": {**norm_info, "mask_saturated": mask_saturated}}
-        if follow == TRACKS:
-            settings["tracks"] = {**link.as_dict(), "particle": particle}
+        settings = _settings(size, follow, start, follower, finder, norm_info, mask_saturated,
+                             link, particle)
         inputs = [movie_path, *backgrounds, *([] if isinstance(dark, int | float)
                                              else _paths(dark))]
         detect = _detect_config(movie, movie_path, backgrounds, dark, normalized,
