@@ -22,6 +22,7 @@ __all__ = [
     "FIT_STATUS_MEANINGS",
     "NOT_CONVERGED",
     "OK",
+    "OVERLAP",
     "POOR_FIT",
     "SKIPPED",
     "describe",
@@ -52,6 +53,7 @@ FAILED = "failed"
 ERROR = "error"
 NOT_CONVERGED = "not_converged"
 SKIPPED = "skipped"
+OVERLAP = "overlap"
 FIT_STATUS_MEANINGS: dict[str, str] = {
     OK: "converged fit, close to the data and physical",
     POOR_FIT: "converged, but far from the data or outside the physical range (message says)",
@@ -59,6 +61,8 @@ FIT_STATUS_MEANINGS: dict[str, str] = {
     ERROR: "the fit raised an exception (message says which)",
     NOT_CONVERGED: "the fit hit its iteration limit",
     SKIPPED: "no hologram to fit (e.g. the crop stage found no particle)",
+    OVERLAP: "another track's hologram overlaps the crop (crop table: overlap) and the fit "
+             "is not ok: left out of the analysis",
 }
 FIT_STATUSES: tuple[str, ...] = tuple(FIT_STATUS_MEANINGS)
 #: statuses that ``--retry-failed`` runs again

@@ -67,7 +67,7 @@ def two_particles(tmp_path_factory):
 def test_the_other_particles_frames_are_off_track_and_said(two_particles, tmp_path):
     out, inst = two_particles
     result = run_crop(out / "movie.tif", out / "bg.tif", inst, tmp_path / "crop", size=48,
-                      plot=False)
+                      plot=False, follow="strongest")
     status = result.frames.set_index("frame")["status"]
     # the strongest hologram is the second particle's while it is in view: before, these
     # five frames were `ok` at (85, 85) px, and a fit would have followed the other particle
@@ -87,7 +87,7 @@ def test_the_crop_command_warns(two_particles, tmp_path):
     out, _ = two_particles
     res = CliRunner().invoke(main, ["crop", str(out / "movie.tif"), "-b", str(out / "bg.tif"),
                                     "-i", "paper_100x_oil", "-o", str(tmp_path / "c"),
-                                    "--size", "48", "--no-plot"])
+                                    "--size", "48", "--no-plot", "--follow", "strongest"])
     assert res.exit_code == 0, res.output
     assert "25 ok" in res.stdout and "5 off_track" in res.stdout
     assert "holofit crop: warning: the strongest hologram jumped" in res.stderr

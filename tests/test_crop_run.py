@@ -140,7 +140,7 @@ def test_follow_nearest_tracks_the_chosen_particle(tmp_path):
     tifffile.imwrite(tmp_path / "bg.tif", np.full(shape, 120, np.uint8))
 
     best = run_crop(tmp_path / "movie.tif", tmp_path / "bg.tif", inst, tmp_path / "a",
-                    size=100, plot=False).frames  # fmt: skip
+                    size=100, plot=False, follow="strongest").frames  # fmt: skip
     assert np.hypot(best["x_px"] - strong[:, 0], best["y_px"] - strong[:, 1]).max() < 0.3
 
     near = run_crop(tmp_path / "movie.tif", tmp_path / "bg.tif", inst, tmp_path / "b",

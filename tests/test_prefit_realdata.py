@@ -126,3 +126,29 @@ def test_a_fit_far_from_the_data_is_not_plain_ok(tmp_path):
     row = pd.read_csv(result.table).iloc[0]
     assert row["status"] == "poor_fit"
     assert "far above the pixel noise" in row["message"] or "outside" in row["message"]
+
+
+def test_pylorenzmie_image0400_two_tracks_without_a_start_point(tmp_path):
+    """Issue 22: the crop stage's default (tracks) finds both spheres of image0400 with no
+    start point, one track each, and the prefit of each (keyed by particle, frame) gives what
+    the single-particle crops above give (the published sizes and indices)."""
+    inst = load_instrument(CONFIGS / "instruments" / "pylorenzmie.toml")
+    raw = _pylorenzmie("image0400")
+    movie, background = tmp_path / "movie.tif", tmp_path / "background.tif"
+    tifffile.imwrite(movie, raw)
+    tifffile.imwrite(background, np.full(raw.shape, 100, dtype=raw.dtype))
+    crop = run_crop(movie, background, inst, tmp_path / "crops", size=200, plot=False)
+    frames = crop.frames.sort_values("x_px")
+    assert frames["particle"].tolist() == sorted(frames["particle"])  # ids by x, from 0
+    assert len(frames) == 2 and set(frames["status"]) <= {"ok", "edge"}
+    published = [((582.514, 686.094), 1.1816, 1.3923), ((883.809, 747.796), 1.2226, 1.3936)]
+    result = run_prefit(tmp_path / "crops", tmp_path / "prefit", batch=SERIAL, plot=False,
+                        fit=SphereFitSettings(fix_alpha=1.0))
+    table = pd.read_csv(result.table).set_index("particle")
+    px = inst.pixel_size_um
+    for p, (centre, a_pub, n_pub) in zip(frames["particle"], published, strict=True):
+        row = table.loc[p]
+        assert np.hypot(row["x_um"] / px - centre[0], row["y_um"] / px - centre[1]) < 1.0
+        assert row["radius_um"] == pytest.approx(a_pub, abs=0.05)
+        assert row["n"] == pytest.approx(n_pub, abs=0.01)
+        assert row["status"] == "poor_fit"  # the neighbour's rings, as in the crops above

@@ -73,20 +73,22 @@ def fingerprint(doc: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def check_frames(crops: CropSet, frames: Sequence[int] | None) -> list[int]:
+def check_frames(crops: CropSet, frames: Sequence[int] | None) -> list[Any]:
     """The frames a stage runs: all of the crop folder's, or ``frames``, each of which it must
-    hold.
+    hold; for a folder of several tracks, the ``(particle, frame)`` keys of those frames.
 
     Raises
     ------
     CropSetError
         A frame the crop table does not have (the first five are named).
     """
-    todo = crops.frames if frames is None else [int(f) for f in frames]
-    unknown = sorted(set(todo) - set(crops.frames))
+    asked = None if frames is None else [int(f) for f in frames]
+    unknown = sorted(set(asked or []) - set(crops.frames))
     if unknown:
         raise CropSetError(f"{crops.table_path}: no frame(s) {unknown[:5]}")
-    return todo
+    if getattr(crops, "multi", False):  # several tracks: each (particle, frame) of those frames
+        return [k for k in crops.keys if asked is None or k[1] in set(asked)]
+    return crops.frames if asked is None else asked
 
 
 def _finite(value: Any) -> bool:
@@ -166,10 +168,10 @@ class FrameLoader:
         self.n_candidates = 0 if library is None else n_candidate_columns(library.columns)
 
     @staticmethod
-    def _row(table: pd.DataFrame, frame: int) -> dict[str, Any] | None:
+    def _row(table: pd.DataFrame, frame: Any) -> dict[str, Any] | None:
         return table.loc[frame].to_dict() if frame in table.index else None
 
-    def __call__(self, frame: int) -> FrameStart | Precomputed:
+    def __call__(self, frame: Any) -> FrameStart | Precomputed:
         crow = self.crops.row(frame)
         skip = crop_skip(crow)
         if skip is not None:
@@ -201,7 +203,7 @@ class StageInputs:
 
     crops: CropSet
     instrument: Instrument
-    frames: list[int]
+    frames: list[Any]
 
 
 @contextlib.contextmanager

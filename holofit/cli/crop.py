@@ -10,8 +10,8 @@ from holofit.batch.runner import BatchOptions
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
 from holofit.crop import CenterFinder, CropResult, run_crop
 from holofit.crop.centerfind import MIN_RADIUS_PX
-from holofit.crop.follow import FOLLOW_MODES
-from holofit.crop.stage import MIN_CROP_SIZE
+from holofit.crop.stage import CROP_MODES, MIN_CROP_SIZE, TRACKS
+from holofit.crop.tracks import LinkOptions, TrackError
 from holofit.status import CROP_ERROR
 
 
@@ -71,12 +71,25 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 )
 @click.option(
     "--follow",
-    type=click.Choice(FOLLOW_MODES),
-    default="strongest",
+    type=click.Choice(CROP_MODES),
+    default=TRACKS,
     show_default=True,
-    help="Which hologram to crop when a frame has several: the strongest, or the one nearest "
-    "the last position (start at --start).",
+    help="tracks: every hologram in view, linked into tracks (column particle), one crop per "
+    "(particle, frame); or one hologram per frame (single-particle): the strongest, or the one "
+    "nearest the last position (start at --start).",
 )
+@click.option("--particle", type=click.IntRange(min=0), default=None,
+              help="With tracks: keep only this track (its id in a run without --particle).")
+@click.option("--search-range-um", type=click.FloatRange(min=0, min_open=True),
+              default=LinkOptions.search_range_um, show_default=True,
+              help="With tracks: farthest a hologram centre moves between frames, um.")
+@click.option("--memory", type=click.IntRange(min=0), default=LinkOptions.memory,
+              show_default=True,
+              help="With tracks: frames a hologram may go undetected and keep its track.")
+@click.option("--min-track-length", type=click.IntRange(min=1),
+              default=LinkOptions.min_track_length, show_default=True,
+              help="With tracks: shorter tracks (frames detected; at most half the movie) are "
+              "reported and left out.")
 @click.option(
     "--start",
     default=None,
@@ -120,9 +133,9 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 @click.option(
     "--max-particles",
     type=click.IntRange(min=1),
-    default=CenterFinder.max_centers,
-    show_default=True,
-    help="Most candidates kept per frame.",
+    default=None,
+    help="With tracks: keep the N longest tracks [default: all]; with strongest or nearest: "
+    "the most candidates kept per frame [default: 10].",
 )
 @click.option(
     "--mask-saturated/--keep-saturated",
@@ -146,12 +159,16 @@ def crop(
     out: Path,
     size: int,
     follow: str,
+    particle: int | None,
+    search_range_um: float,
+    memory: int,
+    min_track_length: int,
     start: str | None,
     max_jump: float | None,
     radius: float | None,
     min_score: float,
     min_symmetry: float,
-    max_particles: int,
+    max_particles: int | None,
     mask_saturated: bool,
     plot: bool,
     workers: int | None,
@@ -180,17 +197,30 @@ def crop(
             radius_px=radius if radius is not None else size / 2.0,
             min_score=min_score,
             min_symmetry=min_symmetry,
-            max_centers=max_particles,
+            max_centers=_max_centers(follow, max_particles),
         )
-    except ValueError as exc:
+        link = (LinkOptions(search_range_um, memory, min_track_length, max_particles)
+                if follow == TRACKS else None)
+    except (ValueError, TrackError) as exc:
         raise click.UsageError(str(exc)) from None
+    if follow != TRACKS and particle is not None:
+        raise click.UsageError("--particle needs --follow tracks (the default)")
     result = run_crop(
         movie, list(backgrounds) or None, inst, out, normalized=normalized,
         dark=list(darks) or dark_count, size=size, follow=follow, start=start_xy,
         max_jump_px=max_jump, finder=finder, mask_saturated=mask_saturated, plot=plot,
-        batch=BatchOptions(workers=workers, progress=progress),
+        link=link, particle=particle, batch=BatchOptions(workers=workers, progress=progress),
     )
     _report(result)
+
+
+def _max_centers(follow: str, max_particles: int | None) -> int:
+    """Candidates the finder keeps per frame: ``--max-particles`` in the single-particle
+    modes; in tracks mode at least the default, and room for every track kept."""
+    default = CenterFinder.max_centers
+    if max_particles is None:
+        return default
+    return max_particles if follow != TRACKS else max(default, 2 * max_particles)
 
 
 def _check_references(backgrounds: tuple[Path, ...], normalized: bool, darks: tuple[Path, ...],
@@ -213,7 +243,11 @@ def _check_references(backgrounds: tuple[Path, ...], normalized: bool, darks: tu
 def _report(result: CropResult) -> None:
     """What the crop wrote, its warnings and its first frame errors."""
     counts = ", ".join(f"{v} {k}" for k, v in result.counts.items() if v)
-    click.echo(f"wrote {result.crops} and {result.table} ({len(result.frames)} frames: {counts})")
+    n_tracks = (result.frames["particle"].nunique() if "particle" in result.frames.columns
+                else 1)
+    rows = (f"{n_tracks} tracks, {len(result.frames)} (particle, frame) rows" if n_tracks > 1
+            else f"{len(result.frames)} frames")
+    click.echo(f"wrote {result.crops} and {result.table} ({rows}: {counts})")
     for problem in [*result.problems, *result.warnings]:
         click.echo(f"holofit crop: warning: {problem}", err=True)
     errors = result.frames[result.frames["status"] == CROP_ERROR]
@@ -221,3 +255,5 @@ def _report(result: CropResult) -> None:
         click.echo(f"  error: {message}", err=True)
     if len(errors) > 5:
         click.echo(f"  ... {len(errors) - 5} more frame errors in {result.table}", err=True)
+    for note in result.notes:
+        click.echo(f"holofit crop: note: {note}", err=True)

@@ -25,13 +25,13 @@ from holofit.cli.stage_options import (
 from holofit.engines.select import ENGINE_CHOICES
 from holofit.fit.continuity import ContinuitySettings
 from holofit.fit.frame import FrameFitSettings
+from holofit.fit.per_track import STATIC_MODES, run_fit_tracks
 from holofit.fit.stage import (
     PASSES,
     TMATRIX_CHOICES,
     FitRun,
     check_fixed,
     fixable_names,
-    run_fit,
 )
 from holofit.fit.tracking import TrackOptions
 from holofit.holomodel.result import QualityLimits
@@ -57,6 +57,10 @@ from holofit.holomodel.result import QualityLimits
               help="Frames of the initial pass (1 for a single hologram: everything free) "
                    "[default: 1 in 20 of the frames that can be fitted, at least 8, at most "
                    "500; the choice is printed].")
+@click.option("--static-mode", type=click.Choice(STATIC_MODES), default="per-track",
+              show_default=True,
+              help="Crops of several tracks: static parameters per track, or pooled over "
+                   "the tracks (one batch of identical particles).")
 @click.option("--static", "static_file", default=None,
               type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="static.json with the static parameters of the final pass [default: "
@@ -117,6 +121,7 @@ def fit(
     instrument: str | None,
     pass_name: str,
     initial_frames: int | None,
+    static_mode: str,
     static_file: Path | None,
     engine: str | None,
     fixed: str,
@@ -167,7 +172,8 @@ def fit(
         check_fixed(cfg.model, names)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--fix") from None
-    run = run_fit(crop_dir, prefit_dir, library_dir, cfg, out, pass_name=pass_name,
+    run = run_fit_tracks(crop_dir, prefit_dir, library_dir, cfg, out,
+                  static_mode=static_mode, pass_name=pass_name,
                   initial_frames=initial_frames, static=static_file, instrument=inst,
                   override_instrument=override_instrument, options=opts, engine=engine,
                   fixed=names, tmatrix=tmatrix,

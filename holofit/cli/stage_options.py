@@ -144,7 +144,8 @@ def frame_list(crop_dir: Path, value: str | None) -> list[int] | None:
     from holofit.tables.cropset import CropSet
 
     with CropSet(crop_dir) as crops:
-        return [f for f in crops.frames if (sel.start is None or f >= sel.start)
+        frames = sorted(set(crops.frames)) if crops.multi else crops.frames
+        return [f for f in frames if (sel.start is None or f >= sel.start)
                 and (sel.stop is None or f < sel.stop)]
 
 

@@ -65,6 +65,8 @@ from holofit.crop.errors import CropError
 from holofit.crop.follow import FOLLOW_MODES, Follower, off_track
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
+from holofit.crop.track_crops import TrackPlan, link_detections, one_per_frame, track_rows
+from holofit.crop.tracks import LinkOptions
 from holofit.io.lock import output_lock
 from holofit.io.movie import Movie, MovieError, open_movie
 from holofit.io.tables import read_table, sidecar_path
@@ -93,12 +95,16 @@ __all__ = ["DEFAULT_CROP_SIZE", "MIN_CROP_SIZE", "CropResult", "check_crop_setti
 MIN_CROP_SIZE = 8
 #: the paper's crop side, pixels
 DEFAULT_CROP_SIZE = 140
+#: every hologram linked into tracks (:mod:`holofit.crop.track_crops`; the default)
+TRACKS = "tracks"
+#: what ``follow`` may be: tracks, or one hologram per frame (:mod:`holofit.crop.follow`)
+CROP_MODES = (*FOLLOW_MODES, TRACKS)
 
 
 def check_crop_settings(
     frame_shape: tuple[int, int],
     size: int = DEFAULT_CROP_SIZE,
-    follow: str = "strongest",
+    follow: str = TRACKS,
     start: tuple[float, float] | None = None,
 ) -> None:
     """Refuse crop settings that cannot work on frames of ``frame_shape`` (rows, cols).
@@ -118,14 +124,14 @@ def check_crop_settings(
     if size > min(rows, cols):
         raise CropError(f"crop size {size} does not fit in frames of {rows} x {cols} pixels: "
                         f"give a smaller --size (at most {min(rows, cols)})")
-    if follow not in FOLLOW_MODES:
-        raise CropError(f"--follow {follow!r}: expected one of {', '.join(FOLLOW_MODES)} "
-                        "(several particles at once: one run per particle with --follow "
-                        "nearest --start X,Y)")
+    if follow not in CROP_MODES:
+        raise CropError(f"--follow {follow!r}: expected one of {', '.join(CROP_MODES)} "
+                        "(tracks, the default: every particle in view, one track each)")
     if start is not None:
         if follow != "nearest":
-            raise CropError("--start X,Y needs --follow nearest (the default, strongest, takes "
-                            "the strongest hologram of every frame)")
+            raise CropError("--start X,Y needs --follow nearest (the default, tracks, crops "
+                            "every particle in view; strongest the strongest hologram of "
+                            "every frame)")
         x, y = float(start[0]), float(start[1])
         if not (0 <= x < cols and 0 <= y < rows):
             raise CropError(f"--start {x:g},{y:g} lies outside the frames ({cols} columns x, "
@@ -157,6 +163,8 @@ class CropResult:
     warnings : list of str
         What is doubtful about the result as a whole (e.g. the strongest hologram jumping to
         another particle), also in the sidecars.
+    notes : list of str
+        Why the result is empty (no hologram in any frame), also in the sidecars' settings.
     """
 
     out_dir: Path
@@ -168,6 +176,7 @@ class CropResult:
     counts: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
 
 def _resolve_instrument(instrument: Instrument | str | Path) -> Instrument:
@@ -290,12 +299,41 @@ def _remove_stale(paths: list[Path]) -> None:
             p.unlink()
 
 
+def _follower(follow: str, start: tuple[float, float] | None, max_jump_px: float | None,
+              size: int) -> Follower:
+    """The single-particle follower (tracks mode: the strongest hologram of the preview)."""
+    return Follower(follow if follow != TRACKS else "strongest", start,
+                    max_jump_px if max_jump_px is not None else size / 4.0)
+
+
+def _link_options(follow: str, link: LinkOptions | None, particle: int | None) -> LinkOptions:
+    """The linking options; refused with a single-particle ``follow``."""
+    if follow != TRACKS and (link is not None or particle is not None):
+        raise CropError("--particle and the linking options (--search-range-um, --memory, "
+                        "--min-track-length, --max-particles) need --follow tracks")
+    return link or LinkOptions()
+
+
+def _settings(size: int, follow: str, start: tuple[float, float] | None, follower: Follower,
+              finder: CenterFinder, norm_info: dict[str, Any], mask_saturated: bool,
+              link: LinkOptions, particle: int | None) -> dict[str, Any]:
+    """The crop's settings as its sidecar records them."""
+    settings = {"size_px": size, "follow": follow,
+                "start_px": list(start) if start is not None else None,
+                "max_jump_px": follower.max_jump_px, "finder": finder.as_dict(),
+                "normalization": {**norm_info, "mask_saturated": mask_saturated}}
+    if follow == TRACKS:
+        settings["tracks"] = {**link.as_dict(), "particle": particle}
+    return settings
+
+
 def run_crop(
     movie_path: str | Path, background_path: References | None,
     instrument: Instrument | str | Path, out_dir: str | Path, *, normalized: bool = False,
     dark: References | float | None = None, size: int = DEFAULT_CROP_SIZE,
-    follow: str = "strongest", start: tuple[float, float] | None = None,
+    follow: str = TRACKS, start: tuple[float, float] | None = None,
     max_jump_px: float | None = None, finder: CenterFinder | None = None,
+    link: LinkOptions | None = None, particle: int | None = None,
     min_background: float = DEFAULT_MIN_BACKGROUND, mask_saturated: bool = True,
     plot: bool = True, progress: Callable[[int], Any] | None = None,
     batch: BatchOptions | None = None,
@@ -324,9 +362,13 @@ def run_crop(
     size : int
         Crop side N, pixels (default 140, the paper's).
     follow, start, max_jump_px
-        Which candidate to crop when a frame has several (``"strongest"`` or ``"nearest"``:
-        :mod:`holofit.crop.follow`); ``(x_px, y_px)`` of the particle in the first frame and
+        Which holograms to crop: ``"tracks"`` (the default) every one, linked into tracks
+        (:mod:`holofit.crop.track_crops`), or one per frame, ``"strongest"`` or ``"nearest"``
+        (:mod:`holofit.crop.follow`); ``(x_px, y_px)`` of the particle in the first frame and
         the largest move between frames (default ``size / 4``) for ``"nearest"``.
+    link, particle
+        ``"tracks"`` only: how holograms are linked (:class:`holofit.crop.tracks.LinkOptions`),
+        and the one track to keep (its rows get ``particle`` 0).
     finder, min_background
         Centre-finder settings (default: vote radius ``size / 2``); background pixels at or
         below this fraction of the median background are masked.
@@ -346,26 +388,24 @@ def run_crop(
         Unusable input (the message names the file, and the frame where one is at fault).
     """
     refuse_while_worker_starts("run_crop")
-    inst = _resolve_instrument(instrument)
-    size = int(size)
+    inst, size = _resolve_instrument(instrument), int(size)
     backgrounds = _check_arguments(size, background_path, normalized, dark)
     finder = finder or CenterFinder(radius_px=size / 2.0)
-    follower = Follower(follow, start, max_jump_px if max_jump_px is not None else size / 4.0)
+    follower = _follower(follow, start, max_jump_px, size)
+    link = _link_options(follow, link, particle)
     with _open(movie_path) as movie:
         _check_for_movie(movie, movie_path, size, follow, start)
         saturation = _saturation(movie, inst) if mask_saturated else None
         normalizer, norm_info = _normalizer(movie, normalized, backgrounds, dark,
                                             min_background, saturation, inst)
-        settings = {"size_px": size, "follow": follow,
-                    "start_px": list(start) if start is not None else None,
-                    "max_jump_px": follower.max_jump_px, "finder": finder.as_dict(),
-                    "normalization": {**norm_info, "mask_saturated": mask_saturated}}
+        settings = _settings(size, follow, start, follower, finder, norm_info, mask_saturated,
+                             link, particle)
         inputs = [movie_path, *backgrounds, *([] if isinstance(dark, int | float)
                                              else _paths(dark))]
         detect = _detect_config(movie, movie_path, backgrounds, dark, normalized,
                                 min_background, saturation, finder)
         job = _CropJob(movie, movie_path, Path(out_dir), normalizer, detect, follower, size,
-                       inst, settings, inputs, plot, progress, batch)
+                       inst, settings, inputs, plot, progress, batch, link, particle)
         return job.run()
 
 
@@ -386,6 +426,8 @@ class _CropJob:
     plot: bool
     progress: Callable[[int], Any] | None
     batch: BatchOptions | None
+    link: LinkOptions
+    particle: int | None
 
     def run(self) -> CropResult:
         """Search every frame (a batch: parallel, resumable), then crop in frame order; the
@@ -407,11 +449,29 @@ class _CropJob:
         movie, size, paths = self.movie, self.size, _CropPaths(self.out)
         with TiffStackWriter(paths.stack, stack_header(size, len(movie))) as writer:
             detections = files.run(self.detect, len(movie), self.movie_path, self.batch)
-            rows, candidates, preview = _crop_frames(
-                movie, self.normalizer, detections, self.follower, size,
-                self.inst.pixel_size_um, writer, self.progress)
-            warnings = (_mark_off_track(rows, self.follower.max_jump_px)
-                        if self.settings["follow"] == "strongest" else [])
+            linking = self.settings["follow"] == TRACKS and (
+                self.particle not in (None, 0) or not one_per_frame(detections))
+            if self.settings["follow"] == TRACKS:
+                self.settings["tracks"]["linked"] = linking
+            if linking:
+                plan = link_detections(detections, len(movie), self.inst.pixel_size_um,
+                                       self.link, size, self.particle)
+                rows, candidates, preview = _crop_tracks(
+                    movie, self.normalizer, detections, plan, size, self.inst.pixel_size_um,
+                    writer, self.progress)
+                warnings = list(plan.warnings)
+            else:
+                rows, candidates, preview = _crop_frames(
+                    movie, self.normalizer, detections, self.follower, size,
+                    self.inst.pixel_size_um, writer, self.progress)
+                warnings = (_mark_off_track(rows, self.follower.max_jump_px)
+                            if self.settings["follow"] != "nearest" else [])
+                if self.settings["follow"] == TRACKS and not any(
+                        int(d.get("n_found") or 0) for d in detections.values()):
+                    self.settings["tracks"]["note"] = (
+                        "no hologram found in any frame: no track, every frame no_particle (is "
+                        "it the right movie and background? --min-score and --vote-radius set "
+                        "what is found)")
             frames = _frame_table(rows, self.movie_path)
             paths.remove_stale()  # a rerun must not leave an old table beside the new stack
         counts = {s: int((frames["status"] == s).sum()) for s in CROP_STATUSES}
@@ -426,8 +486,10 @@ class _CropJob:
                            len(frames), size, counts, warnings)
         write_crop_table(paths.table, paths.stack, frames, self.inst.as_dict(), self.inputs,
                          extra)
+        note = self.settings.get("tracks", {}).get("note")
         return CropResult(self.out, paths.stack, paths.table, paths.candidates, made_plot,
-                          frames, counts, list(movie.problems), warnings)
+                          frames, counts, list(movie.problems), warnings,
+                          [note] if note else [])
 
 
 #: the candidates of every frame searched so far (removed when the crop folder is complete)
@@ -641,6 +703,7 @@ def _mark_off_track(rows: list[dict[str, Any]], max_jump_px: float) -> list[str]
 def _blank_row(k: int) -> dict[str, Any]:
     """Frame ``k``'s row before anything is known of it (status ``error``)."""
     return {
+        "particle": 0,
         "frame": k,
         "status": CROP_ERROR,
         "message": "",
@@ -656,6 +719,9 @@ def _blank_row(k: int) -> dict[str, Any]:
         "refinement": "",
         "n_candidates": 0,
         "n_masked": 0,
+        "neighbour": -1,
+        "neighbour_px": math.inf,
+        "overlap": False,
     }
 
 
@@ -688,7 +754,8 @@ def _crop_frames(
             for rank, cand in enumerate(found.itertuples(index=False)):
                 candidates.append(
                     (k, rank, cand.x_px, cand.y_px, cand.score, cand.alignment,
-                     cand.symmetry, cand.refinement, rank == choice.index)
+                     cand.symmetry, cand.refinement, rank == choice.index,
+                     0 if rank == choice.index else -1)
                 )  # fmt: skip
             if choice.index is None:
                 row["status"], row["message"] = CROP_NO_PARTICLE, choice.message
@@ -701,6 +768,67 @@ def _crop_frames(
                                "corner": (row["corner_row"], row["corner_col"])}
         writer.write(page)
         rows.append(row)
+        if progress is not None:
+            progress(1)
+    return rows, candidates, preview
+
+
+def _crop_tracks(
+    movie: Movie,
+    normalizer: Normalizer,
+    detections: dict[int, dict[str, Any]],
+    plan: TrackPlan,
+    size: int,
+    pixel_size_um: float,
+    writer: TiffStackWriter,
+    progress: Callable[[int], Any] | None,
+) -> tuple[list[dict[str, Any]], list[tuple[Any, ...]], dict[str, Any] | None]:
+    """The tracks mode's sequential step, in frame order: each frame read once, one crop per
+    track with a row in it (:func:`holofit.crop.track_crops.track_rows`), pages in the table's
+    order (frame, then particle)."""
+    blank = np.full((size, size), np.nan, dtype=np.float32)
+    rows: list[dict[str, Any]] = []
+    candidates: list[tuple[Any, ...]] = []
+    preview: dict[str, Any] | None = None
+    for k in range(len(movie)):
+        det = detections.get(k, {"status": CROP_ERROR, "message": "not searched"})
+        found = (found_from_json(det["candidates"]) if det["status"] == DETECTED
+                 else pd.DataFrame())
+        here = track_rows(plan, k, size)
+        chosen = {int(d["rank"]): p for p, d in here if d is not None}
+        for rank, cand in enumerate(found.itertuples(index=False)):
+            candidates.append((k, rank, cand.x_px, cand.y_px, cand.score, cand.alignment,
+                               cand.symmetry, cand.refinement, rank in chosen,
+                               chosen.get(rank, -1)))
+        image = mask = None
+        for p, linked in here:
+            row = _blank_row(k)
+            row["particle"] = p
+            page: NDArray = blank
+            row["n_candidates"] = len(found)
+            if det["status"] != DETECTED:
+                row["message"] = str(det.get("message") or "")
+            elif linked is None:
+                row["status"] = CROP_NO_PARTICLE
+                row["message"] = (f"track {p}: no hologram found in this frame"
+                                  if len(plan.spans) > 1 or len(plan.linked)
+                                  else "no hologram found")
+            else:
+                if image is None:
+                    image, mask = read_normalised(movie, k, normalizer)
+                page = _crop_chosen(row, found.iloc[int(linked["rank"])], image, mask, size,
+                                    pixel_size_um)
+                row.update(neighbour=int(linked["neighbour"]),
+                           neighbour_px=float(linked["neighbour_px"]),
+                           overlap=bool(linked["overlap"]))
+                if row["overlap"]:
+                    row["message"] = (f"overlaps track {row['neighbour']} "
+                                      f"({row['neighbour_px']:.0f} px away)")
+                if preview is None:
+                    preview = {"frame": k, "image": image,
+                               "corner": (row["corner_row"], row["corner_col"])}
+            writer.write(page)
+            rows.append(row)
         if progress is not None:
             progress(1)
     return rows, candidates, preview

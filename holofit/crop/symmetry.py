@@ -215,9 +215,8 @@ def refine_center(
         x = cj + (pj + dj - reach) / 2.0
         y = ci + (pi + di - reach) / 2.0
         on_rim = bool(rim[pi, pj])
-        best = SymmetryFit(
-            x, y, float(score[pi, pj]), not on_rim, it, float(fraction[near][pi, pj])
-        )
+        best = SymmetryFit(x, y, float(score[pi, pj]), not on_rim, it,
+                           float(fraction[near][pi, pj]))
         if not on_rim:
             break
     return best

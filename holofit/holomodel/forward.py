@@ -21,6 +21,12 @@ what a solve depends on (the static parameters and the orientation), so that
   such a particle's hologram only through lattice artefacts: it steers the optimiser, while
   the residuals it minimises stay exact.)
 
+A fixed extra field on the pixels (``extra_field``: a neighbouring particle's scattered field,
+already scaled by its alpha, from its own fit) is added to the particle's scattered field
+before the intensity is formed, ``|e_pol + E_extra + alpha E|^2`` (superposition at the camera;
+multiple scattering between the two is neglected), through the one intensity function; the
+alpha and analytic orientation columns then use ``e_pol + E_extra`` as the reference wave.
+
 Parameters that describe no physical particle (a negative size, a detector plane inside the
 particle in the ideal model, a non-positive aperture) raise :class:`InvalidParameters`; the
 optimiser wrapper turns that into a rejected step. With an objective in the model (an NA in the
@@ -93,6 +99,7 @@ class HologramModel:
         far_field: bool = False,
         wave_cache: int = 8,
         waves: LRUCache[tuple, ScatteredWave] | None = None,
+        extra_field: tuple[ArrayLike, ArrayLike] | None = None,
     ) -> None:
         self.theory = theory
         self.space = space
@@ -109,6 +116,12 @@ class HologramModel:
         self._pol = (float(np.cos(optics.polarization_rad)),
                      float(np.sin(optics.polarization_rad)))
         self._radius_um = space.model.bounding_radius_um
+        self.extra_field: tuple[NDArray[np.complex128], NDArray[np.complex128]] | None = None
+        if extra_field is not None:
+            fx, fy = (np.ascontiguousarray(f, dtype=complex).ravel() for f in extra_field)
+            if fx.shape != self.xs.shape or fy.shape != self.xs.shape:
+                raise ValueError("extra_field must hold one (Ex, Ey) value per pixel")
+            self.extra_field = (fx, fy)
 
     @property
     def n_pixels(self) -> int:
@@ -116,8 +129,11 @@ class HologramModel:
 
     def restricted(self, index: NDArray[np.intp]) -> HologramModel:
         """The same model on a subset of its pixels, sharing the solved waves."""
+        extra = (None if self.extra_field is None
+                 else (self.extra_field[0][index], self.extra_field[1][index]))
         return HologramModel(self.theory, self.space, self.optics, self.xs[index],
-                             self.ys[index], far_field=self.far_field, waves=self.waves)
+                             self.ys[index], far_field=self.far_field, waves=self.waves,
+                             extra_field=extra)
 
     # -- solves -------------------------------------------------------------------------
     def wave(self, state: State) -> ScatteredWave:
@@ -170,8 +186,28 @@ class HologramModel:
 
     # -- holograms ----------------------------------------------------------------------
     def intensity(self, ex: NDArray, ey: NDArray, alpha: float) -> NDArray[np.float64]:
-        """``|e_pol + alpha E_perp|^2``: :func:`holofit.conventions.hologram_intensity`."""
-        return hologram_intensity(ex, ey, self.optics.polarization_rad, alpha)
+        """``|e_pol + alpha E_perp|^2`` (``+ E_extra`` inside with an extra field):
+        :func:`holofit.conventions.hologram_intensity`."""
+        if self.extra_field is None:
+            return hologram_intensity(ex, ey, self.optics.polarization_rad, alpha)
+        fx, fy = self.extra_field
+        return hologram_intensity(alpha * ex + fx, alpha * ey + fy,
+                                  self.optics.polarization_rad, 1.0)
+
+    def _reference(self) -> tuple[NDArray | float, NDArray | float]:
+        """The wave the particle's field interferes with: ``e_pol`` (+ the extra field)."""
+        cp, sp = self._pol
+        if self.extra_field is None:
+            return cp, sp
+        return cp + self.extra_field[0], sp + self.extra_field[1]
+
+    @staticmethod
+    def _interference(rx: NDArray | float, ry: NDArray | float, a: float, ex: NDArray,
+                      ey: NDArray, dx: NDArray, dy: NDArray) -> NDArray[np.float64]:
+        """``2 Re[(r + a E) . conj(D)]``: the derivative of the intensity along a field
+        derivative ``D`` with a complex reference ``r``."""
+        return 2.0 * (np.real((rx + a * ex) * np.conj(dx))
+                      + np.real((ry + a * ey) * np.conj(dy)))
 
     def evaluate(self, vector: ArrayLike) -> Evaluation:
         """Fields and hologram at an optimiser vector (the last one is cached)."""
@@ -207,6 +243,9 @@ class HologramModel:
         for i, p in enumerate(params):
             if p.kind == "scale":
                 ex, ey = base.ex, base.ey
+                if self.extra_field is not None:
+                    cols[:, i] = self._interference(*self._reference(), a, ex, ey, ex, ey)
+                    continue
                 cols[:, i] = 2.0 * ((cp + a * ex.real) * ex.real + a * ex.imag * ex.imag
                                     + (sp + a * ey.real) * ey.real + a * ey.imag * ey.imag)
                 continue
@@ -256,6 +295,9 @@ class HologramModel:
         ex, ey = base.ex, base.ey
         out = {}
         for name, (dx, dy) in zip(names, fields, strict=True):
+            if self.extra_field is not None:
+                out[name] = a * self._interference(*self._reference(), a, ex, ey, dx, dy)
+                continue
             out[name] = 2.0 * a * (((cp + a * ex.real) * dx.real + a * ex.imag * dx.imag)
                                    + ((sp + a * ey.real) * dy.real + a * ey.imag * dy.imag))
         return out

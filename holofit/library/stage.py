@@ -33,6 +33,7 @@ from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
 from holofit.provenance import sidecar
 from holofit.status import OK
+from holofit.tables.crop import keyed_columns
 from holofit.tables.cropset import CropSet
 from holofit.tables.inputs import read_stage_table
 from holofit.tables.library import candidate_columns, library_columns, library_units
@@ -250,12 +251,14 @@ def _library_table(config: LibraryConfig, crops: CropSet, prefit: Path,
     tilts = tilt_grid(config.particle.model, math.radians(s.tilt_step_deg))
     meta = sidecar(
         kind="orientation library (candidate starts per frame)",
-        units=library_units(s.n_candidates),
+        units={"particle": "track id (crops of several tracks)",
+               **library_units(s.n_candidates)},
         config=config.as_dict(),
         inputs=[crops.table_path, prefit],
         extra={"crops": crops.fingerprint(), "particle_model": config.particle.model.kind,
                "tilts_rad": [[t.theta, t.phi] for t in tilts]},
     )
-    return StageTable(out / "library.csv", library_columns(s.n_candidates), meta,
+    return StageTable(out / "library.csv",
+                      keyed_columns(library_columns(s.n_candidates), crops.key_columns), meta,
                       fingerprint({"config": config.as_dict(), "crops": crops.fingerprint()}),
-                      "library")
+                      "library", key_columns=crops.key_columns)

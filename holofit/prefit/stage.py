@@ -31,6 +31,7 @@ from holofit.particles import Sphere
 from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.provenance import sidecar
 from holofit.scattering.mie import LorenzMie
+from holofit.tables.crop import CROP_UNITS, keyed_columns
 from holofit.tables.cropset import CropSet
 from holofit.tables.prefit import PREFIT_COLUMNS, PREFIT_UNITS, prefit_columns
 
@@ -81,8 +82,8 @@ def prefit_frame(config: PrefitConfig, frame: int, payload: CropPayload) -> dict
     ----------
     config : PrefitConfig
         Settings.
-    frame : int
-        Frame number (also the seed of random pixel subsets).
+    frame : int or tuple
+        Frame number (also the seed of random pixel subsets), or a ``(particle, frame)`` key.
     payload : CropPayload
         The crop and its crop-table row.
 
@@ -94,6 +95,7 @@ def prefit_frame(config: PrefitConfig, frame: int, payload: CropPayload) -> dict
     """
     row = payload.row
     inst = config.instrument
+    frame = int(frame[-1]) if isinstance(frame, tuple) else frame  # a (particle, frame) key
     corner = (int(row["corner_row"]), int(row["corner_col"]))
     centre = (float(row["x_um"]), float(row["y_um"]))
     fit = fit_sphere_crop(payload.crop, corner, centre, inst.optics, inst.pixel_size_um,
@@ -208,10 +210,10 @@ def _prefit_table(config: PrefitConfig, crops: CropSet, out: Path,
     """``prefit.csv``: its columns (:mod:`holofit.tables.prefit`), sidecar and fingerprint."""
     inst = config.instrument
     inputs = crops.fingerprint()
-    columns = prefit_columns(config.fit.fit_na)
+    columns = keyed_columns(prefit_columns(config.fit.fit_na), crops.key_columns)
     meta = sidecar(
         kind="prefit table (Lorenz-Mie fit per frame)",
-        units={c: PREFIT_UNITS[c] for c in columns},
+        units={c: PREFIT_UNITS.get(c, CROP_UNITS.get(c, "")) for c in columns},
         config=config.as_dict(),
         inputs=[crops.table_path, crops.stack_path],
         extra={"crop_shape": list(crops.crop_shape), "crops": inputs,
@@ -221,7 +223,8 @@ def _prefit_table(config: PrefitConfig, crops: CropSet, out: Path,
     )
     return StageTable(out / "prefit.csv", columns, meta,
                       fingerprint_of(config, {**inputs, "outlier_factor": outlier_factor}),
-                      "prefit", finish=outlier_rule(outlier_factor))
+                      "prefit", finish=outlier_rule(outlier_factor),
+                      key_columns=crops.key_columns)
 
 
 def _pictures(table_path: Path, crops: CropSet, config: PrefitConfig, out: Path,
@@ -231,6 +234,8 @@ def _pictures(table_path: Path, crops: CropSet, config: PrefitConfig, out: Path,
 
     inst = config.instrument
     png = plot_prefit(table_path, out / "prefit.png")
+    if crops.multi:  # frame pictures are drawn per track, from each track's own run
+        return png
     write_frame_pictures(
         read_table(table_path), crops, Sphere(1.0, complex(1.5, config.fit.index_imag)),
         LorenzMie(), inst.optics, inst.pixel_size_um, out / "frames", "prefit", plot_frames)

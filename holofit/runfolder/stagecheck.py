@@ -12,7 +12,7 @@ from __future__ import annotations
 import shlex
 
 from holofit.crop.errors import CropError
-from holofit.crop.stage import DEFAULT_CROP_SIZE, check_crop_settings
+from holofit.crop.stage import DEFAULT_CROP_SIZE, TRACKS, check_crop_settings
 from holofit.fit.defaults import INITIAL_MAX, INITIAL_MIN, INITIAL_SHARE, default_initial_frames
 from holofit.particles import ParticleModel
 from holofit.runfolder.errors import RunFolderError
@@ -48,7 +48,7 @@ def check_crop_options(text: str, frame_shape: tuple[int, int]) -> None:
         a movie smaller than 140 x 140 pixels needs ``--crop-opts '--size N'``).
     """
     size_text = option_value(text, "--size")
-    follow = option_value(text, "--follow") or "strongest"
+    follow = option_value(text, "--follow") or TRACKS
     start_text = option_value(text, "--start")
     where = f"--crop-opts {text!r}" if text else "crop (no --crop-opts)"
     try:

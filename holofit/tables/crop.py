@@ -19,12 +19,14 @@ __all__ = [
     "CROP_UNITS",
     "REQUIRED_CROP_COLUMNS",
     "crop_extra",
+    "keyed_columns",
     "stack_header",
     "write_candidates",
     "write_crop_table",
 ]
 
 CROP_UNITS = {
+    "particle": "track id (0, 1, ... in order of first appearance; 0 with one particle)",
     "frame": "index (0-based, movie order)",
     "status": describe(CROP_STATUS_MEANINGS),
     "message": "text (why a frame is edge, no_particle or error)",
@@ -40,6 +42,10 @@ CROP_UNITS = {
     "refinement": "symmetry | radial (near an edge) | none (coarse centre)",
     "n_candidates": "count (accepted candidate centres in the frame)",
     "n_masked": "pixels (masked, NaN, in the crop)",
+    "neighbour": "track id of the nearest other track in the frame (-1: none)",
+    "neighbour_px": "pixel, centre-to-centre distance to it (inf: none)",
+    "overlap": "bool (the neighbour's centre is closer than half the crop's side: the two "
+               "holograms overlap in the crop)",
 }
 
 CANDIDATE_UNITS = {
@@ -52,6 +58,7 @@ CANDIDATE_UNITS = {
     "symmetry": CROP_UNITS["symmetry"],
     "refinement": CROP_UNITS["refinement"],
     "selected": "bool (the candidate cropped in this frame)",
+    "particle": "track id of the candidate (-1: in no kept track)",
 }
 
 #: columns of ``crops.csv``, in order
@@ -60,6 +67,12 @@ CROP_COLUMNS: tuple[str, ...] = tuple(CROP_UNITS)
 REQUIRED_CROP_COLUMNS: tuple[str, ...] = (
     "frame", "status", "x_um", "y_um", "corner_row", "corner_col",
 )
+
+
+def keyed_columns(columns: tuple[str, ...], key_columns: tuple[str, ...]) -> tuple[str, ...]:
+    """A stage table's ``columns`` with the key columns it lacks in front (``particle`` for
+    crops of several tracks)."""
+    return (*(c for c in key_columns if c not in columns), *columns)
 
 
 def stack_header(size: int, n_frames: int) -> dict[str, Any]:
@@ -88,8 +101,9 @@ def crop_extra(settings: dict[str, Any], movie: dict[str, Any], stack: Path, tab
             "pages": pages,
             "page_shape": [size, size],
             "dtype": "float32",
-            "contents": "normalised hologram (background ~1), one page per frame in frame "
-            "order; NaN marks masked pixels (background ~0 or saturated); frames with "
+            "contents": "normalised hologram (background ~1), one page per row of the "
+            "table, in its order (frame, then particle); NaN marks masked pixels "
+            "(background ~0 or saturated); frames with "
             "status no_particle or error get an all-NaN page",
             "coordinates": "crop pixel [i, j] is full-frame pixel "
             "[corner_row + i, corner_col + j] (corner_* in the table)",

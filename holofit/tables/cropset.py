@@ -12,6 +12,13 @@ A crop folder holds
   ``config`` or ``extra``) describes the microscope.
 
 Crops are read lazily, one page at a time.
+
+A crop folder of several tracks (``holofit crop``'s tracks mode) has a ``particle`` column; its
+rows are keyed by ``(particle, frame)`` (:attr:`CropSet.key_columns`, :attr:`CropSet.keys`), and
+:meth:`CropSet.row` and :meth:`CropSet.crop` take such a key. A folder of one track (or without
+the column) is keyed by frame, as before. :func:`write_track_view` writes one track's *view*: a
+crop folder whose table holds that track's rows with a ``page`` column naming their pages in
+the parent's stack (linked, not copied), which every stage reads as a one-particle folder.
 """
 
 from __future__ import annotations
@@ -33,10 +40,15 @@ from holofit.io.tables import sidecar_path
 from holofit.tables.crop import REQUIRED_CROP_COLUMNS
 
 __all__ = [
+    "PARTICLE_KEY",
     "CropSet",
     "CropSetError",
     "open_crops",
+    "write_track_view",
 ]
+
+#: the key columns of a crop folder of several tracks
+PARTICLE_KEY: tuple[str, ...] = ("particle", "frame")
 
 
 class CropSetError(ValueError):
@@ -87,9 +99,18 @@ class CropSet:
         missing = [c for c in REQUIRED_CROP_COLUMNS if c not in self.table.columns]
         if missing:
             raise CropSetError(f"{self.table_path}: missing column(s) {', '.join(missing)}")
+        if "particle" not in self.table.columns:
+            self.table.insert(0, "particle", 0)
+        dup = self.table.duplicated(["particle", "frame"])
+        if dup.any():
+            first = self.table[dup].iloc[0]
+            raise CropSetError(
+                f"{self.table_path}: repeated (particle, frame) rows (particle "
+                f"{int(first['particle'])}, frame {int(first['frame'])}): a track holds one "
+                "hologram per frame")
         frames = self.table["frame"].to_numpy()
-        if len(np.unique(frames)) != len(frames):
-            raise CropSetError(f"{self.table_path}: repeated frame numbers")
+        #: several tracks: rows keyed by (particle, frame)
+        self.multi = int(self.table["particle"].nunique()) > 1
         if "message" not in self.table.columns:
             self.table["message"] = ""
         self.table["message"] = [
@@ -100,7 +121,10 @@ class CropSet:
             self._movie = Movie(self.stack_path)
         except MovieError as exc:
             raise CropSetError(str(exc)) from None
-        if len(self._movie) != len(self.table):
+        pages = (self.table["page"].to_numpy(dtype=int) if "page" in self.table.columns
+                 else np.arange(len(self.table)))
+        if ("page" not in self.table.columns and len(self._movie) != len(self.table)) or (
+                len(pages) and (pages.min() < 0 or pages.max() >= len(self._movie))):
             n_pages = len(self._movie)
             self._movie.close()
             raise CropSetError(
@@ -108,7 +132,12 @@ class CropSet:
                 f"{len(self.table)} row(s)"
             )
         self.crop_shape: tuple[int, int] = tuple(self._movie.frame_shape)  # type: ignore[assignment]
-        self._position = {int(f): i for i, f in enumerate(frames)}
+        particles = self.table["particle"].to_numpy()
+        keys = ([(int(p), int(f)) for p, f in zip(particles, frames, strict=True)]
+                if self.multi else [int(f) for f in frames])
+        #: key -> page of the stack; key -> row of the table
+        self._position: dict[Any, int] = {k: int(i) for k, i in zip(keys, pages, strict=True)}
+        self._row_of: dict[Any, int] = {k: i for i, k in enumerate(keys)}
         self.sidecar: dict[str, Any] = {}
         side = sidecar_path(self.table_path)
         if side.exists():
@@ -126,29 +155,55 @@ class CropSet:
 
     @property
     def frames(self) -> list[int]:
-        """Frame numbers, in table order."""
+        """Frame numbers, in table order (with several tracks, a frame once per track)."""
         return [int(f) for f in self.table["frame"]]
+
+    @property
+    def key_columns(self) -> tuple[str, ...]:
+        """What names a row: ``("frame",)``, or ``("particle", "frame")`` for several tracks."""
+        return PARTICLE_KEY if self.multi else ("frame",)
+
+    @property
+    def keys(self) -> list[Any]:
+        """Every row's key, in table order (frames, or (particle, frame) tuples)."""
+        return list(self._position)
+
+    @property
+    def particles(self) -> list[int]:
+        """The track ids."""
+        return sorted(int(p) for p in self.table["particle"].unique())
 
     def __len__(self) -> int:
         return len(self.table)
 
-    def row(self, frame: int) -> dict[str, Any]:
-        """The crop-table row of ``frame`` as plain Python values."""
+    def row(self, frame: Any) -> dict[str, Any]:
+        """The crop-table row of ``frame`` (a key: :attr:`keys`) as plain Python values."""
         rec = self.table.iloc[self._index(frame)].to_dict()
         return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in rec.items()}
 
-    def crop(self, frame: int) -> NDArray[np.float32]:
-        """The crop of ``frame`` (float32, NaN = leave out)."""
+    def crop(self, frame: Any) -> NDArray[np.float32]:
+        """The crop of ``frame`` (a key: :attr:`keys`; float32, NaN = leave out)."""
         try:
-            return np.asarray(self._movie[self._index(frame)], dtype=np.float32)
+            return np.asarray(self._movie[self._position[self._key(frame)]], dtype=np.float32)
         except MovieError as exc:
             raise CropSetError(f"{exc} (the crop of movie frame {frame})") from None
 
-    def _index(self, frame: int) -> int:
-        try:
-            return self._position[int(frame)]
-        except KeyError:
-            raise CropSetError(f"{self.table_path}: no frame {frame}") from None
+    def _key(self, frame: Any) -> Any:
+        if self.multi:
+            if not (isinstance(frame, tuple) and len(frame) == 2):
+                raise CropSetError(f"{self.table_path}: holds several tracks; a row is named "
+                                   f"by (particle, frame), not {frame!r}")
+            key: Any = (int(frame[0]), int(frame[1]))
+        else:
+            key = int(frame[-1]) if isinstance(frame, tuple) else int(frame)
+        if key not in self._position:
+            what = (f"particle {key[0]} in frame {key[1]}" if isinstance(key, tuple)
+                    else f"frame {key}")
+            raise CropSetError(f"{self.table_path}: no {what}")
+        return key
+
+    def _index(self, frame: Any) -> int:
+        return self._row_of[self._key(frame)]
 
     def fingerprint(self) -> dict[str, Any]:
         """Identity of the inputs: checksum of the table, size of the stack."""
@@ -208,3 +263,39 @@ def resolve_instrument(crops: CropSet, given: Instrument | None, override: bool 
 def open_crops(directory: str | Path) -> CropSet:
     """Open a crop folder (see the module docstring)."""
     return CropSet(directory)
+
+
+def write_track_view(crops: CropSet, particle: int, out_dir: str | Path) -> Path:
+    """Write the crop folder of one track of ``crops`` into ``out_dir`` (see the module
+    docstring): ``crops.csv`` (+ sidecar, ``extra.track_of`` naming the parent folder) with a
+    ``page`` column, and ``crops.tif`` a link to the parent's stack; the folder.
+
+    Raises
+    ------
+    CropSetError
+        ``particle`` is not one of the folder's tracks.
+    """
+    from holofit.io.tables import write_table
+
+    if particle not in crops.particles:
+        raise CropSetError(f"{crops.table_path}: no particle {particle} (tracks: "
+                           f"{', '.join(map(str, crops.particles))})")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    pages = (crops.table["page"] if "page" in crops.table.columns
+             else pd.Series(np.arange(len(crops.table)), index=crops.table.index))
+    view = crops.table.assign(page=pages)[crops.table["particle"] == particle]
+    view = view.sort_values("frame", kind="stable")
+    stack = out / "crops.tif"
+    if stack.is_symlink() or stack.exists():
+        stack.unlink()
+    stack.symlink_to(crops.stack_path.resolve())
+    meta = dict(crops.sidecar)
+    meta["extra"] = {**dict(meta.get("extra") or {}),
+                     "track_of": {"folder": str(crops.directory), "particle": int(particle),
+                                  **crops.fingerprint()}}
+    units = dict(meta.get("units") or {})
+    units["page"] = "page of crops.tif (the parent folder's stack) holding this row's crop"
+    meta["units"] = units
+    write_table(out / "crops.csv", view.reset_index(drop=True), meta)
+    return out

@@ -41,7 +41,7 @@ def read_stage_table(path: str | Path, crops: CropSet, what: str) -> tuple[pd.Da
     Returns
     -------
     table : pandas.DataFrame
-        Indexed by frame.
+        Indexed by frame; by (particle, frame) for crops of several tracks.
     meta : dict
         The sidecar.
 
@@ -61,8 +61,14 @@ def read_stage_table(path: str | Path, crops: CropSet, what: str) -> tuple[pd.Da
         raise StageInputError(f"{path}: not a readable {what} table ({exc})") from None
     if "frame" not in table.columns or "status" not in table.columns:
         raise StageInputError(f"{path}: not a {what} table (no frame/status columns)")
-    if table["frame"].duplicated().any():
-        raise StageInputError(f"{path}: repeated frame numbers")
+    multi = bool(getattr(crops, "multi", False))
+    keys = ["particle", "frame"] if multi else ["frame"]
+    if multi and "particle" not in table.columns:
+        raise StageInputError(f"{path}: no particle column, but {crops.table_path} holds "
+                              "several tracks: rerun `holofit " + what + "` on these crops")
+    if table.duplicated(keys).any():
+        raise StageInputError(f"{path}: repeated frame numbers" if not multi
+                              else f"{path}: repeated (particle, frame) rows")
     side = sidecar_path(path)
     meta: dict[str, Any] = {}
     if side.is_file():
@@ -78,6 +84,8 @@ def read_stage_table(path: str | Path, crops: CropSet, what: str) -> tuple[pd.Da
                 f"{path} was made from other crops than {crops.table_path} (the crop table's "
                 f"checksum differs): rerun `holofit {what}` on these crops"
             )
+    if multi:  # indexed by (particle, frame), the columns kept
+        return table.set_index(keys, drop=False).rename_axis([None, None]), meta
     return table.set_index("frame", drop=False), meta
 
 
