@@ -75,7 +75,9 @@ from holofit.fit.task import (
 from holofit.fit.tmatrix_policy import TMATRIX_CHOICES, check_policy, final_tmatrix
 from holofit.fit.tracked import (
     CHUNK_KEY,
+    INITIAL_MIN_CHUNK,
     INITIAL_OVERLAP,
+    MIN_CHUNK,
     OVERLAP,
     TrackedConfig,
     bar_from_initial,
@@ -363,7 +365,8 @@ class _FitPasses:
         self.run.notes.append(note)
         overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
         tcfg = TrackedConfig(cfg, replace(self.tracking, frame=self.opts), bar, overlap)
-        chunks = plan_chunks(frames, overlap)
+        chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK if name == "final"
+                             else INITIAL_MIN_CHUNK)
         pass_table = self.table(cfg, table_name, static)
         path = pass_table.path
         columns = (*pass_table.columns, *TRACK_COLUMNS)

@@ -38,7 +38,9 @@ from holofit.status import ERROR
 
 __all__ = [
     "CHUNK_KEY",
+    "INITIAL_MIN_CHUNK",
     "INITIAL_OVERLAP",
+    "MIN_CHUNK",
     "OVERLAP",
     "ChunkPayload",
     "TrackedConfig",
@@ -62,14 +64,16 @@ OVERLAP = 3
 #: ... and of the initial pass (direct DDA solves with sizes free: an overlap frame costs
 #: seconds; one frame still compares the two chunks)
 INITIAL_OVERLAP = 1
+#: the initial pass's shortest chunk (its default 8 frames: 2 chunks, one per worker)
+INITIAL_MIN_CHUNK = 4
 
 
 def plan_chunks(frames: Sequence[int], overlap: int = OVERLAP,
-                max_chunk: int = MAX_CHUNK) -> list[list[int]]:
+                max_chunk: int = MAX_CHUNK, min_chunk: int = MIN_CHUNK) -> list[list[int]]:
     """Cut a track's frames (time order) into overlapping chunks.
 
     The number of chunks is ``ceil(n / max_chunk)``, raised for a short movie to up to
-    :data:`MIN_CHUNKS` of at least :data:`MIN_CHUNK` frames so that the workers share it; it
+    :data:`MIN_CHUNKS` of at least ``min_chunk`` frames so that the workers share it; it
     depends on the frames only (not on the workers), so a rerun with other workers resumes the
     same chunks. Each chunk is its share of the frames plus the next share's first
     ``overlap`` frames.
@@ -85,7 +89,7 @@ def plan_chunks(frames: Sequence[int], overlap: int = OVERLAP,
         return []
     if overlap < 0 or max_chunk < 1:
         raise ValueError("chunks: overlap >= 0 and max_chunk >= 1 needed")
-    count = max(math.ceil(n / max_chunk), min(MIN_CHUNKS, n // MIN_CHUNK), 1)
+    count = max(math.ceil(n / max_chunk), min(MIN_CHUNKS, n // max(min_chunk, 1)), 1)
     size = math.ceil(n / count)
     starts = list(range(0, n, size))
     return [frames[s:min(s + size + overlap, n)] for s in starts]
@@ -134,7 +138,8 @@ class TrackedConfig:
         opts.pop("frame")  # in the fit config's options
         return {"fit": self.fit.as_dict(), "tracking": opts, "chi2_bar": self.chi2_bar,
                 "chunks": {"max": MAX_CHUNK, "min": MIN_CHUNK, "count": MIN_CHUNKS,
-                           "overlap": self.overlap}}
+                           "overlap": self.overlap,
+                           "min_initial": INITIAL_MIN_CHUNK}}
 
 
 @dataclass(frozen=True)
