@@ -22,7 +22,7 @@ from holofit.demo.rod import DEMO_PARTICLES, run_demo
               help="rod: the paper's rod through all five stages; sphere: a sphere through "
                    "crop, prefit and analyze.")
 @click.option("--n-frames", "--frames", "frames", type=click.IntRange(min=20), default=None,
-              help="Frames of the movie [default: rod 150, sphere 300] (--frames: the old "
+              help="Frames of the movie [default: rod 500, sphere 300] (--frames: the old "
                    "name, deprecated; elsewhere --frames is a START:STOP range).")
 @click.option("--workers", "-j", type=click.IntRange(min=0), default=2, show_default=True,
               help="Worker processes per stage (0: in this process).")

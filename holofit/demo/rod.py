@@ -87,7 +87,7 @@ class _Demo:
 
 
 def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: int = 2,
-                 n_frames: int = 150, initial_frames: int = 8) -> dict[str, float]:
+                 n_frames: int = 500, initial_frames: int = 8) -> dict[str, float]:
     """The rod demo (see the module docstring).
 
     Returns
