@@ -39,6 +39,7 @@ from holofit.cache import LRUCache
 from holofit.conventions import hologram_intensity
 from holofit.holomodel.parameters import ParameterSpace, State
 from holofit.optics import Optics
+from holofit.scattering.lens import lens_fields_on_pixels
 from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
@@ -250,6 +251,10 @@ class HologramModel:
         if joint is not None and self.aperture(base.state) is None:
             # field and derivatives share the pixels' geometry: one pass over the pixels
             _, fields = joint(base.state.position, self.xs, self.ys, axes, self.far_field)
+        elif self.aperture(base.state) is not None:
+            # through the lens: the derivative waves share one pass over the Bessel table
+            fields = lens_fields_on_pixels([derivative(axis) for axis in axes],
+                                           base.state.position, self.xs, self.ys, na)
         else:
             fields = [recorded_field(derivative(axis), base.state.position, self.xs, self.ys,
                                      self.far_field, na) for axis in axes]

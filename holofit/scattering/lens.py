@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.conventions import DetectorGrid, incident_phase_at
-from holofit.scattering.lens_kernels import polar_pixels, sphere_pixels
+from holofit.scattering.lens_kernels import polar_interpolate, polar_pixels, sphere_pixels
 from holofit.scattering.lens_pupil import aperture_angle, check_apodization, pupil_nodes
 from holofit.scattering.lens_sources import ExpansionPupil, SpherePupil, pupil_source
 from holofit.scattering.lens_transform import (
@@ -52,11 +52,13 @@ from holofit.scattering.lens_transform import (
     STEP,
     node_count,
     polar_grid,
+    polar_grids,
     sphere_tables,
 )
 from holofit.scattering.theory import ScatteredWave
 
-__all__ = ["LensImage", "lens_field_on_detector", "lens_field_on_pixels", "lens_image"]
+__all__ = ["LensImage", "lens_field_on_detector", "lens_field_on_pixels", "lens_fields_on_pixels",
+           "lens_image"]
 
 #: aplanatic lenses with cos(th_max) below this integrate in the sqrt-regularised variable
 SQRT_SWITCH = 0.5
@@ -308,3 +310,63 @@ def lens_field_on_detector(
     """:func:`lens_field_on_pixels` on every pixel of ``grid`` (arrays of ``grid.shape``)."""
     return lens_image(wave, apodization).field_on_detector(position_um, grid,
                                                            numerical_aperture)
+
+
+def lens_fields_on_pixels(
+    waves: list[ScatteredWave], position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
+    numerical_aperture: float | None = None, apodization: str = "aplanatic",
+) -> list[tuple[NDArray[np.complex128], NDArray[np.complex128]]]:
+    """:func:`lens_field_on_pixels` of several waves at one position, in one pass.
+
+    For waves of the same optics given by multipole expansions (e.g. a T-matrix wave's
+    orientation derivatives, :mod:`holofit.scattering.tmatrix_wave`), the pupil nodes, the
+    Bessel-table product (one read of the table for all waves: the product is bound by that
+    read), the FFT call and the pixels' interpolation weights are shared; the results equal
+    the separate images'. Other waves (spheres, mixed optics) are imaged one by one. Nothing
+    is cached for the waves (a fit's derivative waves are imaged once).
+
+    Returns
+    -------
+    list of (e_x, e_y)
+        Per wave, arrays of the shape of ``xs_um``.
+    """
+    images = [lens_image(w, apodization) for w in waves]
+    if len(images) < 2 or any(not isinstance(im.source, ExpansionPupil)
+                              or im.optics != images[0].optics for im in images):
+        return [im.field_on_pixels(position_um, xs_um, ys_um, numerical_aperture)
+                for im in images]
+    first = images[0]
+    xp, yp, zp = (float(v) for v in position_um)
+    xs = np.asarray(xs_um, dtype=float)
+    ys = np.asarray(ys_um, dtype=float)
+    if xs.shape != ys.shape:
+        raise ValueError(f"xs_um {xs.shape} and ys_um {ys.shape} differ in shape")
+    shape = xs.shape
+    if xs.size == 0:
+        return [(np.empty(shape, dtype=complex), np.empty(shape, dtype=complex))
+                for _ in images]
+    theta_max = first.aperture_angle(numerical_aperture)
+    k = first.optics.k
+    dx = xs.ravel() - xp
+    dy = ys.ravel() - yp
+    rho = np.sqrt(dx * dx + dy * dy)
+    order = max(im.source.order for im in images)
+    n_nodes = node_count(k, zp, float(rho.max()), theta_max, order)
+    step = STEP / (k * np.sin(theta_max))
+    n_rho = int(np.ceil(float(rho.max()) / step)) + STENCIL // 2 + 2
+    pupils = [im._pupil(theta_max, n_nodes) for im in images]
+    pupil = pupils[0]
+    x_step = k * step * np.sin(pupil.theta)
+    base = (pupil.weights * np.sin(pupil.theta)
+            * np.exp(1j * k * zp * np.cos(pupil.theta)) * complex(incident_phase_at(zp, k)))
+    bkey = (round(k * step, 12), *pupil.key)
+    grids = polar_grids([p.modes for p in pupils], base, x_step, n_rho, bkey, order + 1)
+    n_phi = grids.shape[3] - 2 * STENCIL
+    t = rho * (1.0 / step) + STENCIL
+    u = np.arctan2(dy, dx) * (n_phi / (2.0 * np.pi))
+    u[u < 0] += n_phi
+    ex = np.empty((len(images), rho.size), dtype=complex)
+    ey = np.empty_like(ex)
+    none = np.empty(0)
+    polar_interpolate(grids, t, u, STENCIL, none.astype(complex), none.astype(bool), ex, ey)
+    return [(ex[f].reshape(shape), ey[f].reshape(shape)) for f in range(len(images))]

@@ -44,8 +44,8 @@ from scipy import special
 
 from holofit.scattering.lens_kernels import POLAR_STENCIL, bessel_planes
 
-__all__ = ["MAX_NODES", "STENCIL", "STEP", "node_count", "polar_grid", "radial_transform",
-           "sphere_tables"]
+__all__ = ["MAX_NODES", "STENCIL", "STEP", "node_count", "polar_grid", "polar_grids",
+           "radial_transform", "sphere_tables"]
 
 #: Lagrange stencil (points per axis; the compiled kernels' constant) and radial step times the
 #: band limit k sin(th_max)
@@ -242,30 +242,48 @@ def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray
     ``max_order``: the highest azimuthal order the source can have (see
     :func:`radial_transform`).
     """
-    mmax = (t_plus.shape[1] - 1) // 2
+    return polar_grids([(t_plus, t_minus)], base, x_step, n_rho, key, max_order)[0]
+
+
+def polar_grids(modes: list[tuple[NDArray, NDArray]], base: NDArray, x_step: NDArray,
+                n_rho: int, key: tuple, max_order: int | None = None) -> NDArray[np.floating]:
+    """:func:`polar_grid` of several pupil fields over the same nodes (e.g. a wave's
+    derivatives), shape ``(F, 4, rows, columns)``: one pass over the Bessel table for all of
+    them (the product reads the table once, whatever its number of columns), one FFT call.
+
+    ``modes``: per field ``(t_plus, t_minus)``, of any (odd) widths; narrower ones (trimmed
+    orders) are padded with zeros to the widest.
+    """
+    mmax = max((tp.shape[1] - 1) // 2 for tp, _ in modes)
     m = np.arange(mmax + 1)
-    # E_x = -(E_+ + E_-)/2 and E_y = i (E_+ - E_-)/2 are combined before the (linear)
-    # transforms: h[|m|, node, (X at +m, X at -m, Y at +m, Y at -m)], J_{-m} = (-1)^m J_m
-    tx = (-0.5 * base)[:, None] * (t_plus + t_minus)
-    ty = (0.5j * base)[:, None] * (t_plus - t_minus)
     sign = ((-1.0) ** m)[:, None]
-    h = np.empty((mmax + 1, base.size, 4), dtype=complex)
-    for c, t in enumerate((tx, ty)):
-        h[:, :, 2 * c] = t[:, mmax:].T
-        h[:, :, 2 * c + 1] = t[:, mmax::-1].T * sign
+    n_f = len(modes)
+    # E_x = -(E_+ + E_-)/2 and E_y = i (E_+ - E_-)/2 are combined before the (linear)
+    # transforms: h[|m|, node, (X at +m, X at -m, Y at +m, Y at -m) per field],
+    # J_{-m} = (-1)^m J_m
+    h = np.zeros((mmax + 1, base.size, 4 * n_f), dtype=complex)
+    for f, (t_plus, t_minus) in enumerate(modes):
+        mf = (t_plus.shape[1] - 1) // 2
+        tx = (-0.5 * base)[:, None] * (t_plus + t_minus)
+        ty = (0.5j * base)[:, None] * (t_plus - t_minus)
+        for c, t in enumerate((tx, ty)):
+            h[: mf + 1, :, 4 * f + 2 * c] = t[:, mf:].T
+            h[: mf + 1, :, 4 * f + 2 * c + 1] = t[:, mf::-1].T * sign[: mf + 1]
     g = radial_transform(x_step, h, n_rho, mmax, key, max_order)  # (|m|, rho, column)
     # even (rho -> -rho is a shift by half a period) and FFT-friendly (a large prime factor
     # costs pocketfft several times more)
     n_phi = 2 * sfft.next_fast_len(max(int(np.ceil(np.pi * (mmax + 1) / PHI_STEP)),
                                        mmax + 1), real=False)
-    # in the tables' precision (single: see the module docstring)
-    spec = np.zeros((2, n_rho, n_phi), dtype=g.dtype)
+    # in the tables' precision (single: see the module docstring); rows (field, X or Y)
+    spec = np.zeros((2 * n_f, n_rho, n_phi), dtype=g.dtype)
     up = (1j**m).astype(g.dtype)[:, None, None] * g[:, :, 0::2]  # orders +m, columns (X, Y)
     down = (1j ** (-m[1:])).astype(g.dtype)[:, None, None] * g[1:, :, 1::2]  # orders -m
     spec[:, :, : mmax + 1] = np.transpose(up, (2, 1, 0))
     spec[:, :, n_phi - mmax :] = np.transpose(down[::-1], (2, 1, 0))
     fields = sfft.ifft(spec, axis=2, norm="forward", overwrite_x=True)
-    return _padded_planes(fields)
+    if n_f == 1:
+        return _padded_planes(fields)[None]
+    return np.stack([_padded_planes(fields[2 * f : 2 * f + 2]) for f in range(n_f)])
 
 
 def _reflect_rows(g: NDArray) -> NDArray:
