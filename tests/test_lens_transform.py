@@ -152,3 +152,29 @@ def test_derivative_waves_imaged_in_one_pass_are_the_derivatives_of_the_image():
         # the five-point central difference (error h^4)
         central = (fd[-2] - 8 * fd[-1] + 8 * fd[1] - fd[2]) / (12 * h)
         assert np.abs(got - central).max() < 1e-4 * scale
+
+
+def test_height_derivative_of_the_lens_image_is_exact():
+    """``height_derivative``: the image's z derivative from the same table pass (the fit's
+    z column through the lens) equals the five-point difference of images at z +- h."""
+    from holofit.optics import Optics
+    from holofit.particles import Dimer
+    from holofit.scattering.cluster import ClusterTheory
+    from holofit.scattering.lens import lens_field_on_pixels, lens_fields_on_pixels
+    from holofit.scattering.theory import Orientation
+
+    optics = Optics(0.66, 1.33, 0.0, numerical_aperture=1.4)
+    wave = ClusterTheory().solve(Dimer(0.3, 0.35, 0.0, 1.59, 1.5), optics,
+                                 Orientation(1.0, 0.5, 0.0))
+    x, y = np.meshgrid(np.linspace(-1.0, 7.0, 33), np.linspace(0.0, 6.0, 27))
+    pos = np.array([3.0, 2.6, 9.0])
+    (dex, dey), (ex, ey) = lens_fields_on_pixels([wave, wave], pos, x, y,
+                                                 height_derivative=[True, False])
+    got = np.stack([dex, dey])
+    assert np.abs(np.stack([ex, ey]) - np.stack(lens_field_on_pixels(wave, pos, x, y))).max() \
+        < 1e-6 * np.abs(ex).max()
+    h = 1e-2
+    img = {s: np.stack(lens_field_on_pixels(wave, pos + np.array([0, 0, s * h]), x, y))
+           for s in (-2, -1, 1, 2)}
+    central = (img[-2] - 8 * img[-1] + 8 * img[1] - img[2]) / (12 * h)
+    assert np.abs(got - central).max() < 1e-4 * np.abs(central).max()

@@ -211,7 +211,7 @@ class HologramModel:
                 cols[:, i] = 2.0 * ((cp + a * ex.real) * ex.real + a * ex.imag * ex.imag
                                     + (sp + a * ey.real) * ey.real + a * ey.imag * ey.imag)
                 continue
-            if p.kind == "orientation" and analytic is not None:
+            if analytic is not None and p.name in analytic:  # orientation (and z, lens)
                 cols[:, i] = analytic[p.name]
                 continue
             h = p.step
@@ -235,7 +235,8 @@ class HologramModel:
         return np.zeros(self.n_pixels)
 
     def _rotation_columns(self, base: Evaluation) -> dict[str, NDArray] | None:
-        """Analytic orientation columns, if the solved wave can differentiate itself."""
+        """Analytic orientation columns, if the solved wave can differentiate itself (through
+        the lens, with the exact height column ``z_um`` from the same pass)."""
         names = [p.name for p in self.space.parameters if p.kind == "orientation"]
         if not names:
             return None
@@ -252,9 +253,14 @@ class HologramModel:
             # field and derivatives share the pixels' geometry: one pass over the pixels
             _, fields = joint(base.state.position, self.xs, self.ys, axes, self.far_field)
         elif self.aperture(base.state) is not None:
-            # through the lens: the derivative waves share one pass over the Bessel table
-            fields = lens_fields_on_pixels([derivative(axis) for axis in axes],
-                                           base.state.position, self.xs, self.ys, na)
+            # through the lens: the derivative waves, and the height derivative of the image
+            # (exact, no new table: the z column), share one pass over the Bessel table
+            height = "z_um" in self.space.names
+            fields = lens_fields_on_pixels(
+                [derivative(axis) for axis in axes] + [wave] * height, base.state.position,
+                self.xs, self.ys, na, height_derivative=[False] * len(axes) + [True] * height)
+            if height:
+                names = [*names, "z_um"]
         else:
             fields = [recorded_field(derivative(axis), base.state.position, self.xs, self.ys,
                                      self.far_field, na) for axis in axes]

@@ -38,6 +38,7 @@ from __future__ import annotations
 import threading
 import weakref
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -315,6 +316,7 @@ def lens_field_on_detector(
 def lens_fields_on_pixels(
     waves: list[ScatteredWave], position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
     numerical_aperture: float | None = None, apodization: str = "aplanatic",
+    height_derivative: Sequence[bool] = (),
 ) -> list[tuple[NDArray[np.complex128], NDArray[np.complex128]]]:
     """:func:`lens_field_on_pixels` of several waves at one position, in one pass.
 
@@ -325,14 +327,24 @@ def lens_fields_on_pixels(
     the separate images'. Other waves (spheres, mixed optics) are imaged one by one. Nothing
     is cached for the waves (a fit's derivative waves are imaged once).
 
+    ``height_derivative[i]`` True (expansion waves only) gives instead the exact derivative of
+    wave ``i``'s image with respect to the particle's height ``z_p`` (per um): the height
+    enters the image only through ``exp(i k z_p (cos th - 1))`` at each pupil node
+    (:mod:`holofit.scattering.lens`'s formula), so its derivative is the image with the nodes'
+    factor times ``i k (cos th - 1)``.
+
     Returns
     -------
     list of (e_x, e_y)
         Per wave, arrays of the shape of ``xs_um``.
     """
     images = [lens_image(w, apodization) for w in waves]
-    if len(images) < 2 or any(not isinstance(im.source, ExpansionPupil)
-                              or im.optics != images[0].optics for im in images):
+    dz = [bool(v) for v in height_derivative] + [False] * (len(images) - len(height_derivative))
+    if any(not isinstance(im.source, ExpansionPupil) or im.optics != images[0].optics
+           for im in images):
+        if any(dz):
+            raise ValueError("height derivatives of the lens image need waves of one optics "
+                             "given by multipole expansions")
         return [im.field_on_pixels(position_um, xs_um, ys_um, numerical_aperture)
                 for im in images]
     first = images[0]
@@ -360,7 +372,10 @@ def lens_fields_on_pixels(
     base = (pupil.weights * np.sin(pupil.theta)
             * np.exp(1j * k * zp * np.cos(pupil.theta)) * complex(incident_phase_at(zp, k)))
     bkey = (round(k * step, 12), *pupil.key)
-    grids = polar_grids([p.modes for p in pupils], base, x_step, n_rho, bkey, order + 1)
+    base_dz = base * (1j * k * (np.cos(pupil.theta) - 1.0))
+    grids = polar_grids([(*p.modes, base_dz if d else base) for p, d in zip(pupils, dz,
+                                                                              strict=True)],
+                        x_step, n_rho, bkey, order + 1)
     n_phi = grids.shape[3] - 2 * STENCIL
     t = rho * (1.0 / step) + STENCIL
     u = np.arctan2(dy, dx) * (n_phi / (2.0 * np.pi))

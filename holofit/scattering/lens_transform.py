@@ -242,27 +242,28 @@ def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray
     ``max_order``: the highest azimuthal order the source can have (see
     :func:`radial_transform`).
     """
-    return polar_grids([(t_plus, t_minus)], base, x_step, n_rho, key, max_order)[0]
+    return polar_grids([(t_plus, t_minus, base)], x_step, n_rho, key, max_order)[0]
 
 
-def polar_grids(modes: list[tuple[NDArray, NDArray]], base: NDArray, x_step: NDArray,
-                n_rho: int, key: tuple, max_order: int | None = None) -> NDArray[np.floating]:
+def polar_grids(fields: list[tuple[NDArray, NDArray, NDArray]], x_step: NDArray, n_rho: int,
+                key: tuple, max_order: int | None = None) -> NDArray[np.floating]:
     """:func:`polar_grid` of several pupil fields over the same nodes (e.g. a wave's
     derivatives), shape ``(F, 4, rows, columns)``: one pass over the Bessel table for all of
     them (the product reads the table once, whatever its number of columns), one FFT call.
 
-    ``modes``: per field ``(t_plus, t_minus)``, of any (odd) widths; narrower ones (trimmed
-    orders) are padded with zeros to the widest.
+    ``fields``: per field ``(t_plus, t_minus, base)``, the modes of any (odd) widths
+    (narrower ones, trimmed orders, are padded with zeros to the widest) and the nodes'
+    factor (:func:`polar_grid`'s ``base``; its height derivative gives the image's).
     """
-    mmax = max((tp.shape[1] - 1) // 2 for tp, _ in modes)
+    mmax = max((tp.shape[1] - 1) // 2 for tp, _, _ in fields)
     m = np.arange(mmax + 1)
     sign = ((-1.0) ** m)[:, None]
-    n_f = len(modes)
+    n_f = len(fields)
     # E_x = -(E_+ + E_-)/2 and E_y = i (E_+ - E_-)/2 are combined before the (linear)
     # transforms: h[|m|, node, (X at +m, X at -m, Y at +m, Y at -m) per field],
     # J_{-m} = (-1)^m J_m
-    h = np.zeros((mmax + 1, base.size, 4 * n_f), dtype=complex)
-    for f, (t_plus, t_minus) in enumerate(modes):
+    h = np.zeros((mmax + 1, x_step.size, 4 * n_f), dtype=complex)
+    for f, (t_plus, t_minus, base) in enumerate(fields):
         mf = (t_plus.shape[1] - 1) // 2
         tx = (-0.5 * base)[:, None] * (t_plus + t_minus)
         ty = (0.5j * base)[:, None] * (t_plus - t_minus)
