@@ -178,3 +178,32 @@ def test_height_derivative_of_the_lens_image_is_exact():
            for s in (-2, -1, 1, 2)}
     central = (img[-2] - 8 * img[-1] + 8 * img[1] - img[2]) / (12 * h)
     assert np.abs(got - central).max() < 1e-4 * np.abs(central).max()
+
+
+def test_a_table_grows_by_its_new_rows_only(monkeypatch):
+    """A request for more rows (a fit's trial step farther from its pixels) computes only the
+    new rows; the grown table equals one built at once."""
+    lt.clear_cache()
+    x_step = np.linspace(0.01, 0.5, 21)
+    rng = np.random.default_rng(3)
+    built = []
+    real = lt._bessel_rows
+
+    def counting(x, rows, orders):
+        built.append((rows.start, rows.stop))
+        return real(x, rows, orders)
+
+    monkeypatch.setattr(lt, "_bessel_rows", counting)
+    for orders in (None, 5):
+        n = 2 if orders is None else orders + 1
+        h = rng.normal(size=(n, 21, 2)) + 1j * rng.normal(size=(n, 21, 2))
+        lt.clear_cache()
+        built.clear()
+        lt.radial_transform(x_step, h, 100, orders, ("grow", orders))
+        grown = lt.radial_transform(x_step, h, 180, orders, ("grow", orders))
+        first = built[0][1]
+        assert built == [(0, first), (first, 180)]
+        lt.clear_cache()
+        once = lt.radial_transform(x_step, h, 180, orders, ("grow", orders))
+        np.testing.assert_array_equal(grown, once)
+    lt.clear_cache()

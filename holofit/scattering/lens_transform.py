@@ -144,14 +144,22 @@ def _cached_table(x_step: NDArray, n_rho: int, orders: int | None, key: tuple) -
         if table is not None and table.shape[0] >= n_orders and table.shape[1] >= n_rho:
             _BESSEL.move_to_end(key)
             return table
-    if table is not None:  # grow, with a little room for the next few moves
+    if table is not None and table.shape[0] >= n_orders:
+        # more rows only (a trial step of a fit farther from its pixels): compute the new rows
+        # and append them (before: the whole table again, ~0.3 s for a 200 x 200 crop)
         rows = table.shape[1]
-        n_rho = max(n_rho, int(1.1 * rows)) if rows < n_rho else rows
-        if orders is not None:
-            orders = max(orders, table.shape[0] - 1)
-    elif orders is not None:  # room for a fit's small moves of the particle
-        n_rho = int(ROW_MARGIN * n_rho)
-    table = _bessel_rows(x_step, range(n_rho), orders)
+        more = _bessel_rows(x_step, range(rows, max(n_rho, int(1.1 * rows))),
+                            None if orders is None else table.shape[0] - 1)
+        table = np.concatenate([table, more], axis=1)
+    else:
+        if table is not None:  # grow, with a little room for the next few moves
+            rows = table.shape[1]
+            n_rho = max(n_rho, int(1.1 * rows)) if rows < n_rho else rows
+            if orders is not None:
+                orders = max(orders, table.shape[0] - 1)
+        elif orders is not None:  # room for a fit's small moves of the particle
+            n_rho = int(ROW_MARGIN * n_rho)
+        table = _bessel_rows(x_step, range(n_rho), orders)
     with _BESSEL_LOCK:
         _BESSEL[key] = table
         _BESSEL.move_to_end(key)
