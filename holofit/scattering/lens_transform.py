@@ -93,7 +93,8 @@ def node_count(k: float, z_um: float, rho_max_um: float, theta_max: float, order
 
 # -- Bessel tables ---------------------------------------------------------------------------
 
-_BESSEL: OrderedDict[tuple, NDArray[np.float64]] = OrderedDict()
+#: a table is a tuple of row blocks (a grown table keeps its old rows and adds a block)
+_BESSEL: OrderedDict[tuple, tuple[NDArray, ...]] = OrderedDict()
 _BESSEL_LOCK = threading.Lock()
 
 
@@ -132,40 +133,48 @@ def _table_bytes(n_orders: int, n_rho: int, n_nodes: int, sphere: bool) -> int:
     return n_orders * n_rho * n_nodes * (8 if sphere else np.dtype(TABLE_DTYPE).itemsize)
 
 
-def _cached_table(x_step: NDArray, n_rho: int, orders: int | None, key: tuple) -> NDArray:
-    """A cached Bessel table with at least ``n_rho`` rows and the orders asked for.
+def _cached_table(x_step: NDArray, n_rho: int, orders: int | None,
+                  key: tuple) -> tuple[NDArray, ...]:
+    """A cached Bessel table with at least ``n_rho`` rows and the orders asked for, as row
+    blocks (shape ``(n_orders, rows_b, n_nodes)`` each, in row order).
 
     Tables are shared by everything with the same nodes and radial step (``key``); a table with
-    more orders or rows serves fewer. The cache is bounded by :data:`BESSEL_CACHE_BYTES`.
+    more orders or rows serves fewer. A table asked for more rows than it has (a fit's trial
+    step farther from its pixels) gets the new rows as a new block: neither its old rows are
+    recomputed nor the table copied (a 100 MB copy into fresh memory costs ~0.1-0.5 s under
+    load). The cache is bounded by :data:`BESSEL_CACHE_BYTES`.
     """
     n_orders = 2 if orders is None else orders + 1
     with _BESSEL_LOCK:
-        table = _BESSEL.get(key)
-        if table is not None and table.shape[0] >= n_orders and table.shape[1] >= n_rho:
+        blocks = _BESSEL.get(key)
+        if blocks is not None and blocks[0].shape[0] >= n_orders and _rows(blocks) >= n_rho:
             _BESSEL.move_to_end(key)
-            return table
-    if table is not None and table.shape[0] >= n_orders:
-        # more rows only (a trial step of a fit farther from its pixels): compute the new rows
-        # and append them (before: the whole table again, ~0.3 s for a 200 x 200 crop)
-        rows = table.shape[1]
+            return blocks
+    if blocks is not None and blocks[0].shape[0] >= n_orders:
+        rows = _rows(blocks)
         more = _bessel_rows(x_step, range(rows, max(n_rho, int(1.1 * rows))),
-                            None if orders is None else table.shape[0] - 1)
-        table = np.concatenate([table, more], axis=1)
+                            None if orders is None else blocks[0].shape[0] - 1)
+        blocks = (*blocks, more)
     else:
-        if table is not None:  # grow, with a little room for the next few moves
-            rows = table.shape[1]
+        if blocks is not None:  # grow, with a little room for the next few moves
+            rows = _rows(blocks)
             n_rho = max(n_rho, int(1.1 * rows)) if rows < n_rho else rows
             if orders is not None:
-                orders = max(orders, table.shape[0] - 1)
+                orders = max(orders, blocks[0].shape[0] - 1)
         elif orders is not None:  # room for a fit's small moves of the particle
             n_rho = int(ROW_MARGIN * n_rho)
-        table = _bessel_rows(x_step, range(n_rho), orders)
+        blocks = (_bessel_rows(x_step, range(n_rho), orders),)
     with _BESSEL_LOCK:
-        _BESSEL[key] = table
+        _BESSEL[key] = blocks
         _BESSEL.move_to_end(key)
-        while sum(t.nbytes for t in _BESSEL.values()) > BESSEL_CACHE_BYTES and len(_BESSEL) > 1:
+        while len(_BESSEL) > 1 and sum(
+                b.nbytes for bs in _BESSEL.values() for b in bs) > BESSEL_CACHE_BYTES:
             _BESSEL.popitem(last=False)
-    return table
+    return blocks
+
+
+def _rows(blocks: tuple[NDArray, ...]) -> int:
+    return sum(b.shape[1] for b in blocks)
 
 
 def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
@@ -201,15 +210,23 @@ def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
         if not sphere and max_orders is not None and max_orders > orders and _table_bytes(
                 max_orders + 1, int(ROW_MARGIN * n_rho), n_nodes, sphere) <= BESSEL_CACHE_BYTES:
             orders = max_orders
-        table = _cached_table(x_step, n_rho, orders, (sphere, *key))[:n_orders, :n_rho]
+        blocks = _cached_table(x_step, n_rho, orders, (sphere, *key))
     else:
-        table = None
+        blocks = None
     real = np.dtype(np.float64 if sphere else TABLE_DTYPE)
     cplx = np.result_type(real, np.complex64)
     # (o, i, 2c): real and imaginary parts as columns of reals
     hr = np.ascontiguousarray(h, dtype=cplx).view(real)
-    if table is not None:
-        out = np.matmul(table, hr)
+    if blocks is not None and len(blocks) == 1:
+        out = np.matmul(blocks[0][:n_orders, :n_rho], hr)
+    elif blocks is not None:
+        out = np.empty((n_orders, n_rho, 2 * n_cols), dtype=real)
+        start = 0
+        for b in blocks:
+            stop = min(n_rho, start + b.shape[1])
+            if stop > start:
+                out[:, start:stop] = np.matmul(b[:n_orders, : stop - start], hr)
+            start = stop
     else:
         out = np.empty((n_orders, n_rho, 2 * n_cols), dtype=real)
         block = max(1, BLOCK_BYTES // _table_bytes(n_orders, 1, n_nodes, sphere))
