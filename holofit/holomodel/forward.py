@@ -19,7 +19,9 @@ what a solve depends on (the static parameters and the orientation), so that
   analytically instead. (For an axisymmetric particle the fit keeps the spin at zero; the
   analytic column then includes the spin-about-the-axis part of the lab rotation, which changes
   such a particle's hologram only through lattice artefacts: it steers the optimiser, while
-  the residuals it minimises stay exact.)
+  the residuals it minimises stay exact.) Through the lens, those derivative waves and the
+  height derivative of the image (the exact ``z_um`` column) are imaged in one pass
+  (:func:`holofit.scattering.lens.lens_fields_on_pixels`).
 
 Parameters that describe no physical particle (a negative size, a detector plane inside the
 particle in the ideal model, a non-positive aperture) raise :class:`InvalidParameters`; the
