@@ -238,9 +238,12 @@ class HologramModel:
 
     def _rotation_columns(self, base: Evaluation) -> dict[str, NDArray] | None:
         """Analytic orientation columns, if the solved wave can differentiate itself (through
-        the lens, with the exact height column ``z_um`` from the same pass)."""
+        the lens, with the exact height column ``z_um`` from the same pass, also when no
+        orientation is fitted)."""
         names = [p.name for p in self.space.parameters if p.kind == "orientation"]
-        if not names:
+        lens = self.aperture(base.state) is not None
+        height = lens and "z_um" in self.space.names
+        if not names and not height:
             return None
         wave = self.wave(base.state)
         derivative = getattr(wave, "rotation_derivative", None)
@@ -251,13 +254,13 @@ class HologramModel:
         axes = self.space.rotation_axes()
         joint = getattr(wave, "field_and_rotation_derivatives", None)
         na = base.state.numerical_aperture
-        if joint is not None and self.aperture(base.state) is None:
+        if joint is not None and not lens:
             # field and derivatives share the pixels' geometry: one pass over the pixels
             _, fields = joint(base.state.position, self.xs, self.ys, axes, self.far_field)
-        elif self.aperture(base.state) is not None:
+        elif lens:
             # through the lens: the derivative waves, and the height derivative of the image
-            # (exact, no new table: the z column), share one pass over the Bessel table
-            height = "z_um" in self.space.names
+            # (exact, no new table: the z column, also when no orientation is fitted), share
+            # one pass over the Bessel table
             fields = lens_fields_on_pixels(
                 [derivative(axis) for axis in axes] + [wave] * height, base.state.position,
                 self.xs, self.ys, na, height_derivative=[False] * len(axes) + [True] * height)
