@@ -114,30 +114,3 @@ def test_fields_are_reused_for_frames_at_nearly_the_same_height(engine):
     own = exact.scores(grid, data, weights, near, 0.9)
     assert np.abs(own - again).max() < 0.02
     assert np.argmax(own[0]) == np.argmax(again[0])
-
-
-def test_tilts_through_a_lens_imaged_in_one_pass_equal_one_by_one(engine, monkeypatch):
-    # the batched lens images (one read of the Bessel table for every tilt) equal the images
-    # made tilt by tilt through recorded_field
-    lens = Optics(0.66, 1.33, 0.3, numerical_aperture=1.2)
-    tilts = [Tilt(0.3), Tilt(0.7), Tilt(1.2)]
-    grid = polar_grid(POS[:2], 3.0, PX, 32)
-    holo = calc_hologram(engine.solve(ROD, lens, Orientation(1.1, 0.7)), POS, GRID, 0.9)
-    data, weights = sample_crop(holo, GRID.corner, PX, grid)
-    batched = OrientationLibrary(engine, ROD, lens, tilts, z_step_um=None)
-    one_by_one = OrientationLibrary(engine, ROD, lens, tilts, z_step_um=None)
-    for i in range(len(tilts)):
-        one_by_one.polar_fields(i, grid, POS)
-    expected = one_by_one.scores(grid, data, weights, POS, 0.9)
-
-    def one_at_a_time(*args, **kwargs):
-        raise AssertionError("a tilt was imaged alone")
-
-    with monkeypatch.context() as m:
-        m.setattr("holofit.library.search.recorded_field", one_at_a_time)
-        got = batched.scores(grid, data, weights, POS, 0.9)
-    np.testing.assert_allclose(got, expected, atol=1e-9)
-    for i in range(len(tilts)):
-        for a, b in zip(batched.polar_fields(i, grid, POS), one_by_one.polar_fields(i, grid, POS),
-                        strict=True):
-            np.testing.assert_allclose(a, b, atol=1e-6 * np.abs(b).max())

@@ -36,8 +36,7 @@ from holofit.conventions import axis_from_angles, euler_zyz
 from holofit.library.polar import PolarGrid
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
-from holofit.scattering.lens import lens_fields_on_pixels
-from holofit.scattering.recorded_field import has_lens, recorded_field
+from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
 __all__ = ["Candidate", "OrientationLibrary", "Tilt", "pick_candidates", "tilt_grid"]
@@ -142,39 +141,22 @@ class OrientationLibrary:
                      ) -> tuple[NDArray, ...]:
         """The recorded fields of tilt ``i``'s x- and y-polarised solutions on ``grid``
         (``X_x, X_y, Y_x, Y_y``), at the particle's height rounded to :attr:`z_step_um`."""
-        z = self._height(position_um)
-        cached = self._fields.get((i, round(z, 9), _grid_key(grid)))
+        z = float(position_um[2])
+        if self.z_step_um is not None:
+            z = round(z / self.z_step_um) * self.z_step_um
+        key = (i, round(z, 9), _grid_key(grid))
+        cached = self._fields.get(key)
         if cached is not None:
             return cached
-        xs, ys = _grid_offsets(grid)
+        # offsets from the grid's centre: the fields depend on them and on the height only
+        cx, cy = float(grid.xs_um[0].mean()), float(grid.ys_um[0].mean())
+        xs = (grid.xs_um - cx).ravel()
+        ys = (grid.ys_um - cy).ravel()
         wx, wy = self.waves(i)
         here = (0.0, 0.0, z)
         fields = tuple(v.reshape(grid.shape) for w in (wx, wy)
                        for v in recorded_field(w, here, xs, ys))
-        return self._fields.put((i, round(z, 9), _grid_key(grid)), fields)
-
-    def _height(self, position_um: tuple[float, float, float]) -> float:
-        z = float(position_um[2])
-        return z if self.z_step_um is None else round(z / self.z_step_um) * self.z_step_um
-
-    def _image_missing_tilts(self, grid: PolarGrid, position_um: tuple[float, float, float]
-                             ) -> None:
-        """Through a lens: image every tilt whose fields at this height are not cached in one
-        pass (:func:`holofit.scattering.lens.lens_fields_on_pixels`: one read of the lens's
-        Bessel table for all of them; the same fields as one by one)."""
-        z = self._height(position_um)
-        missing = [i for i in range(len(self.tilts))
-                   if self._fields.get((i, round(z, 9), _grid_key(grid))) is None]
-        if len(missing) < 2:
-            return
-        waves = [w for i in missing for w in self.waves(i)]
-        if not has_lens(waves[0]):
-            return
-        xs, ys = _grid_offsets(grid)
-        images = lens_fields_on_pixels(waves, (0.0, 0.0, z), xs, ys)
-        for j, i in enumerate(missing):
-            fields = tuple(v.reshape(grid.shape) for im in images[2 * j:2 * j + 2] for v in im)
-            self._fields.put((i, round(z, 9), _grid_key(grid)), fields)
+        return self._fields.put(key, fields)
 
     def scores(self, grid: PolarGrid, data: NDArray, weights: NDArray,
                position_um: tuple[float, float, float], alpha: float) -> NDArray[np.float64]:
@@ -208,7 +190,6 @@ class OrientationLibrary:
         gamma = self.optics.polarization_rad - grid.phi
         coef = np.stack([np.ones(n_phi), np.cos(2 * gamma), np.sin(2 * gamma)])  # (3, n_phi)
         out = np.empty((len(self.tilts), n_phi))
-        self._image_missing_tilts(grid, position_um)
 
         def corr(f_hat: NDArray, g: NDArray) -> NDArray:
             # sum over rho and phi of f(rho, phi) g(rho, phi - psi_j), for every j
@@ -229,13 +210,6 @@ class OrientationLibrary:
                        for k in range(3) for m in range(k, 3))
             out[i] = 1.0 - (s_dd - 2.0 * s_dm + s_mm) / ss_tot
         return out
-
-
-def _grid_offsets(grid: PolarGrid) -> tuple[NDArray, NDArray]:
-    """The grid's samples as offsets from its centre, um (the fields depend on them and on
-    the height only)."""
-    cx, cy = float(grid.xs_um[0].mean()), float(grid.ys_um[0].mean())
-    return (grid.xs_um - cx).ravel(), (grid.ys_um - cy).ravel()
 
 
 def _grid_key(grid: PolarGrid) -> tuple:
