@@ -19,7 +19,9 @@ what a solve depends on (the static parameters and the orientation), so that
   analytically instead. (For an axisymmetric particle the fit keeps the spin at zero; the
   analytic column then includes the spin-about-the-axis part of the lab rotation, which changes
   such a particle's hologram only through lattice artefacts: it steers the optimiser, while
-  the residuals it minimises stay exact.)
+  the residuals it minimises stay exact.) Through the lens, those derivative waves and the
+  height derivative of the image (the exact ``z_um`` column) are imaged in one pass
+  (:func:`holofit.scattering.lens.lens_fields_on_pixels`).
 
 A fixed extra field on the pixels (``extra_field``: a neighbouring particle's scattered field,
 already scaled by its alpha, from its own fit) is added to the particle's scattered field
@@ -45,6 +47,7 @@ from holofit.cache import LRUCache
 from holofit.conventions import hologram_intensity
 from holofit.holomodel.parameters import ParameterSpace, State
 from holofit.optics import Optics
+from holofit.scattering.lens import lens_fields_on_pixels
 from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
@@ -249,7 +252,7 @@ class HologramModel:
                 cols[:, i] = 2.0 * ((cp + a * ex.real) * ex.real + a * ex.imag * ex.imag
                                     + (sp + a * ey.real) * ey.real + a * ey.imag * ey.imag)
                 continue
-            if p.kind == "orientation" and analytic is not None:
+            if analytic is not None and p.name in analytic:  # orientation (and z, lens)
                 cols[:, i] = analytic[p.name]
                 continue
             h = p.step
@@ -273,9 +276,13 @@ class HologramModel:
         return np.zeros(self.n_pixels)
 
     def _rotation_columns(self, base: Evaluation) -> dict[str, NDArray] | None:
-        """Analytic orientation columns, if the solved wave can differentiate itself."""
+        """Analytic orientation columns, if the solved wave can differentiate itself (through
+        the lens, with the exact height column ``z_um`` from the same pass, also when no
+        orientation is fitted)."""
         names = [p.name for p in self.space.parameters if p.kind == "orientation"]
-        if not names:
+        lens = self.aperture(base.state) is not None
+        height = lens and "z_um" in self.space.names
+        if not names and not height:
             return None
         wave = self.wave(base.state)
         derivative = getattr(wave, "rotation_derivative", None)
@@ -286,9 +293,18 @@ class HologramModel:
         axes = self.space.rotation_axes()
         joint = getattr(wave, "field_and_rotation_derivatives", None)
         na = base.state.numerical_aperture
-        if joint is not None and self.aperture(base.state) is None:
+        if joint is not None and not lens:
             # field and derivatives share the pixels' geometry: one pass over the pixels
             _, fields = joint(base.state.position, self.xs, self.ys, axes, self.far_field)
+        elif lens:
+            # through the lens: the derivative waves, and the height derivative of the image
+            # (exact, no new table: the z column, also when no orientation is fitted), share
+            # one pass over the Bessel table
+            fields = lens_fields_on_pixels(
+                [derivative(axis) for axis in axes] + [wave] * height, base.state.position,
+                self.xs, self.ys, na, height_derivative=[False] * len(axes) + [True] * height)
+            if height:
+                names = [*names, "z_um"]
         else:
             fields = [recorded_field(derivative(axis), base.state.position, self.xs, self.ys,
                                      self.far_field, na) for axis in axes]

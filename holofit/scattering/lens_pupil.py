@@ -43,6 +43,8 @@ Both are written ``T = q_m(th) F_m rho_hat + q_ph(th) F_ph ph_hat`` with
 from __future__ import annotations
 
 import functools
+import threading
+from collections import OrderedDict
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -215,11 +217,9 @@ def expansion_far_modes(
     ``mY = m Pbar_n^m / sin th`` (``Pbar`` orthonormal, Condon-Shortley phase;
     ``Pbar_n^-m = (-1)^m Pbar_n^m``).
     """
-    from holofit.scattering.legendre import legendre_tables
-
     theta_s = np.asarray(theta_s, dtype=float)
     L = expansion.order
-    _, dp, mp = legendre_tables(np.ascontiguousarray(np.cos(theta_s)), L)  # [pt, n, m >= 0]
+    dpt, mpt = _far_tables(theta_s, L)  # [m >= 0, pt, n]
     c = ((-1j) ** np.arange(L + 1))[:, None]
     p = expansion.p * c
     q = expansion.q * c
@@ -230,8 +230,8 @@ def expansion_far_modes(
     coef = np.stack([p[:, L + m], q[:, L + m], p[:, L - m] * sign, q[:, L - m] * sign])
     coef = np.ascontiguousarray(np.moveaxis(coef, 2, 0))  # [m, (p+, q+, p-, q-), n]
     real = np.ascontiguousarray(np.swapaxes(coef, 1, 2)).view(np.float64)  # [m, n, 8]
-    d = np.matmul(np.ascontiguousarray(dp.transpose(2, 0, 1)), real).view(complex)
-    e = np.matmul(np.ascontiguousarray(mp.transpose(2, 0, 1)), real).view(complex)
+    d = np.matmul(dpt, real).view(complex)
+    e = np.matmul(mpt, real).view(complex)
     # d, e: [m, pt, (p+, q+, p-, q-)] contracted with dY and mY; for -m, mY changes sign
     a_t = np.empty((theta_s.size, 2 * L + 1), dtype=complex)
     a_p = np.empty_like(a_t)
@@ -240,3 +240,39 @@ def expansion_far_modes(
     a_t[:, L - 1 :: -1] = (d[1:, :, 2] - e[1:, :, 3]).T
     a_p[:, L - 1 :: -1] = 1j * (-e[1:, :, 2] + d[1:, :, 3]).T
     return -1j * a_t, -1j * a_p
+
+
+#: bytes of Legendre tables kept (:func:`_far_tables`): a pupil rule's are shared by every
+#: wave imaged through it (a fit's orientations and their derivative waves)
+FAR_TABLES_BYTES = 64 * 2**20
+_FAR_TABLES: OrderedDict[tuple, tuple[NDArray[np.float64], NDArray[np.float64]]] = OrderedDict()
+_FAR_TABLES_LOCK = threading.Lock()
+
+
+def _far_tables(theta_s: NDArray[np.float64], order: int) -> tuple[NDArray, NDArray]:
+    """``dPbar_n^m/dth`` and ``m Pbar_n^m / sin th`` at ``theta_s`` for ``n, m <= order``, in
+    the layout ``[m, point, n]`` of :func:`expansion_far_modes`'s products (read-only).
+
+    They depend on the pupil's nodes and the order only, not on the wave: cached (the most recent
+    node sets and orders, up to :data:`FAR_TABLES_BYTES`), so that a new orientation of a particle,
+    or a derivative wave, imaged through the same pupil rule costs no Legendre recurrence.
+    """
+    from holofit.scattering.legendre import legendre_tables
+
+    key = (int(order), theta_s.shape, theta_s.tobytes())
+    with _FAR_TABLES_LOCK:
+        tables = _FAR_TABLES.get(key)
+        if tables is not None:
+            _FAR_TABLES.move_to_end(key)
+            return tables
+    _, dp, mp = legendre_tables(np.ascontiguousarray(np.cos(theta_s)), order)  # [pt, n, m]
+    tables = (np.ascontiguousarray(dp.transpose(2, 0, 1)),
+              np.ascontiguousarray(mp.transpose(2, 0, 1)))
+    for t in tables:
+        t.flags.writeable = False
+    with _FAR_TABLES_LOCK:
+        _FAR_TABLES[key] = tables
+        while len(_FAR_TABLES) > 1 and sum(
+                a.nbytes + b.nbytes for a, b in _FAR_TABLES.values()) > FAR_TABLES_BYTES:
+            _FAR_TABLES.popitem(last=False)
+    return tables

@@ -44,8 +44,8 @@ from scipy import special
 
 from holofit.scattering.lens_kernels import POLAR_STENCIL, bessel_planes
 
-__all__ = ["MAX_NODES", "STENCIL", "STEP", "node_count", "polar_grid", "radial_transform",
-           "sphere_tables"]
+__all__ = ["MAX_NODES", "STENCIL", "STEP", "node_count", "polar_grid", "polar_grids",
+           "radial_transform", "sphere_tables"]
 
 #: Lagrange stencil (points per axis; the compiled kernels' constant) and radial step times the
 #: band limit k sin(th_max)
@@ -93,7 +93,8 @@ def node_count(k: float, z_um: float, rho_max_um: float, theta_max: float, order
 
 # -- Bessel tables ---------------------------------------------------------------------------
 
-_BESSEL: OrderedDict[tuple, NDArray[np.float64]] = OrderedDict()
+#: a table is a tuple of row blocks (a grown table keeps its old rows and adds a block)
+_BESSEL: OrderedDict[tuple, tuple[NDArray, ...]] = OrderedDict()
 _BESSEL_LOCK = threading.Lock()
 
 
@@ -132,32 +133,48 @@ def _table_bytes(n_orders: int, n_rho: int, n_nodes: int, sphere: bool) -> int:
     return n_orders * n_rho * n_nodes * (8 if sphere else np.dtype(TABLE_DTYPE).itemsize)
 
 
-def _cached_table(x_step: NDArray, n_rho: int, orders: int | None, key: tuple) -> NDArray:
-    """A cached Bessel table with at least ``n_rho`` rows and the orders asked for.
+def _cached_table(x_step: NDArray, n_rho: int, orders: int | None,
+                  key: tuple) -> tuple[NDArray, ...]:
+    """A cached Bessel table with at least ``n_rho`` rows and the orders asked for, as row
+    blocks (shape ``(n_orders, rows_b, n_nodes)`` each, in row order).
 
     Tables are shared by everything with the same nodes and radial step (``key``); a table with
-    more orders or rows serves fewer. The cache is bounded by :data:`BESSEL_CACHE_BYTES`.
+    more orders or rows serves fewer. A table asked for more rows than it has (a fit's trial
+    step farther from its pixels) gets the new rows as a new block: neither its old rows are
+    recomputed nor the table copied (a 100 MB copy into fresh memory costs ~0.1-0.5 s under
+    load). The cache is bounded by :data:`BESSEL_CACHE_BYTES`.
     """
     n_orders = 2 if orders is None else orders + 1
     with _BESSEL_LOCK:
-        table = _BESSEL.get(key)
-        if table is not None and table.shape[0] >= n_orders and table.shape[1] >= n_rho:
+        blocks = _BESSEL.get(key)
+        if blocks is not None and blocks[0].shape[0] >= n_orders and _rows(blocks) >= n_rho:
             _BESSEL.move_to_end(key)
-            return table
-    if table is not None:  # grow, with a little room for the next few moves
-        rows = table.shape[1]
-        n_rho = max(n_rho, int(1.1 * rows)) if rows < n_rho else rows
-        if orders is not None:
-            orders = max(orders, table.shape[0] - 1)
-    elif orders is not None:  # room for a fit's small moves of the particle
-        n_rho = int(ROW_MARGIN * n_rho)
-    table = _bessel_rows(x_step, range(n_rho), orders)
+            return blocks
+    if blocks is not None and blocks[0].shape[0] >= n_orders:
+        rows = _rows(blocks)
+        more = _bessel_rows(x_step, range(rows, max(n_rho, int(1.1 * rows))),
+                            None if orders is None else blocks[0].shape[0] - 1)
+        blocks = (*blocks, more)
+    else:
+        if blocks is not None:  # grow, with a little room for the next few moves
+            rows = _rows(blocks)
+            n_rho = max(n_rho, int(1.1 * rows)) if rows < n_rho else rows
+            if orders is not None:
+                orders = max(orders, blocks[0].shape[0] - 1)
+        elif orders is not None:  # room for a fit's small moves of the particle
+            n_rho = int(ROW_MARGIN * n_rho)
+        blocks = (_bessel_rows(x_step, range(n_rho), orders),)
     with _BESSEL_LOCK:
-        _BESSEL[key] = table
+        _BESSEL[key] = blocks
         _BESSEL.move_to_end(key)
-        while sum(t.nbytes for t in _BESSEL.values()) > BESSEL_CACHE_BYTES and len(_BESSEL) > 1:
+        while len(_BESSEL) > 1 and sum(
+                b.nbytes for bs in _BESSEL.values() for b in bs) > BESSEL_CACHE_BYTES:
             _BESSEL.popitem(last=False)
-    return table
+    return blocks
+
+
+def _rows(blocks: tuple[NDArray, ...]) -> int:
+    return sum(b.shape[1] for b in blocks)
 
 
 def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
@@ -193,15 +210,23 @@ def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
         if not sphere and max_orders is not None and max_orders > orders and _table_bytes(
                 max_orders + 1, int(ROW_MARGIN * n_rho), n_nodes, sphere) <= BESSEL_CACHE_BYTES:
             orders = max_orders
-        table = _cached_table(x_step, n_rho, orders, (sphere, *key))[:n_orders, :n_rho]
+        blocks = _cached_table(x_step, n_rho, orders, (sphere, *key))
     else:
-        table = None
+        blocks = None
     real = np.dtype(np.float64 if sphere else TABLE_DTYPE)
     cplx = np.result_type(real, np.complex64)
     # (o, i, 2c): real and imaginary parts as columns of reals
     hr = np.ascontiguousarray(h, dtype=cplx).view(real)
-    if table is not None:
-        out = np.matmul(table, hr)
+    if blocks is not None and len(blocks) == 1:
+        out = np.matmul(blocks[0][:n_orders, :n_rho], hr)
+    elif blocks is not None:
+        out = np.empty((n_orders, n_rho, 2 * n_cols), dtype=real)
+        start = 0
+        for b in blocks:
+            stop = min(n_rho, start + b.shape[1])
+            if stop > start:
+                out[:, start:stop] = np.matmul(b[:n_orders, : stop - start], hr)
+            start = stop
     else:
         out = np.empty((n_orders, n_rho, 2 * n_cols), dtype=real)
         block = max(1, BLOCK_BYTES // _table_bytes(n_orders, 1, n_nodes, sphere))
@@ -242,30 +267,49 @@ def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray
     ``max_order``: the highest azimuthal order the source can have (see
     :func:`radial_transform`).
     """
-    mmax = (t_plus.shape[1] - 1) // 2
+    return polar_grids([(t_plus, t_minus, base)], x_step, n_rho, key, max_order)[0]
+
+
+def polar_grids(fields: list[tuple[NDArray, NDArray, NDArray]], x_step: NDArray, n_rho: int,
+                key: tuple, max_order: int | None = None) -> NDArray[np.floating]:
+    """:func:`polar_grid` of several pupil fields over the same nodes (e.g. a wave's
+    derivatives), shape ``(F, 4, rows, columns)``: one pass over the Bessel table for all of
+    them (the product reads the table once, whatever its number of columns), one FFT call.
+
+    ``fields``: per field ``(t_plus, t_minus, base)``, the modes of any (odd) widths
+    (narrower ones, trimmed orders, are padded with zeros to the widest) and the nodes'
+    factor (:func:`polar_grid`'s ``base``; its height derivative gives the image's).
+    """
+    mmax = max((tp.shape[1] - 1) // 2 for tp, _, _ in fields)
     m = np.arange(mmax + 1)
-    # E_x = -(E_+ + E_-)/2 and E_y = i (E_+ - E_-)/2 are combined before the (linear)
-    # transforms: h[|m|, node, (X at +m, X at -m, Y at +m, Y at -m)], J_{-m} = (-1)^m J_m
-    tx = (-0.5 * base)[:, None] * (t_plus + t_minus)
-    ty = (0.5j * base)[:, None] * (t_plus - t_minus)
     sign = ((-1.0) ** m)[:, None]
-    h = np.empty((mmax + 1, base.size, 4), dtype=complex)
-    for c, t in enumerate((tx, ty)):
-        h[:, :, 2 * c] = t[:, mmax:].T
-        h[:, :, 2 * c + 1] = t[:, mmax::-1].T * sign
+    n_f = len(fields)
+    # E_x = -(E_+ + E_-)/2 and E_y = i (E_+ - E_-)/2 are combined before the (linear)
+    # transforms: h[|m|, node, (X at +m, X at -m, Y at +m, Y at -m) per field],
+    # J_{-m} = (-1)^m J_m
+    h = np.zeros((mmax + 1, x_step.size, 4 * n_f), dtype=complex)
+    for f, (t_plus, t_minus, base) in enumerate(fields):
+        mf = (t_plus.shape[1] - 1) // 2
+        tx = (-0.5 * base)[:, None] * (t_plus + t_minus)
+        ty = (0.5j * base)[:, None] * (t_plus - t_minus)
+        for c, t in enumerate((tx, ty)):
+            h[: mf + 1, :, 4 * f + 2 * c] = t[:, mf:].T
+            h[: mf + 1, :, 4 * f + 2 * c + 1] = t[:, mf::-1].T * sign[: mf + 1]
     g = radial_transform(x_step, h, n_rho, mmax, key, max_order)  # (|m|, rho, column)
     # even (rho -> -rho is a shift by half a period) and FFT-friendly (a large prime factor
     # costs pocketfft several times more)
     n_phi = 2 * sfft.next_fast_len(max(int(np.ceil(np.pi * (mmax + 1) / PHI_STEP)),
                                        mmax + 1), real=False)
-    # in the tables' precision (single: see the module docstring)
-    spec = np.zeros((2, n_rho, n_phi), dtype=g.dtype)
+    # in the tables' precision (single: see the module docstring); rows (field, X or Y)
+    spec = np.zeros((2 * n_f, n_rho, n_phi), dtype=g.dtype)
     up = (1j**m).astype(g.dtype)[:, None, None] * g[:, :, 0::2]  # orders +m, columns (X, Y)
     down = (1j ** (-m[1:])).astype(g.dtype)[:, None, None] * g[1:, :, 1::2]  # orders -m
     spec[:, :, : mmax + 1] = np.transpose(up, (2, 1, 0))
     spec[:, :, n_phi - mmax :] = np.transpose(down[::-1], (2, 1, 0))
     fields = sfft.ifft(spec, axis=2, norm="forward", overwrite_x=True)
-    return _padded_planes(fields)
+    if n_f == 1:
+        return _padded_planes(fields)[None]
+    return np.stack([_padded_planes(fields[2 * f : 2 * f + 2]) for f in range(n_f)])
 
 
 def _reflect_rows(g: NDArray) -> NDArray:
