@@ -197,11 +197,7 @@ class LensImage:
         -------
         e_x, e_y : ndarray of complex, the shape of ``xs_um``
         """
-        xp, yp, zp = (float(v) for v in position_um)
-        xs = np.asarray(xs_um, dtype=float)
-        ys = np.asarray(ys_um, dtype=float)
-        if xs.shape != ys.shape:
-            raise ValueError(f"xs_um {xs.shape} and ys_um {ys.shape} differ in shape")
+        (xp, yp, zp), xs, ys = _pixel_arrays(position_um, xs_um, ys_um)
         shape = xs.shape
         ex = np.empty(xs.size, dtype=complex)
         ey = np.empty(xs.size, dtype=complex)
@@ -348,11 +344,7 @@ def lens_fields_on_pixels(
         return [im.field_on_pixels(position_um, xs_um, ys_um, numerical_aperture)
                 for im in images]
     first = images[0]
-    xp, yp, zp = (float(v) for v in position_um)
-    xs = np.asarray(xs_um, dtype=float)
-    ys = np.asarray(ys_um, dtype=float)
-    if xs.shape != ys.shape:
-        raise ValueError(f"xs_um {xs.shape} and ys_um {ys.shape} differ in shape")
+    (xp, yp, zp), xs, ys = _pixel_arrays(position_um, xs_um, ys_um)
     shape = xs.shape
     if xs.size == 0:
         return [(np.empty(shape, dtype=complex), np.empty(shape, dtype=complex))
@@ -390,3 +382,14 @@ def lens_fields_on_pixels(
         polar_pixels(t, u, grid, ex, ey)
         out.append((ex.reshape(shape), ey.reshape(shape)))
     return out
+
+
+def _pixel_arrays(position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike
+                  ) -> tuple[tuple[float, float, float], NDArray[np.float64], NDArray[np.float64]]:
+    """The particle position as floats and the pixel coordinates as arrays of one shape."""
+    xp, yp, zp = (float(v) for v in position_um)
+    xs = np.asarray(xs_um, dtype=float)
+    ys = np.asarray(ys_um, dtype=float)
+    if xs.shape != ys.shape:
+        raise ValueError(f"xs_um {xs.shape} and ys_um {ys.shape} differ in shape")
+    return (xp, yp, zp), xs, ys
