@@ -18,7 +18,8 @@ Static parameters (``static_mode``):
 
 Frames whose crop another track's hologram overlaps (the crop table's ``overlap``) are fitted
 a second time once every track's final pass is done (:func:`refit_overlaps`): where the
-neighbour track has an ``ok`` row at that frame, its recorded field on this crop's pixels (its
+neighbour track has a fitted row at that frame (a finite placement, whatever its status), its
+recorded field on this crop's pixels (its
 fitted position, orientation, alpha and static parameters, through the same engine) is a fixed
 field added to the model's before the intensity (:mod:`holofit.holomodel.forward`,
 ``extra_field``), and the frame is refitted from its first fit (:func:`holofit.fit.frame.
@@ -302,10 +303,12 @@ def refit_overlaps(table: pd.DataFrame, overlaps: pd.DataFrame, crop_dir: Path,
                    kwargs: dict[str, Any]) -> tuple[pd.DataFrame, int, int]:
     """Refit a combined fit table's overlapping rows with their neighbour's field.
 
-    Each (particle, frame) of ``overlaps`` whose neighbour track has an ``ok`` row at that
-    frame, and whose own row has a fitted position, is fitted again (final-pass parameters,
-    warm from its own row) with the neighbour's field (:func:`neighbour_field`) added to the
-    model; the new row replaces the old one, its message naming the neighbour.
+    Each (particle, frame) of ``overlaps`` whose neighbour track has a fitted row at that
+    frame (any status with a finite placement: two overlapping first fits are both pulled
+    off, and usually both ``poor_fit``), and whose own row has one too, is fitted again
+    (final-pass parameters, warm from its own row) with the neighbour's field
+    (:func:`neighbour_field`) added to the model; the new row replaces the old one, its
+    message naming the neighbour.
 
     Parameters
     ----------
@@ -351,13 +354,11 @@ def refit_overlaps(table: pd.DataFrame, overlaps: pd.DataFrame, crop_dir: Path,
         for o in overlaps.itertuples():
             p, f, q = int(o.particle), int(o.frame), int(o.neighbour)
             mine, theirs = rows.get((p, f)), rows.get((q, f))
-            if mine is None or theirs is None or table.at[theirs, "status"] != OK:
+            if mine is None or theirs is None:
                 continue
-            own = {k: v for k, v in table.loc[mine].items() if _number(v)}
-            if not all(np.isfinite(own.get(k, np.nan)) for k in ("x_um", "y_um", "z_um",
-                                                                  "alpha")):
+            own, them = _placed(table.loc[mine]), _placed(table.loc[theirs])
+            if own is None or them is None:
                 continue
-            them = {k: v for k, v in table.loc[theirs].items() if _number(v)}
             crow = given.crops.row((p, f))
             corner = (int(crow["corner_row"]), int(crow["corner_col"]))
             crop = given.crops.crop((p, f))
@@ -413,6 +414,11 @@ def _merge(combined: FitRun, runs: dict[int, FitRun], only: str | None) -> None:
         combined.notes += [f"particle {p}: {n}" for n in run.notes]
 
 
-def _number(v: Any) -> bool:
-    """A numeric table value (not a flag or a string)."""
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+def _placed(row: pd.Series) -> dict[str, float] | None:
+    """A fit row's numeric values, or None if it has no fitted placement (skipped, failed)."""
+    values = {k: float(v) for k, v in row.items()
+              if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)}
+    if row.get("status") == SKIPPED or not all(
+            np.isfinite(values.get(k, np.nan)) for k in ("x_um", "y_um", "z_um", "alpha")):
+        return None
+    return values
