@@ -167,11 +167,19 @@ class _FrameFit:
 
     def __init__(self, crop: NDArray, corner_rc: tuple[int, int], pixel_size_um: float,
                  theory: ScatteringTheory, model: ParticleModel, optics: Optics,
-                 opts: FrameFitSettings, rng: np.random.Generator, free: Sequence[str]) -> None:
+                 opts: FrameFitSettings, rng: np.random.Generator, free: Sequence[str],
+                 extra_field: tuple[NDArray, NDArray] | None = None) -> None:
         self.theory, self.model, self.optics, self.opts, self.rng = (
             theory, model, optics, opts, rng)
         self.pix = select_pixels(crop, corner_rc, pixel_size_um, saturation=opts.saturation,
                                  fraction=opts.pixel_fraction, rng=rng, min_pixels=200)
+        # a fixed field added to the model's (a neighbour's hologram), on the fit's pixels
+        self.extra: tuple[NDArray, NDArray] | None = None
+        if extra_field is not None:
+            fx, fy = (np.asarray(f, dtype=complex) for f in extra_field)
+            if fx.shape != np.shape(crop) or fy.shape != np.shape(crop):
+                raise ValueError(f"extra_field must have the crop's shape {np.shape(crop)}")
+            self.extra = (fx.ravel()[self.pix.index], fy.ravel()[self.pix.index])
         self.noise = (opts.noise_sd if opts.noise_sd is not None
                       else estimate_noise_sd(crop, self.pix.valid))
         self.statics = static_values(model)
@@ -187,6 +195,11 @@ class _FrameFit:
         return State(tuple(position_um), rot, alpha, self.statics,  # type: ignore[arg-type]
                      self.na_start)
 
+    def _extra(self, index: NDArray[np.intp] | None) -> tuple[NDArray, NDArray] | None:
+        if self.extra is None or index is None:
+            return self.extra
+        return self.extra[0][index], self.extra[1][index]
+
     def run(self, space: ParameterSpace, index: NDArray[np.intp] | None, nfev: int,
             tol: float) -> Solution:
         """Fit ``space`` from its start on all pixels (``index`` None) or a subset."""
@@ -194,7 +207,8 @@ class _FrameFit:
         xs, ys, data = ((pix.xs_um, pix.ys_um, pix.data) if index is None
                         else (pix.xs_um[index], pix.ys_um[index], pix.data[index]))
         m = HologramModel(self.theory, space, self.optics, xs, ys,
-                          far_field=self.opts.far_field, waves=self.waves)
+                          far_field=self.opts.far_field, waves=self.waves,
+                          extra_field=self._extra(index))
         self.waves = m.waves  # every fit of the crop shares the solved waves
         self.models.append(m)
         sol = solve_least_squares(m, data, space.initial_vector(), max_nfev=nfev, ftol=tol,
@@ -207,7 +221,8 @@ class _FrameFit:
         pix = self.pix
         space = ParameterSpace(self.model, [], state)
         m = HologramModel(self.theory, space, self.optics, pix.xs_um[index], pix.ys_um[index],
-                          far_field=self.opts.far_field, waves=self.waves)
+                          far_field=self.opts.far_field, waves=self.waves,
+                          extra_field=self._extra(index))
         self.models.append(m)
         try:
             res = m.hologram_of(state) - pix.data[index]
@@ -322,6 +337,7 @@ def fit_frame(
     free: Sequence[str],
     options: FrameFitSettings | None = None,
     seed: int = 0,
+    extra_field: tuple[NDArray, NDArray] | None = None,
 ) -> FitResult:
     """Fit the DDA hologram of ``model`` to one crop from the library's starts.
 
@@ -353,6 +369,10 @@ def fit_frame(
         Settings.
     seed : int
         Seed of the random pixel subsets.
+    extra_field : tuple of ndarray, optional
+        A fixed field ``(Ex, Ey)`` of the crop's shape (complex, incident units, its own
+        alpha applied) added to the model's before the intensity: an overlapping neighbour's
+        recorded field (:class:`holofit.holomodel.forward.HologramModel`); default none.
 
     Returns
     -------
@@ -362,7 +382,8 @@ def fit_frame(
     t0 = time.perf_counter()
     opts = options or FrameFitSettings()
     rng = np.random.default_rng(seed)
-    fit = _FrameFit(crop, corner_rc, pixel_size_um, theory, model, optics, opts, rng, free)
+    fit = _FrameFit(crop, corner_rc, pixel_size_um, theory, model, optics, opts, rng, free,
+                    extra_field)
     starts = _library_starts(model, candidates, opts)
     # screening: each start's orientation held (one solve each), position and alpha fitted on
     # a pixel subset (no further solves), so that starts compare at their best placement
@@ -439,6 +460,7 @@ def fit_frame_warm(
     seed: int = 0,
     carried: CarriedRunnerUp | None = None,
     refit_margin_chi2: float = 16.0,
+    extra_field: tuple[NDArray, NDArray] | None = None,
 ) -> WarmFit:
     """Fit one crop from a known state (a neighbouring frame's fit), and find its mirror
     runner-up without a second full fit where none is needed.
@@ -467,7 +489,8 @@ def fit_frame_warm(
     t0 = time.perf_counter()
     opts = options or FrameFitSettings()
     rng = np.random.default_rng(seed)
-    fit = _FrameFit(crop, corner_rc, pixel_size_um, theory, model, optics, opts, rng, free)
+    fit = _FrameFit(crop, corner_rc, pixel_size_um, theory, model, optics, opts, rng, free,
+                    extra_field)
     if fit.na_start is not None and start.numerical_aperture is None:
         start = replace(start, numerical_aperture=fit.na_start)
     best = fit.refine(start, free, None)

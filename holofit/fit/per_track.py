@@ -16,10 +16,16 @@ Static parameters (``static_mode``):
   of them (``OUT/static.json``), which every track's final pass uses (one batch of identical
   particles).
 
-Frames whose crop another track's hologram overlaps (the crop table's ``overlap``) and whose
-fit is not ``ok`` become ``overlap`` in ``OUT/fit.csv`` (:func:`mark_overlap`; ``holofit
-analyze`` uses ``ok`` rows only). The neighbour's field is not yet part of the fitted model
-(:mod:`holofit.holomodel.forward` takes a fixed extra field; the frame fit does not pass one).
+Frames whose crop another track's hologram overlaps (the crop table's ``overlap``) are fitted
+a second time once every track's final pass is done (:func:`refit_overlaps`): where the
+neighbour track has a fitted row at that frame (a finite placement, whatever its status), its
+recorded field on this crop's pixels (its
+fitted position, orientation, alpha and static parameters, through the same engine) is a fixed
+field added to the model's before the intensity (:mod:`holofit.holomodel.forward`,
+``extra_field``), and the frame is refitted from its first fit (:func:`holofit.fit.frame.
+fit_frame_warm`). The refit replaces the row in ``OUT/fit.csv`` (the per-track tables keep the
+first fit). Overlapping frames that are still not ``ok`` become ``overlap``
+(:func:`mark_overlap`; ``holofit analyze`` uses ``ok`` rows only).
 
 A crop folder of one track is fitted exactly as before, into ``OUT`` itself.
 """
@@ -27,21 +33,37 @@ A crop folder of one track is fitted exactly as before, into ``OUT`` itself.
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
+from holofit.batch.aperture import FROM_INSTRUMENT
+from holofit.batch.stage import stage_inputs
 from holofit.config import ParticleConfig
 from holofit.fit.errors import FitStageError
+from holofit.fit.frame import FrameFitSettings, fit_frame_warm
 from holofit.fit.stage import FitRun, run_fit
-from holofit.fit.static import write_static
+from holofit.fit.static import read_static, write_static
+from holofit.fit.task import FitConfig
+from holofit.fit.tracking import state_of
+from holofit.holomodel.forward import HologramModel
+from holofit.holomodel.parameters import APERTURE, ParameterSpace, particle_with
+from holofit.holomodel.pixels import select_pixels
+from holofit.holomodel.result import result_row
 from holofit.io.tables import read_table, sidecar_path, write_json, write_table
+from holofit.optics import Optics
+from holofit.particles import ParticleModel
+from holofit.scattering.theory import ScatteringTheory
 from holofit.status import OK, OVERLAP, SKIPPED
 from holofit.tables.cropset import CropSet, write_track_view
 from holofit.tables.inputs import read_stage_table
 
-__all__ = ["STATIC_MODES", "mark_overlap", "run_fit_tracks", "track_dir"]
+__all__ = ["STATIC_MODES", "mark_overlap", "neighbour_field", "refit_overlaps",
+           "run_fit_tracks", "track_dir"]
 
 #: how the static parameters of several tracks are found
 STATIC_MODES = ("per-track", "pooled")
@@ -71,7 +93,8 @@ def _track_table(path: Path | None, crops: CropSet, what: str, particle: int,
 
 
 def _combine(runs: dict[int, FitRun], attr: str, out: Path, name: str,
-             overlaps: pd.DataFrame | None = None) -> Path | None:
+             overlaps: pd.DataFrame | None = None,
+             refit: Callable[[pd.DataFrame], pd.DataFrame] | None = None) -> Path | None:
     """Every track's table ``attr`` (initial or final) as one table with ``particle`` first."""
     parts, meta = [], None
     for p, run in runs.items():
@@ -86,6 +109,8 @@ def _combine(runs: dict[int, FitRun], attr: str, out: Path, name: str,
                 meta = json.loads(sidecar_path(path).read_text())
     table = pd.concat(parts, ignore_index=True)
     table = table[["particle", *[c for c in table.columns if c != "particle"]]]
+    if refit is not None:
+        table = refit(table)
     if overlaps is not None:
         table = mark_overlap(table, overlaps)
     meta = dict(meta or {})
@@ -144,7 +169,7 @@ def run_fit_tracks(crop_dir: str | Path, prefit: str | Path, library: str | Path
                                    "library", p, view, tdir)
             views[p] = (vdir, pre, lib)
     return _fit_views(views, particle, out, static_mode, kwargs, _frames_of(crops, ids, kwargs),
-                      _overlaps(crops))
+                      _overlaps(crops), Path(crop_dir))
 
 
 def _overlaps(crops: CropSet) -> pd.DataFrame:
@@ -192,7 +217,7 @@ def _frames_of(crops: CropSet, ids: list[int], kwargs: dict[str, Any]
 def _fit_views(views: dict[int, tuple[Path, Path | None, Path | None]],
                particle: ParticleConfig, out: Path, static: str,
                kwargs: dict[str, Any], cut: dict[int, dict[str, Any]],
-               overlaps: pd.DataFrame) -> FitRun:
+               overlaps: pd.DataFrame, crop_dir: Path) -> FitRun:
     runs: dict[int, FitRun] = {}
     combined = FitRun()
     pass_name = kwargs.pop("pass_name", "both")
@@ -223,8 +248,143 @@ def _fit_views(views: dict[int, tuple[Path, Path | None, Path | None]],
         combined.initial = _combine(runs, "initial", out, "initial.csv")
     if combined.static is None and pass_name in ("both", "initial"):
         combined.static = _static_index(runs, out)
-    combined.final = _combine(runs, "final", out, "fit.csv", overlaps)
+    refit = None
+    if not overlaps.empty and pass_name in ("both", "final"):
+        def statics_of(p: int) -> Path:
+            given = kwargs.get("static")
+            return Path(given) if given is not None else track_dir(out, p) / "static.json"
+
+        def refit(table: pd.DataFrame) -> pd.DataFrame:
+            table, n_refit, n_ok = refit_overlaps(table, overlaps, crop_dir, particle,
+                                                  statics_of, kwargs)
+            combined.notes.append(f"overlapping frames refitted with the neighbour's field: "
+                                  f"{n_refit} ({n_ok} ok)")
+            return table
+    combined.final = _combine(runs, "final", out, "fit.csv", overlaps, refit)
     return combined
+
+
+def neighbour_field(theory: ScatteringTheory, model: ParticleModel, optics: Optics,
+                    values: dict[str, float], crop_shape: tuple[int, int],
+                    corner_rc: tuple[int, int], pixel_size_um: float, far_field: bool = False
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """A fitted particle's recorded field on a crop's pixels, its alpha applied.
+
+    Parameters
+    ----------
+    theory, model, optics
+        The neighbour's engine, particle (static parameters settled) and illumination.
+    values : dict
+        The neighbour's fit row (``x_um, y_um, z_um``, orientation angles, ``alpha``, um and
+        rad; the objective's NA if the fit varied it).
+    crop_shape, corner_rc, pixel_size_um
+        The crop the field is wanted on: shape, full-frame corner (row, column), pitch (um).
+    far_field : bool
+        As the frame fit's setting.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``alpha * (Ex, Ey)`` of shape ``crop_shape`` (incident-field units).
+    """
+    state = state_of(values, model)
+    na = values.get(APERTURE.name)
+    if na is not None and np.isfinite(na):
+        state = replace(state, numerical_aperture=float(na))
+    pix = select_pixels(np.zeros(crop_shape), corner_rc, pixel_size_um)
+    m = HologramModel(theory, ParameterSpace(model, [], state), optics, pix.xs_um, pix.ys_um,
+                      far_field=far_field)
+    ex, ey = m.fields(state)
+    return ((state.alpha * ex).reshape(crop_shape), (state.alpha * ey).reshape(crop_shape))
+
+
+def refit_overlaps(table: pd.DataFrame, overlaps: pd.DataFrame, crop_dir: Path,
+                   particle: ParticleConfig, statics_of: Callable[[int], Path],
+                   kwargs: dict[str, Any]) -> tuple[pd.DataFrame, int, int]:
+    """Refit a combined fit table's overlapping rows with their neighbour's field.
+
+    Each (particle, frame) of ``overlaps`` whose neighbour track has a fitted row at that
+    frame (any status with a finite placement: two overlapping first fits are both pulled
+    off, and usually both ``poor_fit``), and whose own row has one too, is fitted again
+    (final-pass parameters, warm from its own row) with the neighbour's field
+    (:func:`neighbour_field`) added to the model; the new row replaces the old one, its
+    message naming the neighbour.
+
+    Parameters
+    ----------
+    table : DataFrame
+        Every track's final-pass rows, ``particle`` first.
+    overlaps : DataFrame
+        The crop rows marked ``overlap`` (particle, frame, neighbour, neighbour_px).
+    crop_dir : Path
+        The crop folder (keyed by particle and frame).
+    particle : ParticleConfig
+        The particle configuration the tracks were fitted with.
+    statics_of : callable
+        Track id -> the ``static.json`` its final pass used.
+    kwargs : dict
+        :func:`~holofit.fit.stage.run_fit`'s keyword arguments (instrument, options, engine,
+        fixed, fit_na, numerical_aperture, override_instrument).
+
+    Returns
+    -------
+    table, n_refit, n_ok
+        The table with refitted rows; how many were refitted, and how many of them are ``ok``.
+    """
+    opts = kwargs.get("options") or FrameFitSettings()
+    fit_na = bool(kwargs.get("fit_na", False))
+    rows = {(int(r["particle"]), int(r["frame"])): i for i, r in table.iterrows()}
+    out = table.copy()
+    settled: dict[int, tuple[ParticleModel, ScatteringTheory]] = {}
+    n_refit = n_ok = 0
+    with stage_inputs(crop_dir, None, kwargs.get("instrument"),
+                      bool(kwargs.get("override_instrument", False)),
+                      kwargs.get("numerical_aperture", FROM_INSTRUMENT), fit_na) as given:
+        inst = given.instrument
+
+        def settle(p: int) -> tuple[ParticleModel, ScatteringTheory]:
+            if p not in settled:
+                model = particle.model
+                cfg = ParticleConfig(particle_with(model, read_static(statics_of(p), model)),
+                                     particle.settings, particle.path)
+                settled[p] = (cfg.model, cfg.theory(kwargs.get("engine"),
+                                                    fixed_lattice_for=inst.optics))
+            return settled[p]
+
+        for o in overlaps.itertuples():
+            p, f, q = int(o.particle), int(o.frame), int(o.neighbour)
+            mine, theirs = rows.get((p, f)), rows.get((q, f))
+            if mine is None or theirs is None:
+                continue
+            own, them = _placed(table.loc[mine]), _placed(table.loc[theirs])
+            if own is None or them is None:
+                continue
+            crow = given.crops.row((p, f))
+            corner = (int(crow["corner_row"]), int(crow["corner_col"]))
+            crop = given.crops.crop((p, f))
+            model_q, theory_q = settle(q)
+            extra = neighbour_field(theory_q, model_q, inst.optics, them, crop.shape, corner,
+                                    inst.pixel_size_um, opts.far_field)
+            model_p, theory_p = settle(p)
+            free = FitConfig(particle, inst, "final", opts, kwargs.get("engine"),
+                             tuple(kwargs.get("fixed", ())), fit_na=fit_na).free
+            start = state_of(own, model_p)
+            try:
+                res = fit_frame_warm(crop, corner, inst.pixel_size_um, theory_p, model_p,
+                                     inst.optics, start, free, opts, seed=f,
+                                     extra_field=extra).result
+            except ValueError as exc:
+                out.at[mine, "message"] = f"refit with track {q}'s field failed: {exc}"
+                continue
+            new = result_row(f, float(table.at[mine, "time_s"]), res)
+            new["message"] = (f"refitted with track {q}'s field"
+                              + (f": {new['message']}" if new.get("message") else ""))
+            for k, v in new.items():
+                if k in out.columns:
+                    out.at[mine, k] = v
+            n_refit += 1
+            n_ok += int(new["status"] == OK)
+    return out, n_refit, n_ok
 
 
 def _static_index(runs: dict[int, FitRun], out: Path) -> Path | None:
@@ -252,3 +412,13 @@ def _merge(combined: FitRun, runs: dict[int, FitRun], only: str | None) -> None:
             if only is None or name == only:
                 combined.summaries[f"{name}, particle {p}"] = s
         combined.notes += [f"particle {p}: {n}" for n in run.notes]
+
+
+def _placed(row: pd.Series) -> dict[str, float] | None:
+    """A fit row's numeric values, or None if it has no fitted placement (skipped, failed)."""
+    values = {k: float(v) for k, v in row.items()
+              if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)}
+    if row.get("status") == SKIPPED or not all(
+            np.isfinite(values.get(k, np.nan)) for k in ("x_um", "y_um", "z_um", "alpha")):
+        return None
+    return values
