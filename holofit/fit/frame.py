@@ -395,20 +395,25 @@ def fit_frame(
     first = (_state(screened[0]) if screened
              else fit.state_at(starts[0], position_um, alpha))
     best = fit.refine(first, free, screened[0].start if screened else starts[0])
-    runner: _Branch | None = None
-    runner_rss = None
-    if len(screened) > 1:
-        if opts.refine_runner_up:
-            runner = fit.refine(_state(screened[1]), free, screened[1].start,
-                                _state(best).statics)
-            best, runner = _challenge(fit, best, runner, free)
-        else:  # screened on a subset: scale to all pixels
-            runner = screened[1]
-            runner_rss = runner.solution.rss * (fit.pix.size / max(
-                runner.solution.residuals.size, 1))
+    best, runner, runner_rss = _runner_up(fit, best, screened, free, opts)
     result = _frame_result(fit, best, runner, len(starts), runner_rss)
     result.time_s = time.perf_counter() - t0
     return result
+
+
+def _runner_up(fit: _FrameFit, best: _Branch, screened: list[_Branch], free: Sequence[str],
+               opts: FrameFitSettings) -> tuple[_Branch, _Branch | None, float | None]:
+    """The second screened start refined into the runner-up (which may displace the best), or
+    taken as screened with its residual scaled to all pixels; none with one start."""
+    if len(screened) < 2:
+        return best, None, None
+    if opts.refine_runner_up:
+        runner = fit.refine(_state(screened[1]), free, screened[1].start, _state(best).statics)
+        best, runner = _challenge(fit, best, runner, free)
+        return best, runner, None
+    runner = screened[1]  # screened on a subset: scale to all pixels
+    return best, runner, runner.solution.rss * (fit.pix.size / max(
+        runner.solution.residuals.size, 1))
 
 
 @dataclass(frozen=True)

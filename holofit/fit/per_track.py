@@ -335,22 +335,13 @@ def refit_overlaps(table: pd.DataFrame, overlaps: pd.DataFrame, crop_dir: Path,
     fit_na = bool(kwargs.get("fit_na", False))
     rows = {(int(r["particle"]), int(r["frame"])): i for i, r in table.iterrows()}
     out = table.copy()
-    settled: dict[int, tuple[ParticleModel, ScatteringTheory]] = {}
     n_refit = n_ok = 0
     with stage_inputs(crop_dir, None, kwargs.get("instrument"),
                       bool(kwargs.get("override_instrument", False)),
                       kwargs.get("numerical_aperture", FROM_INSTRUMENT), fit_na) as given:
-        inst = given.instrument
-
-        def settle(p: int) -> tuple[ParticleModel, ScatteringTheory]:
-            if p not in settled:
-                model = particle.model
-                cfg = ParticleConfig(particle_with(model, read_static(statics_of(p), model)),
-                                     particle.settings, particle.path)
-                settled[p] = (cfg.model, cfg.theory(kwargs.get("engine"),
-                                                    fixed_lattice_for=inst.optics))
-            return settled[p]
-
+        settle = _Settled(particle, statics_of, kwargs.get("engine"), given.instrument)
+        free = FitConfig(particle, given.instrument, "final", opts, kwargs.get("engine"),
+                         tuple(kwargs.get("fixed", ())), fit_na=fit_na).free
         for o in overlaps.itertuples():
             p, f, q = int(o.particle), int(o.frame), int(o.neighbour)
             mine, theirs = rows.get((p, f)), rows.get((q, f))
@@ -359,32 +350,60 @@ def refit_overlaps(table: pd.DataFrame, overlaps: pd.DataFrame, crop_dir: Path,
             own, them = _placed(table.loc[mine]), _placed(table.loc[theirs])
             if own is None or them is None:
                 continue
-            crow = given.crops.row((p, f))
-            corner = (int(crow["corner_row"]), int(crow["corner_col"]))
-            crop = given.crops.crop((p, f))
-            model_q, theory_q = settle(q)
-            extra = neighbour_field(theory_q, model_q, inst.optics, them, crop.shape, corner,
-                                    inst.pixel_size_um, opts.far_field)
-            model_p, theory_p = settle(p)
-            free = FitConfig(particle, inst, "final", opts, kwargs.get("engine"),
-                             tuple(kwargs.get("fixed", ())), fit_na=fit_na).free
-            start = state_of(own, model_p)
-            try:
-                res = fit_frame_warm(crop, corner, inst.pixel_size_um, theory_p, model_p,
-                                     inst.optics, start, free, opts, seed=f,
-                                     extra_field=extra).result
-            except ValueError as exc:
-                out.at[mine, "message"] = f"refit with track {q}'s field failed: {exc}"
+            new = _refit_row(given, settle, (p, f, q), own, them, free, opts,
+                             float(table.at[mine, "time_s"]))
+            if isinstance(new, str):
+                out.at[mine, "message"] = new
                 continue
-            new = result_row(f, float(table.at[mine, "time_s"]), res)
-            new["message"] = (f"refitted with track {q}'s field"
-                              + (f": {new['message']}" if new.get("message") else ""))
             for k, v in new.items():
                 if k in out.columns:
                     out.at[mine, k] = v
             n_refit += 1
             n_ok += int(new["status"] == OK)
     return out, n_refit, n_ok
+
+
+class _Settled:
+    """Each track's particle with the static parameters its final pass used, and its engine
+    (built once per track)."""
+
+    def __init__(self, particle: ParticleConfig, statics_of: Callable[[int], Path],
+                 engine: str | None, inst: Any) -> None:
+        self.particle, self.statics_of, self.engine, self.inst = particle, statics_of, engine, inst
+        self.done: dict[int, tuple[ParticleModel, ScatteringTheory]] = {}
+
+    def __call__(self, p: int) -> tuple[ParticleModel, ScatteringTheory]:
+        if p not in self.done:
+            model = self.particle.model
+            cfg = ParticleConfig(particle_with(model, read_static(self.statics_of(p), model)),
+                                 self.particle.settings, self.particle.path)
+            self.done[p] = (cfg.model, cfg.theory(self.engine,
+                                                  fixed_lattice_for=self.inst.optics))
+        return self.done[p]
+
+
+def _refit_row(given: Any, settle: _Settled, pfq: tuple[int, int, int], own: Any, them: Any,
+               free: Any, opts: FrameFitSettings, time_s: float) -> dict[str, Any] | str:
+    """One overlapping row refitted with its neighbour's field: the new row, or why not."""
+    p, f, q = pfq
+    inst = given.instrument
+    crow = given.crops.row((p, f))
+    corner = (int(crow["corner_row"]), int(crow["corner_col"]))
+    crop = given.crops.crop((p, f))
+    model_q, theory_q = settle(q)
+    extra = neighbour_field(theory_q, model_q, inst.optics, them, crop.shape, corner,
+                            inst.pixel_size_um, opts.far_field)
+    model_p, theory_p = settle(p)
+    try:
+        res = fit_frame_warm(crop, corner, inst.pixel_size_um, theory_p, model_p, inst.optics,
+                             state_of(own, model_p), free, opts, seed=f,
+                             extra_field=extra).result
+    except ValueError as exc:
+        return f"refit with track {q}'s field failed: {exc}"
+    new = result_row(f, time_s, res)
+    new["message"] = (f"refitted with track {q}'s field"
+                      + (f": {new['message']}" if new.get("message") else ""))
+    return new
 
 
 def _static_index(runs: dict[int, FitRun], out: Path) -> Path | None:
