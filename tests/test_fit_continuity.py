@@ -17,6 +17,7 @@ from holofit.fit.continuity import (
     flag_bars,
     repair_by_continuity,
     suspects,
+    tracked_suspects,
 )
 from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
 
@@ -284,3 +285,71 @@ def test_the_flag_probability_is_the_users():
     rng = np.random.default_rng(4)
     table = _ok_table(_right_minimum_chi2(rng, 100, 19600, 0.01), 19600)
     assert flag_bars(table, 1e-2).typical < flag_bars(table, 1e-4).typical
+
+
+# -- tracked tables: the tracker has checked each frame; the sweeps refit only its suspects --
+
+def _tracked(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` as the tracking final pass writes it: frame 0 a library fit, the rest warm."""
+    t = table.copy()
+    t["track_source"] = ["library"] + ["warm"] * (len(t) - 1)
+    t["track_jump"] = 0
+    return t
+
+
+def _clean(truth: pd.DataFrame, seed: int = 1) -> tuple[pd.DataFrame, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    u_true = _axis(truth["theta_rad"], truth["psi_rad"])
+    chi = 1.0 + 0.01 * rng.normal(size=len(truth))
+    rows = [_row(t, u_true[i], chi[i], (math.nan, math.nan)) for i, t in truth.iterrows()]
+    return pd.DataFrame(rows), u_true, chi
+
+
+def test_a_clean_tracked_table_is_not_refitted_where_an_untracked_one_is(truth):
+    """Every frame in its right minimum: on the tracked table (each warm frame already under
+    the bar with a smooth step) the sweeps refit nothing; the untracked rule (``--no-tracking``)
+    still refits the frames whose step is above the median, as before."""
+    table, u_true, chi = _clean(truth)
+    refit, calls = _oracle(truth, u_true, chi)
+    _, report = repair_by_continuity(_tracked(table), refit, ContinuitySettings(),
+                                       head_tail=False, ambiguity_chi2=9.0)
+    assert not calls and report.refitted == 0 and report.replaced == 0
+    assert not tracked_suspects(_tracked(table), ContinuitySettings(), head_tail=False).any()
+    refit, calls = _oracle(truth, u_true, chi)
+    _, untracked = repair_by_continuity(table.copy(), refit, ContinuitySettings(),
+                                        head_tail=False, ambiguity_chi2=9.0)
+    assert untracked.refitted > len(truth) // 2 and untracked.replaced == 0
+
+
+def test_the_trackers_suspects_are_still_refitted_and_repaired(truth):
+    """On a tracked table: a re-acquired frame left in a wrong minimum (chi^2 inside the
+    movie's spread), an ambiguous one, a frame flagged ``track_jump`` (and its neighbours), a
+    warm frame 90 deg off its neighbours (a seam of the chunks) and a poor_fit one are refitted;
+    the wrong ones come back to the truth; no other frame is refitted."""
+    table, u_true, chi = _clean(truth)
+    t = _tracked(table)
+    rng = np.random.default_rng(3)
+    reacq, ambig, jump, seam, poor = 40, 90, 150, 200, 260
+    for f in (reacq, seam, poor):
+        bad = _far_axis(u_true[f], rng)
+        if f == seam:  # 90 deg from the truth, far beyond five median steps
+            v = np.cross(u_true[f], rng.normal(size=3))
+            bad = v / np.linalg.norm(v)
+        new = _row(truth.iloc[f], bad, chi[f] + (0.6 if f == poor else 0.004),
+                   (math.nan, math.nan))
+        for col, value in new.items():
+            t.at[f, col] = value
+    t.at[reacq, "track_source"] = "reacquired"
+    t.at[poor, "status"] = "poor_fit"
+    t.at[ambig, "ambiguous"] = 1
+    t.at[jump, "track_source"], t.at[jump, "track_jump"] = "reacquired", 1
+    refit, calls = _oracle(truth, u_true, chi)
+    out, report = repair_by_continuity(t, refit, ContinuitySettings(), head_tail=False,
+                                       ambiguity_chi2=9.0)
+    refitted = set().union(*calls)
+    assert {reacq, ambig, jump, jump - 1, jump + 1, seam, poor} <= refitted
+    # the neighbours of the wrong ok frames see their jump too; nothing else
+    assert refitted <= {reacq - 1, reacq, reacq + 1, ambig, jump - 1, jump, jump + 1,
+                        seam - 1, seam, seam + 1, poor}
+    assert report.replaced == 3
+    assert _off_deg(out, u_true).max() < 1e-3 and (out["status"] == "ok").all()

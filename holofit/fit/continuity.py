@@ -30,6 +30,18 @@ frame whose library candidates led the fit into another one. After the final pas
    lower: it only decides which frames are refitted, and a refit replaces a row only when it
    finds a better minimum.
 
+**Tracked tables** (:func:`is_tracked`: the final pass followed the track,
+:mod:`holofit.fit.tracking`) have been checked frame by frame already: each warm fit was
+accepted only under the movie's chi^2 bar and with a smooth step, and every other frame was
+re-acquired from the library. There the suspects of step 1 are only (:func:`tracked_suspects`)
+the frames not ``ok``, above the bar, ``ambiguous``, re-acquired (``track_source``), flagged
+``track_jump`` (with their neighbours: either side of a jump may be the wrong one), and
+frames whose axis is more than ``tracked_jump_factor`` (5, the tracker's own ``step_factor``)
+times the median step from a neighbour's (where chunks of the track were stitched, or a
+replaced row now disagrees with its neighbour). The median-step rule of step 1, which marks
+most frames of a smooth track (on a tracked rod movie the sweeps refitted ~75 % of the frames
+and changed none), is kept for untracked tables (``--no-tracking``).
+
 The table logic lives here; :mod:`holofit.fit.stage` runs the refits through the batch runner.
 """
 
@@ -55,11 +67,13 @@ __all__ = [
     "NeighbourStart",
     "chi2_bar",
     "flag_bars",
+    "is_tracked",
     "merge_refits",
     "neighbour_starts",
     "repair_by_continuity",
     "sources",
     "suspects",
+    "tracked_suspects",
 ]
 
 #: the lower-half spread is median minus this quantile (one normal sd below the median)
@@ -85,6 +99,9 @@ class ContinuitySettings:
         Suspect bar on the reduced chi^2: the median plus this many lower-half spreads.
     jump_factor : float
         Suspect when the axis is this many median frame-to-frame steps from a neighbour's.
+    tracked_jump_factor : float
+        On a tracked table (:func:`is_tracked`): suspect when the axis is this many median
+        frame-to-frame steps from a neighbour's (the tracker's ``step_factor``).
     min_gain_chi2 : float
         A refit replaces a row only if its chi^2 (residual sum of squares over the pixel
         noise^2) is lower by more than this: a refit that lands in the same minimum differs
@@ -102,6 +119,7 @@ class ContinuitySettings:
     max_gap: int = 5
     chi2_sigmas: float = 4.0
     jump_factor: float = 1.0
+    tracked_jump_factor: float = 5.0
     min_gain_chi2: float = 1.0
     flag: bool = True
     flag_probability: float = 1e-4
@@ -109,9 +127,10 @@ class ContinuitySettings:
     def __post_init__(self) -> None:
         if self.max_sweeps < 0 or self.max_gap < 1:
             raise ValueError("continuity: max_sweeps >= 0 and max_gap >= 1 needed")
-        if not (self.chi2_sigmas > 0 and self.jump_factor > 0 and self.min_gain_chi2 >= 0):
-            raise ValueError("continuity: chi2_sigmas and jump_factor must be > 0, "
-                             "min_gain_chi2 >= 0")
+        if not (self.chi2_sigmas > 0 and self.jump_factor > 0 and self.tracked_jump_factor > 0
+                and self.min_gain_chi2 >= 0):
+            raise ValueError("continuity: chi2_sigmas, jump_factor and tracked_jump_factor "
+                             "must be > 0, min_gain_chi2 >= 0")
         if not 0 < self.flag_probability < 0.5:
             raise ValueError("continuity: flag_probability must be in (0, 0.5), got "
                              f"{self.flag_probability}")
@@ -347,13 +366,27 @@ def suspects(table: pd.DataFrame, opts: ContinuitySettings, head_tail: bool,
     -------
     ndarray of bool
     """
+    out = _unsound(table, opts, bar)
+    out |= _axis_jumps(table, opts.jump_factor, head_tail)
+    return out
+
+
+def _unsound(table: pd.DataFrame, opts: ContinuitySettings,
+             bar: float | None) -> NDArray[np.bool_]:
+    """Refittable rows not ``ok`` or above the chi^2 bar."""
     status = table["status"].to_numpy()
     refittable = np.isin(status, _REFITTABLE)
     out = refittable & (status != OK)
     bar = chi2_bar(table, opts.chi2_sigmas) if bar is None else bar
     if math.isfinite(bar):
         out |= refittable & (table["chi2_red"].to_numpy(dtype=float) > bar)
-    ok = status == OK
+    return out
+
+
+def _axis_jumps(table: pd.DataFrame, factor: float, head_tail: bool) -> NDArray[np.bool_]:
+    """``ok`` rows whose axis is more than ``factor`` median steps from a neighbour's."""
+    out = np.zeros(len(table), dtype=bool)
+    ok = table["status"].to_numpy() == OK
     u = _axes(table)
     usable = ok & np.all(np.isfinite(u), axis=1)
     idx = np.flatnonzero(usable)
@@ -362,13 +395,45 @@ def suspects(table: pd.DataFrame, opts: ContinuitySettings, head_tail: bool,
         steps = _angle(u[idx[1:]], u[idx[:-1]], head_tail)
         adjacent = np.diff(frames[idx]) == 1
         if adjacent.any():
-            bar_jump = opts.jump_factor * float(np.median(steps[adjacent]))
+            bar_jump = factor * float(np.median(steps[adjacent]))
             before = np.r_[np.inf, steps]
             after = np.r_[steps, np.inf]
             # a neighbour far away (an end has one neighbour)
             jump = np.fmax(np.where(np.isinf(before), np.nan, before),
                            np.where(np.isinf(after), np.nan, after)) > bar_jump
             out[idx[jump]] = True
+    return out
+
+
+def is_tracked(table: pd.DataFrame) -> bool:
+    """Whether the final pass followed the track (some row fitted warm, ``track_source``)."""
+    return "track_source" in table and bool(
+        table["track_source"].astype(str).isin(("warm", "reacquired")).any())
+
+
+def tracked_suspects(table: pd.DataFrame, opts: ContinuitySettings, head_tail: bool,
+                     bar: float | None = None) -> NDArray[np.bool_]:
+    """The suspects of a frame-sorted tracked table (see the module doc).
+
+    Parameters and returns as :func:`suspects`.
+    """
+    status = table["status"].to_numpy()
+    refittable = np.isin(status, _REFITTABLE)
+    out = _unsound(table, opts, bar)
+    out |= _axis_jumps(table, opts.tracked_jump_factor, head_tail)
+    out |= refittable & (table["track_source"].astype(str) == "reacquired").to_numpy()
+    if "ambiguous" in table:
+        out |= refittable & (pd.to_numeric(table["ambiguous"], errors="coerce")
+                             .fillna(0).to_numpy() > 0)
+    if "track_jump" in table:
+        jump = pd.to_numeric(table["track_jump"], errors="coerce").fillna(0).to_numpy() > 0
+        frames = table["frame"].to_numpy()
+        near = jump.copy()
+        for i in np.flatnonzero(jump):  # the frames either side of the jump
+            for j in (i - 1, i + 1):
+                if 0 <= j < len(table) and abs(int(frames[j]) - int(frames[i])) <= opts.max_gap:
+                    near[j] = True
+        out |= refittable & near
     return out
 
 
@@ -547,9 +612,10 @@ def repair_by_continuity(
     if not opts.enabled or table.empty:
         return table, report
     tried: set[tuple[int, int, float, float]] = set()
+    pick = tracked_suspects if is_tracked(table) else suspects
     for sweep in range(1, opts.max_sweeps + 1):
         bar = chi2_bar(table, opts.chi2_sigmas)
-        suspect = suspects(table, opts, head_tail, bar)
+        suspect = pick(table, opts, head_tail, bar)
         starts = neighbour_starts(table, suspect, sources(table, bar), opts, tried)
         if not starts:
             break
