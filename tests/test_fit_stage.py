@@ -12,7 +12,6 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from holofit.batch import BatchOptions
 from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
@@ -26,18 +25,8 @@ from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
 from holofit.tables.fit import read_fit_table
 from holofit.tables.inputs import StageInputError
+from tests.stage_helpers import ROD_TOML, SERIAL
 
-SERIAL = BatchOptions(workers=0, progress=False)
-ROD_TOML = """
-[particle]
-model = "spherocylinder"
-a_um = 0.3
-b_um = 0.7
-index = 1.5
-
-[dda]
-dipole_size_um = 0.1
-"""
 TRUTH_ANGLES = np.radians([[30, 50, 0], [34, 53, 0], [38, 49, 0]])
 LIB = LibrarySettings(tilt_step_deg=15, n_phi=64, n_candidates=2)
 

@@ -11,7 +11,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit.continuity import ContinuitySettings
@@ -19,18 +18,8 @@ from holofit.fit.stage import run_fit
 from holofit.library.stage import LibrarySettings, run_library
 from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
+from tests.stage_helpers import ROD_TOML, SERIAL
 
-SERIAL = BatchOptions(workers=0, progress=False)
-ROD_TOML = """
-[particle]
-model = "spherocylinder"
-a_um = 0.3
-b_um = 0.7
-index = 1.5
-
-[dda]
-dipole_size_um = 0.1
-"""
 N = 6
 
 
