@@ -90,6 +90,13 @@ class FrameFitSettings:
     ambiguity_chi2 : float
         Frames whose runner-up is within this chi^2 (in units of the pixel noise) are flagged
         ``ambiguous``.
+    warm_stop_chi2 : float
+        The fits of :func:`fit_frame_warm` also stop where the Gauss-Newton step predicts a
+        chi^2 decrease of at most this (units of the pixel noise;
+        :func:`holofit.holomodel.leastsq.solve_least_squares`'s ``stop_rss``): the fit is then
+        that close to its minimum, and MINPACK's confirming iteration (one hologram and one
+        Jacobian of a warm frame's ~4) is saved. ``ftol`` 1e-6 on a 140 x 140 crop is ~0.02
+        chi^2 units too. 0: MINPACK's tests alone.
     quality : QualityLimits
         When a converged fit is still not ``ok``.
     far_field : bool
@@ -108,6 +115,7 @@ class FrameFitSettings:
     ftol: float = 1e-6
     xtol: float = 1e-6
     ambiguity_chi2: float = 9.0
+    warm_stop_chi2: float = 0.02
     quality: QualityLimits = field(default_factory=QualityLimits)
     far_field: bool = False
 
@@ -120,6 +128,8 @@ class FrameFitSettings:
             raise ValueError("screen_pixels >= 100, screen_nfev >= 1 and max_nfev >= 1 needed")
         if not self.ambiguity_chi2 >= 0:
             raise ValueError(f"ambiguity_chi2 must be >= 0, got {self.ambiguity_chi2}")
+        if not self.warm_stop_chi2 >= 0:
+            raise ValueError(f"warm_stop_chi2 must be >= 0, got {self.warm_stop_chi2}")
 
 
 def mirrored(c: Candidate) -> Candidate:
@@ -201,8 +211,9 @@ class _FrameFit:
         return self.extra[0][index], self.extra[1][index]
 
     def run(self, space: ParameterSpace, index: NDArray[np.intp] | None, nfev: int,
-            tol: float) -> Solution:
-        """Fit ``space`` from its start on all pixels (``index`` None) or a subset."""
+            tol: float, stop_chi2: float = 0.0) -> Solution:
+        """Fit ``space`` from its start on all pixels (``index`` None) or a subset; with
+        ``stop_chi2`` > 0 also stopping where the predicted chi^2 decrease is below it."""
         pix = self.pix
         xs, ys, data = ((pix.xs_um, pix.ys_um, pix.data) if index is None
                         else (pix.xs_um[index], pix.ys_um[index], pix.data[index]))
@@ -211,8 +222,9 @@ class _FrameFit:
                           extra_field=self._extra(index))
         self.waves = m.waves  # every fit of the crop shares the solved waves
         self.models.append(m)
+        stop = (stop_chi2 * self.noise**2 if stop_chi2 > 0 and self.noise > 0 else None)
         sol = solve_least_squares(m, data, space.initial_vector(), max_nfev=nfev, ftol=tol,
-                                  xtol=tol)
+                                  xtol=tol, stop_rss=stop)
         self.n_eval += sol.n_eval
         return sol
 
@@ -241,17 +253,18 @@ class _FrameFit:
         return _Branch(start, space, self.run(space, sub, self.opts.screen_nfev, 1e-4))
 
     def refine(self, state: State, free: Sequence[str], start: Candidate | None,
-               statics: tuple | None = None) -> _Branch:
+               statics: tuple | None = None, warm: bool = False) -> _Branch:
         """A fit on all pixels from ``state``; with ``statics``, those are held there (the
         runner-up then differs from the best in placement and orientation only, which is
-        what the ambiguity is)."""
+        what the ambiguity is); ``warm``: with the stopping rule of ``warm_stop_chi2``."""
         names = list(free)
         if statics is not None:
             state = replace(state, statics=statics)
             static_names = {name for name, _ in statics}
             names = [n for n in free if n not in static_names]
         space = ParameterSpace(self.model, names, state)
-        return _Branch(start, space, self.run(space, None, self.opts.max_nfev, self.opts.ftol))
+        return _Branch(start, space, self.run(space, None, self.opts.max_nfev, self.opts.ftol,
+                                              self.opts.warm_stop_chi2 if warm else 0.0))
 
     @property
     def n_solves(self) -> int:
@@ -498,7 +511,7 @@ def fit_frame_warm(
                     extra_field)
     if fit.na_start is not None and start.numerical_aperture is None:
         start = replace(start, numerical_aperture=fit.na_start)
-    best = fit.refine(start, free, None)
+    best = fit.refine(start, free, None, warm=True)
     runner: _Branch | None = None
     runner_rss = None
     how = -1
@@ -543,7 +556,8 @@ def _warm_runner_up(fit: _FrameFit, best: _Branch, free: Sequence[str],
     screened = fit.screen(mirror, free, sub)
     delta = (float(screened.solution.rss) - best_sub) * scale / noise2
     if not delta >= bar:  # close (or unknown): fit it on all pixels
-        return fit.refine(_state(screened), free, None, best_state.statics), math.nan, 2
+        return (fit.refine(_state(screened), free, None, best_state.statics, warm=True),
+                math.nan, 2)
     return screened, best.solution.rss + delta * noise2, 1
 
 

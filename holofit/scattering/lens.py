@@ -375,7 +375,7 @@ def lens_fields_on_pixels(
     u += STENCIL
     out = []
     # one grid at a time: the single-grid kernel is ~3x faster per grid than the several-grid
-    # loop of polar_interpolate on these single-precision planes (measured, 40k pixels)
+    # loop of polar_interpolate on these planes (measured, 40k pixels)
     for grid in grids:
         ex = np.empty(rho.size, dtype=complex)
         ey = np.empty(rho.size, dtype=complex)

@@ -26,9 +26,13 @@ rod of tests/test_lens.py against the brute-force integral, double -> single pre
 FFT and planes: 4e-8 -> 1.7e-7 at NA 1.2, 2e-8 -> 8e-8 at NA 1.45, 1.2e-7 -> 2.0e-7 at NA 0.9;
 the tests' bound is 1e-6, the pixel noise of a fit ~1e-2); the table
 takes half the memory and the product, which reads the whole table once per image, runs about
-twice as fast. The polar grid's FFT and planes stay in single precision (half the memory the
-pixel interpolation reads). A table is built once per pupil rule and radial step with every
-order the source can need (:func:`radial_transform`'s ``max_orders``), so that waves of the
+twice as fast. The polar grid's FFT stays in single precision; its planes are stored in double
+precision (exactly the single-precision values): the pixel interpolation, which reads each
+plane value once per stencil, runs ~30 % faster on doubles than converting singles in its inner
+loop (measured, CPU time, the rod's 4 x 412 x 156 planes at 19600 pixels: 1.35 vs 1.95 ms),
+and the copy into the padded planes is made anyway. A table is built once per pupil rule and
+radial step with every order the source can need (:func:`radial_transform`'s ``max_orders``),
+so that waves of the
 same particle whose small high orders were trimmed away share it.
 """
 
@@ -256,7 +260,7 @@ def sphere_tables(a: NDArray, b: NDArray, base: NDArray, x_step: NDArray, n_rho:
 def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray, n_rho: int,
                key: tuple, max_order: int | None = None) -> NDArray[np.floating]:
     """The image ``(E_x, E_y)`` on a polar grid ``[rho row, phi column]``, as the four real
-    planes ``(Re E_x, Im E_x, Re E_y, Im E_y)`` (in the tables' precision) that
+    planes ``(Re E_x, Im E_x, Re E_y, Im E_y)`` (double precision) that
     :func:`~holofit.scattering.lens_kernels.polar_pixels` interpolates (shape
     ``(4, rows, columns)``).
 
@@ -324,7 +328,7 @@ def _padded_planes(fields: NDArray[np.complex128]) -> NDArray[np.float64]:
     period in ``ph``."""
     _, n_rho, n_phi = fields.shape
     s = STENCIL
-    out = np.empty((4, n_rho + s, n_phi + 2 * s), dtype=fields.real.dtype)
+    out = np.empty((4, n_rho + s, n_phi + 2 * s), dtype=np.float64)
     core = out[:, s:, s : s + n_phi]
     core[0::2] = fields.real
     core[1::2] = fields.imag
