@@ -311,9 +311,11 @@ def polar_grids(fields: list[tuple[NDArray, NDArray, NDArray]], x_step: NDArray,
     spec[:, :, : mmax + 1] = np.transpose(up, (2, 1, 0))
     spec[:, :, n_phi - mmax :] = np.transpose(down[::-1], (2, 1, 0))
     fields = sfft.ifft(spec, axis=2, norm="forward", overwrite_x=True)
-    if n_f == 1:
-        return _padded_planes(fields)[None]
-    return np.stack([_padded_planes(fields[2 * f : 2 * f + 2]) for f in range(n_f)])
+    s = STENCIL
+    out = np.empty((n_f, 4, n_rho + s, n_phi + 2 * s))
+    for f in range(n_f):
+        _padded_planes(fields[2 * f : 2 * f + 2], out[f])
+    return out
 
 
 def _reflect_rows(g: NDArray) -> NDArray:
@@ -321,14 +323,15 @@ def _reflect_rows(g: NDArray) -> NDArray:
     return np.ascontiguousarray(np.concatenate([g[1 : STENCIL + 1][::-1], g]))
 
 
-def _padded_planes(fields: NDArray[np.complex128]) -> NDArray[np.float64]:
-    """``(E_x, E_y)`` on the polar grid, shape ``(2, n_rho, n_phi)``, as the four real planes
-    the pixel kernel reads, with ``STENCIL`` rows for negative rho prepended
+def _padded_planes(fields: NDArray[np.complex128], out: NDArray[np.float64]
+                   ) -> NDArray[np.float64]:
+    """``(E_x, E_y)`` on the polar grid, shape ``(2, n_rho, n_phi)``, written into ``out`` as
+    the four real planes the pixel kernel reads (shape ``(4, n_rho + STENCIL,
+    n_phi + 2 STENCIL)``), with ``STENCIL`` rows for negative rho prepended
     (``g(-rho, ph) = g(rho, ph + pi)``) and ``STENCIL`` columns on each side repeating the
     period in ``ph``."""
     _, n_rho, n_phi = fields.shape
     s = STENCIL
-    out = np.empty((4, n_rho + s, n_phi + 2 * s), dtype=np.float64)
     core = out[:, s:, s : s + n_phi]
     core[0::2] = fields.real
     core[1::2] = fields.imag
