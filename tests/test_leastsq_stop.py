@@ -61,7 +61,7 @@ def test_a_fit_stopped_by_the_predicted_decrease_is_within_the_bar_of_the_minimu
     ref_model = make()
     ref = solve_least_squares(ref_model, data, start, ftol=1e-12, xtol=1e-12)
     usual_model = make()
-    usual = solve_least_squares(usual_model, data, start, ftol=1e-6, xtol=1e-6)
+    solve_least_squares(usual_model, data, start, ftol=1e-6, xtol=1e-6)
     stop_model = make()
     stop = solve_least_squares(stop_model, data, start, ftol=1e-6, xtol=1e-6, stop_rss=bar)
     assert stop.converged and "Gauss-Newton" in stop.message

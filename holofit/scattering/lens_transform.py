@@ -330,7 +330,7 @@ def _padded_planes(fields: NDArray[np.complex128], out: NDArray[np.float64]
     n_phi + 2 STENCIL)``), with ``STENCIL`` rows for negative rho prepended
     (``g(-rho, ph) = g(rho, ph + pi)``) and ``STENCIL`` columns on each side repeating the
     period in ``ph``."""
-    _, n_rho, n_phi = fields.shape
+    n_phi = fields.shape[2]
     s = STENCIL
     core = out[:, s:, s : s + n_phi]
     core[0::2] = fields.real
