@@ -141,3 +141,16 @@ def test_initial_frames_without_overlap_first():
     assert initial_choice(frames, over, 6) == [0, 4, 5, 6, 8, 9]  # every clean one, then 0
     assert initial_choice(frames, [True] * 10, 2) == [0, 1]
     assert initial_choice(frames, [False] * 10, 4) == [0, 1, 2, 3]
+
+
+def test_pooled_static_parameters_reach_the_final_pass_run_on_its_own(pair, tmp_path):
+    """make runs the passes as two commands (``--pass initial``, then ``--pass final``): with
+    ``static_mode="pooled"`` the second must use the pooled ``static.json``, not each track's."""
+    out = tmp_path / "fit"
+    _fit(pair, out, pass_name="initial", static_mode="pooled")
+    pooled = json.loads((out / "static.json").read_text())["values"]
+    assert pooled["radius_um"] == pytest.approx(0.5, abs=0.005)
+    _fit(pair, out, pass_name="final", static_mode="pooled")
+    for p in (0, 1):
+        used = json.loads((track_dir(out, p) / "fit.csv.json").read_text())["static"]
+        assert used["values"] == pooled

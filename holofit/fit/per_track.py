@@ -212,7 +212,11 @@ def _fit_views(views: dict[int, tuple[Path, Path | None, Path | None]],
     combined = FitRun()
     pass_name = kwargs.pop("pass_name", "both")
     given = kwargs.get("static")
-    statics: dict[int, Path] = {p: Path(given) for p in views} if given is not None else {}
+    statics: dict[int, Path] = {}
+    if given is not None:
+        statics = {p: Path(given) for p in views}
+    elif static == "pooled" and pass_name == "final":  # make's second call: the pooled file
+        statics = {p: out / "static.json" for p in views}
     if pass_name in ("both", "initial"):
         first = {p: _initial_run(vdir, pre, lib, particle, track_dir(out, p),
                                  {**kwargs, **cut[p]})
