@@ -257,9 +257,10 @@ def _initial_run(vdir: Path, pre: Path | None, lib: Path | None, particle: Parti
     and the static parameters are averaged after that (:func:`_statics`)."""
     try:
         return run_fit(vdir, pre, lib, particle, tdir, pass_name="initial", **kwargs)
-    except FitStageError:
+    except FitStageError as exc:  # static.py's "no ok frame", with the table to show it
         table = tdir / "initial.csv"
-        if not table.exists() or (read_table(table)["status"] == OK).any():
+        if ("no ok frame" not in str(exc) or not table.exists()
+                or (read_table(table)["status"] == OK).any()):
             raise
         return FitRun(initial=table)
 
