@@ -1,6 +1,7 @@
 """Issue 22: a movie of several particles through ``holofit init`` + ``make`` with no new
-option, and through the README's first example (crop, prefit, analyze); the truth is the
-simulation's (``holofit simulate field-of-view``). Slow: ~1-1.5 min on 2 busy cores."""
+option (two spheres; two rods, through the library), and through the README's first example
+(crop, prefit, analyze); the truth is the simulation's (``holofit simulate field-of-view``).
+Slow: ~2 and ~1.3 min on 2 busy cores."""
 
 from __future__ import annotations
 
@@ -94,3 +95,61 @@ def test_a_run_folder_fits_every_particle_of_a_field_of_view(tmp_path):
     assert (prefit["status"] == "ok").all()
     readme = pd.read_csv(tmp_path / "analysis" / "pooled.csv").set_index("quantity")
     assert abs(readme.loc["D_t", "value"] - d_true) < 3 * readme.loc["D_t", "error"]
+
+
+ROD_TOML = """\
+[particle]
+model = "spherocylinder"
+a_um = 0.3
+b_um = 0.7
+index = 1.5
+
+[dda]
+dipole_size_um = 0.1
+"""
+#: the single-rod run folder test's small settings (tests/test_runfolder_rod.py)
+ROD_OPTIONS = {
+    "crop": "--size 64 --no-plot",
+    "prefit": "--no-plot",
+    "library": "--tilt-step 15 --n-phi 64 --candidates 2 --no-plot",
+    "fit": "--initial-frames 1 --starts 1 --no-mirror --no-plot",
+}
+
+
+def test_a_run_folder_of_two_rods_runs_the_library_and_the_fit_per_track(tmp_path):
+    """Two rods 12 um apart, 3 frames: make runs crop, prefit, library and both fit passes
+    on (particle, frame) rows; each track is its rod (position and axis against the truth)."""
+    from holofit.config import load_instrument, load_particle, resolve_config
+    from holofit.runfolder import init_run
+    from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
+
+    (tmp_path / "rod.toml").write_text(ROD_TOML)
+    rod = load_particle(tmp_path / "rod.toml")
+    inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
+    step = np.array([[0.0, 0.0, 0.0], [0.1, -0.1, 0.2], [-0.1, 0.05, 0.1]])
+    pos = {0: step + np.array([7.0, 8.0, 9.0]), 1: step[::-1] + np.array([19.0, 8.5, 9.5])}
+    ang = {0: np.radians([[30, 50, 0], [34, 53, 0], [38, 49, 0]]),
+           1: np.radians([[120, 60, 0], [117, 64, 0], [121, 61, 0]])}
+    sim = simulate_field_of_view(
+        [ParticleInView(rod.model, pos[k], ang[k], 0.9, rod.theory()) for k in (0, 1)], inst,
+        (96, 150), out_dir=tmp_path / "sim", seed=2)
+    run = tmp_path / "rods"
+    init_run(run, sim.movie, backgrounds=[sim.background], instrument="paper_60x_water",
+             particle=tmp_path / "rod.toml", options=ROD_OPTIONS)
+    proc = run_make(run, "fit", "JOBS=0")
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    assert names(stages_run(proc.stdout, run)) == ["crop", "prefit", "library", "fit initial",
+                                                   "fit final"]
+    assert list(pd.read_csv(run / "library" / "library.csv").columns[:2]) == ["particle",
+                                                                            "frame"]
+    fit = pd.read_csv(run / "fit" / "fit.csv")
+    assert (fit["status"] == "ok").all(), fit["message"].tolist()
+    assert sorted(fit["particle"].unique()) == [0, 1] and len(fit) == 6
+    for _, rows in fit.groupby("particle"):
+        k = 0 if rows["x_um"].mean() < 13 else 1
+        np.testing.assert_allclose(rows[["x_um", "y_um", "z_um"]], pos[k], atol=0.03)
+        a = ang[k]
+        u = np.column_stack([np.sin(a[:, 1]) * np.cos(a[:, 0]),
+                             np.sin(a[:, 1]) * np.sin(a[:, 0]), np.cos(a[:, 1])])
+        cos = np.abs(np.sum(rows[["ux", "uy", "uz"]].to_numpy() * u, axis=1))
+        assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 3.0
