@@ -101,6 +101,17 @@ def test_an_interrupted_refit_resumes_without_redoing_a_row(pair, tmp_path, monk
     rerun = _fit(pair, out, pass_name="final", static=pair["static"])
     assert done == [] and rerun.summaries["final, overlaps"].n_run == 0
     pd.testing.assert_frame_equal(pd.read_csv(rerun.final), fit)
+    # a track's first fits changed since (here by hand: 1 nm in x): the refits start afresh
+    # (no "other settings" refusal), every row again
+    track0 = track_dir(out, 0) / "fit.csv"
+    edited = pd.read_csv(track0)
+    edited.loc[0, "x_um"] += 0.001
+    edited.to_csv(track0, index=False)
+    redone: list = []
+    monkeypatch.setattr(overlaps_module, "refit_overlap_task", _Stop(None, redone))
+    assert _fit(pair, out, pass_name="final", static=pair["static"]).summaries[
+        "final, overlaps"].n_run == 2 * N
+    assert sorted(redone) == sorted((p, f) for p in (0, 1) for f in range(N))
     # two workers give the rows one gives
     two = _fit(pair, tmp_path / "fit2", workers=2, pass_name="final", static=pair["static"])
     other = pd.read_csv(two.final)

@@ -11,7 +11,8 @@ model's field before the intensity (:mod:`holofit.holomodel.forward`, ``extra_fi
 The refits are the items of one batch (:func:`holofit.batch.runner.run_batch`) keyed by
 ``(particle, frame)``, one table per pass (``overlaps/<pass>.csv`` beside the combined
 table): parallel (``-j``, Dask), journalled, and a rerun resumes without redoing a finished
-row; its fingerprint holds both rows of every item, so new first fits start a new batch.
+row; its fingerprint holds both rows of every item, so new first fits (a track refitted
+since) start the batch afresh, discarding the earlier refits.
 The same round serves both passes: the final pass's rows (static parameters each track's
 settled values) and the initial pass's (static parameters free, each row's own).
 """
@@ -29,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from holofit.batch.aperture import FROM_INSTRUMENT
-from holofit.batch.runner import BatchSummary, run_batch
+from holofit.batch.runner import BatchOptions, BatchSummary, earlier_fingerprint, run_batch
 from holofit.batch.stage import fingerprint, stage_inputs
 from holofit.cache import LRUCache
 from holofit.config import Instrument, ParticleConfig
@@ -283,10 +284,14 @@ def refit_overlaps(table: pd.DataFrame, overlaps: pd.DataFrame,
         meta = sidecar(kind=f"overlapping rows of the {how.pass_name} pass refitted with the "
                             "neighbour's field", config=config.as_dict(),
                        inputs=[given.crops.table_path])
+        options = kw.get("batch") or BatchOptions()
+        earlier = earlier_fingerprint(how.output)
+        if earlier is not None and earlier != key:
+            # refits of other first fits (a track refitted since, say): derived rows, redone
+            options = replace(options, overwrite=True)
         how.summary = run_batch(refit_overlap_task, config, sorted(items), load, how.output,
-                                columns, fingerprint=key, meta=meta,
-                                options=kw.get("batch"), desc=f"fit ({how.pass_name}, overlaps)",
-                                key_columns=OVERLAP_KEY)
+                                columns, fingerprint=key, meta=meta, options=options,
+                                desc=f"fit ({how.pass_name}, overlaps)", key_columns=OVERLAP_KEY)
     return _merged(table, rows, read_table(how.output), items)
 
 
