@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -52,10 +53,13 @@ start_orientation = [{psi:.2f}, 1.1, 0.0]
 """
 
 
-def run(n_rods: int, frames: int) -> dict[str, float]:
+def run(n_rods: int, frames: int, out_dir: Path | None = None,
+        workers: int = 1) -> dict[str, float]:
+    """Run the case; in ``out_dir`` (kept, each stage resuming) or in a temporary folder."""
     tag = {1: "one_rod", 3: "three_rods"}.get(n_rods, f"{n_rods}_rods")
     with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp)
+        root = Path(tmp) if out_dir is None else Path(out_dir)
+        root.mkdir(parents=True, exist_ok=True)
         pixel_um = load_instrument(resolve_config("paper_60x_water", "instruments")).pixel_size_um
         width = 192 * n_rods
         particles = "".join(ROD.format(x=(96 + 192 * i) * pixel_um, z=12.0 + 1.5 * i,
@@ -65,28 +69,37 @@ def run(n_rods: int, frames: int) -> dict[str, float]:
         scene = load_scene(root / "scene.toml")
         sim = simulate_field_of_view(scene.particles, scene.instrument, scene.frame_shape,
                                      seed=scene.seed, out_dir=root / "movie")
+        _log("simulation done")
         config = load_particle(resolve_config("rod_paper", "particles"))
-        batch = BatchOptions(workers=1, progress=False)
+        batch = BatchOptions(workers=workers, progress=False)
         out: dict[str, float] = {}
         t_all = time.perf_counter()
         t0 = time.perf_counter()
         run_crop(sim.movie, sim.background, scene.instrument, root / "crop", size=140,
                  plot=False)
         out[f"pipeline_{tag}_crop_s"] = time.perf_counter() - t0
+        _log(f"crop done: {time.perf_counter() - t0:.0f} s")
         t0 = time.perf_counter()
         run_prefit(root / "crop", root / "prefit", fit=SphereFitSettings(seed_only=True),
                    batch=batch, plot=False)
         out[f"pipeline_{tag}_prefit_s"] = time.perf_counter() - t0
+        _log(f"prefit done: {time.perf_counter() - t0:.0f} s")
         t0 = time.perf_counter()
         run_library(root / "crop", root / "prefit", config, root / "library", batch=batch)
         out[f"pipeline_{tag}_library_s"] = time.perf_counter() - t0
+        _log(f"library done: {time.perf_counter() - t0:.0f} s")
         t0 = time.perf_counter()
         run_fit_tracks(root / "crop", root / "prefit", root / "library", config, root / "fit",
                        batch=batch, plot=False)
         out[f"pipeline_{tag}_fit_s"] = time.perf_counter() - t0
+        _log(f"fit done: {time.perf_counter() - t0:.0f} s")
         out[f"pipeline_{tag}_s"] = time.perf_counter() - t_all
         out.update(_errors(tag, root, sim.truth_table, n_rods))
     return out
+
+
+def _log(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
 
 
 def _errors(tag: str, root: Path, truth_path: Path, n_rods: int) -> dict[str, float]:
@@ -123,5 +136,8 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("n_rods", type=int)
     parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--out-dir", type=Path, default=None,
+                        help="keep the run here (stages resume) instead of a temporary folder")
+    parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
-    print(json.dumps(run(args.n_rods, args.frames)))
+    print(json.dumps(run(args.n_rods, args.frames, args.out_dir, args.workers)))

@@ -1,5 +1,5 @@
 """Issue 22, item 3: an overlapping frame refitted with the neighbour's field
-(:func:`holofit.fit.per_track.neighbour_field`, ``extra_field`` of
+(:func:`holofit.fit.overlaps.neighbour_field`, ``extra_field`` of
 :func:`holofit.fit.frame.fit_frame_warm`). The truth: two Lorenz-Mie spheres 2.7 um apart,
 simulated together in one field of view with camera noise (holofit.simulate.field_of_view)."""
 
@@ -13,7 +13,7 @@ import tifffile
 from holofit.config import load_instrument, resolve_config
 from holofit.crop.normalize import normalize
 from holofit.fit.frame import FrameFitSettings, fit_frame_warm
-from holofit.fit.per_track import neighbour_field
+from holofit.fit.overlaps import neighbour_field
 from holofit.holomodel.parameters import State, static_values
 from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie

@@ -16,16 +16,21 @@ Static parameters (``static_mode``):
   of them (``OUT/static.json``), which every track's final pass uses (one batch of identical
   particles).
 
-Frames whose crop another track's hologram overlaps (the crop table's ``overlap``) are fitted
-a second time once every track's final pass is done (:func:`refit_overlaps`): where the
-neighbour track has a fitted row at that frame (a finite placement, whatever its status), its
-recorded field on this crop's pixels (its
-fitted position, orientation, alpha and static parameters, through the same engine) is a fixed
-field added to the model's before the intensity (:mod:`holofit.holomodel.forward`,
-``extra_field``), and the frame is refitted from its first fit (:func:`holofit.fit.frame.
-fit_frame_warm`). The refit replaces the row in ``OUT/fit.csv`` (the per-track tables keep the
-first fit). Overlapping frames that are still not ``ok`` become ``overlap``
-(:func:`mark_overlap`; ``holofit analyze`` uses ``ok`` rows only).
+Frames whose crop another track's hologram overlaps (the crop table's ``overlap``):
+
+- each track's initial pass fits its frames without a neighbour's hologram first (the
+  fit stage's choice of initial frames); a track that has too few such frames fits
+  overlapping ones too;
+- once every track's pass is done, its overlapping rows are fitted again with the neighbour
+  track's field at that frame (its row of the same pass) added to the model's
+  (:mod:`holofit.fit.overlaps`: one batch per pass, ``OUT/overlaps/initial.csv`` and
+  ``OUT/overlaps/fit.csv``, parallel and resumable). The refits replace the rows of
+  ``OUT/initial.csv`` and ``OUT/fit.csv`` (the per-track tables keep the first fits). The
+  static parameters are averaged after the initial round (each track's ``static.json``
+  rewritten from its rows of ``OUT/initial.csv``), so a track whose every initial frame
+  overlaps still gets sound static parameters;
+- overlapping final rows that are still not ``ok`` become ``overlap`` (:func:`mark_overlap`;
+  ``holofit analyze`` uses ``ok`` rows only).
 
 A crop folder of one track is fitted exactly as before, into ``OUT`` itself.
 """
@@ -34,36 +39,22 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
-from holofit.batch.aperture import FROM_INSTRUMENT
-from holofit.batch.stage import stage_inputs
 from holofit.config import ParticleConfig
 from holofit.fit.errors import FitStageError
-from holofit.fit.frame import FrameFitSettings, fit_frame_warm
+from holofit.fit.overlaps import OverlapRefit, overlap_table, refit_overlaps
 from holofit.fit.stage import FitRun, run_fit
-from holofit.fit.static import read_static, write_static
-from holofit.fit.task import FitConfig
-from holofit.fit.tracking import state_of
-from holofit.holomodel.forward import HologramModel
-from holofit.holomodel.parameters import APERTURE, ParameterSpace, particle_with
-from holofit.holomodel.pixels import select_pixels
-from holofit.holomodel.result import result_row
+from holofit.fit.static import write_static
 from holofit.io.tables import read_table, sidecar_path, write_json, write_table
-from holofit.optics import Optics
-from holofit.particles import ParticleModel
-from holofit.scattering.theory import ScatteringTheory
 from holofit.status import OK, OVERLAP, SKIPPED
 from holofit.tables.cropset import CropSet, write_track_view
 from holofit.tables.inputs import read_stage_table
 
-__all__ = ["STATIC_MODES", "mark_overlap", "neighbour_field", "refit_overlaps",
-           "run_fit_tracks", "track_dir"]
+__all__ = ["STATIC_MODES", "mark_overlap", "run_fit_tracks", "track_dir"]
 
 #: how the static parameters of several tracks are found
 STATIC_MODES = ("per-track", "pooled")
@@ -218,192 +209,109 @@ def _fit_views(views: dict[int, tuple[Path, Path | None, Path | None]],
                particle: ParticleConfig, out: Path, static: str,
                kwargs: dict[str, Any], cut: dict[int, dict[str, Any]],
                overlaps: pd.DataFrame, crop_dir: Path) -> FitRun:
-    runs: dict[int, FitRun] = {}
     combined = FitRun()
     pass_name = kwargs.pop("pass_name", "both")
-    if static == "pooled" and pass_name in ("both", "initial") and kwargs.get("static") is None:
-        for p, (vdir, pre, lib) in views.items():
-            runs[p] = run_fit(vdir, pre, lib, particle, track_dir(out, p), pass_name="initial",
-                              **{**kwargs, **cut[p]})
-        initial = _combine(runs, "initial", out, "initial.csv")
+    given = kwargs.get("static")
+    statics: dict[int, Path] = {}
+    if given is not None:
+        statics = {p: Path(given) for p in views}
+    elif static == "pooled" and pass_name == "final":  # make's second call: the pooled file
+        statics = {p: out / "static.json" for p in views}
+    if pass_name in ("both", "initial"):
+        first = {p: _initial_run(vdir, pre, lib, particle, track_dir(out, p),
+                                 {**kwargs, **cut[p]})
+                 for p, (vdir, pre, lib) in views.items()}
+        _merge(combined, first, "initial")
+        initial = _combine(first, "initial", out, "initial.csv",
+                           refit=_refit_round(combined, overlaps, crop_dir, particle, "initial",
+                                              out, None, kwargs))
         if initial is None:
             raise FitStageError("the initial pass of some track wrote no table")
-        try:
-            pooled = write_static(out / "static.json", initial, read_table(initial),
-                                  particle.model)
-        except FitStageError as exc:
-            raise FitStageError(f"pooled static parameters: {exc}") from None
-        combined.static, combined.initial = pooled, initial
-        combined.notes.append(f"static parameters pooled over {len(views)} tracks -> {pooled}")
-        _merge(combined, runs, "initial")
+        combined.initial = initial
+        found = _statics(initial, first, particle, out, static)
+        combined.static = found.pop(-1)
+        if static == "pooled":
+            combined.notes.append(f"static parameters pooled over {len(views)} tracks -> "
+                                  f"{combined.static}")
+        if given is None:
+            statics = found
         if pass_name == "initial":
             return combined
-        kwargs = {**kwargs, "static": pooled}
-        pass_name = "final"
+    runs: dict[int, FitRun] = {}
     for p, (vdir, pre, lib) in views.items():
-        runs[p] = run_fit(vdir, pre, lib, particle, track_dir(out, p), pass_name=pass_name,
-                          **{**kwargs, **cut[p]})
-    _merge(combined, runs, "final" if pass_name == "final" else None)
-    if combined.initial is None:
-        combined.initial = _combine(runs, "initial", out, "initial.csv")
-    if combined.static is None and pass_name in ("both", "initial"):
-        combined.static = _static_index(runs, out)
-    refit = None
-    if not overlaps.empty and pass_name in ("both", "final"):
-        def statics_of(p: int) -> Path:
-            given = kwargs.get("static")
-            return Path(given) if given is not None else track_dir(out, p) / "static.json"
-
-        def refit(table: pd.DataFrame) -> pd.DataFrame:
-            table, n_refit, n_ok = refit_overlaps(table, overlaps, crop_dir, particle,
-                                                  statics_of, kwargs)
-            combined.notes.append(f"overlapping frames refitted with the neighbour's field: "
-                                  f"{n_refit} ({n_ok} ok)")
-            return table
-    combined.final = _combine(runs, "final", out, "fit.csv", overlaps, refit)
+        runs[p] = run_fit(vdir, pre, lib, particle, track_dir(out, p), pass_name="final",
+                          **{**kwargs, **cut[p], **({"static": statics[p]} if p in statics
+                                                    else {})})
+    _merge(combined, runs, "final")
+    combined.final = _combine(runs, "final", out, "fit.csv", overlaps,
+                              _refit_round(combined, overlaps, crop_dir, particle, "final", out,
+                                           lambda p: statics.get(p, track_dir(out, p) /
+                                                                 "static.json"), kwargs))
     return combined
 
 
-def neighbour_field(theory: ScatteringTheory, model: ParticleModel, optics: Optics,
-                    values: dict[str, float], crop_shape: tuple[int, int],
-                    corner_rc: tuple[int, int], pixel_size_um: float, far_field: bool = False
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """A fitted particle's recorded field on a crop's pixels, its alpha applied.
-
-    Parameters
-    ----------
-    theory, model, optics
-        The neighbour's engine, particle (static parameters settled) and illumination.
-    values : dict
-        The neighbour's fit row (``x_um, y_um, z_um``, orientation angles, ``alpha``, um and
-        rad; the objective's NA if the fit varied it).
-    crop_shape, corner_rc, pixel_size_um
-        The crop the field is wanted on: shape, full-frame corner (row, column), pitch (um).
-    far_field : bool
-        As the frame fit's setting.
-
-    Returns
-    -------
-    tuple of ndarray
-        ``alpha * (Ex, Ey)`` of shape ``crop_shape`` (incident-field units).
-    """
-    state = state_of(values, model)
-    na = values.get(APERTURE.name)
-    if na is not None and np.isfinite(na):
-        state = replace(state, numerical_aperture=float(na))
-    pix = select_pixels(np.zeros(crop_shape), corner_rc, pixel_size_um)
-    m = HologramModel(theory, ParameterSpace(model, [], state), optics, pix.xs_um, pix.ys_um,
-                      far_field=far_field)
-    ex, ey = m.fields(state)
-    return ((state.alpha * ex).reshape(crop_shape), (state.alpha * ey).reshape(crop_shape))
-
-
-def refit_overlaps(table: pd.DataFrame, overlaps: pd.DataFrame, crop_dir: Path,
-                   particle: ParticleConfig, statics_of: Callable[[int], Path],
-                   kwargs: dict[str, Any]) -> tuple[pd.DataFrame, int, int]:
-    """Refit a combined fit table's overlapping rows with their neighbour's field.
-
-    Each (particle, frame) of ``overlaps`` whose neighbour track has a fitted row at that
-    frame (any status with a finite placement: two overlapping first fits are both pulled
-    off, and usually both ``poor_fit``), and whose own row has one too, is fitted again
-    (final-pass parameters, warm from its own row) with the neighbour's field
-    (:func:`neighbour_field`) added to the model; the new row replaces the old one, its
-    message naming the neighbour.
-
-    Parameters
-    ----------
-    table : DataFrame
-        Every track's final-pass rows, ``particle`` first.
-    overlaps : DataFrame
-        The crop rows marked ``overlap`` (particle, frame, neighbour, neighbour_px).
-    crop_dir : Path
-        The crop folder (keyed by particle and frame).
-    particle : ParticleConfig
-        The particle configuration the tracks were fitted with.
-    statics_of : callable
-        Track id -> the ``static.json`` its final pass used.
-    kwargs : dict
-        :func:`~holofit.fit.stage.run_fit`'s keyword arguments (instrument, options, engine,
-        fixed, fit_na, numerical_aperture, override_instrument).
-
-    Returns
-    -------
-    table, n_refit, n_ok
-        The table with refitted rows; how many were refitted, and how many of them are ``ok``.
-    """
-    opts = kwargs.get("options") or FrameFitSettings()
-    fit_na = bool(kwargs.get("fit_na", False))
-    rows = {(int(r["particle"]), int(r["frame"])): i for i, r in table.iterrows()}
-    out = table.copy()
-    n_refit = n_ok = 0
-    with stage_inputs(crop_dir, None, kwargs.get("instrument"),
-                      bool(kwargs.get("override_instrument", False)),
-                      kwargs.get("numerical_aperture", FROM_INSTRUMENT), fit_na) as given:
-        settle = _Settled(particle, statics_of, kwargs.get("engine"), given.instrument)
-        free = FitConfig(particle, given.instrument, "final", opts, kwargs.get("engine"),
-                         tuple(kwargs.get("fixed", ())), fit_na=fit_na).free
-        for o in overlaps.itertuples():
-            p, f, q = int(o.particle), int(o.frame), int(o.neighbour)
-            mine, theirs = rows.get((p, f)), rows.get((q, f))
-            if mine is None or theirs is None:
-                continue
-            own, them = _placed(table.loc[mine]), _placed(table.loc[theirs])
-            if own is None or them is None:
-                continue
-            new = _refit_row(given, settle, (p, f, q), own, them, free, opts,
-                             float(table.at[mine, "time_s"]))
-            if isinstance(new, str):
-                out.at[mine, "message"] = new
-                continue
-            for k, v in new.items():
-                if k in out.columns:
-                    out.at[mine, k] = v
-            n_refit += 1
-            n_ok += int(new["status"] == OK)
-    return out, n_refit, n_ok
-
-
-class _Settled:
-    """Each track's particle with the static parameters its final pass used, and its engine
-    (built once per track)."""
-
-    def __init__(self, particle: ParticleConfig, statics_of: Callable[[int], Path],
-                 engine: str | None, inst: Any) -> None:
-        self.particle, self.statics_of, self.engine, self.inst = particle, statics_of, engine, inst
-        self.done: dict[int, tuple[ParticleModel, ScatteringTheory]] = {}
-
-    def __call__(self, p: int) -> tuple[ParticleModel, ScatteringTheory]:
-        if p not in self.done:
-            model = self.particle.model
-            cfg = ParticleConfig(particle_with(model, read_static(self.statics_of(p), model)),
-                                 self.particle.settings, self.particle.path)
-            self.done[p] = (cfg.model, cfg.theory(self.engine,
-                                                  fixed_lattice_for=self.inst.optics))
-        return self.done[p]
-
-
-def _refit_row(given: Any, settle: _Settled, pfq: tuple[int, int, int], own: Any, them: Any,
-               free: Any, opts: FrameFitSettings, time_s: float) -> dict[str, Any] | str:
-    """One overlapping row refitted with its neighbour's field: the new row, or why not."""
-    p, f, q = pfq
-    inst = given.instrument
-    crow = given.crops.row((p, f))
-    corner = (int(crow["corner_row"]), int(crow["corner_col"]))
-    crop = given.crops.crop((p, f))
-    model_q, theory_q = settle(q)
-    extra = neighbour_field(theory_q, model_q, inst.optics, them, crop.shape, corner,
-                            inst.pixel_size_um, opts.far_field)
-    model_p, theory_p = settle(p)
+def _initial_run(vdir: Path, pre: Path | None, lib: Path | None, particle: ParticleConfig,
+                 tdir: Path, kwargs: dict[str, Any]) -> FitRun:
+    """A track's initial pass. A pass with no ``ok`` frame (every frame pulled off by a
+    neighbour's overlapping hologram, say) keeps its table: the overlap refit may mend it,
+    and the static parameters are averaged after that (:func:`_statics`)."""
     try:
-        res = fit_frame_warm(crop, corner, inst.pixel_size_um, theory_p, model_p, inst.optics,
-                             state_of(own, model_p), free, opts, seed=f,
-                             extra_field=extra).result
-    except ValueError as exc:
-        return f"refit with track {q}'s field failed: {exc}"
-    new = result_row(f, time_s, res)
-    new["message"] = (f"refitted with track {q}'s field"
-                      + (f": {new['message']}" if new.get("message") else ""))
-    return new
+        return run_fit(vdir, pre, lib, particle, tdir, pass_name="initial", **kwargs)
+    except FitStageError as exc:  # static.py's "no ok frame", with the table to show it
+        table = tdir / "initial.csv"
+        if ("no ok frame" not in str(exc) or not table.exists()
+                or (read_table(table)["status"] == OK).any()):
+            raise
+        return FitRun(initial=table)
+
+
+def _statics(initial: Path, first: dict[int, FitRun], particle: ParticleConfig, out: Path,
+             mode: str) -> dict[int, Path]:
+    """The static parameters from the combined initial table (overlapping rows refitted):
+    pooled (``OUT/static.json`` for every track), or each track's own (its
+    ``static.json``, rewritten from its combined rows; ``OUT/static.json`` the index). The
+    index is under key ``-1``."""
+    table = read_table(initial)
+    model = particle.model
+    if mode == "pooled":
+        try:
+            pooled = write_static(out / "static.json", initial, table, model)
+        except FitStageError as exc:
+            raise FitStageError(f"pooled static parameters: {exc}") from None
+        return {**{p: pooled for p in first}, -1: pooled}
+    found: dict[int, Path] = {}
+    for p, run in first.items():
+        try:
+            found[p] = write_static(track_dir(out, p) / "static.json", initial,
+                                    table[table["particle"] == p], model)
+        except FitStageError as exc:
+            raise FitStageError(f"particle {p}: {exc}") from None
+        run.static = found[p]
+    index = _static_index(first, out)
+    assert index is not None
+    return {**found, -1: index}
+
+
+def _refit_round(combined: FitRun, overlaps: pd.DataFrame, crop_dir: Path,
+                 particle: ParticleConfig, pass_name: str, out: Path,
+                 statics_of: Callable[[int], Path] | None, kwargs: dict[str, Any]
+                 ) -> Callable[[pd.DataFrame], pd.DataFrame] | None:
+    """The overlap refit of one pass's combined table (:mod:`holofit.fit.overlaps`), or None
+    where no crop overlaps."""
+    if overlaps.empty:
+        return None
+
+    def refit(table: pd.DataFrame) -> pd.DataFrame:
+        table_name = "fit" if pass_name == "final" else pass_name
+        how = OverlapRefit(crop_dir, particle, pass_name, overlap_table(out, table_name),
+                           statics_of, kwargs)
+        table, n_refit, n_ok = refit_overlaps(table, overlaps, how)
+        if how.summary is not None:
+            combined.summaries[f"{pass_name}, overlaps"] = how.summary
+        combined.notes.append(f"{pass_name} pass: overlapping frames refitted with the "
+                              f"neighbour's field: {n_refit} ({n_ok} ok)")
+        return table
+    return refit
 
 
 def _static_index(runs: dict[int, FitRun], out: Path) -> Path | None:
@@ -431,13 +339,3 @@ def _merge(combined: FitRun, runs: dict[int, FitRun], only: str | None) -> None:
             if only is None or name == only:
                 combined.summaries[f"{name}, particle {p}"] = s
         combined.notes += [f"particle {p}: {n}" for n in run.notes]
-
-
-def _placed(row: pd.Series) -> dict[str, float] | None:
-    """A fit row's numeric values, or None if it has no fitted placement (skipped, failed)."""
-    values = {k: float(v) for k, v in row.items()
-              if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)}
-    if row.get("status") == SKIPPED or not all(
-            np.isfinite(values.get(k, np.nan)) for k in ("x_um", "y_um", "z_um", "alpha")):
-        return None
-    return values

@@ -310,12 +310,17 @@ class _FitPasses:
                 f"{len(fittable)} frames that can be fitted: the default, 1 in "
                 f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX} "
                 "(--initial-frames N to choose)")
+        chosen = initial_choice(fittable, [_overlapped(crops.row(f)) for f in fittable],
+                                n_initial)
+        if any(_overlapped(crops.row(f)) for f in fittable[:n_initial]):
+            self.run.notes.append(
+                "initial pass: frames without another track's overlapping hologram first "
+                f"({sum(not _overlapped(crops.row(f)) for f in chosen)} of {len(chosen)})")
         if self.tracking.warm and self.tracking.initial and self.particle.model.anisotropic:
-            self.run.initial = self.tracked_pass("initial", self.particle,
-                                                 fittable[:n_initial], "initial.csv")
+            self.run.initial = self.tracked_pass("initial", self.particle, chosen,
+                                                 "initial.csv")
         else:
-            self.run.initial = self.one_pass("initial", self.particle, fittable[:n_initial],
-                                             "initial.csv")
+            self.run.initial = self.one_pass("initial", self.particle, chosen, "initial.csv")
         return write_static(self.out / "static.json", self.run.initial,
                             read_table(self.run.initial), self.particle.model)
 
@@ -430,6 +435,22 @@ class _FitPasses:
             _plots(table, self.given.crops, cfg.particle.model, cfg.particle.theory(self.engine),
                    cfg.instrument, self.out, cfg.pass_name, self.plot_frames,
                    self.opts.far_field, stem)
+
+
+def _overlapped(crop_row: dict[str, Any]) -> bool:
+    """Whether the crop table marks this crop as overlapped by another track's hologram."""
+    return str(crop_row.get("overlap", "")).strip().lower() in ("true", "1")
+
+
+def initial_choice(fittable: list[int], overlapped: list[bool], n: int) -> list[int]:
+    """The initial pass's frames: the first ``n`` of ``fittable`` whose crop no other
+    track's hologram overlaps, then (too few of those) the first overlapped ones; in frame
+    order. The static parameters are best measured on a particle alone; a track whose frames
+    all overlap is fitted on them, and the overlap refit (:mod:`holofit.fit.overlaps`) adds
+    the neighbour's field."""
+    clean = [f for f, o in zip(fittable, overlapped, strict=True) if not o]
+    rest = [f for f, o in zip(fittable, overlapped, strict=True) if o]
+    return sorted((clean + rest)[:n])
 
 
 def _fingerprint_of(path: Path) -> str | None:

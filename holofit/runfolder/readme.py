@@ -24,7 +24,7 @@ def render_readme(spec: RunSpec) -> str:
     """The run folder's README (Markdown)."""
     rows = [
         "| `make crop` | `crop/crops.csv`, `crop/crops.tif` | normalise every frame by the "
-        "background, find the hologram, crop it |",
+        "background, find every hologram, link them into tracks (`particle`), crop each |",
         "| `make prefit` | `prefit/prefit.csv` | Lorenz-Mie fit of every crop: x, y, z, "
         "radius, index, alpha |",
     ]
@@ -68,6 +68,11 @@ def render_readme(spec: RunSpec) -> str:
         "| --- | --- | --- |",
         *rows,
         library_note,
+        "Several particles in view: every table is keyed by (particle, frame), `fit/` holds "
+        "each track's fit in `particle_N/` and every track's rows in `fit.csv`, and "
+        "`analysis/` each track's summary, `tracks.csv` and the tracks pooled "
+        "(`pooled.csv`); no option is needed.",
+        "",
         "A second `make` does nothing. Editing `particle.toml` reruns " + reruns + ", not "
         "crop and prefit; editing `instrument.toml`, or the movie, reruns everything; a "
         "stage setting (`CROP_OPTS`, `ENGINE`, `MODEL`, ...; in the Makefile or on make's "
