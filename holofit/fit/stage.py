@@ -42,7 +42,13 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
-from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, partial_path
+from holofit.batch.runner import (
+    BatchOptions,
+    BatchSummary,
+    Precomputed,
+    available_cpus,
+    partial_path,
+)
 from holofit.batch.stage import (
     FrameLoader,
     StageInputs,
@@ -325,7 +331,7 @@ class _FitPasses:
         settled = ParticleConfig(particle_with(model, read_static(static_path, model)),
                                  self.particle.settings, self.particle.path)
         tm = final_tmatrix(settled, self.given.instrument, self.engine, policy,
-                           len(self.given.frames), self.out)
+                           len(self.given.frames), self.out, self.local_workers())
         self.run.notes += tm.notes
         if tm.path is not None:
             self.run.tmatrix, self.run.tmatrix_s = tm.path, tm.seconds
@@ -336,6 +342,12 @@ class _FitPasses:
             return
         self.run.final = self.one_pass("final", settled, self.given.frames, "fit.csv",
                                        static_doc(static_path), tm_path)
+
+    def local_workers(self) -> int:
+        """Processes of this machine the stage may use (its ``-j``; every CPU by default; one
+        with ``-j 0``), for work done in the driver (the T-matrix build)."""
+        workers = self.batch.workers if self.batch is not None else None
+        return available_cpus() if workers is None else max(workers, 1)
 
     def one_pass(self, name: str, particle: ParticleConfig, frames: list[int],
                  table_name: str, static: dict[str, Any] | None = None,
