@@ -373,7 +373,7 @@ class _FitPasses:
         overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
         tcfg = TrackedConfig(cfg, replace(self.tracking, frame=self.opts), bar, overlap)
         chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK if name == "final"
-                             else INITIAL_MIN_CHUNK)
+                             else initial_min_chunk(len(frames)))
         pass_table = self.table(cfg, table_name, static)
         path = pass_table.path
         columns = (*pass_table.columns, *TRACK_COLUMNS)
@@ -437,6 +437,18 @@ class _FitPasses:
             _plots(table, self.given.crops, cfg.particle.model, cfg.particle.theory(self.engine),
                    cfg.instrument, self.out, cfg.pass_name, self.plot_frames,
                    self.opts.far_field, stem)
+
+
+def initial_min_chunk(n_frames: int) -> int:
+    """The initial pass's shortest chunk for ``n_frames`` frames (:func:`plan_chunks`). A
+    short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames: a short movie's default
+    3-7) is still cut in two where it has 4 frames or more, one chunk per worker of a 2-core
+    machine: a 24-frame Janus movie's 4 initial frames become chunks of 3 and 2 frames (1
+    overlapping), a library fit and one or two warm fits each (134, 41 and 88 DDA solves,
+    measured), not one chunk of 4 frames on one worker while the other idles."""
+    if n_frames >= 2 * INITIAL_MIN_CHUNK:
+        return INITIAL_MIN_CHUNK
+    return max(n_frames // 2, 2)
 
 
 #: the precision of the initial pass's DDA solves where the particle's ``[dda]`` table does not
