@@ -370,7 +370,7 @@ class _FitPasses:
             bar, note = None, (f"{name} pass along the track: no chi^2 bar yet (warm fits "
                                "checked by status and step)")
         self.run.notes.append(note)
-        overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
+        overlap = OVERLAP if name == "final" else initial_overlap(len(frames))
         tcfg = TrackedConfig(cfg, replace(self.tracking, frame=self.opts), bar, overlap)
         chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK if name == "final"
                              else initial_min_chunk(len(frames)))
@@ -439,13 +439,22 @@ class _FitPasses:
                    self.opts.far_field, stem)
 
 
+def initial_overlap(n_frames: int) -> int:
+    """Frames an initial-pass chunk reaches into the next: ``INITIAL_OVERLAP``, none for a
+    short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames). There the overlap frame
+    would be a third fit in a chunk of two (the 24-frame Janus movie's first chunk: 263
+    instead of 175 DDA solves, the longest item of the pass), and the static parameters, the
+    pass's product, are the median over its frames either way."""
+    return INITIAL_OVERLAP if n_frames >= 2 * INITIAL_MIN_CHUNK else 0
+
+
 def initial_min_chunk(n_frames: int) -> int:
     """The initial pass's shortest chunk for ``n_frames`` frames (:func:`plan_chunks`). A
     short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames: a short movie's default
     3-7) is still cut in two where it has 4 frames or more, one chunk per worker of a 2-core
-    machine: a 24-frame Janus movie's 4 initial frames become chunks of 3 and 2 frames (1
-    overlapping), a library fit and one or two warm fits each (134, 41 and 88 DDA solves,
-    measured), not one chunk of 4 frames on one worker while the other idles."""
+    machine: a 24-frame Janus movie's 4 initial frames become two chunks of 2 frames (no
+    overlap: :func:`initial_overlap`), a library fit and a warm fit each (134 and 41 DDA
+    solves, measured), not one chunk of 4 frames on one worker while the other idles."""
     if n_frames >= 2 * INITIAL_MIN_CHUNK:
         return INITIAL_MIN_CHUNK
     return max(n_frames // 2, 2)
