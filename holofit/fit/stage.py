@@ -59,7 +59,12 @@ from holofit.batch.stage import (
 )
 from holofit.config import Instrument, ParticleConfig
 from holofit.fit.continuity import ContinuityReport, ContinuitySettings
-from holofit.fit.defaults import default_initial_frames, initial_rule
+from holofit.fit.defaults import (
+    INITIAL_MAX,
+    INITIAL_MIN,
+    INITIAL_SHARE,
+    default_initial_frames,
+)
 from holofit.fit.errors import FitStageError
 from holofit.fit.frame import FrameFitSettings
 from holofit.fit.static import read_static, static_average, static_doc, write_static
@@ -308,8 +313,9 @@ class _FitPasses:
             n_initial = default_initial_frames(len(fittable))
             self.run.notes.append(
                 f"initial pass (every parameter free) on the first {n_initial} of the "
-                f"{len(fittable)} frames that can be fitted: the default, "
-                f"{initial_rule()} (--initial-frames N to choose)")
+                f"{len(fittable)} frames that can be fitted: the default, 1 in "
+                f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX} "
+                "(--initial-frames N to choose)")
         particle = initial_particle(self.particle)
         if self.tracking.warm and self.tracking.initial and self.particle.model.anisotropic:
             self.run.initial = self.tracked_pass("initial", particle, fittable[:n_initial],

@@ -13,7 +13,7 @@ import shlex
 
 from holofit.crop.errors import CropError
 from holofit.crop.stage import DEFAULT_CROP_SIZE, TRACKS, check_crop_settings
-from holofit.fit.defaults import default_initial_frames, initial_rule
+from holofit.fit.defaults import INITIAL_MAX, INITIAL_MIN, INITIAL_SHARE, default_initial_frames
 from holofit.particles import ParticleModel
 from holofit.runfolder.errors import RunFolderError
 
@@ -101,6 +101,6 @@ def initial_pass_note(text: str, n_frames: int) -> str | None:
         return None
     k = default_initial_frames(n_frames)
     return (f"fit: the initial pass (every parameter free, by direct DDA solves) will take the "
-            f"first {k} of the movie's {n_frames} frames that can be fitted "
-            f"({initial_rule()}); to choose: "
+            f"first {k} of the movie's {n_frames} frames that can be fitted (1 in "
+            f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX}); to choose: "
             "--fit-opts '--initial-frames N', or make FIT_OPTS='--initial-frames N'")
