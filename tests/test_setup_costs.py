@@ -59,8 +59,8 @@ def test_single_precision_solves_change_a_hologram_far_below_camera_noise():
 
 
 def test_a_short_initial_pass_is_cut_in_two():
-    """A 24-frame movie's 4 initial frames: two chunks of 2 (one per worker of 2 cores, no
-    overlap frame), not one of 4; 8 frames and more as before (chunks of at least 4,
+    """4 initial frames (``--initial-frames 4``): two chunks of 2 (one per worker of 2 cores,
+    no overlap frame), not one of 4; 8 frames and more as before (chunks of at least 4,
     overlapping by 1)."""
     from holofit.fit.stage import initial_min_chunk, initial_overlap
     from holofit.fit.tracked import plan_chunks

@@ -448,7 +448,7 @@ class _FitPasses:
 def initial_overlap(n_frames: int) -> int:
     """Frames an initial-pass chunk reaches into the next: ``INITIAL_OVERLAP``, none for a
     short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames). There the overlap frame
-    would be a third fit in a chunk of two (the 24-frame Janus movie's first chunk: 263
+    would be a third fit in a chunk of two (4 frames of a Janus movie, first chunk: 263
     instead of 175 DDA solves, the longest item of the pass), and the static parameters, the
     pass's product, are the median over its frames either way."""
     return INITIAL_OVERLAP if n_frames >= 2 * INITIAL_MIN_CHUNK else 0
@@ -456,10 +456,10 @@ def initial_overlap(n_frames: int) -> int:
 
 def initial_min_chunk(n_frames: int) -> int:
     """The initial pass's shortest chunk for ``n_frames`` frames (:func:`plan_chunks`). A
-    short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames: a short movie's default
-    3-7) is still cut in two where it has 4 frames or more, one chunk per worker of a 2-core
-    machine: a 24-frame Janus movie's 4 initial frames become two chunks of 2 frames (no
-    overlap: :func:`initial_overlap`), a library fit and a warm fit each (134 and 41 DDA
+    short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames: ``--initial-frames``
+    4-7, or a movie that short) is still cut in two, one chunk per worker of a 2-core
+    machine: 4 initial frames of a Janus movie become two chunks of 2 frames (no overlap:
+    :func:`initial_overlap`), a library fit and a warm fit each (134 and 41, 112 and 100 DDA
     solves, measured), not one chunk of 4 frames on one worker while the other idles."""
     if n_frames >= 2 * INITIAL_MIN_CHUNK:
         return INITIAL_MIN_CHUNK
