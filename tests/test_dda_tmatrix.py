@@ -119,6 +119,24 @@ def test_symmetry_build_equals_build_without_symmetry(model, d, ops):
     assert np.abs(a - b).max() <= 1e-8 * np.abs(b).max()
 
 
+def test_build_shared_by_two_processes_equals_the_build_in_one(monkeypatch):
+    """The solves spread over worker processes (``workers``) give the same T-matrix: each
+    design vector is solved alike wherever it runs; the chunks are put back in order."""
+    import holofit.dda.tmatrix_build as tb
+
+    monkeypatch.setattr(tb, "PARALLEL_MIN_WORK", 0)  # a small build, shared all the same
+    lat = voxelize(MODELS["janus"], 0.08)
+    kw = dict(tolerance=1e-8, order=5, validate=False, use_symmetry=False)
+    one, one_stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "fcd", **kw)
+    two, two_stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "fcd",
+                                           workers=2, **kw)
+    assert one_stats.n_solves == two_stats.n_solves > 8  # more than one chunk per worker
+    assert one_stats.iterations == two_stats.iterations
+    assert two.provenance["build_workers"] == 2 and one.provenance["build_workers"] == 1
+    a, b = one.dense(), two.dense()
+    assert np.abs(a - b).max() <= 1e-12 * np.abs(a).max()
+
+
 def _scattering_cross_section(wave, k):
     """(1/k^2) int |F|^2 dOmega by Gauss-Legendre x uniform quadrature."""
     mu, w = np.polynomial.legendre.leggauss(60)

@@ -48,6 +48,22 @@ def movie(tmp_path_factory):
     return root, particle, pos
 
 
+def test_library_tilts_solved_once_for_the_workers_give_the_same_candidates(movie, tmp_path):
+    """On two worker processes the driver has the tilts solved once (``tilts.npz``, their
+    expansions) and the workers score the frames with them: the same candidates as the serial
+    library, which solves the tilts itself."""
+    from holofit.batch.runner import BatchOptions
+
+    root, particle, _ = movie
+    run_library(root / "crop", root / "prefit", particle, tmp_path / "lib",
+                settings=LIB, batch=BatchOptions(workers=2, progress=False), plot=False)
+    assert (tmp_path / "lib" / "tilts.npz").exists()
+    assert not (root / "lib" / "tilts.npz").exists()  # serial: nothing shared
+    shared = pd.read_csv(tmp_path / "lib" / "library.csv").drop(columns="fit_time_s")
+    own = pd.read_csv(root / "lib" / "library.csv").drop(columns="fit_time_s")
+    pd.testing.assert_frame_equal(shared, own, rtol=1e-6, atol=1e-9)
+
+
 def test_library_then_both_passes_recover_the_truth(movie, tmp_path):
     root, particle, pos = movie
     lib = pd.read_csv(root / "lib" / "library.csv")

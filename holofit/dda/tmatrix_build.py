@@ -81,6 +81,10 @@ DEFAULT_TRUNCATION = 3e-6
 MAX_BUILD_TOLERANCE = 1e-6
 #: right-hand sides whose incident fields are synthesised together
 CHUNK = 8
+#: a build shares its solves by worker processes only when it has at least this much work
+#: (dipoles x solves): starting a worker (imports, the interaction's FFT) costs one to three
+#: seconds, a build of the paper's Janus particle (~35 000 dipoles, ~80 solves) a hundred
+PARALLEL_MIN_WORK = 200_000
 #: |b^T b| / |b|^2 below which QMR's Lanczos process is not trusted to start
 BILINEAR_FLOOR = 1e-4
 
@@ -144,6 +148,7 @@ def build_lattice_tmatrix(
     truncation: float = DEFAULT_TRUNCATION, use_symmetry: bool = True,
     max_iterations: int = 2000, validate: bool = True,
     progress: Callable[[int, int], None] | None = None, precision: str = "double",
+    workers: int = 1,
 ) -> tuple[TMatrix, BuildStats]:
     """T-matrix of a lattice (see the module docstring).
 
@@ -174,6 +179,9 @@ def build_lattice_tmatrix(
         ``progress(done, total)`` after each solve.
     precision : {"double", "single"}
         Precision of the FFT convolution in the build's solves (the validation is in double).
+    workers : int
+        Processes the solves are shared by (1: in this process), for a build of at least
+        :data:`PARALLEL_MIN_WORK`; the result does not depend on it.
     """
     if polarizability not in INCIDENCE_INDEPENDENT:
         raise ValueError(
@@ -198,8 +206,9 @@ def build_lattice_tmatrix(
     group = SymmetryGroup.from_operations(ops, order)
     design = design_vectors(group)
     n_solves = design.shape[1]
+    workers = _build_workers(workers, n_solves, lattice.n_dipoles)
     out, iterations = _solve_design(system, design, alpha, order, float(radii.max()),
-                                    tolerance, max_iterations, progress)
+                                    tolerance, max_iterations, progress, workers, n_medium)
     dense = symmetrize(out @ design.conj().T, group)
     radius = float(radii.max() + lattice.d * np.sqrt(3) / 2)
     tm = TMatrix.from_dense(dense, order, k, radius, z_rotation_order(ops))
@@ -214,32 +223,114 @@ def build_lattice_tmatrix(
         "n_solves": n_solves, "iterations_total": int(sum(iterations)),
         "symmetry_operations": len(ops), "validation_far_field_error": error,
         "n_dipoles": lattice.n_dipoles, "build_precision": precision,
-        "build_seconds": stats.seconds,
+        "build_seconds": stats.seconds, "build_workers": workers,
     })
     return tm, stats
+
+
+def _build_workers(workers: int, n_solves: int, n_dipoles: int) -> int:
+    """The processes a build uses: ``workers`` for a build of at least
+    :data:`PARALLEL_MIN_WORK` of more than one chunk (at most one per chunk), else 1."""
+    if workers > 1 and n_solves > CHUNK and n_solves * n_dipoles >= PARALLEL_MIN_WORK:
+        return min(int(workers), -(-n_solves // CHUNK))
+    return 1
 
 
 def _solve_design(
     system: DipoleSystem, design: NDArray, alpha: NDArray, order: int, radius_um: float,
     tolerance: float, max_iterations: int, progress: Callable[[int, int], None] | None,
+    workers: int = 1, n_medium: float = 1.0,
 ) -> tuple[NDArray[np.complex128], list[int]]:
     """Outgoing coefficients of every design vector (one DDA solve each, incident fields in
-    chunks of :data:`CHUNK`) and the solves' iteration counts."""
-    lattice, k = system.lattice, system.k
+    chunks of :data:`CHUNK`) and the solves' iteration counts; with ``workers`` > 1 the chunks
+    are shared by that many processes (:func:`_solve_design_parallel`)."""
     n_solves = design.shape[1]
-    grid = _far_quadrature(order, k, radius_um)
+    if workers > 1:
+        return _solve_design_parallel(system, design, order, radius_um, tolerance,
+                                      max_iterations, progress, workers, n_medium)
     out = np.empty_like(design)
-    iterations = []
+    iterations: list[int] = []
     for start in range(0, n_solves, CHUNK):
-        cols = design[:, start : start + CHUNK]
-        fields = incident_on_lattice(lattice, cols, k, order)
-        for j in range(cols.shape[1]):
-            P, res = _solve(system, fields[j], alpha, tolerance, max_iterations)
-            iterations.append(res.iterations)
-            out[:, start + j] = outgoing_coefficients(lattice, P, k, order, grid)
+        got, its = _solve_chunk(system, design[:, start : start + CHUNK], alpha, order,
+                                radius_um, tolerance, max_iterations)
+        out[:, start : start + got.shape[1]] = got
+        for j, n in enumerate(its):
+            iterations.append(n)
             if progress is not None:
                 progress(start + j + 1, n_solves)
     return out, iterations
+
+
+def _solve_chunk(system: DipoleSystem, cols: NDArray, alpha: NDArray, order: int,
+                 radius_um: float, tolerance: float, max_iterations: int
+                 ) -> tuple[NDArray[np.complex128], list[int]]:
+    """Outgoing coefficients of a few design vectors (their incident fields synthesised
+    together) and the iterations of their solves."""
+    lattice, k = system.lattice, system.k
+    grid = _far_quadrature(order, k, radius_um)
+    fields = incident_on_lattice(lattice, cols, k, order)
+    out = np.empty_like(cols)
+    iterations = []
+    for j in range(cols.shape[1]):
+        P, res = _solve(system, fields[j], alpha, tolerance, max_iterations)
+        iterations.append(res.iterations)
+        out[:, j] = outgoing_coefficients(lattice, P, k, order, grid)
+    return out, iterations
+
+
+#: per build worker process: the dipole system of the build it serves
+_WORKER_SYSTEM: list[DipoleSystem] = []
+
+
+def _init_build_worker(lattice: Lattice, k: float, n_medium: float, polarizability: str,
+                       dtype: str) -> None:
+    """A build worker's start: its dipole system (the interaction's FFT: about one solve)."""
+    _WORKER_SYSTEM[:] = [DipoleSystem(lattice, k, n_medium, polarizability,
+                                      np.dtype(dtype).type)]
+
+
+def _chunk_task(cols: NDArray, order: int, radius_um: float, tolerance: float,
+                max_iterations: int) -> tuple[NDArray[np.complex128], list[int]]:
+    """:func:`_solve_chunk` in a build worker."""
+    system = _WORKER_SYSTEM[0]
+    alpha = system.alpha(np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _solve_chunk(system, cols, alpha, order, radius_um, tolerance, max_iterations)
+
+
+def _solve_design_parallel(
+    system: DipoleSystem, design: NDArray, order: int, radius_um: float, tolerance: float,
+    max_iterations: int, progress: Callable[[int, int], None] | None, workers: int,
+    n_medium: float,
+) -> tuple[NDArray[np.complex128], list[int]]:
+    """:func:`_solve_design` on ``workers`` freshly spawned processes, one chunk of
+    :data:`CHUNK` design vectors a task (the solves are independent: the same T-matrix, the
+    iterations of each solve unchanged). Each worker makes the dipole system once (its
+    interaction's FFT: about a solve's time)."""
+    import concurrent.futures as cf
+    import multiprocessing
+
+    n_solves = design.shape[1]
+    starts = list(range(0, n_solves, CHUNK))
+    out = np.empty_like(design)
+    its: dict[int, list[int]] = {}
+    done = 0
+    with cf.ProcessPoolExecutor(
+            max_workers=min(workers, len(starts)),
+            mp_context=multiprocessing.get_context("spawn"), initializer=_init_build_worker,
+            initargs=(system.lattice, system.k, n_medium, system.pol,
+                      system.dtype.name)) as pool:
+        futures = {pool.submit(_chunk_task, design[:, s : s + CHUNK], order, radius_um,
+                               tolerance, max_iterations): s for s in starts}
+        for fut in cf.as_completed(futures):
+            s = futures[fut]
+            got, it = fut.result()
+            out[:, s : s + got.shape[1]] = got
+            its[s] = it
+            done += len(it)
+            if progress is not None:
+                progress(done, n_solves)
+    return out, [n for s in starts for n in its[s]]
 
 
 def _solve(system: DipoleSystem, e_inc: NDArray, alpha: NDArray, tolerance: float,
@@ -277,6 +368,7 @@ def build_tmatrix(
     order: int | None = None, truncation: float = DEFAULT_TRUNCATION,
     tolerance: float | None = None, use_symmetry: bool = True, validate: bool = True,
     progress: Callable[[int, int], None] | None = None, precision: str = "single",
+    workers: int = 1,
 ) -> TMatrix:
     """The T-matrix of ``model`` on the lattice the built-in engine uses with ``settings``.
 
@@ -291,17 +383,18 @@ def build_tmatrix(
 
     The build runs its linear algebra on one BLAS thread: its many small solves and products
     gain nothing from a thread pool, and OpenBLAS's spent 3-6x the CPU on them (a rod's
-    build: 6.4 s on one thread, 23 s with the default pool on two cores).
+    build: 6.4 s on one thread, 23 s with the default pool on two cores). ``workers`` > 1
+    shares its solves by that many processes instead (:func:`build_lattice_tmatrix`).
     """
     with threadpool_limits(limits=1, user_api="blas"):
         return _build_tmatrix(model, optics, settings, order, truncation, tolerance,
-                              use_symmetry, validate, progress, precision)
+                              use_symmetry, validate, progress, precision, workers)
 
 
 def _build_tmatrix(
     model: ParticleModel, optics: Optics, settings: DDASettings | None, order: int | None,
     truncation: float, tolerance: float | None, use_symmetry: bool, validate: bool,
-    progress: Callable[[int, int], None] | None, precision: str,
+    progress: Callable[[int, int], None] | None, precision: str, workers: int = 1,
 ) -> TMatrix:
     settings = settings or DDASettings()
     if settings.polarizability not in INCIDENCE_INDEPENDENT:
@@ -316,7 +409,7 @@ def _build_tmatrix(
         lattice, optics.k, optics.n_medium, settings.polarizability, tolerance=tol,
         order=order, truncation=truncation, use_symmetry=use_symmetry,
         max_iterations=settings.max_iterations, validate=validate, progress=progress,
-        precision=precision,
+        precision=precision, workers=workers,
     )
     tm.provenance = {**describe(model, d, optics, settings, lattice), **tm.provenance}
     return tm

@@ -42,7 +42,13 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
-from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, partial_path
+from holofit.batch.runner import (
+    BatchOptions,
+    BatchSummary,
+    Precomputed,
+    available_cpus,
+    partial_path,
+)
 from holofit.batch.stage import (
     FrameLoader,
     StageInputs,
@@ -316,11 +322,11 @@ class _FitPasses:
             self.run.notes.append(
                 "initial pass: frames without another track's overlapping hologram first "
                 f"({sum(not _overlapped(crops.row(f)) for f in chosen)} of {len(chosen)})")
+        particle = initial_particle(self.particle)
         if self.tracking.warm and self.tracking.initial and self.particle.model.anisotropic:
-            self.run.initial = self.tracked_pass("initial", self.particle, chosen,
-                                                 "initial.csv")
+            self.run.initial = self.tracked_pass("initial", particle, chosen, "initial.csv")
         else:
-            self.run.initial = self.one_pass("initial", self.particle, chosen, "initial.csv")
+            self.run.initial = self.one_pass("initial", particle, chosen, "initial.csv")
         return write_static(self.out / "static.json", self.run.initial,
                             read_table(self.run.initial), self.particle.model)
 
@@ -330,7 +336,7 @@ class _FitPasses:
         settled = ParticleConfig(particle_with(model, read_static(static_path, model)),
                                  self.particle.settings, self.particle.path)
         tm = final_tmatrix(settled, self.given.instrument, self.engine, policy,
-                           len(self.given.frames), self.out)
+                           len(self.given.frames), self.out, self.local_workers())
         self.run.notes += tm.notes
         if tm.path is not None:
             self.run.tmatrix, self.run.tmatrix_s = tm.path, tm.seconds
@@ -341,6 +347,12 @@ class _FitPasses:
             return
         self.run.final = self.one_pass("final", settled, self.given.frames, "fit.csv",
                                        static_doc(static_path), tm_path)
+
+    def local_workers(self) -> int:
+        """Processes of this machine the stage may use (its ``-j``; every CPU by default; one
+        with ``-j 0``), for work done in the driver (the T-matrix build)."""
+        workers = self.batch.workers if self.batch is not None else None
+        return available_cpus() if workers is None else max(workers, 1)
 
     def one_pass(self, name: str, particle: ParticleConfig, frames: list[int],
                  table_name: str, static: dict[str, Any] | None = None,
@@ -368,10 +380,10 @@ class _FitPasses:
             bar, note = None, (f"{name} pass along the track: no chi^2 bar yet (warm fits "
                                "checked by status and step)")
         self.run.notes.append(note)
-        overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
+        overlap = OVERLAP if name == "final" else initial_overlap(len(frames))
         tcfg = TrackedConfig(cfg, replace(self.tracking, frame=self.opts), bar, overlap)
         chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK if name == "final"
-                             else INITIAL_MIN_CHUNK)
+                             else initial_min_chunk(len(frames)))
         pass_table = self.table(cfg, table_name, static)
         path = pass_table.path
         columns = (*pass_table.columns, *TRACK_COLUMNS)
@@ -451,6 +463,50 @@ def initial_choice(fittable: list[int], overlapped: list[bool], n: int) -> list[
     clean = [f for f, o in zip(fittable, overlapped, strict=True) if not o]
     rest = [f for f, o in zip(fittable, overlapped, strict=True) if o]
     return sorted((clean + rest)[:n])
+
+
+def initial_overlap(n_frames: int) -> int:
+    """Frames an initial-pass chunk reaches into the next: ``INITIAL_OVERLAP``, none for a
+    short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames). There the overlap frame
+    would be a third fit in a chunk of two (4 frames of a Janus movie, first chunk: 263
+    instead of 175 DDA solves, the longest item of the pass), and the static parameters, the
+    pass's product, are the median over its frames either way."""
+    return INITIAL_OVERLAP if n_frames >= 2 * INITIAL_MIN_CHUNK else 0
+
+
+def initial_min_chunk(n_frames: int) -> int:
+    """The initial pass's shortest chunk for ``n_frames`` frames (:func:`plan_chunks`). A
+    short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames: ``--initial-frames``
+    4-7, or a movie that short) is still cut in two, one chunk per worker of a 2-core
+    machine: 4 initial frames of a Janus movie become two chunks of 2 frames (no overlap:
+    :func:`initial_overlap`), a library fit and a warm fit each (134 and 41, 112 and 100 DDA
+    solves, measured), not one chunk of 4 frames on one worker while the other idles."""
+    if n_frames >= 2 * INITIAL_MIN_CHUNK:
+        return INITIAL_MIN_CHUNK
+    return max(n_frames // 2, 2)
+
+
+#: the precision of the initial pass's DDA solves where the particle's ``[dda]`` table does not
+#: choose one (:func:`initial_particle`)
+INITIAL_PRECISION = "single"
+
+
+def initial_particle(particle: ParticleConfig) -> ParticleConfig:
+    """The particle config of the initial pass: its direct DDA solves use the single-precision
+    FFT convolution (:data:`INITIAL_PRECISION`) unless the ``[dda]`` table sets ``precision``.
+
+    The initial pass fits the static parameters with a direct solve per orientation and per
+    static finite difference; single precision takes 0.5-0.7 times a double solve's time and
+    changes the field by ~1e-7 of itself, far below the solver's tolerance (1e-5), which sets
+    the model's and the finite differences' precision either way (the T-matrix build does the
+    same: :func:`holofit.dda.tmatrix_build.build_tmatrix`). A particle without a ``[dda]``
+    table (a sphere by Lorenz-Mie, an exact engine's model) is returned as it is.
+    """
+    dda = particle.settings.get("dda")
+    if not isinstance(dda, dict) or "precision" in dda:
+        return particle
+    return replace(particle, settings={**particle.settings,
+                                       "dda": {**dda, "precision": INITIAL_PRECISION}})
 
 
 def _fingerprint_of(path: Path) -> str | None:

@@ -50,9 +50,10 @@ def check_policy(policy: str, particle: ParticleConfig, engine: str | None,
 
 
 def final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None,
-                  policy: str, n_frames: int, out: Path) -> FinalTMatrix:
+                  policy: str, n_frames: int, out: Path, workers: int = 1) -> FinalTMatrix:
     """Build (or reuse) the final pass's T-matrix ``OUT/tmatrix.npz`` when the policy asks
-    for one."""
+    for one; a build shares its solves by ``workers`` processes (the stage's workers, idle
+    until the final pass starts)."""
     model = particle.model
     if policy == "never" or not model.anisotropic:
         return FinalTMatrix()
@@ -71,17 +72,18 @@ def final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None
     path = out / "tmatrix.npz"
     t0 = time.perf_counter()
     reused = path.exists()
+    build = {"workers": max(int(workers), 1)}
     try:
-        theory.tmatrix(model, inst.optics, path=str(path))
+        theory.tmatrix(model, inst.optics, path=str(path), **build)
     except TMatrixMismatch:
         # made for other static parameters or settings (an earlier run): build anew
         path.unlink()
-        theory.tmatrix(model, inst.optics, path=str(path))
+        theory.tmatrix(model, inst.optics, path=str(path), **build)
         reused = False
     seconds = time.perf_counter() - t0
+    how = "loaded" if reused else f"built by {build['workers']} process(es)"
     return FinalTMatrix(path, seconds, [f"final pass served from the particle's T-matrix "
-                                        f"{path} ({'loaded' if reused else 'built'} in "
-                                        f"{seconds:.1f} s)"])
+                                        f"{path} ({how} in {seconds:.1f} s)"])
 
 
 def no_tmatrix_reason(theory: ScatteringTheory) -> str:

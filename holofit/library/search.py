@@ -120,6 +120,21 @@ class OrientationLibrary:
         self.z_step_um = z_step_um
         self._fields: LRUCache[tuple, tuple[NDArray, ...]] = LRUCache(8 * len(self.tilts))
 
+    @property
+    def optics_x(self) -> Optics:
+        """The optics of the x-polarised solves."""
+        return self._x
+
+    @property
+    def optics_y(self) -> Optics:
+        """The optics of the y-polarised solves."""
+        return self._y
+
+    def set_waves(self, i: int, pair: tuple[ScatteredWave, ScatteredWave]) -> None:
+        """Tilt ``i``'s x- and y-polarised waves, solved elsewhere
+        (:mod:`holofit.library.tilts`)."""
+        self._waves[i] = pair
+
     def waves(self, i: int) -> tuple[ScatteredWave, ScatteredWave]:
         """The x- and y-polarised solutions of tilt ``i`` (solved on first use)."""
         pair = self._waves.get(i)
