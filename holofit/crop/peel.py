@@ -1,0 +1,222 @@
+"""Resolving holograms whose ring systems overlap: peel the found ones off and search again.
+
+The orientation-alignment vote (:mod:`holofit.crop.transform`) of a strong hologram swamps a
+weaker one within ~1.5 vote radii: the pair gives one peak, at the stronger centre. Peeling
+takes each found centre's ring system away and votes again on what is left:
+
+1. the *ring model* of a centre is the azimuthal (clipped) mean of the normalised frame minus
+   one on 1-px rings about it (:func:`ring_model`): for a sphere its whole hologram, for a rod
+   most of it; the clipping keeps a neighbour's central fringes out of the rings' means;
+2. the residual frame near each found centre, with the ring models of every found centre
+   nearby subtracted, is voted on again (same vote radius, block size, noise level and
+   thresholds as the main search); a peak within :data:`PEEL_REACH` vote radii of the centre,
+   farther than the minimum separation from every found centre, whose refined centre on the
+   residual is point-symmetric, is a new hologram;
+3. every centre with a neighbour within reach is refined again by point symmetry with the
+   neighbours' ring models subtracted (twice, alternating), which takes the neighbour's bias
+   off both centres.
+
+A lone hologram leaves only noise (and, for a non-circular one, a weak non-symmetric residual)
+once its ring model is subtracted, so its result does not change.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from holofit.crop.symmetry import quadratic_peak, refine_center
+from holofit.crop.transform import block_mean, orientation_alignment
+
+__all__ = ["PEEL_REACH", "PROFILE_REACH", "Peak", "ring_model", "peel"]
+
+#: new holograms are sought within this many vote radii of a found one (farther ones are not
+#: swamped by it: the main search finds them)
+PEEL_REACH = 2.0
+#: a ring model covers this many vote radii about its centre
+PROFILE_REACH = 3.0
+#: pixels farther than this many ring standard deviations from a ring's mean are left out of it
+CLIP = 2.5
+#: refinement rounds of neighbouring centres with each other's ring models subtracted
+ROUNDS = 2
+
+
+@dataclass
+class Peak:
+    """A found hologram centre (full-frame pixels) and its ranking values."""
+
+    x: float
+    y: float
+    score: float
+    alignment: float
+    symmetry: float
+    refinement: str
+
+
+def _box(shape: tuple[int, int], x: float, y: float, half: float) -> tuple[slice, slice]:
+    r0, r1 = max(0, int(np.floor(y - half))), min(shape[0], int(np.ceil(y + half)) + 1)
+    c0, c1 = max(0, int(np.floor(x - half))), min(shape[1], int(np.ceil(x + half)) + 1)
+    return slice(r0, r1), slice(c0, c1)
+
+
+def ring_model(image: NDArray, x: float, y: float, reach: float
+               ) -> tuple[tuple[slice, slice], NDArray[np.float32]]:
+    """The circular part of the hologram about ``(x, y)``: clipped ring means minus one.
+
+    Parameters
+    ----------
+    image : ndarray, shape (rows, cols)
+        Normalised frame (background ~1, finite).
+    x, y : float
+        Centre, full-frame pixels.
+    reach : float
+        Radius of the model, pixels; it tapers to zero over its outer fifth.
+
+    Returns
+    -------
+    box : tuple of slice
+        The frame's rows and columns the model covers.
+    model : ndarray of float32
+        The model on ``box`` (zero beyond ``reach``).
+    """
+    box = _box(image.shape, x, y, reach)
+    patch = image[box].astype(np.float64) - 1.0
+    rows = np.arange(box[0].start, box[0].stop, dtype=np.float64)[:, None]
+    cols = np.arange(box[1].start, box[1].stop, dtype=np.float64)[None, :]
+    r = np.hypot(cols - x, rows - y)
+    inside = r < reach
+    bins = np.minimum(r, reach).astype(np.intp)
+    n_bins = int(reach) + 1
+    flat_b, flat_v = bins[inside], patch[inside]
+    count = np.maximum(np.bincount(flat_b, minlength=n_bins), 1)
+    mean = np.bincount(flat_b, flat_v, n_bins) / count
+    var = np.bincount(flat_b, flat_v**2, n_bins) / count - mean**2
+    keep = np.abs(flat_v - mean[flat_b]) <= CLIP * np.sqrt(np.maximum(var, 0.0))[flat_b] + 1e-12
+    kept = np.bincount(flat_b[keep], minlength=n_bins)
+    clipped = np.bincount(flat_b[keep], flat_v[keep], n_bins) / np.maximum(kept, 1)
+    profile = np.where(kept > 0, clipped, mean)
+    # linear interpolation between ring centres (ring k holds radii k..k+1)
+    radius = np.arange(n_bins) + 0.5
+    model = np.interp(r, radius, profile)
+    taper = np.clip((reach - r) / (0.2 * reach), 0.0, 1.0)
+    return box, (np.where(inside, model * 0.5 * (1 - np.cos(np.pi * taper)), 0.0)
+                 ).astype(np.float32)
+
+
+def _without(image: NDArray, peaks: list[Peak], keep_out: int | None, reach: float,
+             near: tuple[float, float], span: float) -> NDArray[np.float32]:
+    """``image`` less the ring models of the peaks (other than ``keep_out``) within ``span``
+    of ``near``."""
+    out = np.array(image, dtype=np.float32, copy=True)
+    for k, p in enumerate(peaks):
+        if k == keep_out or np.hypot(p.x - near[0], p.y - near[1]) > span:
+            continue
+        box, model = ring_model(image, p.x, p.y, reach)
+        out[box] -= model
+    return out
+
+
+def peel(
+    image: NDArray,
+    peaks: list[Peak],
+    *,
+    radius_px: float,
+    factor: int,
+    noise: float,
+    min_score: float,
+    min_alignment: float,
+    min_symmetry: float,
+    separation: float,
+    half_width: int,
+    search_px: float,
+    max_centers: int,
+) -> list[Peak]:
+    """Add the holograms hidden by the rings of the found ones, and refine close pairs.
+
+    Parameters
+    ----------
+    image : ndarray
+        Normalised frame (masked pixels filled).
+    peaks : list of Peak
+        The main search's centres, strongest first.
+    radius_px, factor, noise, min_score, min_alignment, min_symmetry, separation,
+    half_width, search_px, max_centers
+        The main search's vote radius (full-frame pixels), block size, noise transform
+        strength (of the block-averaged frame), thresholds, minimum separation and refinement
+        window (:class:`holofit.crop.centerfind.CenterFinder`).
+
+    Returns
+    -------
+    list of Peak
+        ``peaks`` (close ones refined again) and the new ones after them, at most
+        ``max_centers``.
+    """
+    img = np.asarray(image, dtype=np.float32)
+    reach = PROFILE_REACH * radius_px
+    peel_reach = PEEL_REACH * radius_px
+    radius_ds = max(2, round(radius_px / factor))
+    sep_ds = max(1, round(separation / factor))
+    peaks = list(peaks)
+    k = 0
+    while k < len(peaks) and len(peaks) < max_centers:
+        centre = peaks[k]
+        k += 1
+        residual = _without(img, peaks, None, reach, (centre.x, centre.y), 2 * reach)
+        box = _box(img.shape, centre.x, centre.y, peel_reach + radius_px)
+        window = residual[box]
+        if min(window.shape) < 2 * factor * 3:
+            continue
+        small = block_mean(window, factor)
+        strength, alignment = orientation_alignment(small, radius_ds)
+        local_max = ndimage.maximum_filter(strength, size=2 * sep_ds + 1, mode="nearest")
+        hits = (strength == local_max) & (strength >= min_score * noise) & (
+            alignment >= min_alignment)
+        rows, cols = np.nonzero(hits)
+        order = np.argsort(-strength[rows, cols], kind="stable")
+        for i, j in zip(rows[order], cols[order], strict=True):
+            di, dj = quadratic_peak(strength, int(i), int(j))
+            x0 = box[1].start + (j + dj) * factor + (factor - 1) / 2.0
+            y0 = box[0].start + (i + di) * factor + (factor - 1) / 2.0
+            if np.hypot(x0 - centre.x, y0 - centre.y) > peel_reach:
+                continue
+            if any(np.hypot(x0 - p.x, y0 - p.y) < separation for p in peaks):
+                continue
+            fit = refine_center(residual, x0, y0, half_width=half_width, search_px=search_px)
+            if not (fit.converged and fit.symmetry >= min_symmetry):
+                continue
+            if any(np.hypot(fit.x_px - p.x, fit.y_px - p.y) < separation for p in peaks):
+                continue
+            peaks.append(Peak(fit.x_px, fit.y_px, float(strength[i, j]) / noise,
+                              float(alignment[i, j]), fit.symmetry, "peeled"))
+            break  # peel this centre again with the new one subtracted too
+        else:
+            continue
+        k -= 1
+    return _refine_pairs(img, peaks, reach, half_width)
+
+
+def _refine_pairs(img: NDArray, peaks: list[Peak], reach: float, half_width: int
+                  ) -> list[Peak]:
+    """Refine every centre that has a neighbour within reach with the neighbours' ring models
+    subtracted (:data:`ROUNDS` rounds)."""
+    close = [any(np.hypot(p.x - q.x, p.y - q.y) < reach for q in peaks if q is not p)
+             for p in peaks]
+    if not any(close):
+        return peaks
+    for _ in range(ROUNDS):
+        moved = []
+        for k, p in enumerate(peaks):
+            if not close[k] or p.refinement == "radial":
+                moved.append(p)
+                continue
+            residual = _without(img, peaks, k, reach, (p.x, p.y), 2 * reach)
+            fit = refine_center(residual, p.x, p.y, half_width=half_width, search_px=3.0)
+            if fit.converged and np.hypot(fit.x_px - p.x, fit.y_px - p.y) < 3.0:
+                p = Peak(fit.x_px, fit.y_px, p.score, p.alignment, fit.symmetry,
+                         p.refinement)
+            moved.append(p)
+        peaks = moved
+    return peaks
