@@ -1,5 +1,7 @@
 """Issue 22's field-of-view study: five spheres of three sizes, with known truth, through crop
-(tracks), prefit (the Lorenz-Mie fit, keyed by particle and frame) and the per-track analysis.
+(tracks), prefit (the Lorenz-Mie fit, keyed by particle and frame), the fit stage for the
+tracks that overlap another (final pass with each track's prefit sizes, then the refit of
+overlapping frames with the neighbour's field) and the per-track analysis.
 
 The scene (``holofit.simulate.field_of_view``, fields superposed at the camera, camera noise):
 spheres of radius 0.4, 0.5 and 0.6 um (polystyrene and silica) diffusing in water at 21 C
@@ -12,7 +14,9 @@ Measured: the tracks found and whether each holds one true particle (no identity
 x/y rms error against the truth on frames marked overlapping and not, and each track's D_t
 against the truth (within 2 sigma?). Writes one JSON line.
 
-Usage: ``python bench/study_field_of_view.py N_FRAMES OUT.jsonl [WORKDIR]``
+Usage: ``python bench/study_field_of_view.py N_FRAMES OUT.jsonl [WORKDIR [WORKERS
+[--simulate-only]]]``; the movie in ``WORKDIR/sim`` is reused by a later run with the same
+``N_FRAMES``.
 """
 
 from __future__ import annotations
@@ -29,11 +33,13 @@ import pandas as pd
 from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.tracks import analyze_tracks
 from holofit.batch import BatchOptions
-from holofit.config import load_instrument, resolve_config
+from holofit.config import Instrument, load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
+from holofit.fit.per_track import run_fit_tracks, track_dir
 from holofit.particles import Sphere
 from holofit.prefit.stage import run_prefit
 from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
+from holofit.simulate.holograms import SimulatedMovie
 
 KB = 1.380649e-23
 T = 294.15
@@ -70,21 +76,72 @@ def scene(n: int, rng: np.random.Generator) -> tuple[list[ParticleInView], list[
     return particles, d_true
 
 
-def main(n: int, out_path: Path, work: Path) -> dict:
+def _simulated(particles: list[ParticleInView], inst: Instrument, folder: Path) -> SimulatedMovie:
+    """The scene's movie: simulated once into ``folder`` and reused by a later run with the
+    same number of frames (500 frames take 10-25 min on one shared core)."""
+    n = len(particles[0].positions_um)
+    movie, background, truth = (folder / f for f in ("movie.tif", "background.tif", "truth.csv"))
+    if movie.exists() and background.exists() and truth.exists():
+        table = pd.read_csv(truth)
+        if table["frame"].nunique() == n:
+            return SimulatedMovie(movie, background, truth, table)
+    return simulate_field_of_view(particles, inst, SHAPE, out_dir=folder, seed=5)
+
+
+def _fit_overlapping(work: Path, prefit: Path, frames: pd.DataFrame, workers: int
+                     ) -> tuple[pd.DataFrame, dict]:
+    """The table the study measures: the prefit's rows, except for tracks with overlapping
+    frames, which go through the fit stage (final pass, then the refit of overlapping frames
+    with the neighbour's field, :mod:`holofit.fit.per_track`). Each such track's static
+    parameters (radius, index) are the median of its prefit rows that are ``ok`` and do not
+    overlap (all its prefit rows if there are none): not the truth."""
+    pre = pd.read_csv(prefit)
+    marked = frames["overlap"].astype(str).str.lower().eq("true")
+    pair = sorted(int(p) for p in frames.loc[marked, "particle"].unique())
+    if not pair:
+        return pre, {"tracks": []}
+    cfg = load_particle(resolve_config("sphere_ps_1um", "particles"))
+    flags = pre.merge(frames[["particle", "frame", "overlap"]], on=["particle", "frame"])
+    clean = flags["overlap"].astype(str).str.lower().ne("true") & flags["status"].eq("ok")
+    statics = {}
+    for p in pair:
+        rows = flags[(flags["particle"] == p) & clean]
+        source = "ok, not overlapping" if len(rows) else "all (none ok and apart)"
+        rows = rows if len(rows) else flags[flags["particle"] == p]
+        values = {"radius_um": float(rows["radius_um"].median()),
+                  "n": float(rows["n"].median())}
+        folder = track_dir(work / "fit", p)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "static.json").write_text(json.dumps({"particle_model": "sphere",
+                                                        "values": values}))
+        statics[str(p)] = {**values, "from_prefit_rows": source, "n_rows": len(rows)}
+    run = run_fit_tracks(work / "crop", prefit, None, cfg, work / "fit", plot=False,
+                         pass_name="final", tracks=pair,
+                         batch=BatchOptions(workers=workers, progress=False))
+    fit = pd.read_csv(run.final)
+    keep = [c for c in pre.columns if c in fit.columns]
+    table = pd.concat([pre[~pre["particle"].isin(pair)][keep], fit[keep]], ignore_index=True)
+    return table, {"tracks": pair, "statics": statics, "notes": run.notes}
+
+
+def main(n: int, out_path: Path, work: Path, workers: int = 2) -> dict:
     inst = load_instrument(resolve_config("paper_100x_oil", "instruments"))
     rng = np.random.default_rng(22)
     particles, d_true = scene(n, rng)
     t0 = time.perf_counter()
-    sim = simulate_field_of_view(particles, inst, SHAPE, out_dir=work / "sim", seed=5)
+    sim = _simulated(particles, inst, work / "sim")
     t_sim = time.perf_counter() - t0
     t0 = time.perf_counter()
     crop = run_crop(sim.movie, sim.background, inst, work / "crop", size=SIZE, plot=False,
-                    batch=BatchOptions(workers=2, progress=False))
+                    batch=BatchOptions(workers=workers, progress=False))
     t_crop = time.perf_counter() - t0
     t0 = time.perf_counter()
     pre = run_prefit(work / "crop", work / "prefit", plot=False,
-                     batch=BatchOptions(workers=2, progress=False))
+                     batch=BatchOptions(workers=workers, progress=False))
     t_prefit = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    table, fit_note = _fit_overlapping(work, pre.table, crop.frames, workers)
+    t_fit = time.perf_counter() - t0
     truth = sim.truth
     frames = crop.frames
     # which true particle each track holds, frame by frame
@@ -96,7 +153,6 @@ def main(n: int, out_path: Path, work: Path) -> dict:
             int(here["particle"].iloc[int(np.argmin(d))]) if d.min() < 3 else -1)
     swaps = {p: sorted(o) for p, o in owners.items() if len(o) != 1}
     mapping = {p: next(iter(o)) for p, o in owners.items() if len(o) == 1}
-    table = pd.read_csv(pre.table)
     both = table.merge(frames[["particle", "frame", "overlap"]], on=["particle", "frame"])
     both["truth"] = both["particle"].map(mapping)
     both = both.merge(truth.rename(columns={"particle": "truth"}), on=["truth", "frame"],
@@ -109,7 +165,9 @@ def main(n: int, out_path: Path, work: Path) -> dict:
         return float(np.sqrt(np.mean(v ** 2))) if len(v) else math.nan
 
     overlap = ok["overlap"].astype(str).str.lower().eq("true")
-    tracks = analyze_tracks(pre.table, AnalysisConfig(model="sphere"), frame_interval_s=0.01)
+    combined = work / "combined.csv"
+    table.to_csv(combined, index=False)
+    tracks = analyze_tracks(combined, AnalysisConfig(model="sphere"), frame_interval_s=0.01)
     d_rows = []
     for t in tracks.tracks:
         if t.result is None or "D_t" not in t.result.measured:
@@ -132,7 +190,10 @@ def main(n: int, out_path: Path, work: Path) -> dict:
         "n_ok_no_overlap": int((~overlap).sum()), "n_ok_overlap": int(overlap.sum()),
         "n_overlap_rows": int(frames["overlap"].astype(str).str.lower().eq("true").sum()),
         "D": d_rows, "all_D_within_2_sigma": all(abs(r.get("pull", 99)) <= 2 for r in d_rows),
-        "seconds": {"simulate": t_sim, "crop": t_crop, "prefit": t_prefit},
+        "fit_stage": fit_note,
+        "fit_status": table.loc[table["particle"].isin(fit_note.get("tracks", [])),
+                                "status"].value_counts().to_dict(),
+        "seconds": {"simulate": t_sim, "crop": t_crop, "prefit": t_prefit, "fit": t_fit},
     }
     with out_path.open("a") as fh:
         fh.write(json.dumps(result, default=str) + "\n")
@@ -143,4 +204,10 @@ if __name__ == "__main__":
     n_frames = int(sys.argv[1]) if len(sys.argv) > 1 else 200
     target = Path(sys.argv[2]) if len(sys.argv) > 2 else Path("field_of_view.jsonl")
     workdir = Path(sys.argv[3]) if len(sys.argv) > 3 else Path("fov_study")
-    print(json.dumps(main(n_frames, target, workdir), indent=1, default=str))
+    n_workers = int(sys.argv[4]) if len(sys.argv) > 4 else 2
+    if len(sys.argv) > 5 and sys.argv[5] == "--simulate-only":
+        _simulated(scene(n_frames, np.random.default_rng(22))[0],
+                   load_instrument(resolve_config("paper_100x_oil", "instruments")),
+                   workdir / "sim")
+        raise SystemExit(0)
+    print(json.dumps(main(n_frames, target, workdir, n_workers), indent=1, default=str))

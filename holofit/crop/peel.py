@@ -28,10 +28,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from holofit.crop.radial import refine_center_radial
 from holofit.crop.symmetry import quadratic_peak, refine_center
 from holofit.crop.transform import block_mean, orientation_alignment
 
-__all__ = ["PEEL_REACH", "PROFILE_REACH", "Peak", "ring_model", "peel"]
+__all__ = ["PEEL_REACH", "PROFILE_REACH", "Peak", "peel", "ring_model"]
 
 #: new holograms are sought within this many vote radii of a found one (farther ones are not
 #: swamped by it: the main search finds them)
@@ -41,7 +42,9 @@ PROFILE_REACH = 3.0
 #: pixels farther than this many ring standard deviations from a ring's mean are left out of it
 CLIP = 2.5
 #: refinement rounds of neighbouring centres with each other's ring models subtracted
-ROUNDS = 2
+ROUNDS = 3
+#: how far one round may move a centre, pixels
+MOVE = 4.0
 
 
 @dataclass
@@ -54,6 +57,8 @@ class Peak:
     alignment: float
     symmetry: float
     refinement: str
+    #: centre of its ring model: that of the most circular rings (None: not yet sought)
+    ring_xy: tuple[float, float] | None = None
 
 
 def _box(shape: tuple[int, int], x: float, y: float, half: float) -> tuple[slice, slice]:
@@ -83,14 +88,14 @@ def ring_model(image: NDArray, x: float, y: float, reach: float
         The model on ``box`` (zero beyond ``reach``).
     """
     box = _box(image.shape, x, y, reach)
-    patch = image[box].astype(np.float64) - 1.0
-    rows = np.arange(box[0].start, box[0].stop, dtype=np.float64)[:, None]
-    cols = np.arange(box[1].start, box[1].stop, dtype=np.float64)[None, :]
-    r = np.hypot(cols - x, rows - y)
+    rows = np.arange(box[0].start, box[0].stop, dtype=np.float32)[:, None] - np.float32(y)
+    cols = np.arange(box[1].start, box[1].stop, dtype=np.float32)[None, :] - np.float32(x)
+    r = np.hypot(cols, rows)  # float32: the windows are large (a 70-px vote radius: 421 px)
     inside = r < reach
-    bins = np.minimum(r, reach).astype(np.intp)
+    flat_r = r[inside]
+    flat_b = flat_r.astype(np.int32)
+    flat_v = image[box][inside].astype(np.float64) - 1.0
     n_bins = int(reach) + 1
-    flat_b, flat_v = bins[inside], patch[inside]
     count = np.maximum(np.bincount(flat_b, minlength=n_bins), 1)
     mean = np.bincount(flat_b, flat_v, n_bins) / count
     var = np.bincount(flat_b, flat_v**2, n_bins) / count - mean**2
@@ -98,25 +103,55 @@ def ring_model(image: NDArray, x: float, y: float, reach: float
     kept = np.bincount(flat_b[keep], minlength=n_bins)
     clipped = np.bincount(flat_b[keep], flat_v[keep], n_bins) / np.maximum(kept, 1)
     profile = np.where(kept > 0, clipped, mean)
-    # linear interpolation between ring centres (ring k holds radii k..k+1)
+    # linear interpolation between ring centres (ring k holds radii k..k+1), tapered to zero
+    # over the outer fifth
     radius = np.arange(n_bins) + 0.5
-    model = np.interp(r, radius, profile)
-    taper = np.clip((reach - r) / (0.2 * reach), 0.0, 1.0)
-    return box, (np.where(inside, model * 0.5 * (1 - np.cos(np.pi * taper)), 0.0)
-                 ).astype(np.float32)
+    taper = np.clip((reach - flat_r) / (0.2 * reach), 0.0, 1.0)
+    model = np.zeros(r.shape, dtype=np.float32)
+    model[inside] = np.interp(flat_r, radius, profile) * 0.5 * (1 - np.cos(np.pi * taper))
+    return box, model
 
 
 def _without(image: NDArray, peaks: list[Peak], keep_out: int | None, reach: float,
-             near: tuple[float, float], span: float) -> NDArray[np.float32]:
-    """``image`` less the ring models of the peaks (other than ``keep_out``) within ``span``
-    of ``near``."""
-    out = np.array(image, dtype=np.float32, copy=True)
+             box: tuple[slice, slice]) -> NDArray[np.float32]:
+    """``image[box]`` less the ring models of the peaks (other than ``keep_out``) that reach
+    into it (a copy of the window only: a frame's worth of memory per call would add up)."""
+    out = np.array(image[box], dtype=np.float32, copy=True)
+    r0, c0 = box[0].start, box[1].start
     for k, p in enumerate(peaks):
-        if k == keep_out or np.hypot(p.x - near[0], p.y - near[1]) > span:
+        if k == keep_out:
             continue
-        box, model = ring_model(image, p.x, p.y, reach)
-        out[box] -= model
+        x, y = p.ring_xy or (p.x, p.y)
+        if not (c0 - reach < x < box[1].stop + reach and r0 - reach < y < box[0].stop + reach):
+            continue
+        (rows, cols), model = ring_model(image, x, y, reach)
+        a0, a1 = max(rows.start, r0), min(rows.stop, box[0].stop)
+        b0, b1 = max(cols.start, c0), min(cols.stop, box[1].stop)
+        if a1 > a0 and b1 > b0:
+            out[a0 - r0:a1 - r0, b0 - c0:b1 - c0] -= model[a0 - rows.start:a1 - rows.start,
+                                                           b0 - cols.start:b1 - cols.start]
     return out
+
+
+def _refine_in(window: NDArray, box: tuple[slice, slice], x: float, y: float,
+               half_width: int, search_px: float) -> tuple[float, float, float, bool]:
+    """Point-symmetry refinement (:func:`holofit.crop.symmetry.refine_center`) on a window of
+    the frame; full-frame ``(x, y, symmetry, converged)``."""
+    r0, c0 = box[0].start, box[1].start
+    fit = refine_center(window, x - c0, y - r0, half_width=half_width, search_px=search_px)
+    return fit.x_px + c0, fit.y_px + r0, fit.symmetry, bool(fit.converged)
+
+
+def _ring_centre(image: NDArray, p: Peak, radius_px: float) -> Peak:
+    """``p`` with its ring model's centre: that of the most circular rings
+    (:func:`holofit.crop.radial.refine_center_radial`). A neighbour pulls the point-symmetry
+    centre off by up to ~2.5 px at ~2.5 um (a pair is nearly point-symmetric about its
+    midpoint) but hardly moves the most circular rings' centre."""
+    if p.ring_xy is not None:
+        return p
+    fit = refine_center_radial(image, p.x, p.y, radius=radius_px, reach=MOVE)
+    p.ring_xy = (fit.x_px, fit.y_px) if fit.converged else (p.x, p.y)
+    return p
 
 
 def peel(
@@ -160,13 +195,19 @@ def peel(
     radius_ds = max(2, round(radius_px / factor))
     sep_ds = max(1, round(separation / factor))
     peaks = list(peaks)
+    new = False
     k = 0
     while k < len(peaks) and len(peaks) < max_centers:
         centre = peaks[k]
         k += 1
-        residual = _without(img, peaks, None, reach, (centre.x, centre.y), 2 * reach)
+        for p in peaks:
+            if np.hypot(p.x - centre.x, p.y - centre.y) <= 2 * reach:
+                _ring_centre(img, p, radius_px)
         box = _box(img.shape, centre.x, centre.y, peel_reach + radius_px)
-        window = residual[box]
+        window = _without(img, peaks, None, reach, box)
+        # the refinement of a peak near the vote window's rim needs its own margin
+        wide = _box(img.shape, centre.x, centre.y, peel_reach + half_width + 2 * search_px + 2)
+        residual = None
         if min(window.shape) < 2 * factor * 3:
             continue
         small = block_mean(window, factor)
@@ -184,18 +225,22 @@ def peel(
                 continue
             if any(np.hypot(x0 - p.x, y0 - p.y) < separation for p in peaks):
                 continue
-            fit = refine_center(residual, x0, y0, half_width=half_width, search_px=search_px)
-            if not (fit.converged and fit.symmetry >= min_symmetry):
+            if residual is None:
+                residual = _without(img, peaks, None, reach, wide)
+            x, y, symmetry, converged = _refine_in(residual, wide, x0, y0, half_width,
+                                                   search_px)
+            if not (converged and symmetry >= min_symmetry):
                 continue
-            if any(np.hypot(fit.x_px - p.x, fit.y_px - p.y) < separation for p in peaks):
+            if any(np.hypot(x - p.x, y - p.y) < separation for p in peaks):
                 continue
-            peaks.append(Peak(fit.x_px, fit.y_px, float(strength[i, j]) / noise,
-                              float(alignment[i, j]), fit.symmetry, "peeled"))
+            peaks.append(Peak(x, y, float(strength[i, j]) / noise,
+                              float(alignment[i, j]), symmetry, "peeled"))
+            new = True
             break  # peel this centre again with the new one subtracted too
         else:
             continue
         k -= 1
-    return _refine_pairs(img, peaks, reach, half_width)
+    return _refine_pairs(img, peaks, reach, half_width) if new else peaks
 
 
 def _refine_pairs(img: NDArray, peaks: list[Peak], reach: float, half_width: int
@@ -212,11 +257,12 @@ def _refine_pairs(img: NDArray, peaks: list[Peak], reach: float, half_width: int
             if not close[k] or p.refinement == "radial":
                 moved.append(p)
                 continue
-            residual = _without(img, peaks, k, reach, (p.x, p.y), 2 * reach)
-            fit = refine_center(residual, p.x, p.y, half_width=half_width, search_px=3.0)
-            if fit.converged and np.hypot(fit.x_px - p.x, fit.y_px - p.y) < 3.0:
-                p = Peak(fit.x_px, fit.y_px, p.score, p.alignment, fit.symmetry,
-                         p.refinement)
+            start = p.ring_xy or (p.x, p.y)
+            box = _box(img.shape, *start, half_width + 2 * MOVE + 2)
+            residual = _without(img, peaks, k, reach, box)
+            x, y, symmetry, converged = _refine_in(residual, box, *start, half_width, MOVE)
+            if converged and np.hypot(x - start[0], y - start[1]) < MOVE:
+                p = Peak(x, y, p.score, p.alignment, symmetry, p.refinement, (x, y))
             moved.append(p)
         peaks = moved
     return peaks

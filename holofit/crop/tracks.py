@@ -49,6 +49,10 @@ TRACK_SUMMARY_UNITS = {
 }
 
 
+#: the shortest search range trackpy's adaptive search tries for a subnetwork too large, um
+ADAPTIVE_STOP_UM = 0.3
+
+
 class TrackError(ValueError):
     """Candidates or settings that cannot be linked; the message says which."""
 
@@ -191,8 +195,13 @@ def link_tracks(
     work = table.reset_index(drop=True)
     work["x"], work["y"] = work["x_px"], work["y_px"]
     trackpy.quiet()
+    search_px = options.search_range_um / pixel_size_um
+    # adaptive search: a subnetwork too large to resolve (a crowded frame, a cluster of
+    # fringe candidates) is linked again with a shorter search range instead of failing
     linked = trackpy.link(
-        work, search_range=options.search_range_um / pixel_size_um, memory=options.memory
+        work, search_range=search_px, memory=options.memory,
+        adaptive_stop=min(ADAPTIVE_STOP_UM / pixel_size_um, 0.5 * search_px),
+        adaptive_step=0.9,
     )
     linked = linked.drop(columns=["x", "y"]).reset_index(drop=True)
 
