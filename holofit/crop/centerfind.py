@@ -220,7 +220,8 @@ def _find(image: NDArray, mask: NDArray | None, s: CenterFinder) -> pd.DataFrame
         peaks = peel(img, [Peak(*f) for f in found], radius_px=s.radius_px, factor=factor,
                      noise=noise, min_score=s.min_score, min_alignment=s.min_alignment,
                      min_symmetry=s.min_symmetry, separation=separation,
-                     half_width=half_width, search_px=search, max_centers=s.max_centers)
+                     half_width=half_width, search_px=search, max_centers=s.max_centers,
+                     small=small)
         found = [(p.x, p.y, p.score, p.alignment, p.symmetry, p.refinement) for p in peaks]
     return pd.DataFrame(found, columns=list(CENTER_COLUMNS))
 

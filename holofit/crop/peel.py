@@ -45,6 +45,13 @@ CLIP = 2.5
 ROUNDS = 3
 #: how far one round may move a centre, pixels
 MOVE = 4.0
+#: a centre whose point symmetry is below this is peeled again about its most circular rings'
+#: centre if the first peel finds nothing (lone spheres score 0.94-0.99; a sphere with a
+#: neighbour 2.5 um away ~0.7, which hides the neighbour from the first peel)
+RING_CHECK = 0.9
+#: largest radius of the rings whose circularity places a ring model, pixels (the central
+#: rings place it as well as all of them, at a fraction of the cost)
+RING_RADIUS = 32.0
 
 
 @dataclass
@@ -113,15 +120,18 @@ def ring_model(image: NDArray, x: float, y: float, reach: float
 
 
 def _without(image: NDArray, peaks: list[Peak], keep_out: int | None, reach: float,
-             box: tuple[slice, slice]) -> NDArray[np.float32]:
+             box: tuple[slice, slice], factor: int = 1) -> NDArray[np.float32]:
     """``image[box]`` less the ring models of the peaks (other than ``keep_out``) that reach
-    into it (a copy of the window only: a frame's worth of memory per call would add up)."""
+    into it (a copy of the window only: a frame's worth of memory per call would add up).
+    With ``factor`` > 1, ``image`` is the frame block-averaged by ``factor`` (and ``reach``
+    and ``box`` are in its pixels)."""
     out = np.array(image[box], dtype=np.float32, copy=True)
     r0, c0 = box[0].start, box[1].start
+    shift = (factor - 1) / 2.0
     for k, p in enumerate(peaks):
         if k == keep_out:
             continue
-        x, y = p.ring_xy or (p.x, p.y)
+        x, y = ((v - shift) / factor for v in (p.ring_xy or (p.x, p.y)))
         if not (c0 - reach < x < box[1].stop + reach and r0 - reach < y < box[0].stop + reach):
             continue
         (rows, cols), model = ring_model(image, x, y, reach)
@@ -149,7 +159,7 @@ def _ring_centre(image: NDArray, p: Peak, radius_px: float) -> Peak:
     midpoint) but hardly moves the most circular rings' centre."""
     if p.ring_xy is not None:
         return p
-    fit = refine_center_radial(image, p.x, p.y, radius=radius_px, reach=MOVE)
+    fit = refine_center_radial(image, p.x, p.y, radius=min(radius_px, RING_RADIUS), reach=MOVE)
     p.ring_xy = (fit.x_px, fit.y_px) if fit.converged else (p.x, p.y)
     return p
 
@@ -168,6 +178,7 @@ def peel(
     half_width: int,
     search_px: float,
     max_centers: int,
+    small: NDArray | None = None,
 ) -> list[Peak]:
     """Add the holograms hidden by the rings of the found ones, and refine close pairs.
 
@@ -182,6 +193,8 @@ def peel(
         The main search's vote radius (full-frame pixels), block size, noise transform
         strength (of the block-averaged frame), thresholds, minimum separation and refinement
         window (:class:`holofit.crop.centerfind.CenterFinder`).
+    small : ndarray, optional
+        ``image`` block-averaged by ``factor``, if the caller has it.
 
     Returns
     -------
@@ -191,56 +204,93 @@ def peel(
     """
     img = np.asarray(image, dtype=np.float32)
     reach = PROFILE_REACH * radius_px
-    peel_reach = PEEL_REACH * radius_px
-    radius_ds = max(2, round(radius_px / factor))
-    sep_ds = max(1, round(separation / factor))
+    if small is None:
+        small = block_mean(img, factor) if factor > 1 else img
+    search = _Search(img, small, reach, PEEL_REACH * radius_px, factor,
+                     max(2, round(radius_px / factor)),
+                     max(1, round(separation / factor)), noise, min_score, min_alignment,
+                     min_symmetry, separation, half_width, search_px)
     peaks = list(peaks)
     new = False
     k = 0
     while k < len(peaks) and len(peaks) < max_centers:
         centre = peaks[k]
         k += 1
-        for p in peaks:
-            if np.hypot(p.x - centre.x, p.y - centre.y) <= 2 * reach:
-                _ring_centre(img, p, radius_px)
-        box = _box(img.shape, centre.x, centre.y, peel_reach + radius_px)
-        window = _without(img, peaks, None, reach, box)
-        # the refinement of a peak near the vote window's rim needs its own margin
-        wide = _box(img.shape, centre.x, centre.y, peel_reach + half_width + 2 * search_px + 2)
-        residual = None
-        if min(window.shape) < 2 * factor * 3:
-            continue
-        small = block_mean(window, factor)
-        strength, alignment = orientation_alignment(small, radius_ds)
-        local_max = ndimage.maximum_filter(strength, size=2 * sep_ds + 1, mode="nearest")
-        hits = (strength == local_max) & (strength >= min_score * noise) & (
-            alignment >= min_alignment)
+        found = search.next_to(centre, peaks)
+        if found is None and centre.ring_xy is None and centre.symmetry < RING_CHECK:
+            # a neighbour may have pulled the point-symmetry centre off: peel again about
+            # the most circular rings' centre (costly, so only for a centre that is not
+            # clean)
+            _ring_centre(img, centre, radius_px)
+            found = search.next_to(centre, peaks)
+        if found is not None:
+            peaks.append(found)
+            new = True
+            k -= 1  # peel this centre again with the new one subtracted too
+    return _refine_pairs(img, peaks, reach, half_width) if new else peaks
+
+
+@dataclass
+class _Search:
+    """The residual search of :func:`peel` (its settings, pixels of the frame or of the
+    block-averaged frame, ``*_ds``)."""
+
+    img: NDArray
+    small: NDArray
+    reach: float
+    peel_reach: float
+    factor: int
+    radius_ds: int
+    sep_ds: int
+    noise: float
+    min_score: float
+    min_alignment: float
+    min_symmetry: float
+    separation: float
+    half_width: int
+    search_px: float
+
+    def next_to(self, centre: Peak, peaks: list[Peak]) -> Peak | None:
+        """The strongest accepted new hologram near ``centre`` with every found one's rings
+        subtracted, or None."""
+        img, f, small = self.img, self.factor, self.small
+        # the search runs on the block-averaged frame, as the main one does (ring models
+        # there cost 1/factor^2 of full-resolution ones); only the refinement needs these
+        shift = (f - 1) / 2.0
+        box = _box(small.shape, (centre.x - shift) / f, (centre.y - shift) / f,
+                   self.peel_reach / f + self.radius_ds)
+        window = _without(small, peaks, None, self.reach / f, box, f)
+        if min(window.shape) < 6:
+            return None
+        strength, alignment = orientation_alignment(window, self.radius_ds)
+        local_max = ndimage.maximum_filter(strength, size=2 * self.sep_ds + 1, mode="nearest")
+        hits = (strength == local_max) & (strength >= self.min_score * self.noise) & (
+            alignment >= self.min_alignment)
         rows, cols = np.nonzero(hits)
         order = np.argsort(-strength[rows, cols], kind="stable")
+        # the refinement of a peak near the vote window's rim needs its own margin
+        wide = _box(img.shape, centre.x, centre.y,
+                    self.peel_reach + self.half_width + 2 * self.search_px + 2)
+        residual = None
         for i, j in zip(rows[order], cols[order], strict=True):
             di, dj = quadratic_peak(strength, int(i), int(j))
-            x0 = box[1].start + (j + dj) * factor + (factor - 1) / 2.0
-            y0 = box[0].start + (i + di) * factor + (factor - 1) / 2.0
-            if np.hypot(x0 - centre.x, y0 - centre.y) > peel_reach:
+            x0 = box[1].start + (j + dj) * f + (f - 1) / 2.0
+            y0 = box[0].start + (i + di) * f + (f - 1) / 2.0
+            if np.hypot(x0 - centre.x, y0 - centre.y) > self.peel_reach:
                 continue
-            if any(np.hypot(x0 - p.x, y0 - p.y) < separation for p in peaks):
+            if any(np.hypot(x0 - p.x, y0 - p.y) < self.separation for p in peaks):
                 continue
             if residual is None:
-                residual = _without(img, peaks, None, reach, wide)
-            x, y, symmetry, converged = _refine_in(residual, wide, x0, y0, half_width,
-                                                   search_px)
-            if not (converged and symmetry >= min_symmetry):
+                residual = _without(img, peaks, None, self.reach, wide)
+            x, y, symmetry, converged = _refine_in(residual, wide, x0, y0, self.half_width,
+                                                   self.search_px)
+            if not (converged and symmetry >= self.min_symmetry):
                 continue
-            if any(np.hypot(x - p.x, y - p.y) < separation for p in peaks):
+            if any(np.hypot(x - p.x, y - p.y) < self.separation for p in peaks):
                 continue
-            peaks.append(Peak(x, y, float(strength[i, j]) / noise,
-                              float(alignment[i, j]), symmetry, "peeled"))
-            new = True
-            break  # peel this centre again with the new one subtracted too
-        else:
-            continue
-        k -= 1
-    return _refine_pairs(img, peaks, reach, half_width) if new else peaks
+            return Peak(x, y, float(strength[i, j]) / self.noise, float(alignment[i, j]),
+                        symmetry, "peeled")
+        return None
 
 
 def _refine_pairs(img: NDArray, peaks: list[Peak], reach: float, half_width: int
