@@ -47,8 +47,8 @@ ROUNDS = 3
 MOVE = 4.0
 #: a centre whose point symmetry is below this is peeled again about its most circular rings'
 #: centre if the first peel finds nothing (lone spheres score 0.94-0.99; a sphere with a
-#: neighbour 2.5 um away ~0.7, which hides the neighbour from the first peel)
-RING_CHECK = 0.9
+#: neighbour 2.5-2.8 um away 0.7-0.9, which can hide the neighbour from the first peel)
+RING_CHECK = 0.95
 #: largest radius of the rings whose circularity places a ring model, pixels (the central
 #: rings place it as well as all of them, at a fraction of the cost)
 RING_RADIUS = 32.0
@@ -152,15 +152,20 @@ def _refine_in(window: NDArray, box: tuple[slice, slice], x: float, y: float,
     return fit.x_px + c0, fit.y_px + r0, fit.symmetry, bool(fit.converged)
 
 
-def _ring_centre(image: NDArray, p: Peak, radius_px: float) -> Peak:
+def _ring_centre(small: NDArray, factor: int, p: Peak, radius_px: float) -> Peak:
     """``p`` with its ring model's centre: that of the most circular rings
-    (:func:`holofit.crop.radial.refine_center_radial`). A neighbour pulls the point-symmetry
-    centre off by up to ~2.5 px at ~2.5 um (a pair is nearly point-symmetric about its
-    midpoint) but hardly moves the most circular rings' centre."""
+    (:func:`holofit.crop.radial.refine_center_radial`, on the block-averaged frame ``small``:
+    a quarter block is precise enough to place a ring model). A neighbour pulls the
+    point-symmetry centre off by up to ~2.5 px at ~2.5 um (a pair is nearly point-symmetric
+    about its midpoint) but hardly moves the most circular rings' centre."""
     if p.ring_xy is not None:
         return p
-    fit = refine_center_radial(image, p.x, p.y, radius=min(radius_px, RING_RADIUS), reach=MOVE)
-    p.ring_xy = (fit.x_px, fit.y_px) if fit.converged else (p.x, p.y)
+    shift = (factor - 1) / 2.0
+    fit = refine_center_radial(small, (p.x - shift) / factor, (p.y - shift) / factor,
+                               radius=min(radius_px, RING_RADIUS) / factor,
+                               reach=max(MOVE / factor, 2.0))
+    p.ring_xy = ((fit.x_px * factor + shift, fit.y_px * factor + shift) if fit.converged
+                 else (p.x, p.y))
     return p
 
 
@@ -221,7 +226,7 @@ def peel(
             # a neighbour may have pulled the point-symmetry centre off: peel again about
             # the most circular rings' centre (costly, so only for a centre that is not
             # clean)
-            _ring_centre(img, centre, radius_px)
+            _ring_centre(search.small, factor, centre, radius_px)
             found = search.next_to(centre, peaks)
         if found is not None:
             peaks.append(found)
