@@ -109,3 +109,22 @@ def test_a_crossing_pair_gives_two_tracks_without_a_swap(crossing):
     assert sorted(next(iter(o)) for o in owners.values()) == [0, 1, 2]
     assert (frames.groupby("particle").size() == 24).all()  # every frame, both tracks
     assert frames["overlap"].sum() >= 8  # the pair overlaps in the crop for a while
+
+
+def test_a_hologram_hidden_in_its_neighbours_still_overlaps_it():
+    """Closer than the finder resolves, a pair is one detection for a few frames: the hidden
+    track (bridged by the linker's memory) still marks its neighbour's frames as overlapping,
+    at its interpolated position."""
+    import pandas as pd
+
+    from holofit.crop.tracks import mark_neighbours
+
+    rows = [(0, k, 100.0 + k, 50.0) for k in range(10)]
+    rows += [(1, k, 130.0 - k, 50.0) for k in range(10) if k not in (4, 5, 6)]
+    linked = pd.DataFrame(rows, columns=["particle", "frame", "x_px", "y_px"])
+    marked = mark_neighbours(linked).set_index(["particle", "frame"])
+    for k in (4, 5, 6):  # particle 1 undetected: at 130 - k by interpolation
+        assert marked.loc[(0, k), "neighbour"] == 1
+        assert marked.loc[(0, k), "neighbour_px"] == pytest.approx(30.0 - 2 * k)
+    assert len(marked) == len(linked)  # no rows added
+    assert marked.loc[(1, 3), "neighbour_px"] == pytest.approx(24.0)
