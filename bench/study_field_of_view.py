@@ -15,8 +15,8 @@ x/y rms error against the truth on frames marked overlapping and not, and each t
 against the truth (within 2 sigma?). Writes one JSON line.
 
 Usage: ``python bench/study_field_of_view.py N_FRAMES OUT.jsonl [WORKDIR [WORKERS
-[--simulate-only]]]``; the movie in ``WORKDIR/sim`` is reused by a later run with the same
-``N_FRAMES``.
+[--simulate-only | FIRST]]]``; the movie in ``WORKDIR/sim`` is reused by a later run with the
+same ``N_FRAMES``; ``FIRST``: study only the first FIRST frames of it.
 """
 
 from __future__ import annotations
@@ -173,12 +173,30 @@ def _times(path: Path) -> dict:
     return out
 
 
-def main(n: int, out_path: Path, work: Path, workers: int = 2) -> dict:
+def _first_frames(sim: SimulatedMovie, m: int, folder: Path) -> SimulatedMovie:
+    """The first ``m`` frames of a simulated movie (and its truth), in ``folder``."""
+    import tifffile
+
+    from holofit.io.tiffstack import TiffStackWriter
+
+    folder.mkdir(parents=True, exist_ok=True)
+    with TiffStackWriter(folder / "movie.tif", {"holofit": "simulated field of view"}) as w:
+        for frame in tifffile.imread(sim.movie, key=range(m)).reshape(-1, *SHAPE):
+            w.write(frame)
+    truth = sim.truth[sim.truth["frame"] < m].reset_index(drop=True)
+    truth.to_csv(folder / "truth.csv", index=False)
+    return SimulatedMovie(folder / "movie.tif", sim.background, folder / "truth.csv", truth)
+
+
+def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None = None
+         ) -> dict:
     inst = load_instrument(resolve_config("paper_100x_oil", "instruments"))
     rng = np.random.default_rng(22)
     particles, d_true = scene(n, rng)
     t0 = time.perf_counter()
     sim = _simulated(particles, inst, work / "sim", workers)
+    if first is not None and first < n:
+        sim = _first_frames(sim, first, work / f"sim_first_{first}")
     t_sim = time.perf_counter() - t0
     t0 = time.perf_counter()
     crop = run_crop(sim.movie, sim.background, inst, work / "crop", size=SIZE, plot=False,
@@ -249,7 +267,8 @@ def main(n: int, out_path: Path, work: Path, workers: int = 2) -> dict:
                        "D_t": m.value, "err": m.error, "D_true": truth_d,
                        "pull": (m.value - truth_d) / m.error if m.error else math.nan})
     result = {
-        "study": "field_of_view_five_spheres", "n_frames": n, "frame_shape": list(SHAPE),
+        "study": "field_of_view_five_spheres", "n_frames": len(sim.truth["frame"].unique()),
+        "simulated_frames": n, "frame_shape": list(SHAPE),
         "crop_size": SIZE, "tracks_found": sorted(int(p) for p in frames["particle"].unique()),
         "true_particles_tracked": sorted(set(mapping.values())), "identity_swaps": swaps,
         "frames_off_every_particle": {p: [len(v), v[:5], v[-5:]] for p, v in off_truth.items()},
@@ -289,4 +308,5 @@ if __name__ == "__main__":
                    load_instrument(resolve_config("paper_100x_oil", "instruments")),
                    workdir / "sim")
         raise SystemExit(0)
-    print(json.dumps(main(n_frames, target, workdir, n_workers), indent=1, default=str))
+    first_m = int(sys.argv[5]) if len(sys.argv) > 5 else None
+    print(json.dumps(main(n_frames, target, workdir, n_workers, first_m), indent=1, default=str))
