@@ -42,9 +42,9 @@ def _pair_frame(inst, tmp, distance_um: float, angle: float, seed: int):
     return frame.reshape(160, 200) / background, truth
 
 
-@pytest.mark.parametrize("distance_um", [2.0, 3.0, 4.0])
+@pytest.mark.parametrize("distance_um", [2.0, 2.5, 3.0, 4.0])
 def test_a_close_pair_gives_two_centres(inst, tmp_path, distance_um):
-    for seed, angle in enumerate((0.3, 2.0)):
+    for seed, angle in enumerate((0.3, 0.8, 2.0)):
         image, truth = _pair_frame(inst, tmp_path / f"s{seed}", distance_um, angle, seed)
         found = find_centers(image, radius_px=SIZE / 2)
         xy = found[["x_px", "y_px"]].to_numpy()

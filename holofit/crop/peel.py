@@ -22,13 +22,13 @@ once its ring model is subtracted, so its result does not change.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from holofit.crop.radial import refine_center_radial
+from holofit.crop.radial import radial_variance, refine_center_radial
 from holofit.crop.symmetry import quadratic_peak, refine_center
 from holofit.crop.transform import block_mean, orientation_alignment
 
@@ -162,21 +162,35 @@ def _refine_in(window: NDArray, box: tuple[slice, slice], x: float, y: float,
             float(fit.pair_fraction))
 
 
-def _ring_centre(small: NDArray, factor: int, p: Peak, radius_px: float) -> Peak:
-    """``p`` with its ring model's centre: that of the most circular rings
-    (:func:`holofit.crop.radial.refine_center_radial`, on the block-averaged frame ``small``:
-    a quarter block is precise enough to place a ring model). A neighbour pulls the
-    point-symmetry centre off by up to ~2.5 px at ~2.5 um (a pair is nearly point-symmetric
-    about its midpoint) but hardly moves the most circular rings' centre."""
-    if p.ring_xy is not None:
-        return p
+def _rings_at(small: NDArray, factor: int, x0: float, y0: float, radius_px: float,
+              span_px: float = 0.0) -> tuple[float, float]:
+    """The centre of the most circular rings near ``(x0, y0)`` (full-frame pixels), on the
+    block-averaged frame ``small`` (a quarter block is precise enough to place a ring model).
+
+    A neighbour pulls the point-symmetry centre off: by ~2.5 px at ~2.5 um, and onto the
+    midpoint when the two holograms are alike (a pair is nearly point-symmetric about its
+    midpoint). The most circular rings' centre is sought first on a grid of trial centres
+    ``span_px`` about the start (if ``span_px`` > 0; the radial variance,
+    :func:`holofit.crop.radial.radial_variance`, is lowest on a true centre, where one
+    hologram's rings are all circular), then refined
+    (:func:`holofit.crop.radial.refine_center_radial`)."""
     shift = (factor - 1) / 2.0
-    fit = refine_center_radial(small, (p.x - shift) / factor, (p.y - shift) / factor,
-                               radius=min(radius_px, RING_RADIUS) / factor,
-                               reach=max(MOVE / factor, 2.0))
-    p.ring_xy = ((fit.x_px * factor + shift, fit.y_px * factor + shift) if fit.converged
-                 else (p.x, p.y))
-    return p
+    x, y = (x0 - shift) / factor, (y0 - shift) / factor
+    radius = min(radius_px, RING_RADIUS) / factor
+    span = span_px / factor
+    if span > 0:
+        box = _box(small.shape, x, y, radius + span + 1)
+        rows, cols = np.mgrid[box]
+        values = small[box].astype(np.float64).ravel()
+        rows, cols = rows.ravel().astype(np.float64), cols.ravel().astype(np.float64)
+        steps = np.arange(-span, span + 1e-9, max(span / 4.0, 1.0))
+        trials = [(radial_variance(values, cols, rows, x + dx, y + dy, radius), x + dx, y + dy)
+                  for dy in steps for dx in steps if dx * dx + dy * dy <= span * span]
+        _, x, y = min(trials)
+    fit = refine_center_radial(small, x, y, radius=radius, reach=max(MOVE / factor, 2.0))
+    if fit.converged:
+        return fit.x_px * factor + shift, fit.y_px * factor + shift
+    return x * factor + shift, y * factor + shift
 
 
 def peel(
@@ -226,23 +240,52 @@ def peel(
                      max(1, round(separation / factor)), noise, min_score, min_alignment,
                      min_symmetry, separation, half_width, search_px)
     peaks = list(peaks)
+    original = [replace(q) for q in peaks]
     new = False
     k = 0
     while k < len(peaks) and len(peaks) < max_centers:
         centre = peaks[k]
         k += 1
         found = search.next_to(centre, peaks)
-        if found is None and centre.ring_xy is None and centre.symmetry < RING_CHECK:
+        alone = not any(q is not centre and np.hypot(q.x - centre.x, q.y - centre.y)
+                        < search.peel_reach for q in peaks)
+        if found is None and alone and centre.ring_xy is None and centre.symmetry < RING_CHECK:
             # a neighbour may have pulled the point-symmetry centre off: peel again about
             # the most circular rings' centre (costly, so only for a centre that is not
-            # clean)
-            _ring_centre(search.small, factor, centre, radius_px)
+            # clean and has no neighbour yet)
+            centre.ring_xy = _rings_at(search.small, factor, centre.x, centre.y, radius_px)
             found = search.next_to(centre, peaks)
+            if found is None:
+                # or onto a pair's midpoint (two alike holograms): search from the most
+                # circular rings within the minimum separation, keep it if that finds the
+                # neighbour
+                x, y = _rings_at(search.small, factor, centre.x, centre.y, radius_px,
+                                 separation)
+                if np.hypot(x - centre.x, y - centre.y) > MOVE:
+                    moved = replace(centre, x=x, y=y, ring_xy=(x, y))
+                    peaks[k - 1] = moved
+                    found = search.next_to(moved, peaks)
+                    if found is None:
+                        peaks[k - 1] = centre
         if found is not None:
             peaks.append(found)
             new = True
             k -= 1  # peel this centre again with the new one subtracted too
-    return _refine_pairs(img, peaks, reach, half_width) if new else peaks
+    if not new:
+        return peaks
+    refined = _refine_pairs(img, peaks, reach, half_width)
+    # a new hologram is judged once both are refined with the other's rings subtracted:
+    # what a biased first subtraction left behind is not point-symmetric then
+    strict = 0.5 * (1.0 + min_symmetry)
+    junk = [q.refinement == "peeled" and not q.symmetry >= strict for q in refined]
+    if not any(junk):
+        return refined
+    kept = [q for q, bad in zip(refined, junk, strict=True) if not bad]
+    if not any(q.refinement == "peeled" for q in kept):
+        return [q for q, bad in zip(original, junk[:len(original)], strict=True)]
+    return _refine_pairs(img, [original[i] if i < len(original) else q
+                               for i, (q, bad) in enumerate(zip(refined, junk, strict=True))
+                               if not bad], reach, half_width)
 
 
 @dataclass
@@ -300,9 +343,9 @@ class _Search:
                 residual = _without(img, peaks, None, self.reach, wide)
             x, y, symmetry, converged, pairs = _refine_in(residual, wide, x0, y0,
                                                           self.half_width, self.search_px)
-            # stricter than the main search: the residual holds what subtraction left
-            if not (converged and pairs >= EDGE_PAIRS
-                    and symmetry >= 0.5 * (1.0 + self.min_symmetry)):
+            # stricter than the main search (and judged again once refined, :func:`peel`):
+            # the residual holds what subtraction left
+            if not (converged and pairs >= EDGE_PAIRS and symmetry >= self.min_symmetry):
                 continue
             if any(np.hypot(x - p.x, y - p.y) < self.separation for p in peaks):
                 continue
