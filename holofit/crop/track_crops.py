@@ -185,10 +185,12 @@ def drop_ghosts(linked: pd.DataFrame, summary: pd.DataFrame, size: int
     or cross: near a strong hologram they form steady tracks. A track whose nearest other
     track lies within :data:`GHOST_REACH` of a crop's side and scores at least
     :data:`GHOST_SCORE_RATIO` times
-    higher in at least :data:`GHOST_FRACTION` of its frames is left out (reported), the ids
+    higher in at least :data:`GHOST_FRACTION` of its frames (frames where it was found with
+    the neighbour's rings subtracted, ``refinement`` ``peeled``, do not count: a fringe goes
+    with its rings) is left out (reported), the ids
     renumbered in order of first appearance, the neighbours marked again. The price: a real
-    particle much weaker than a neighbour that close is left out too; the centre finder does
-    not resolve such a pair anyway (it finds one centre, README: crop).
+    particle much weaker than a neighbour that close is left out too unless the finder
+    found it by peeling (:mod:`holofit.crop.peel`: within ~2 vote radii of the neighbour).
 
     Returns
     -------
@@ -205,6 +207,9 @@ def drop_ghosts(linked: pd.DataFrame, summary: pd.DataFrame, size: int
     other = np.array([score.get(k, np.nan) if n else np.nan
                       for k, n in zip(keys, near, strict=True)], dtype=float)
     weak = other >= GHOST_SCORE_RATIO * linked["score"].to_numpy(dtype=float)
+    if "refinement" in linked.columns:
+        # found with the neighbour's rings subtracted (holofit.crop.peel): not its fringes
+        weak &= linked["refinement"].to_numpy() != "peeled"
     share = pd.Series(weak, index=linked.index).groupby(linked["particle"]).mean()
     ghosts = sorted(int(p) for p in share.index[share >= GHOST_FRACTION])
     if not ghosts or len(ghosts) == linked["particle"].nunique():

@@ -49,6 +49,10 @@ TRACK_SUMMARY_UNITS = {
 }
 
 
+#: the shortest search range trackpy's adaptive search tries for a subnetwork too large, um
+ADAPTIVE_STOP_UM = 0.3
+
+
 class TrackError(ValueError):
     """Candidates or settings that cannot be linked; the message says which."""
 
@@ -191,8 +195,13 @@ def link_tracks(
     work = table.reset_index(drop=True)
     work["x"], work["y"] = work["x_px"], work["y_px"]
     trackpy.quiet()
+    search_px = options.search_range_um / pixel_size_um
+    # adaptive search: a subnetwork too large to resolve (a crowded frame, a cluster of
+    # fringe candidates) is linked again with a shorter search range instead of failing
     linked = trackpy.link(
-        work, search_range=options.search_range_um / pixel_size_um, memory=options.memory
+        work, search_range=search_px, memory=options.memory,
+        adaptive_stop=min(ADAPTIVE_STOP_UM / pixel_size_um, 0.5 * search_px),
+        adaptive_step=0.9,
     )
     linked = linked.drop(columns=["x", "y"]).reset_index(drop=True)
 
@@ -229,6 +238,10 @@ def link_tracks(
 def mark_neighbours(linked: pd.DataFrame) -> pd.DataFrame:
     """Add, to each (particle, frame), the nearest other track in that frame.
 
+    A track counts in the frames within its span where it was not detected too, at its
+    linearly interpolated position: a hologram that merged into a neighbour's (closer than the
+    centre finder resolves) still overlaps that neighbour's crop.
+
     Parameters
     ----------
     linked : pandas.DataFrame
@@ -253,11 +266,14 @@ def mark_neighbours(linked: pd.DataFrame) -> pd.DataFrame:
             f"{int(row['frame'])}: a track holds one hologram per frame"
         )
     out = linked.copy()
-    neighbour = np.full(len(out), -1, dtype=int)
-    distance = np.full(len(out), np.inf)
-    pos = out[["x_px", "y_px"]].to_numpy(dtype=float)
-    ids = out["particle"].to_numpy()
-    for rows in out.groupby("frame").indices.values():
+    n = len(out)
+    hidden = _hidden(out)  # undetected holograms within their tracks' spans
+    both = pd.concat([out[["particle", "frame", "x_px", "y_px"]], hidden], ignore_index=True)
+    neighbour = np.full(len(both), -1, dtype=int)
+    distance = np.full(len(both), np.inf)
+    pos = both[["x_px", "y_px"]].to_numpy(dtype=float)
+    ids = both["particle"].to_numpy()
+    for rows in both.groupby("frame").indices.values():
         if len(rows) < 2:
             continue
         d = np.hypot(*(pos[rows, None, :] - pos[None, rows, :]).transpose(2, 0, 1))
@@ -265,6 +281,27 @@ def mark_neighbours(linked: pd.DataFrame) -> pd.DataFrame:
         nearest = np.argmin(d, axis=1)
         neighbour[rows] = ids[rows][nearest]
         distance[rows] = d[np.arange(len(rows)), nearest]
-    out["neighbour"] = neighbour
-    out["neighbour_px"] = distance
+    out["neighbour"] = neighbour[:n]
+    out["neighbour_px"] = distance[:n]
     return out
+
+
+def _hidden(linked: pd.DataFrame) -> pd.DataFrame:
+    """Where each track's hologram is, by linear interpolation, in the frames within its span
+    where it was not detected (bridged by the linker's memory): usually hidden in a
+    neighbour's, whose crop it then overlaps."""
+    parts = []
+    for p, track in linked.groupby("particle", sort=False):
+        frames = track["frame"].to_numpy()
+        order = np.argsort(frames)
+        frames = frames[order]
+        missing = np.setdiff1d(np.arange(frames[0], frames[-1] + 1), frames)
+        if missing.size == 0:
+            continue
+        xs = np.interp(missing, frames, track["x_px"].to_numpy(dtype=float)[order])
+        ys = np.interp(missing, frames, track["y_px"].to_numpy(dtype=float)[order])
+        parts.append(pd.DataFrame({"particle": p, "frame": missing, "x_px": xs, "y_px": ys}))
+    if not parts:
+        return pd.DataFrame({"particle": pd.Series(dtype=int), "frame": pd.Series(dtype=int),
+                             "x_px": pd.Series(dtype=float), "y_px": pd.Series(dtype=float)})
+    return pd.concat(parts, ignore_index=True)

@@ -39,7 +39,8 @@ CROP_UNITS = {
     "score": "1 (transform peak / rms transform of pure noise at the frame's noise level)",
     "alignment": "1 (0-1: fraction of nearby gradient energy pointing at the centre)",
     "symmetry": "1 (-1..1: point symmetry about the centre; 1 = perfect)",
-    "refinement": "symmetry | radial (near an edge) | none (coarse centre)",
+    "refinement": ("symmetry | radial (near an edge) | peeled (found with a neighbour's "
+                   "rings subtracted) | none (coarse centre)"),
     "n_candidates": "count (accepted candidate centres in the frame)",
     "n_masked": "pixels (masked, NaN, in the crop)",
     "neighbour": "track id of the nearest other track in the frame (-1: none)",
