@@ -122,3 +122,31 @@ def test_bad_input_is_named():
         LinkOptions(search_range_um=0)
     empty = link_tracks(pd.DataFrame({"frame": [], "x_px": [], "y_px": []}), PIXEL_UM)
     assert empty.particles == [] and empty.summary.empty
+
+
+def _merging_pair(gap: int) -> pd.DataFrame:
+    """Two still spheres 20 px (2.4 um) apart whose holograms give one detection for ``gap``
+    frames (closer than the centre finder resolves); the merged centre drifts from nearer
+    the left sphere to nearer the right one, as it does when the pair turns about itself."""
+    rows = []
+    rng = np.random.default_rng(5)
+    for f in range(60):
+        merged = 20 <= f < 20 + gap
+        if merged:
+            rows.append((f, 508.0 + 6.0 * (f - 20) / max(gap - 1, 1), 300.0, -1))
+            continue
+        rows.append((f, 500.0 + rng.normal(0, 0.3), 300.0 + rng.normal(0, 0.3), 0))
+        rows.append((f, 520.0 + rng.normal(0, 0.3), 300.0 + rng.normal(0, 0.3), 1))
+    return pd.DataFrame(rows, columns=["frame", "x_px", "y_px", "true"])
+
+
+def test_default_memory_outlives_a_merged_pair_without_a_swap():
+    candidates = _merging_pair(gap=8)
+    for options, mixes in ((LinkOptions(memory=3), True), (LinkOptions(), False)):
+        linked = link_tracks(candidates, PIXEL_UM, options).candidates
+        known = linked[linked["true"] >= 0]
+        mixed = known.groupby("particle")["true"].nunique().max() > 1
+        # with a memory shorter than the gap, the merged detection's track carries on with the
+        # right sphere once they part: the swap the default's longer memory prevents
+        assert mixed == mixes, f"memory {options.memory}"
+    assert LinkOptions().memory >= 10

@@ -70,7 +70,14 @@ class LinkOptions:
         half the closest approach of two particles, or trackpy resolves the pair as a
         subnetwork (slower, and ambiguous when they pass within a step of each other).
     memory : int
-        Frames a hologram may go undetected and keep its track.
+        Frames a hologram may go undetected and keep its track. Two holograms closer than the
+        centre finder resolves (about 2 um) give one detection for as long as they stay that
+        close; a track must outlive that gap, or the detection that merged both carries on
+        with the wrong particle when they part. With 3 frames, the five-sphere field of view
+        of ``bench/study_field_of_view.py`` (a pair unresolved for up to ~45 frames) had one
+        track hold 355 frames of one sphere and 58 of the other; with 10 (and 30) no track
+        mixes two spheres, though the pair's slower member is cut in two tracks; with 60 both
+        are whole.
     min_track_length : int
         Shorter tracks (in detected frames) are reported and left out.
     max_particles : int, optional
@@ -78,7 +85,7 @@ class LinkOptions:
     """
 
     search_range_um: float = 1.5
-    memory: int = 3
+    memory: int = 10
     min_track_length: int = 10
     max_particles: int | None = None
 
