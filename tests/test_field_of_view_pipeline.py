@@ -226,3 +226,27 @@ def test_fringes_of_a_strong_hologram_are_not_a_track():
     assert plan.linked.groupby("particle")["x_px"].median().round().tolist() == [51.0, 199.0]
     assert any("fringes of a stronger hologram" in w and "(70, 50) px" in w
                for w in plan.warnings)
+
+
+def test_run_fit_on_several_tracks_names_them(scene, tmp_path):
+    from holofit.fit.errors import FitStageError
+    from holofit.fit.stage import run_fit
+
+    _, _, crop = scene
+    cfg = load_particle(resolve_config("sphere_ps_1um", "particles"))
+    with pytest.raises(FitStageError, match=r"3 tracks \(particle 0, 1, 2\).*run_fit_tracks"):
+        run_fit(crop.out_dir, tmp_path / "prefit", None, cfg, tmp_path / "fit", plot=False)
+
+
+def test_sparse_detections_strung_by_the_memory_are_not_a_track():
+    from holofit.crop.tracks import LinkOptions, link_tracks
+
+    rows = [(f, 100.0, 100.0) for f in range(60)]  # a particle, every frame
+    rows += [(f, 135.0, 100.0) for f in range(10, 43, 3)]  # a fringe: 11 of 33 frames
+    table = pd.DataFrame(rows, columns=["frame", "x_px", "y_px"])
+    result = link_tracks(table, 0.1, LinkOptions(memory=10))
+    assert len(result.particles) == 1
+    dropped = result.summary[~result.summary["kept"].astype(bool)]
+    assert dropped["reason"].str.contains("detected in 11 of the 31 frames").all()
+    assert len(link_tracks(table, 0.1, LinkOptions(memory=10, min_detected_fraction=0.0))
+               .particles) == 2

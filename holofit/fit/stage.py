@@ -206,6 +206,12 @@ def run_fit(
     with threadpool_limits(limits=1, user_api="blas"), stage_inputs(
             crop_dir, frames, instrument, override_instrument, numerical_aperture,
             fit_na) as given:
+        if given.crops.multi:
+            raise FitStageError(
+                f"{given.crops.table_path}: {len(given.crops.particles)} tracks (particle "
+                f"{', '.join(map(str, given.crops.particles))}); run_fit fits one track: "
+                "use holofit.fit.per_track.run_fit_tracks (as `holofit fit` does) or keep one "
+                "track with `holofit crop --particle N`")
         passes = _FitPasses.open(
             given, particle, Path(prefit), None if library is None else Path(library),
             Path(out_dir), run, options or FrameFitSettings(), engine, tuple(fixed), fit_na,
