@@ -353,3 +353,30 @@ def test_the_trackers_suspects_are_still_refitted_and_repaired(truth):
                         seam - 1, seam, seam + 1, poor}
     assert report.replaced == 3
     assert _off_deg(out, u_true).max() < 1e-3 and (out["status"] == "ok").all()
+
+
+def test_the_small_sample_bar_rarely_flags_a_right_frame_and_catches_one_clearly_off():
+    """Right-minimum frames of a short movie: reduced chi^2 ``m (1 + r)``, ``r`` normal with
+    the chi^2 distribution's variance for 19600 pixels plus an excess of 0 or 1 %: a new
+    right frame lies above the bar built from 1-9 such frames in at most 0.3 % of movies,
+    a frame 15 % off the data in at least 99 %, and from 10 rows on the bar is chi2_bar's."""
+    from holofit.fit.continuity import small_sample_bar
+
+    rng = np.random.default_rng(3)
+    nu = 19600
+    for excess in (0.0, 0.01):
+        sd = math.sqrt(2.0 / nu + excess**2)
+        for n in (1, 2, 3, 5, 8, 9):
+            above = off = 0
+            for _ in range(2000):
+                chi = 1.03 * (1.0 + rng.normal(0.0, sd, n + 1))
+                tab = pd.DataFrame({"status": "ok", "chi2_red": chi[:n], "n_pixels": nu})
+                bar = small_sample_bar(tab, 4.0)
+                above += chi[n] > bar
+                off += 1.03 * 1.15 > bar
+            assert above <= 6, (excess, n, above)
+            assert off >= 1980
+    tab = pd.DataFrame({"status": "ok", "chi2_red": 1.0 + rng.normal(0, 0.01, 12),
+                        "n_pixels": nu})
+    assert small_sample_bar(tab, 4.0) == chi2_bar(tab, 4.0)
+    assert math.isnan(small_sample_bar(tab.assign(status="failed"), 4.0))

@@ -129,3 +129,21 @@ def test_the_fits_of_a_frame_share_their_solved_orientations():
                     FrameFitSettings(), seed=0)
     assert res.status == "ok" and res.extra["n_solves"] == len(keys) > 2
     assert len(set(keys)) == len(keys), "an orientation was solved twice"
+
+
+def test_the_initial_pass_stop_keeps_the_statics_within_a_standard_error(engine):
+    """``stop_chi2`` 1 (the initial pass's, holofit.fit.stage.INITIAL_STOP_CHI2) on a noisy
+    frame with every static free: the statics and the position land within one standard error
+    of the tight fit's minimum, with fewer DDA solves."""
+    rng = np.random.default_rng(5)
+    data = _hologram(engine) + rng.normal(0.0, 0.02, GRID.shape)
+    start_model = Spherocylinder(0.315, 0.68, 1.51)
+    free = (*FINAL, "a_um", "b_um", "n")
+    fits = [_fit(engine, data, free=free, model=start_model, mirror=False, stop_chi2=stop)
+            for stop in (0.0, 1.0)]
+    tight, stopped = fits
+    assert tight.status == stopped.status == "ok"
+    for key in ("a_um", "b_um", "n", "x_um", "y_um", "z_um", "theta_rad"):
+        assert abs(stopped.values[key] - tight.values[key]) < tight.errors[key], key
+    assert stopped.chi2 - tight.chi2 < 1.5  # chi^2 units of the pixel noise
+    assert stopped.extra["n_solves"] < tight.extra["n_solves"]

@@ -172,3 +172,25 @@ def test_a_janus_track_started_on_its_mirror_has_no_ok_unflagged_wrong_frame():
     for k, row in enumerate(rows):
         assert _right(track, row, k, nm=30.0, deg=3.0) or _flagged(row), (k, row["message"])
     assert all(_right(track, r, k, nm=30.0, deg=3.0) for k, r in enumerate(rows) if k >= 1)
+
+
+def test_a_short_movie_gets_a_bar_and_an_artefact_frame_is_not_ok(theory, tmp_path):
+    """A short movie's initial pass has fewer than 10 frames: before, no chi^2 bar, so a warm
+    frame off the data was accepted on its status and step alone (plain ``ok``)."""
+    from holofit.fit.tracked import bar_from_initial
+    from holofit.io.tables import write_table
+
+    track = make_track(theory, n=4, seed=6)
+    clean = _track(theory, track)  # the few frames an initial pass would give
+    assert (clean["status"] == "ok").all()
+    write_table(tmp_path / "initial.csv", clean)
+    bar, note = bar_from_initial(tmp_path / "initial.csv", 4.0)
+    assert bar is not None and "fewer than 10" in note
+    assert clean["chi2_red"].max() < bar < 1.2
+    f = track.frames[2]  # a faint artefact (a neighbour's fringes) on frame 2
+    cols = np.arange(f.crop.shape[1])
+    track.frames[2] = replace(f, crop=f.crop + 0.02 * np.sin(2 * np.pi * cols / 9.0)[None, :])
+    rows = _track(theory, track, bar=bar).to_dict("records")
+    assert rows[2]["chi2_red"] > bar and rows[2]["status"] == "poor_fit"
+    assert rows[2]["track_source"] == "reacquired"
+    assert [r["status"] for r in rows[:2] + rows[3:]] == ["ok"] * 3

@@ -97,6 +97,12 @@ class FrameFitSettings:
         that close to its minimum, and MINPACK's confirming iteration (one hologram and one
         Jacobian of a warm frame's ~4) is saved. ``ftol`` 1e-6 on a 140 x 140 crop is ~0.02
         chi^2 units too. 0: MINPACK's tests alone.
+    stop_chi2 : float
+        The stopping rule of ``warm_stop_chi2`` for every fit on all pixels, a library start's
+        too (the larger of the two applies to warm fits); 0: none. The initial pass sets it
+        (:data:`holofit.fit.stage.INITIAL_STOP_CHI2`): there the static parameters of one
+        frame scatter from the movie's median by far more than the uncertainty a chi^2 unit
+        means, so the fit's last steps along their flat valley buy nothing.
     quality : QualityLimits
         When a converged fit is still not ``ok``.
     far_field : bool
@@ -116,6 +122,7 @@ class FrameFitSettings:
     xtol: float = 1e-6
     ambiguity_chi2: float = 9.0
     warm_stop_chi2: float = 0.02
+    stop_chi2: float = 0.0
     quality: QualityLimits = field(default_factory=QualityLimits)
     far_field: bool = False
 
@@ -128,6 +135,8 @@ class FrameFitSettings:
             raise ValueError("screen_pixels >= 100, screen_nfev >= 1 and max_nfev >= 1 needed")
         if not self.ambiguity_chi2 >= 0:
             raise ValueError(f"ambiguity_chi2 must be >= 0, got {self.ambiguity_chi2}")
+        if not self.stop_chi2 >= 0:
+            raise ValueError(f"stop_chi2 must be >= 0, got {self.stop_chi2}")
         if not self.warm_stop_chi2 >= 0:
             raise ValueError(f"warm_stop_chi2 must be >= 0, got {self.warm_stop_chi2}")
 
@@ -262,9 +271,10 @@ class _FrameFit:
             state = replace(state, statics=statics)
             static_names = {name for name, _ in statics}
             names = [n for n in free if n not in static_names]
+        stop = max(self.opts.warm_stop_chi2 if warm else 0.0, self.opts.stop_chi2)
         space = ParameterSpace(self.model, names, state)
         return _Branch(start, space, self.run(space, None, self.opts.max_nfev, self.opts.ftol,
-                                              self.opts.warm_stop_chi2 if warm else 0.0))
+                                              stop))
 
     @property
     def n_solves(self) -> int:

@@ -14,8 +14,11 @@ disagree.
 The movie's chi^2 bar (:func:`holofit.fit.continuity.chi2_bar`, as the continuity sweeps
 compute it) is taken from the initial pass's table (:func:`bar_from_initial`): the final pass
 needs it before any of its chunks runs, and the initial pass is the one table of this movie
-fitted before it (at least 10 converged frames needed; otherwise no bar: a warm fit is then
-checked by its status and its step only, and the sweeps' bar on the final table remains).
+fitted before it. A short movie's initial pass has fewer than 10 converged frames, too few to
+measure the movie's spread: its bar (:func:`holofit.fit.continuity.small_sample_bar`) takes
+the spread at least from the noise model (the chi^2 distribution of the pixel count plus a
+floor for the excess scatter), widened for the few frames. Only a movie without any converged
+initial frame has no bar (a warm fit is then checked by its status and its step only).
 """
 
 from __future__ import annotations
@@ -30,11 +33,11 @@ import pandas as pd
 
 from holofit.batch.runner import Precomputed
 from holofit.batch.stage import FrameLoader
-from holofit.fit.continuity import chi2_bar
+from holofit.fit.continuity import chi2_bar, small_sample_bar
 from holofit.fit.task import FitConfig, worker_theory
 from holofit.fit.tracking import ChunkFrame, TrackOptions, stitch_chunks, track_chunk
 from holofit.io.tables import read_table
-from holofit.status import ERROR
+from holofit.status import ERROR, OK, POOR_FIT
 
 __all__ = [
     "CHUNK_KEY",
@@ -98,18 +101,29 @@ def plan_chunks(frames: Sequence[int], overlap: int = OVERLAP,
 def bar_from_initial(path: Path, sigmas: float) -> tuple[float | None, str]:
     """The movie's chi^2 bar from the initial pass's table, and where it came from.
 
-    Returns ``(None, reason)`` when there is no such table or it has fewer than 10 converged
-    frames.
+    With at least 10 converged frames, :func:`holofit.fit.continuity.chi2_bar`; with fewer (a
+    short movie's initial pass), :func:`holofit.fit.continuity.small_sample_bar`: the same
+    form with the spread taken at least from the noise model and widened for the few rows, so
+    that a warm frame clearly off the data is re-acquired and, if still above it, flagged,
+    never plain ``ok``. Returns ``(None, reason)`` when there is no such table or no
+    converged frame in it.
     """
     if not path.exists():
         return None, f"no chi^2 bar for the tracking ({path.name} not found): warm fits " \
                      "checked by status and step only"
-    bar = chi2_bar(read_table(path), sigmas)
+    table = read_table(path)
+    bar = chi2_bar(table, sigmas)
+    if math.isfinite(bar):
+        return bar, f"tracking chi^2 bar {bar:.4g} (reduced; median + {sigmas:g} " \
+                    f"lower-half spreads of {path.name})"
+    bar = small_sample_bar(table, sigmas)
     if not math.isfinite(bar):
-        return None, (f"no chi^2 bar for the tracking (fewer than 10 converged frames in "
-                      f"{path.name}): warm fits checked by status and step only")
-    return bar, f"tracking chi^2 bar {bar:.4g} (reduced; median + {sigmas:g} lower-half " \
-                f"spreads of {path.name})"
+        return None, (f"no chi^2 bar for the tracking (no converged frame in {path.name}): "
+                      "warm fits checked by status and step only")
+    n = int(table["status"].isin((OK, POOR_FIT)).sum())
+    return bar, (f"tracking chi^2 bar {bar:.4g} (reduced; {n} converged frame(s) in "
+                 f"{path.name}, fewer than 10: median + {sigmas:g} spreads, the spread at "
+                 f"least the noise model's, widened for the few frames)")
 
 
 @dataclass(frozen=True)
