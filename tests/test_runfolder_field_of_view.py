@@ -15,6 +15,7 @@ import pytest
 
 from holofit.analysis.hydrodynamics import sphere_diffusion
 from tests.runfolder_helpers import make_env, names, needs_make, run_make, stages_run
+from tests.stage_helpers import ROD_TOML
 
 pytestmark = [needs_make, pytest.mark.slow]
 
@@ -97,16 +98,6 @@ def test_a_run_folder_fits_every_particle_of_a_field_of_view(tmp_path):
     assert abs(readme.loc["D_t", "value"] - d_true) < 3 * readme.loc["D_t", "error"]
 
 
-ROD_TOML = """\
-[particle]
-model = "spherocylinder"
-a_um = 0.3
-b_um = 0.7
-index = 1.5
-
-[dda]
-dipole_size_um = 0.1
-"""
 #: the single-rod run folder test's small settings (tests/test_runfolder_rod.py)
 ROD_OPTIONS = {
     "crop": "--size 64 --no-plot",
