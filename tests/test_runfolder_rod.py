@@ -14,19 +14,10 @@ from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.runfolder import init_run
 from holofit.simulate.holograms import simulate_movie
 from tests.runfolder_helpers import mtimes, names, needs_make, run_make, stages_run
+from tests.stage_helpers import ROD_TOML
 
 pytestmark = [needs_make, pytest.mark.slow]
 
-ROD_TOML = """\
-[particle]
-model = "spherocylinder"
-a_um = 0.3
-b_um = 0.7
-index = 1.5
-
-[dda]
-dipole_size_um = 0.1
-"""
 ANGLES = np.radians([[30, 50, 0], [34, 53, 0], [38, 49, 0]])  # psi, theta, phi
 POSITIONS = np.array([[8.0, 8.0, 9.0], [8.1, 7.9, 9.2], [7.9, 8.05, 9.1]])
 OPTIONS = {
