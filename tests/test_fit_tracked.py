@@ -22,11 +22,11 @@ def test_chunks_cover_every_frame_and_overlap():
     assert len(plan_chunks(range(24))) == 2  # a short movie still shared by workers
     assert len(plan_chunks(range(2000))) == 20
     assert plan_chunks([]) == []
-    initial = plan_chunks(range(100), INITIAL_OVERLAP)  # the initial pass: one frame
-    assert all(a[-1] == b[0] for a, b in itertools.pairwise(initial))
-    assert sum(len(c) for c in initial) == 100 + len(initial) - 1
-    # the initial pass's default 8 frames: one chunk per worker
-    assert [len(c) for c in plan_chunks(range(8), INITIAL_OVERLAP, min_chunk=4)] == [5, 4]
+    initial = plan_chunks(range(100), INITIAL_OVERLAP)  # the initial pass: no overlap
+    assert all(a[-1] + 1 == b[0] for a, b in itertools.pairwise(initial))
+    assert sum(len(c) for c in initial) == 100
+    # the initial pass's default 8 frames: one chunk of 4 per worker
+    assert [len(c) for c in plan_chunks(range(8), INITIAL_OVERLAP, min_chunk=4)] == [4, 4]
 
 
 def _row(chunk, frame, x, status="ok", message=""):

@@ -60,16 +60,17 @@ def test_single_precision_solves_change_a_hologram_far_below_camera_noise():
 
 def test_a_short_initial_pass_is_cut_in_two():
     """4 initial frames (``--initial-frames 4``): two chunks of 2 (one per worker of 2 cores,
-    no overlap frame), not one of 4; 8 frames and more as before (chunks of at least 4,
-    overlapping by 1)."""
-    from holofit.fit.stage import initial_min_chunk, initial_overlap
-    from holofit.fit.tracked import plan_chunks
+    the initial pass's chunks never overlap), not one of 4; 8 frames and more in chunks of at
+    least 4."""
+    from holofit.fit.stage import initial_min_chunk
+    from holofit.fit.tracked import INITIAL_OVERLAP, plan_chunks
 
     def plan(n):
-        return plan_chunks(list(range(n)), initial_overlap(n), min_chunk=initial_min_chunk(n))
+        return plan_chunks(list(range(n)), INITIAL_OVERLAP, min_chunk=initial_min_chunk(n))
 
     assert plan(3) == [[0, 1, 2]]
     assert plan(4) == [[0, 1], [2, 3]]
     assert plan(7) == [[0, 1, 2, 3], [4, 5, 6]]
-    assert plan(8) == [[0, 1, 2, 3, 4], [4, 5, 6, 7]]
+    assert plan(8) == [[0, 1, 2, 3], [4, 5, 6, 7]]
+    assert plan(10) == [[0, 1, 2, 3, 4], [5, 6, 7, 8, 9]]
     assert len(plan(100)) == 8 and min(len(c) for c in plan(100)) >= 4

@@ -393,7 +393,7 @@ class _FitPasses:
             bar, note = None, (f"{name} pass along the track: no chi^2 bar yet (warm fits "
                                "checked by status and step)")
         self.run.notes.append(note)
-        overlap = OVERLAP if name == "final" else initial_overlap(len(frames))
+        overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
         tcfg = TrackedConfig(cfg, replace(self.tracking, frame=cfg.options), bar, overlap)
         chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK if name == "final"
                              else initial_min_chunk(len(frames)))
@@ -478,21 +478,13 @@ def initial_choice(fittable: list[int], overlapped: list[bool], n: int) -> list[
     return sorted((clean + rest)[:n])
 
 
-def initial_overlap(n_frames: int) -> int:
-    """Frames an initial-pass chunk reaches into the next: ``INITIAL_OVERLAP``, none for a
-    short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames). There the overlap frame
-    would be a third fit in a chunk of two (4 frames of a Janus movie, first chunk: 263
-    instead of 175 DDA solves, the longest item of the pass), and the static parameters, the
-    pass's product, are the median over its frames either way."""
-    return INITIAL_OVERLAP if n_frames >= 2 * INITIAL_MIN_CHUNK else 0
-
-
 def initial_min_chunk(n_frames: int) -> int:
     """The initial pass's shortest chunk for ``n_frames`` frames (:func:`plan_chunks`). A
     short initial pass (fewer than ``2 * INITIAL_MIN_CHUNK`` frames: ``--initial-frames``
     4-7, or a movie that short) is still cut in two, one chunk per worker of a 2-core
-    machine: 4 initial frames of a Janus movie become two chunks of 2 frames (no overlap:
-    :func:`initial_overlap`), a library fit and a warm fit each (134 and 41, 112 and 100 DDA
+    machine: 4 initial frames of a Janus movie become two chunks of 2 frames (the initial
+    pass's chunks do not overlap: :data:`holofit.fit.tracked.INITIAL_OVERLAP`), a library fit
+    and a warm fit each (134 and 41, 112 and 100 DDA
     solves, measured), not one chunk of 4 frames on one worker while the other idles."""
     if n_frames >= 2 * INITIAL_MIN_CHUNK:
         return INITIAL_MIN_CHUNK

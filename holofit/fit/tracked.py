@@ -64,9 +64,11 @@ MIN_CHUNKS = 8
 MIN_CHUNK = 12
 #: frames a chunk of the final pass reaches into the next one
 OVERLAP = 3
-#: ... and of the initial pass (direct DDA solves with sizes free: an overlap frame costs
-#: seconds; one frame still compares the two chunks)
-INITIAL_OVERLAP = 1
+#: ... and of the initial pass: none. Its frames are direct DDA solves with sizes free (a
+#: Janus frame costs tens of solves), so an overlap frame, fitted twice, lengthens the longest
+#: chunk (the pass's wall time on a few workers) by a whole frame, and the pass's product, the
+#: static parameters' median, needs no stitching: every chunk starts from the library
+INITIAL_OVERLAP = 0
 #: the initial pass's shortest chunk (its default 8 frames: 2 chunks, one per worker)
 INITIAL_MIN_CHUNK = 4
 
