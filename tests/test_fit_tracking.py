@@ -1,7 +1,9 @@
 """The tracking final pass (holofit.fit.tracking) on simulated rod tracks of known truth:
 warm frames land where independent fits do at a fraction of the cost, a track started on the
 wrong branch and a track whose particle jumps (a frame dropped) recover by re-acquisition with
-the frames in between flagged, the runner-up keeps its meaning, chunks stitch."""
+the frames in between flagged, the runner-up keeps its meaning, chunks stitch; a frame with an
+initial-pass row is checked against it: a wrong-branch warm frame is switched to the right
+branch, right-branch frames are left exactly as they were."""
 
 from __future__ import annotations
 

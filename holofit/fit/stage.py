@@ -404,9 +404,11 @@ class _FitPasses:
         pass_table = self.table(cfg, table_name, static)
         path = pass_table.path
         columns = (*pass_table.columns, *TRACK_COLUMNS)
-        key = fingerprint({"tracked": tcfg.as_dict(), "crops": self.given.crops.fingerprint(),
-                           "outlier_factor": self.outlier_factor, "frames": frames,
-                           "initial_poses": sorted(poses.items())})
+        key_doc = {"tracked": tcfg.as_dict(), "crops": self.given.crops.fingerprint(),
+                   "outlier_factor": self.outlier_factor, "frames": frames}
+        if name == "final":
+            key_doc["initial_poses"] = sorted(poses.items())
+        key = fingerprint(key_doc)
         meta = {**pass_table.meta, "tracking": {**tcfg.as_dict(), "chi2_bar_note": note,
                                                 "chunks": [[c[0], c[-1]] for c in chunks]}}
         assert self.frame_loader is not None
