@@ -88,6 +88,13 @@ def test_library_then_both_passes_recover_the_truth(movie, tmp_path):
         assert col in table.columns
     assert (tmp_path / "fit" / "fit.png").exists()
     assert list((tmp_path / "fit" / "frames_final").glob("frame_*.png"))
+    # the initial pass's 2 frames are checked against their initial fits (one hologram
+    # each) and, on the right branch, not changed; the count is in the notes and the sidecar
+    assert table["track_initial"].tolist() == [0, 0, -1]
+    assert (table["track_initial_dchi2"].iloc[:2] < 9.0).all()
+    assert any("2 frame(s) checked against their initial-pass fit" in n and "0 changed" in n
+               for n in run.notes), run.notes
+    assert fit.meta["tracking"]["initial_check"] == {"checked": 2, "refitted": 0, "changed": 0}
     # a rerun finds everything done and changes nothing
     before = run.final.read_bytes()
     again = run_fit(root / "crop", root / "prefit", root / "lib", particle, tmp_path / "fit",

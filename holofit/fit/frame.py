@@ -42,6 +42,7 @@ __all__ = [
     "CarriedRunnerUp",
     "FrameFitSettings",
     "WarmFit",
+    "evaluate_frame",
     "fit_frame",
     "fit_frame_warm",
     "mirror_state",
@@ -534,6 +535,34 @@ def fit_frame_warm(
     result.extra["runner_up_refit"] = how
     result.time_s = time.perf_counter() - t0
     return WarmFit(result, _carry(best, runner, result))
+
+
+def evaluate_frame(
+    crop: NDArray,
+    corner_rc: tuple[int, int],
+    pixel_size_um: float,
+    theory: ScatteringTheory,
+    model: ParticleModel,
+    optics: Optics,
+    state: State,
+    free: Sequence[str],
+    options: FrameFitSettings | None = None,
+    seed: int = 0,
+    extra_field: tuple[NDArray, NDArray] | None = None,
+) -> tuple[float, int]:
+    """One state's chi^2 on a crop, nothing fitted: the residual sum of squares in units of
+    the pixel noise, on the pixels (and with the noise) a fit of this crop with the same
+    ``options`` and ``seed`` uses (:func:`fit_frame_warm`), so that it compares with that
+    fit's ``rss / noise_sd**2``. Returns the chi^2 (inf where the state is invalid) and the
+    holograms computed (1)."""
+    opts = options or FrameFitSettings()
+    fit = _FrameFit(crop, corner_rc, pixel_size_um, theory, model, optics, opts,
+                    np.random.default_rng(seed), free, extra_field)
+    if fit.na_start is not None and state.numerical_aperture is None:
+        state = replace(state, numerical_aperture=fit.na_start)
+    rss = _rss(fit.evaluate(state, np.arange(fit.pix.size)))
+    noise2 = fit.noise**2 if fit.noise > 0 else math.nan
+    return rss / noise2, fit.n_eval
 
 
 def _carry(best: _Branch, runner: _Branch | None, result: FitResult) -> CarriedRunnerUp | None:

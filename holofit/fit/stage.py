@@ -88,6 +88,8 @@ from holofit.fit.tracked import (
     TrackedConfig,
     bar_from_initial,
     chunk_loader,
+    initial_check_summary,
+    initial_poses,
     plan_chunks,
     stitch_table,
     track_chunk_task,
@@ -393,6 +395,8 @@ class _FitPasses:
             bar, note = None, (f"{name} pass along the track: no chi^2 bar yet (warm fits "
                                "checked by status and step)")
         self.run.notes.append(note)
+        # the final pass checks each initial frame against its initial-pass fit
+        poses = initial_poses(self.out / "initial.csv") if name == "final" else {}
         overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
         tcfg = TrackedConfig(cfg, replace(self.tracking, frame=cfg.options), bar, overlap)
         chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK if name == "final"
@@ -400,8 +404,11 @@ class _FitPasses:
         pass_table = self.table(cfg, table_name, static)
         path = pass_table.path
         columns = (*pass_table.columns, *TRACK_COLUMNS)
-        key = fingerprint({"tracked": tcfg.as_dict(), "crops": self.given.crops.fingerprint(),
-                           "outlier_factor": self.outlier_factor, "frames": frames})
+        key_doc = {"tracked": tcfg.as_dict(), "crops": self.given.crops.fingerprint(),
+                   "outlier_factor": self.outlier_factor, "frames": frames}
+        if name == "final":
+            key_doc["initial_poses"] = sorted(poses.items())
+        key = fingerprint(key_doc)
         meta = {**pass_table.meta, "tracking": {**tcfg.as_dict(), "chi2_bar_note": note,
                                                 "chunks": [[c[0], c[-1]] for c in chunks]}}
         assert self.frame_loader is not None
@@ -410,7 +417,7 @@ class _FitPasses:
                                  key_columns=CHUNK_KEY)
         self.run.summaries[name], _ = run_stage(
             track_chunk_task, tcfg, [(i, c[0]) for i, c in enumerate(chunks)],
-            chunk_loader(self.frame_loader, chunks, cfg.instrument.frame_rate_hz),
+            chunk_loader(self.frame_loader, chunks, cfg.instrument.frame_rate_hz, poses),
             chunk_table, batch=self.batch)
         longest = max((len(c) for c in chunks), default=0)
         self.run.notes.append(f"{name} pass along the track: {len(chunks)} chunk(s) of up to "
@@ -426,6 +433,9 @@ class _FitPasses:
                                   f"chunks disagree ({path.stem}_overlaps.csv)")
         outlier_rule(self.outlier_factor)(table)
         meta["tracking"]["overlap_disagreements"] = len(overlaps)
+        if poses:
+            meta["tracking"]["initial_check"], check_note = initial_check_summary(table)
+            self.run.notes.append(check_note)
         meta["batch"] = {"fingerprint": key, "complete": True, "frames_total": len(table)}
         staged = partial_path(path)
         write_table(staged, table.reindex(columns=list(columns)), meta)

@@ -19,12 +19,17 @@ measure the movie's spread: its bar (:func:`holofit.fit.continuity.small_sample_
 the spread at least from the noise model (the chi^2 distribution of the pixel count plus a
 floor for the excess scatter), widened for the few frames. Only a movie without any converged
 initial frame has no bar (a warm fit is then checked by its status and its step only).
+
+The initial pass's converged rows are also each frame's independent check
+(:func:`initial_poses`; :mod:`holofit.fit.tracking`, step 6): the final pass evaluates the
+hologram at the initial row's pose, and where that beats the track's fit it refits from there;
+:func:`initial_check_summary` counts what the check did.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -35,7 +40,13 @@ from holofit.batch.runner import Precomputed
 from holofit.batch.stage import FrameLoader
 from holofit.fit.continuity import chi2_bar, small_sample_bar
 from holofit.fit.task import FitConfig, worker_theory
-from holofit.fit.tracking import ChunkFrame, TrackOptions, stitch_chunks, track_chunk
+from holofit.fit.tracking import (
+    INITIAL_POSE,
+    ChunkFrame,
+    TrackOptions,
+    stitch_chunks,
+    track_chunk,
+)
 from holofit.io.tables import read_table
 from holofit.status import ERROR, OK, POOR_FIT
 
@@ -49,6 +60,8 @@ __all__ = [
     "TrackedConfig",
     "bar_from_initial",
     "chunk_loader",
+    "initial_check_summary",
+    "initial_poses",
     "plan_chunks",
     "stitch_table",
     "track_chunk_task",
@@ -128,6 +141,39 @@ def bar_from_initial(path: Path, sigmas: float) -> tuple[float | None, str]:
                  f"least the noise model's, widened for the few frames)")
 
 
+def initial_poses(path: Path) -> dict[int, dict[str, float]]:
+    """Each converged row of the initial pass's table at ``path`` (``ok`` or ``poor_fit``,
+    its pose finite): frame -> its :data:`holofit.fit.tracking.INITIAL_POSE` values, the
+    final pass's check of that frame; empty without the table."""
+    if not path.exists():
+        return {}
+    table = read_table(path)
+    cols = [c for c in INITIAL_POSE if c in table.columns]
+    if "status" not in table.columns or "frame" not in table.columns:
+        return {}
+    rows = table[table["status"].isin((OK, POOR_FIT))]
+    out = {}
+    for row in rows.to_dict("records"):
+        pose = {c: float(row[c]) for c in cols}
+        if all(math.isfinite(v) for v in pose.values()):
+            out[int(row["frame"])] = pose
+    return out
+
+
+def initial_check_summary(table: pd.DataFrame) -> tuple[dict[str, int], str]:
+    """What the check against the initial-pass rows did in a tracked table: frames checked,
+    refitted from the initial pose (it beat the fit by the margin) and changed by it, and
+    the note that says so."""
+    code = table["track_initial"] if "track_initial" in table.columns else pd.Series([])
+    code = pd.to_numeric(code, errors="coerce")
+    counts = {"checked": int((code >= 0).sum()), "refitted": int((code >= 1).sum()),
+              "changed": int((code == 2).sum())}
+    note = (f"final pass: {counts['checked']} frame(s) checked against their initial-pass "
+            f"fit (one hologram each), {counts['refitted']} refitted from it, "
+            f"{counts['changed']} changed (re-acquired; track_initial 2)")
+    return counts, note
+
+
 @dataclass(frozen=True)
 class TrackedConfig:
     """Everything a worker needs for the chunks of the tracking final pass (picklable).
@@ -168,8 +214,12 @@ class ChunkPayload:
 
 
 def chunk_loader(loader: FrameLoader, chunks: Sequence[Sequence[int]],
-                 frame_rate_hz: float | None) -> Callable[[Any], ChunkPayload]:
-    """The batch loader of chunk items ``(chunk, first frame)``."""
+                 frame_rate_hz: float | None,
+                 initial: Mapping[int, dict[str, float]] | None = None
+                 ) -> Callable[[Any], ChunkPayload]:
+    """The batch loader of chunk items ``(chunk, first frame)``; ``initial``: the initial
+    pass's poses by frame (:func:`initial_poses`), each frame's check."""
+    initial = initial or {}
 
     def load(key: Any) -> ChunkPayload:
         frames, skipped = [], []
@@ -182,7 +232,7 @@ def chunk_loader(loader: FrameLoader, chunks: Sequence[Sequence[int]],
             frames.append(ChunkFrame(
                 f, got.crop, got.corner, (s["x_um"], s["y_um"], s["z_um"]), s["alpha"],
                 tuple(got.candidates),  # type: ignore[arg-type]
-                f / frame_rate_hz if frame_rate_hz else math.nan))
+                f / frame_rate_hz if frame_rate_hz else math.nan, initial.get(f)))
         return ChunkPayload(tuple(frames), tuple(skipped))
 
     return load
@@ -195,7 +245,7 @@ def track_chunk_task(config: TrackedConfig, key: Any, payload: ChunkPayload
 
     fit, inst = config.fit, config.fit.instrument
     frames = [ChunkFrame(f.frame, f.crop, f.corner, f.position_um, f.alpha,
-                         tuple(Candidate(*c) for c in f.candidates), f.time_s)
+                         tuple(Candidate(*c) for c in f.candidates), f.time_s, f.initial)
               for f in payload.frames]
     table = track_chunk(frames, worker_theory(fit), fit.particle.model, inst.optics,
                         inst.pixel_size_um, fit.free, config.chi2_bar, config.options)

@@ -23,6 +23,16 @@ that fails. Along one track (frames in time order):
    status but is flagged (``track_jump`` 1 and a message), never silently ``ok``.
 5. A frame whose fit raises is an ``error`` row; the next frame starts from the last
    accepted fit.
+6. A frame the initial pass fitted too (``ChunkFrame.initial``: its converged row, fitted
+   independently of this track with the statics free) is checked against that fit: the
+   hologram at the initial row's position, orientation and alpha with this pass's statics is
+   evaluated once on the frame's pixels. An evaluation is an upper bound of its basin's
+   minimum, so where it beats the frame's fit (warm or library) by more than
+   ``initial_margin_chi2`` a lower minimum exists that the track missed (a warm start that
+   ran onto a wrong branch): the frame is refitted from the initial row's pose and the lower
+   of the two minima kept. A warm frame so changed is then re-acquired as in step 4 (the
+   library's starts join, the better fit is kept, the bar and the step flag it), and the
+   track goes on from it. ``track_initial`` records what the check did.
 
 Chunks of one track overlap by a few frames; :func:`stitch_chunks` joins them and reports where
 the overlaps disagree (position or axis beyond tolerance).
@@ -44,13 +54,16 @@ from numpy.typing import NDArray
 
 from holofit.conventions import euler_zyz
 from holofit.fit.frame import (
+    SAME_BASIN_RAD,
+    SAME_BASIN_Z_UM,
     CarriedRunnerUp,
     FrameFitSettings,
     WarmFit,
+    evaluate_frame,
     fit_frame,
     fit_frame_warm,
 )
-from holofit.holomodel.parameters import State, static_values
+from holofit.holomodel.parameters import APERTURE, State, static_values
 from holofit.holomodel.result import FitResult, result_row
 from holofit.library.search import Candidate
 from holofit.optics import Optics
@@ -59,6 +72,8 @@ from holofit.scattering.theory import ScatteringTheory
 from holofit.status import ERROR, OK, POOR_FIT
 
 __all__ = [
+    "INITIAL_CHECK",
+    "INITIAL_POSE",
     "TRACK_COLUMNS",
     "ChunkFrame",
     "TrackOptions",
@@ -68,10 +83,23 @@ __all__ = [
 
 #: what a tracked row adds to the fit table's columns: how the frame was obtained
 #: (``library``: a chunk's first frame; ``warm``; ``reacquired``), whether its step from the
-#: accepted predecessor broke the smoothness limits, whether the runner-up was refitted, and
-#: the step itself (um, rad)
+#: accepted predecessor broke the smoothness limits, whether the runner-up was refitted, the
+#: step itself (um, rad), what the check against the frame's initial-pass fit did
+#: (:data:`INITIAL_CHECK`) and by how much the initial row's pose beat the frame's fit there
+#: (chi^2 units, the pixel noise's; negative: it did not; NaN: not checked)
 TRACK_COLUMNS = ("track_source", "track_jump", "runner_up_refit", "track_step_um",
-                 "track_step_axis_rad")
+                 "track_step_axis_rad", "track_initial", "track_initial_dchi2")
+#: the codes of ``track_initial`` (module docstring, step 6)
+INITIAL_CHECK = {
+    -1: "no initial-pass row for this frame",
+    0: "checked: the initial row's pose does not beat the frame's fit by the margin",
+    1: "the initial row's pose beat the frame's fit: refitted from it, the frame's own "
+       "minimum was the lower and is kept",
+    2: "the initial row's pose beat the frame's fit: refitted from it, its minimum kept "
+       "(the frame changed)",
+}
+#: the pose columns of an initial-pass row the check uses (``phi_rad`` where the model has it)
+INITIAL_POSE = ("x_um", "y_um", "z_um", "psi_rad", "theta_rad", "phi_rad", "alpha")
 
 
 @dataclass(frozen=True)
@@ -94,6 +122,10 @@ class ChunkFrame:
         The library's orientations for this frame, best first.
     time_s : float
         Time of the frame, s (NaN: unknown).
+    initial : dict, optional
+        The initial pass's fit of this frame (a converged row's :data:`INITIAL_POSE`
+        values), the independent check of the module docstring's step 6; None: the initial
+        pass did not fit this frame.
     """
 
     frame: int
@@ -103,6 +135,7 @@ class ChunkFrame:
     alpha: float
     candidates: tuple[Candidate, ...]
     time_s: float = math.nan
+    initial: dict[str, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -133,6 +166,14 @@ class TrackOptions:
     refit_margin_chi2 : float
         The runner-up is fitted on all pixels when its screening is within
         ``ambiguity_chi2 + refit_margin_chi2`` of the best (:func:`fit_frame_warm`).
+    initial_margin_chi2 : float
+        A frame's fit is refitted from its initial-pass row's pose where that pose's chi^2
+        (one evaluation, this pass's statics) is lower by more than this (units of the pixel
+        noise; module docstring, step 6). 9 is ``ambiguity_chi2``: a competing minimum lower
+        by less is not distinguishable at the noise level anyway, while the evaluation of a
+        pose in the fit's own basin cannot beat the fit's minimum by more than the warm
+        fits' stopping rule (``warm_stop_chi2``, 0.02), so a right-branch frame is never
+        switched.
     warm : bool
         False: every frame is an independent library fit (``--no-tracking``).
     initial : bool
@@ -151,14 +192,15 @@ class TrackOptions:
     min_history: int = 3
     extrapolate: bool = True
     refit_margin_chi2: float = 16.0
+    initial_margin_chi2: float = 9.0
     warm: bool = True
     initial: bool = True
 
     def __post_init__(self) -> None:
         if not (self.step_factor > 0 and self.history >= self.min_history >= 1
-                and self.refit_margin_chi2 >= 0):
-            raise ValueError("tracking: step_factor > 0, history >= min_history >= 1 and "
-                             "refit_margin_chi2 >= 0 needed")
+                and self.refit_margin_chi2 >= 0 and self.initial_margin_chi2 >= 0):
+            raise ValueError("tracking: step_factor > 0, history >= min_history >= 1, "
+                             "refit_margin_chi2 >= 0 and initial_margin_chi2 >= 0 needed")
 
 
 @dataclass
@@ -254,13 +296,83 @@ class _Fitter:
                               carried=acc.runner_up if gap == 1 else None,
                               refit_margin_chi2=self.opts.refit_margin_chi2)
 
+    def initial_state(self, f: ChunkFrame, res: FitResult) -> State:
+        """The pose of ``f``'s initial-pass row with this pass's statics (the model's) and,
+        where the aperture is fitted, the frame's fitted aperture."""
+        assert f.initial is not None
+        pose = {k: v for k, v in f.initial.items() if k in INITIAL_POSE}
+        state = state_of(pose, self.model)
+        if APERTURE.name in self.free and APERTURE.name in res.values:
+            state = replace(state, numerical_aperture=float(res.values[APERTURE.name]))
+        return state
+
+    def check_initial(self, f: ChunkFrame, res: FitResult, runner: CarriedRunnerUp | None
+                      ) -> tuple[FitResult, CarriedRunnerUp | None, _Check]:
+        """Step 6 of the module docstring: the frame's fit ``res`` against the pose of its
+        initial-pass row; the fit kept, its runner-up to carry, and what was done."""
+        if f.initial is None or not np.isfinite(res.rss) or not res.noise_sd > 0:
+            return res, runner, _Check(-1, 0, math.nan)
+        start = self.initial_state(f, res)
+        chi2_initial, n_eval = evaluate_frame(
+            f.crop, f.corner, self.pixel_size_um, self.theory, self.model, self.optics,
+            start, self.free, self.opts.frame, seed=f.frame)
+        own = res.rss / res.noise_sd**2
+        beat = own - chi2_initial
+        if not beat > self.opts.initial_margin_chi2:
+            return res, runner, _Check(0, n_eval, beat)
+        alt = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
+                             self.optics, start, self.free, self.opts.frame, seed=f.frame,
+                             refit_margin_chi2=self.opts.refit_margin_chi2)
+        n_eval += alt.result.n_eval
+        if not alt.result.rss < res.rss:
+            return res, runner, _Check(1, n_eval, beat)
+        return alt.result, alt.carried, _Check(2, n_eval, beat)
+
+    def changed(self, res: FitResult, old: FitResult, check: _Check, source: str) -> None:
+        """The note and the runner-up of a frame the check changed (``old``: its fit before)."""
+        res.message = _join(res.message, f"{source} fit replaced: the initial pass's pose of "
+                            f"this frame was {check.beat:.4g} chi^2 below it; refitted from "
+                            f"there, now {(old.rss - res.rss) / res.noise_sd**2:.4g} below")
+        _competitor(res, old, self.model, self.opts.frame.ambiguity_chi2)
+
+
+@dataclass(frozen=True)
+class _Check:
+    """What the check against the initial-pass row did: ``code`` (:data:`INITIAL_CHECK`),
+    the holograms it computed, and by how much the initial pose beat the frame's fit
+    (chi^2 units; NaN: not checked)."""
+
+    code: int
+    n_eval: int
+    beat: float
+
+
+def _competitor(new: FitResult, old: FitResult, model: ParticleModel,
+                ambiguity_chi2: float) -> None:
+    """``old``, a minimum ``new`` replaced, as ``new``'s runner-up where it is a distinct
+    minimum closer than the runner-up ``new`` reports (the ambiguity flag's runner-up is the
+    nearest real competing minimum)."""
+    a, b = state_of(new.values, model), state_of(old.values, model)
+    if (_axis_step(a, b, model.head_tail_symmetric) < SAME_BASIN_RAD
+            and abs(a.position[2] - b.position[2]) < SAME_BASIN_Z_UM):
+        return
+    delta = (old.rss - new.rss) / new.noise_sd**2
+    reported = float(new.extra.get("delta_chi2", math.nan))
+    if math.isfinite(reported) and reported <= delta:
+        return
+    psi, theta, _ = b.angles()
+    new.extra.update(chi2_runner_up=old.rss / max(new.n_pixels, 1), delta_chi2=delta,
+                     ambiguous=int(delta < ambiguity_chi2), runner_up_theta_rad=theta,
+                     runner_up_psi_rad=psi, runner_up_z_um=b.position[2], runner_up_refit=2)
+
 
 def _row(f: ChunkFrame, result: FitResult, source: str, jump: bool, step: tuple[float, float],
-         n_eval: int) -> dict[str, Any]:
+         n_eval: int, check: _Check | None = None) -> dict[str, Any]:
     result.n_eval = n_eval
     row = result_row(f.frame, f.time_s, result)
     row.update(track_source=source, track_jump=int(jump), track_step_um=step[0],
-               track_step_axis_rad=step[1])
+               track_step_axis_rad=step[1], track_initial=-1 if check is None else check.code,
+               track_initial_dchi2=math.nan if check is None else check.beat)
     row.setdefault("runner_up_refit", 2 if result.extra.get("n_starts", 1) > 1 else -1)
     return row
 
@@ -345,25 +457,30 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
     model, opts = fitter.model, fitter.opts
     nan2 = (math.nan, math.nan)
     if acc is None or not opts.warm:  # a chunk's first frame: the library's starts
-        res = fitter.library(f)
+        lib = fitter.library(f)
+        res, runner, check = fitter.check_initial(f, lib, None)
+        if check.code == 2:
+            fitter.changed(res, lib, check, "library")
         good = _under_bar(res, chi2_bar)
         _flag_above_bar(res, good, chi2_bar)
-        new = _accept(None, f, res, None, model, opts) if good or res.status == OK else None
-        return _row(f, res, "library", False, nan2, res.n_eval), new
+        new = _accept(None, f, res, runner, model, opts) if good or res.status == OK else None
+        return _row(f, res, "library", False, nan2, lib.n_eval + check.n_eval, check), new
     warm = fitter.warm(f, acc)
-    res = warm.result
+    n_warm = warm.result.n_eval
+    res, runner, check = fitter.check_initial(f, warm.result, warm.carried)
     step = _step(acc, state_of(res.values, model), model)
     lim = _limits(acc, opts, f.frame - acc.frame)
     smooth = step[0] <= lim[0] and step[1] <= lim[1]
-    if _under_bar(res, chi2_bar) and smooth:
-        return (_row(f, res, "warm", False, step, res.n_eval),
-                _accept(acc, f, res, warm.carried, model, opts))
+    if check.code != 2 and _under_bar(res, chi2_bar) and smooth:
+        return (_row(f, res, "warm", False, step, n_warm + check.n_eval, check),
+                _accept(acc, f, res, runner, model, opts))
     # re-acquisition: the frame as an independent one; the better fit kept
     again = fitter.library(f)
-    n_eval = res.n_eval + again.n_eval
-    runner = warm.carried
+    n_eval = n_warm + check.n_eval + again.n_eval
     if not res.chi2 <= again.chi2:
         res, runner = again, None
+    if check.code == 2:
+        fitter.changed(res, warm.result, check, "warm")
     step = _step(acc, state_of(res.values, model), model)
     smooth = step[0] <= lim[0] and step[1] <= lim[1]
     good = _under_bar(res, chi2_bar)
@@ -373,7 +490,7 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
                             f"{math.degrees(step[1]):.3g} deg from frame {acc.frame} "
                             f"(limits {lim[0]:.3g} um, {math.degrees(lim[1]):.3g} deg)")
     new = _accept(acc, f, res, runner, model, opts) if good else acc
-    return _row(f, res, "reacquired", not smooth, step, n_eval), new
+    return _row(f, res, "reacquired", not smooth, step, n_eval, check), new
 
 
 def _join(a: str, b: str) -> str:
