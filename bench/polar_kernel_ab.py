@@ -9,8 +9,9 @@ two derivative waves, :func:`lens_fields_on_pixels`).
 * ``polar_pixels``: the interleaved single-precision grid ``(rows, columns, 4)`` of
   :func:`holofit.scattering.lens_transform.polar_grids` against the previous loop over four
   separate double-precision planes ``(4, rows, columns)`` holding the same values
-  (:func:`_planar_pixels` below). Reported: the mean time per call of each, called alternately,
-  their ratio, and the largest difference of the images relative to their largest value.
+  (:func:`_planar_pixels` below). Reported: the mean CPU time per call of each (the process's,
+  less sensitive to other jobs than wall time), called alternately, their ratio, and the
+  largest difference of the images relative to their largest value.
 * ``polar_grids``: the current function against the previous assembly (a zeroed spectrum
   array filled by transposed copies, an FFT, a copy into four padded double planes,
   :func:`_planar_grids` below); the grids must be equal value for value.
@@ -155,11 +156,11 @@ def run(name: str, repeat: int) -> dict[str, float]:
     tg_old, tg_new = [], []
     for _ in range(repeat):
         for c in calls:
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             _planar_grids(*c)
-            t1 = time.perf_counter()
+            t1 = time.process_time()
             lt.polar_grids(*c)
-            t2 = time.perf_counter()
+            t2 = time.process_time()
             tg_old.append(t1 - t0)
             tg_new.append(t2 - t1)
     equal = all(np.array_equal(np.moveaxis(o, 1, 3), n)
@@ -179,11 +180,11 @@ def run(name: str, repeat: int) -> dict[str, float]:
             u = phi * (n_phi / (2.0 * np.pi))
             u[u < 0] += n_phi
             u += lt.STENCIL
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             _planar_pixels(t, u, o[0], ex0, ey0)
-            t1 = time.perf_counter()
+            t1 = time.process_time()
             polar_pixels(t, u, n[0], ex, ey)
-            t2 = time.perf_counter()
+            t2 = time.process_time()
             tp_old.append(t1 - t0)
             tp_new.append(t2 - t1)
             scale = max(np.abs(ex0).max(), np.abs(ey0).max())

@@ -224,7 +224,7 @@ class LensImage:
         else:
             n_phi = tables.a.shape[1] - 2 * STENCIL
             t = np.empty(dx.size)
-            u = np.empty(dx.size)
+            u = np.arctan2(dy, dx)
             polar_coordinates(dx, dy, 1.0 / tables.step, n_phi, STENCIL, t, u)
             polar_pixels(t, u, tables.a, ex, ey)
         return ex.reshape(shape), ey.reshape(shape)
@@ -353,7 +353,8 @@ def lens_fields_on_pixels(
     k = first.optics.k
     dx = xs.ravel() - xp
     dy = ys.ravel() - yp
-    rho_max = float(np.sqrt((dx * dx + dy * dy).max()))
+    r2 = dx * dx + dy * dy
+    rho_max = float(np.sqrt(r2.max()))
     order = max(im.source.order for im in images)
     n_nodes = node_count(k, zp, rho_max, theta_max, order)
     step = STEP / (k * np.sin(theta_max))
@@ -370,7 +371,7 @@ def lens_fields_on_pixels(
                         x_step, n_rho, bkey, order + 1)
     n_phi = grids.shape[2] - 2 * STENCIL
     t = np.empty(dx.size)
-    u = np.empty(dx.size)
+    u = np.arctan2(dy, dx)
     polar_coordinates(dx, dy, 1.0 / step, n_phi, STENCIL, t, u)
     out = []
     # one grid at a time: the single-grid kernel on the interleaved grids is faster per grid
