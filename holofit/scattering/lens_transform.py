@@ -33,10 +33,10 @@ converted to double precision as they are read. The spectrum is assembled and tr
 place inside the padded grid (no copy). Measured (``bench/polar_kernel_ab.py``, CPU time, one
 core, the rod's and the Janus particle's grids, 19600 pixels) against the previous separate
 double-precision planes: the pixel interpolation 0.55-0.66 of the time, the grids 0.77-0.8,
-the grids equal value for value and the images to 6e-16 of their largest value. A table is built once per pupil rule and
-radial step with every order the source can need (:func:`radial_transform`'s ``max_orders``),
-so that waves of the
-same particle whose small high orders were trimmed away share it.
+the grids equal value for value and the images to 6e-16 of their largest value. A table is
+built once per pupil rule and radial step with every order the source can need
+(:func:`radial_transform`'s ``max_orders``), so that waves of the same particle whose small
+high orders were trimmed away share it.
 """
 
 from __future__ import annotations
