@@ -1,6 +1,6 @@
 """The T-matrix's block rotations (batched matrix products) against the plain per-block
-products they replace, and the polar grid's planes (double precision, several fields at once)
-against the one-field grid."""
+products they replace, and the polar grid (several fields at once, interleaved planes in the
+tables' precision) against the one-field grid."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def test_polar_grids_of_several_fields_equal_each_field_alone():
                rng.normal(size=(n_nodes, width)) + 1j * rng.normal(size=(n_nodes, width)),
                np.exp(1j * rng.normal(size=n_nodes))) for _ in range(3)]
     many = lt.polar_grids(fields, x_step, 40, ("test-grids", n_nodes))
-    assert many.dtype == np.float64 and many.shape[0] == 3
+    assert many.dtype == lt.TABLE_DTYPE and many.shape[0] == 3 and many.shape[3] == 4
     for f, field in enumerate(fields):
         one = lt.polar_grid(*field, x_step, 40, ("test-grids", n_nodes))
         assert one.shape == many[f].shape
