@@ -67,6 +67,7 @@ from holofit.fit.defaults import (
 )
 from holofit.fit.errors import FitStageError
 from holofit.fit.frame import FrameFitSettings
+from holofit.fit.initial_level import flag_initial_table
 from holofit.fit.static import read_static, static_average, static_doc, write_static
 from holofit.fit.sweeps import continuity_sweeps
 from holofit.fit.task import (
@@ -462,7 +463,16 @@ class _FitPasses:
                           f"fit ({cfg.pass_name})", finish=outlier_rule(self.outlier_factor))
 
     def complete(self, cfg: FitConfig, stem: str, table: Path) -> None:
-        """Continuity sweeps (final pass) and pictures on the complete table."""
+        """The initial pass's rows clearly worse than its best ones flagged
+        (:mod:`holofit.fit.initial_level`), the continuity sweeps (final pass), and pictures
+        on the complete table."""
+        if cfg.pass_name == "initial":
+            flagged = flag_initial_table(table, self.cont.chi2_sigmas)
+            if flagged:
+                self.run.notes.append(
+                    f"initial pass: {flagged} frame(s) fit clearly worse than its best quarter "
+                    "of frames (poor_fit in initial.csv): left out of the static parameters "
+                    "and of the final pass's chi^2 bar")
         if cfg.pass_name == "final" and self.cont.enabled and cfg.particle.model.anisotropic:
             self.run.continuity = continuity_sweeps(table, cfg, self.load, self.cont,
                                                     self.batch, self.outlier_factor)

@@ -14,10 +14,11 @@ disagree.
 The movie's chi^2 bar (:func:`holofit.fit.continuity.chi2_bar`, as the continuity sweeps
 compute it) is taken from the initial pass's table (:func:`bar_from_initial`): the final pass
 needs it before any of its chunks runs, and the initial pass is the one table of this movie
-fitted before it. A short movie's initial pass has fewer than 10 converged frames, too few to
-measure the movie's spread: its bar (:func:`holofit.fit.continuity.small_sample_bar`) takes
+fitted before it; its ``ok`` rows count (rows clearly worse than the pass's best are
+``poor_fit``: :mod:`holofit.fit.initial_level`). A short movie's initial pass has fewer than
+10 such frames, too few to measure the movie's spread: its bar (:func:`holofit.fit.continuity.small_sample_bar`) takes
 the spread at least from the noise model (the chi^2 distribution of the pixel count plus a
-floor for the excess scatter), widened for the few frames. Only a movie without any converged
+floor for the excess scatter), widened for the few frames. Only a movie without any ``ok``
 initial frame has no bar (a warm fit is then checked by its status and its step only).
 
 The initial pass's converged rows are also each frame's independent check
@@ -116,27 +117,31 @@ def plan_chunks(frames: Sequence[int], overlap: int = OVERLAP,
 def bar_from_initial(path: Path, sigmas: float) -> tuple[float | None, str]:
     """The movie's chi^2 bar from the initial pass's table, and where it came from.
 
-    With at least 10 converged frames, :func:`holofit.fit.continuity.chi2_bar`; with fewer (a
+    With at least 10 ``ok`` frames, :func:`holofit.fit.continuity.chi2_bar`; with fewer (a
     short movie's initial pass), :func:`holofit.fit.continuity.small_sample_bar`: the same
     form with the spread taken at least from the noise model and widened for the few rows, so
     that a warm frame clearly off the data is re-acquired and, if still above it, flagged,
-    never plain ``ok``. Returns ``(None, reason)`` when there is no such table or no
-    converged frame in it.
+    never plain ``ok``. Only the ``ok`` rows count: the initial pass's rows clearly worse than
+    its best ones are ``poor_fit`` (:mod:`holofit.fit.initial_level`) and would raise the bar.
+    Returns ``(None, reason)`` when there is no such table or no ``ok`` frame in it.
     """
     if not path.exists():
         return None, f"no chi^2 bar for the tracking ({path.name} not found): warm fits " \
                      "checked by status and step only"
     table = read_table(path)
+    # the right minimum's level: the ok rows (rows clearly worse than the pass's best are
+    # poor_fit, :mod:`holofit.fit.initial_level`)
+    table = table[table["status"] == OK]
     bar = chi2_bar(table, sigmas)
     if math.isfinite(bar):
         return bar, f"tracking chi^2 bar {bar:.4g} (reduced; median + {sigmas:g} " \
                     f"lower-half spreads of {path.name})"
     bar = small_sample_bar(table, sigmas)
     if not math.isfinite(bar):
-        return None, (f"no chi^2 bar for the tracking (no converged frame in {path.name}): "
+        return None, (f"no chi^2 bar for the tracking (no ok frame in {path.name}): "
                       "warm fits checked by status and step only")
-    n = int(table["status"].isin((OK, POOR_FIT)).sum())
-    return bar, (f"tracking chi^2 bar {bar:.4g} (reduced; {n} converged frame(s) in "
+    n = len(table)
+    return bar, (f"tracking chi^2 bar {bar:.4g} (reduced; {n} ok frame(s) in "
                  f"{path.name}, fewer than 10: median + {sigmas:g} spreads, the spread at "
                  f"least the noise model's, widened for the few frames)")
 
