@@ -15,11 +15,12 @@ The movie's chi^2 bar (:func:`holofit.fit.continuity.chi2_bar`, as the continuit
 compute it) is taken from the initial pass's table (:func:`bar_from_initial`): the final pass
 needs it before any of its chunks runs, and the initial pass is the one table of this movie
 fitted before it; its ``ok`` rows count (rows clearly worse than the pass's best are
-``poor_fit``: :mod:`holofit.fit.initial_level`). A short movie's initial pass has fewer than
-10 such frames, too few to measure the movie's spread: its bar
+``poor_fit``: :mod:`holofit.fit.initial_level`). A short movie's initial pass has fewer than 10
+such frames, too few to measure the movie's spread: its bar
 (:func:`holofit.fit.continuity.small_sample_bar`) takes the spread at least from the noise
-model (the chi^2 distribution of the pixel count plus a floor for the excess scatter), widened for the few frames. Only a movie without any ``ok``
-initial frame has no bar (a warm fit is then checked by its status and its step only).
+model (the chi^2 distribution of the pixel count plus a floor for the excess scatter), widened
+for the few frames. Only a movie without any ``ok`` initial frame has no bar (a warm fit is
+then checked by its status and its step only).
 
 The initial pass's converged rows are also each frame's independent check
 (:func:`initial_poses`; :mod:`holofit.fit.tracking`, step 6): the final pass evaluates the
