@@ -15,6 +15,7 @@ import pytest
 
 from holofit.fit.frame import FrameFitSettings, fit_frame, fit_frame_warm
 from holofit.fit.tracking import TrackOptions, state_of, stitch_chunks, track_chunk
+from holofit.library.search import Candidate
 from tests.tracking_helpers import FINAL, INSTRUMENT, JANUS, ROD, engine, make_track
 
 OPTICS = INSTRUMENT.optics
@@ -274,3 +275,26 @@ def test_right_branch_frames_with_initial_rows_are_not_changed(theory):
         else:
             assert b["track_initial"] == -1 and math.isnan(b["track_initial_dchi2"])
             assert b["n_eval"] == a["n_eval"]  # nothing to check: no cost
+
+
+def test_a_chunk_opens_at_the_frame_the_library_reads_best_and_reaches_the_rest_warm(theory):
+    """``open_at_best`` (the initial pass): frames 0-1 carry a poor library candidate (R^2
+    0.6, 40 deg off, as from a prefit height far off), frame 2 a good one; the chunk opens
+    with frame 2's library fit and reaches 1 and 0 warm, backward, onto the truth. Without it
+    the chunk opens at frame 0, from its poor candidate."""
+    track = make_track(theory, n=5, seed=3)
+    poor = (Candidate(track.angles[0, 0] + 0.7, track.angles[0, 1] + 0.7, 0.0, 0.6),)
+    frames = list(track.frames)
+    for k in (0, 1):
+        frames[k] = replace(frames[k], candidates=poor)
+    frames[3] = replace(frames[3], candidates=(replace(frames[3].candidates[0], r2=0.9),))
+    opened = track_chunk(frames, theory, ROD, OPTICS, PX, FINAL, None,
+                         TrackOptions(open_at_best=True))
+    rows = opened.to_dict("records")
+    assert [r["frame"] for r in rows] == [0, 1, 2, 3, 4]
+    assert [r["track_source"] for r in rows] == ["warm", "warm", "library", "warm", "warm"]
+    for k, row in enumerate(rows):
+        assert _right(track, row, k) and row["status"] == "ok", (k, row["message"])
+    plain = track_chunk(frames, theory, ROD, OPTICS, PX, FINAL, None, TrackOptions())
+    assert plain.loc[0, "track_source"] == "library"  # the default opens at the first frame
+    assert plain.loc[0, "n_eval"] > rows[0]["n_eval"]  # from the poor candidate: dearer
