@@ -180,9 +180,13 @@ def test_tracked_final_pass_records_failing_frames_and_goes_on(movie, tmp_path, 
                   pass_name="final", static=_static(tmp_path), batch=SERIAL, plot=False,
                   options=FrameFitSettings(mirror=False))
     out = pd.read_csv(run.final).set_index("frame")
-    assert out.loc[0, "status"] == "ok" and out.loc[0, "track_source"] == "library"
     assert out.loc[1, "status"] == "error" and "frame 1 cannot be fitted" in out.loc[1, "message"]
-    assert out.loc[2, "status"] == "ok" and out.loc[2, "track_source"] == "warm"
+    rest = out.drop(index=1)
+    assert (rest["status"] == "ok").all()
+    # one library fit opens the chunk (the frame the library reads best); every other frame,
+    # on either side of the error, is fitted warm along the track
+    assert (rest["track_source"] == "library").sum() == 1
+    assert (rest["track_source"] == "warm").sum() == len(rest) - 1
     assert (tmp_path / "fit" / "fit_chunks.csv").exists()
 
 

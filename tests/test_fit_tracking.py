@@ -278,7 +278,7 @@ def test_right_branch_frames_with_initial_rows_are_not_changed(theory):
 
 
 def test_a_chunk_opens_at_the_frame_the_library_reads_best_and_reaches_the_rest_warm(theory):
-    """``open_at_best`` (the initial pass): frames 0-1 carry a poor library candidate (R^2
+    """``open_at_best`` (the default): frames 0-1 carry a poor library candidate (R^2
     0.6, 40 deg off, as from a prefit height far off), frame 2 a good one; the chunk opens
     with frame 2's library fit and reaches 1 and 0 warm, backward, onto the truth. Without it
     the chunk opens at frame 0, from its poor candidate."""
@@ -295,6 +295,7 @@ def test_a_chunk_opens_at_the_frame_the_library_reads_best_and_reaches_the_rest_
     assert [r["track_source"] for r in rows] == ["warm", "warm", "library", "warm", "warm"]
     for k, row in enumerate(rows):
         assert _right(track, row, k) and row["status"] == "ok", (k, row["message"])
-    plain = track_chunk(frames, theory, ROD, OPTICS, PX, FINAL, None, TrackOptions())
+    plain = track_chunk(frames, theory, ROD, OPTICS, PX, FINAL, None,
+                        TrackOptions(open_at_best=False))
     assert plain.loc[0, "track_source"] == "library"  # the default opens at the first frame
     assert plain.loc[0, "n_eval"] > rows[0]["n_eval"]  # from the poor candidate: dearer

@@ -399,9 +399,7 @@ class _FitPasses:
         # the final pass checks each initial frame against its initial-pass fit
         poses = initial_poses(self.out / "initial.csv") if name == "final" else {}
         overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
-        # the initial pass opens each chunk at its frame the library reads best (no bar there)
-        tcfg = TrackedConfig(cfg, replace(self.tracking, frame=cfg.options,
-                                          open_at_best=name == "initial"), bar, overlap)
+        tcfg = TrackedConfig(cfg, replace(self.tracking, frame=cfg.options), bar, overlap)
         chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK if name == "final"
                              else initial_min_chunk(len(frames)))
         pass_table = self.table(cfg, table_name, static)

@@ -4,8 +4,11 @@ Between frames a particle moves little (the paper's rod: ~4 deg and ~80 nm), so 
 frame's fit is a start inside the right basin and the library's starts are needed only where
 that fails. Along one track (frames in time order):
 
-1. A chunk starts with a full library fit (:func:`holofit.fit.frame.fit_frame`: the library's
-   starts and the mirror), or from a given fit (``start``).
+1. A chunk opens with a full library fit (:func:`holofit.fit.frame.fit_frame`: the library's
+   starts and the mirror) of the frame the library reads best (the highest R^2 of a best
+   candidate, ``TrackOptions.open_at_best``), or from a given fit (``start``, at its first
+   frame). The track is followed from there to the chunk's end and, from the opening frame
+   again, back to its start: "frame k-1" below is the previous frame along that direction.
 2. Frame k is fitted from frame k-1's accepted fit (:func:`holofit.fit.frame.fit_frame_warm`):
    position moved by the recent drift (the mean displacement per frame over the recent steps;
    consecutive frames only), orientation, alpha and the static parameters as they are; its
@@ -181,11 +184,16 @@ class TrackOptions:
     open_at_best : bool
         A chunk opens with the library fit of its frame whose best library candidate has the
         highest R^2 (not of its first frame), and reaches the frames before it warm, backward
-        in time (:func:`track_chunk`). The fit stage sets it for the initial pass, which has
-        no chi^2 bar to catch a first fit in a wrong minimum and whose free static parameters
-        let a whole chunk follow such a fit (a Janus replicate's first frames, their prefit
-        height 0.47 um off, had library R^2 0.88 against 0.95 for the next ones, and their
-        chunk settled 26 deg off the truth).
+        in time (:func:`track_chunk`; the same step limits, drift and carried runner-up, along
+        the direction the track is followed). A library fit starts from the prefit's height,
+        and where that is far off the library ranks orientations at the wrong height: on a
+        Janus replicate the first two frames' prefit heights were 0.47 um off (library R^2
+        0.88 against 0.95 for the next frames) and the initial pass's chunk opened there
+        settled 26 deg off the truth, with its free static parameters dragged along; near
+        focus (true height 0.8-1.5 um, prefit 1.2-1.6 um higher) the final pass's chunks
+        opened with library fits at chi^2_red 4-10, one frame after another, while the
+        previous chunk had followed the same heights warm at 1.03-1.05. False: the first
+        frame opens.
     """
 
     frame: FrameFitSettings = field(default_factory=FrameFitSettings)
@@ -203,7 +211,7 @@ class TrackOptions:
     initial_margin_chi2: float = 9.0
     warm: bool = True
     initial: bool = True
-    open_at_best: bool = False
+    open_at_best: bool = True
 
     def __post_init__(self) -> None:
         if not (self.step_factor > 0 and self.history >= self.min_history >= 1
@@ -295,7 +303,7 @@ class _Fitter:
                          self.opts.frame, seed=f.frame)
 
     def warm(self, f: ChunkFrame, acc: _Accepted) -> WarmFit:
-        gap = f.frame - acc.frame
+        gap = abs(f.frame - acc.frame)  # frames along the track, either way in time
         state = acc.state
         if self.opts.extrapolate and gap == 1:
             drift = acc.velocity(self.opts.min_history)
@@ -394,7 +402,7 @@ def _accept(acc: _Accepted | None, f: ChunkFrame, result: FitResult,
     if acc is None:
         return _Accepted(f.frame, state, runner, [], [])
     dist, ang = _step(acc, state, model)
-    gap = max(f.frame - acc.frame, 1)
+    gap = max(abs(f.frame - acc.frame), 1)  # a move per frame along the track's direction
     move = np.subtract(state.position, acc.state.position) / gap
     keep = opts.history
     return _Accepted(f.frame, state, runner, [*acc.steps_um, dist / math.sqrt(gap)][-keep:],
@@ -448,7 +456,8 @@ def track_chunk(
         if i == 0:
             opened = acc
     if k:  # the frames before the opening one, backward from it (fresh history)
-        acc = None if opened is None else _Accepted(opened.frame, opened.state, None, [], [])
+        acc = None if opened is None else _Accepted(opened.frame, opened.state,
+                                                   opened.runner_up, [], [])
         back = []
         for f in reversed(frames[:k]):
             acc, row = _follow(fitter, f, acc, chi2_bar)
@@ -508,7 +517,7 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
     n_warm = warm.result.n_eval
     res, runner, check = fitter.check_initial(f, warm.result, warm.carried)
     step = _step(acc, state_of(res.values, model), model)
-    lim = _limits(acc, opts, f.frame - acc.frame)
+    lim = _limits(acc, opts, abs(f.frame - acc.frame))
     smooth = step[0] <= lim[0] and step[1] <= lim[1]
     if check.code != 2 and _under_bar(res, chi2_bar) and smooth:
         return (_row(f, res, "warm", False, step, n_warm + check.n_eval, check),
