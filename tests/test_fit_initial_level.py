@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from holofit.fit.continuity import small_sample_bar
+from holofit.fit.continuity import chi2_bar, small_sample_bar
 from holofit.fit.initial_level import flag_initial_table, flag_off_level, initial_level
 from holofit.fit.static import static_average
 from holofit.fit.tracked import bar_from_initial
@@ -100,3 +100,21 @@ def test_the_table_is_rewritten_with_its_sidecar_and_the_bar_ignores_flagged_row
     assert bar < 1.1 < bar_all
     assert "7 ok frame(s)" in note
     assert flag_initial_table(path, 4.0) == 0
+
+
+def test_the_bar_is_taken_from_the_initial_frames_as_the_final_pass_fits_them(tmp_path):
+    """With ``refit``, the bar is that of the refitted rows (the statics fixed raise every
+    frame's chi^2 above its own minimum's), not of the initial rows."""
+    rng = np.random.default_rng(6)
+    chi = _right(rng, 10, level=1.01)
+    path = write_table(tmp_path / "initial.csv", _table(chi), {"kind": "fit table"})
+    own, _ = bar_from_initial(path, 4.0)
+    fixed = _right(rng, 10, level=1.06)
+
+    def refit(rows):
+        assert len(rows) == 10 and (rows["status"] == "ok").all()
+        return _table(fixed)
+
+    bar, note = bar_from_initial(path, 4.0, refit)
+    assert bar == pytest.approx(chi2_bar(_table(fixed), 4.0)) and bar > own
+    assert "refitted with the final statics" in note

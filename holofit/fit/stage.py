@@ -87,8 +87,8 @@ from holofit.fit.tracked import (
     MIN_CHUNK,
     OVERLAP,
     TrackedConfig,
-    bar_from_initial,
     chunk_loader,
+    final_bar,
     initial_check_summary,
     initial_poses,
     plan_chunks,
@@ -391,7 +391,9 @@ class _FitPasses:
         cfg = FitConfig(particle, self.given.instrument, name, self.pass_opts(name),
                         self.engine, self.fixed, tmatrix=tmatrix, fit_na=self.fit_na)
         if name == "final":
-            bar, note = bar_from_initial(self.out / "initial.csv", self.cont.chi2_sigmas)
+            assert self.frame_loader is not None
+            bar, note = final_bar(self.out / "initial.csv", cfg, self.frame_loader,
+                                  self.cont.chi2_sigmas)
         else:
             bar, note = None, (f"{name} pass along the track: no chi^2 bar yet (warm fits "
                                "checked by status and step)")
