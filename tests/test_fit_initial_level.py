@@ -14,7 +14,7 @@ import pytest
 from holofit.fit.continuity import chi2_bar, small_sample_bar
 from holofit.fit.initial_level import flag_initial_table, flag_off_level, initial_level
 from holofit.fit.static import static_average
-from holofit.fit.tracked import bar_from_initial
+from holofit.fit.tracked import FIXED_STATICS_FLOOR, REFIT_MIN_ROWS, bar_from_initial
 from holofit.io.tables import read_table, sidecar_path, write_table
 from holofit.particles import JanusSphere
 
@@ -104,7 +104,9 @@ def test_the_table_is_rewritten_with_its_sidecar_and_the_bar_ignores_flagged_row
 
 def test_the_bar_is_taken_from_the_initial_frames_as_the_final_pass_fits_them(tmp_path):
     """With ``refit``, the bar is that of the refitted rows (the statics fixed raise every
-    frame's chi^2 above its own minimum's), not of the initial rows."""
+    frame's chi^2 above its own minimum's), not of the initial rows; from fewer than
+    ``REFIT_MIN_ROWS`` of them, with the spread at least the noise model's with the fixed
+    statics' excess."""
     rng = np.random.default_rng(6)
     chi = _right(rng, 10, level=1.01)
     path = write_table(tmp_path / "initial.csv", _table(chi), {"kind": "fit table"})
@@ -116,5 +118,7 @@ def test_the_bar_is_taken_from_the_initial_frames_as_the_final_pass_fits_them(tm
         return _table(fixed)
 
     bar, note = bar_from_initial(path, 4.0, refit)
-    assert bar == pytest.approx(chi2_bar(_table(fixed), 4.0)) and bar > own
+    expected = small_sample_bar(_table(fixed), 4.0, REFIT_MIN_ROWS, FIXED_STATICS_FLOOR)
+    assert bar == pytest.approx(expected) and bar > own
+    assert bar > chi2_bar(_table(fixed), 4.0)  # wider than 10 consecutive frames' own spread
     assert "refitted with the final statics" in note

@@ -42,7 +42,7 @@ import pandas as pd
 
 from holofit.batch.runner import Precomputed
 from holofit.batch.stage import FrameLoader, fingerprint
-from holofit.fit.continuity import chi2_bar, small_sample_bar
+from holofit.fit.continuity import EXCESS_FLOOR, chi2_bar, small_sample_bar
 from holofit.fit.task import FitConfig, worker_theory
 from holofit.fit.tracking import (
     INITIAL_POSE,
@@ -120,6 +120,18 @@ def plan_chunks(frames: Sequence[int], overlap: int = OVERLAP,
     return [frames[s:min(s + size + overlap, n)] for s in starts]
 
 
+#: a bar from fewer refitted initial frames than this takes its spread at least from the
+#: noise model (:func:`holofit.fit.continuity.small_sample_bar`): a few consecutive frames
+#: do not show the movie's spread
+REFIT_MIN_ROWS = 30
+#: ... with this least excess scatter of a right-minimum frame fitted with the movie's fixed
+#: statics: measured 1.86 % (median minus the 15.87 % quantile, relative) over the 2658
+#: right-branch frames of a 3000-frame Janus replicate, whose 10 refitted initial frames
+#: alone gave a bar of 1.053 with 7.8 % of the right frames above it; rounded up (the 1 % of
+#: :data:`holofit.fit.continuity.EXCESS_FLOOR` was measured with the true statics)
+FIXED_STATICS_FLOOR = 0.02
+
+
 def bar_from_initial(path: Path, sigmas: float,
                      refit: Callable[[pd.DataFrame], pd.DataFrame] | None = None
                      ) -> tuple[float | None, str]:
@@ -147,22 +159,25 @@ def bar_from_initial(path: Path, sigmas: float,
     table = read_table(path)
     table = table[table["status"] == OK]
     source = path.name
+    min_rows, floor = 10, EXCESS_FLOOR
     if refit is not None and len(table):
         table = refit(table)
         table = table[table["status"] == OK]
         source = f"{path.name}'s frames refitted with the final statics"
-    bar = chi2_bar(table, sigmas)
+        min_rows, floor = REFIT_MIN_ROWS, FIXED_STATICS_FLOOR
+    bar = chi2_bar(table, sigmas, min_rows)
     if math.isfinite(bar):
         return bar, f"tracking chi^2 bar {bar:.4g} (reduced; median + {sigmas:g} " \
                     f"lower-half spreads of {source})"
-    bar = small_sample_bar(table, sigmas)
+    bar = small_sample_bar(table, sigmas, min_rows, floor)
     if not math.isfinite(bar):
         return None, (f"no chi^2 bar for the tracking (no ok frame in {source}): "
                       "warm fits checked by status and step only")
     n = len(table)
     return bar, (f"tracking chi^2 bar {bar:.4g} (reduced; {n} ok frame(s) in "
-                 f"{source}, fewer than 10: median + {sigmas:g} spreads, the spread at "
-                 f"least the noise model's, widened for the few frames)")
+                 f"{source}, fewer than {min_rows}: median + {sigmas:g} spreads, the spread "
+                 f"at least the noise model's with a {100 * floor:g} % excess, widened for the "
+                 "few frames)")
 
 
 #: where the final pass keeps its bar (beside ``initial.csv``): computed once per initial table
