@@ -27,7 +27,7 @@ demo: install
 bench: install
 	$(ONE_CORE) $(BIN)/python bench/run.py --out bench/results.json
 
-# the paper's two experiments on synthetic truth (long: about 110 min on 2 cores)
+# the paper's two experiments on synthetic truth (on 2 cores: rod ~6 min, Janus ~15 min, then the Dask check)
 replicate: install
 	$(BIN)/python bench/replicate.py --out replicate --dask-check 200
 
