@@ -34,7 +34,7 @@ import hashlib
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +43,7 @@ import pandas as pd
 from holofit.batch.runner import Precomputed
 from holofit.batch.stage import FrameLoader, fingerprint
 from holofit.fit.continuity import EXCESS_FLOOR, chi2_bar, small_sample_bar
+from holofit.fit.frame import fit_frame_warm
 from holofit.fit.task import FitConfig, worker_theory
 from holofit.fit.tracking import (
     INITIAL_POSE,
@@ -213,10 +214,6 @@ def initial_refits(fit: FitConfig, loader: FrameLoader
     each initial row's frame fitted warm from the row's pose (no mirror: the chi^2 of the
     row's own minimum is wanted), with the pass's engine (its T-matrix where it has one).
     Returns rows with ``frame``, ``status``, ``chi2_red``, ``n_pixels``."""
-    from dataclasses import replace
-
-    from holofit.fit.frame import fit_frame_warm
-
     def refit(rows: pd.DataFrame) -> pd.DataFrame:
         model, inst = fit.particle.model, fit.instrument
         theory = worker_theory(fit)
