@@ -66,6 +66,7 @@ __all__ = [
     "TrackedConfig",
     "bar_from_initial",
     "chunk_loader",
+    "consecutive_runs",
     "final_bar",
     "initial_check_summary",
     "initial_poses",
@@ -74,6 +75,17 @@ __all__ = [
     "stitch_table",
     "track_chunk_task",
 ]
+
+def consecutive_runs(frames: Sequence[int]) -> list[list[int]]:
+    """``frames`` (sorted) cut where a frame does not follow its predecessor."""
+    runs: list[list[int]] = []
+    for f in sorted(int(x) for x in frames):
+        if runs and f == runs[-1][-1] + 1:
+            runs[-1].append(f)
+        else:
+            runs.append([f])
+    return runs
+
 
 #: the key columns of the chunk table
 CHUNK_KEY = ("chunk", "frame")

@@ -36,6 +36,15 @@ that fails. Along one track (frames in time order):
    of the two minima kept. A warm frame so changed is then re-acquired as in step 4 (the
    library's starts join, the better fit is kept, the bar and the step flag it), and the
    track goes on from it. ``track_initial`` records what the check did.
+7. A warm fit whose axis ends near the optical axis (within ``pole_rad`` of either pole) is
+   probed: near the pole the misfit has a minimum of its own that holds a warm start (a
+   Janus replicate's frames fitted at theta 5-7 deg with the truth at 18-23 deg, 500-1000
+   chi^2 units above the true minimum and still under the movie's bar, when the track came
+   from a frame near the pole). The fit is repeated from ``pole_probes`` starts whose axes
+   are tilted ``pole_probe_rad`` from its own, evenly around it (the mirror not screened),
+   and where one ends lower by more than ``min_gain`` chi^2 the frame is refitted from it (its
+   mirror runner-up as in step 2) and the warm minimum becomes the runner-up where it is the
+   nearest competing minimum. ``track_pole`` records what the probes did.
 
 Chunks of one track overlap by a few frames; :func:`stitch_chunks` joins them and reports where
 the overlaps disagree (position or axis beyond tolerance).
@@ -55,7 +64,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from holofit.conventions import euler_zyz
+from holofit.conventions import euler_zyz, rotation_from_vector
 from holofit.fit.frame import (
     SAME_BASIN_RAD,
     SAME_BASIN_Z_UM,
@@ -77,6 +86,7 @@ from holofit.status import ERROR, OK, POOR_FIT
 __all__ = [
     "INITIAL_CHECK",
     "INITIAL_POSE",
+    "POLE_PROBE",
     "TRACK_COLUMNS",
     "ChunkFrame",
     "TrackOptions",
@@ -91,7 +101,13 @@ __all__ = [
 #: (:data:`INITIAL_CHECK`) and by how much the initial row's pose beat the frame's fit there
 #: (chi^2 units, the pixel noise's; negative: it did not; NaN: not checked)
 TRACK_COLUMNS = ("track_source", "track_jump", "runner_up_refit", "track_step_um",
-                 "track_step_axis_rad", "track_initial", "track_initial_dchi2")
+                 "track_step_axis_rad", "track_initial", "track_initial_dchi2", "track_pole")
+#: the codes of ``track_pole`` (module docstring, step 7)
+POLE_PROBE = {
+    -1: "not probed (not a warm fit ending near the optical axis)",
+    0: "probed: no probe ended lower than the warm fit",
+    1: "probed: a probe ended lower; the frame was refitted from it",
+}
 #: the codes of ``track_initial`` (module docstring, step 6)
 INITIAL_CHECK = {
     -1: "no initial-pass row for this frame",
@@ -181,6 +197,21 @@ class TrackOptions:
         False: every frame is an independent library fit (``--no-tracking``).
     initial : bool
         The fit stage's initial pass (sizes free) follows the track too (with ``warm``).
+    pole_rad : float
+        A warm fit whose axis is this close to the optical axis (either pole) is probed
+        (module docstring, step 7); 0: never.
+    pole_probes : int
+        Probes of such a fit (0: none).
+    pole_probe_rad : float
+        How far each probe's axis is tilted from the warm fit's.
+    pole_min_gain_chi2 : float
+        A probe replaces the warm fit where its minimum is lower by more than this (chi^2
+        units of the pixel noise). 9 is ``ambiguity_chi2``: near the pole the misfit is
+        shallow in the axis, and with static parameters a little off (the replicate's cap
+        4 nm thin) minima a few degrees apart differ by 6-20 chi^2 units, either way of the
+        truth, while the minimum that holds warm starts is 500-1000 above the right one.
+    pole_probe_nfev : int
+        Most holograms of one probe's fit (its stopping rule is the warm fits').
     open_at_best : bool
         A chunk opens with the library fit of its frame whose best library candidate has the
         highest R^2 (not of its first frame), and reaches the frames before it warm, backward
@@ -212,12 +243,23 @@ class TrackOptions:
     warm: bool = True
     initial: bool = True
     open_at_best: bool = True
+    pole_rad: float = math.radians(15.0)
+    pole_probes: int = 6
+    pole_probe_rad: float = math.radians(15.0)
+    pole_min_gain_chi2: float = 9.0
+    pole_probe_nfev: int = 30
 
     def __post_init__(self) -> None:
         if not (self.step_factor > 0 and self.history >= self.min_history >= 1
                 and self.refit_margin_chi2 >= 0 and self.initial_margin_chi2 >= 0):
             raise ValueError("tracking: step_factor > 0, history >= min_history >= 1, "
                              "refit_margin_chi2 >= 0 and initial_margin_chi2 >= 0 needed")
+        if not (0 <= self.pole_rad < math.pi / 2 and self.pole_probes >= 0
+                and 0 < self.pole_probe_rad < math.pi / 2 and self.pole_min_gain_chi2 >= 0
+                and self.pole_probe_nfev >= 1):
+            raise ValueError("tracking: 0 <= pole_rad < pi/2, pole_probes >= 0, "
+                             "0 < pole_probe_rad < pi/2, pole_min_gain_chi2 >= 0 and "
+                             "pole_probe_nfev >= 1 needed")
 
 
 @dataclass
@@ -247,6 +289,22 @@ def state_of(values: dict[str, float], model: ParticleModel) -> State:
                         float(values.get("phi_rad", 0.0)))
     statics = tuple((name, float(values.get(name, v))) for name, v in static_values(model))
     return State(pos, rot, float(values["alpha"]), statics)
+
+
+def pole_probes(state: State, n: int, tilt_rad: float) -> list[State]:
+    """``n`` copies of ``state`` whose axes are tilted by ``tilt_rad`` from its own, evenly
+    around it (the rotation ``exp([w]x) R`` with ``w`` perpendicular to the axis)."""
+    assert state.rotation is not None
+    axis = state.rotation[:, 2]
+    e1 = np.cross(axis, (1.0, 0.0, 0.0) if abs(axis[0]) < 0.9 else (0.0, 1.0, 0.0))
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    out = []
+    for k in range(n):
+        phase = 2 * math.pi * k / n
+        w = tilt_rad * (math.cos(phase) * e1 + math.sin(phase) * e2)
+        out.append(replace(state, rotation=rotation_from_vector(w) @ state.rotation))
+    return out
 
 
 def _axis_step(a: State, b: State, head_tail: bool) -> float:
@@ -312,6 +370,45 @@ class _Fitter:
                               self.optics, state, self.free, self.opts.frame, seed=f.frame,
                               carried=acc.runner_up if gap == 1 else None,
                               refit_margin_chi2=self.opts.refit_margin_chi2)
+
+    def probe_pole(self, f: ChunkFrame, res: FitResult, runner: CarriedRunnerUp | None
+                   ) -> tuple[FitResult, CarriedRunnerUp | None, int]:
+        """Step 7 of the module docstring: the fit ``res`` (and the runner-up it carries), or
+        the refit from the lowest probe where that is lower; what was done
+        (:data:`POLE_PROBE`). The returned fit's ``n_eval`` counts the probes' holograms."""
+        opts = self.opts
+        state = state_of(res.values, self.model) if np.isfinite(res.rss) else None
+        if (not opts.pole_probes or not opts.warm or state is None or state.rotation is None
+                or not res.noise_sd > 0
+                or abs(float(state.rotation[2, 2])) < math.cos(opts.pole_rad)):
+            return res, runner, -1
+        quiet = replace(opts.frame, mirror=False,
+                        max_nfev=min(opts.frame.max_nfev, opts.pole_probe_nfev))
+        n_eval, best = res.n_eval, None
+        for start in pole_probes(state, opts.pole_probes, opts.pole_probe_rad):
+            probe = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory,
+                                   self.model, self.optics, start, self.free, quiet,
+                                   seed=f.frame).result
+            n_eval += probe.n_eval
+            if np.isfinite(probe.rss) and (best is None or probe.rss < best.rss):
+                best = probe
+        if best is None or not (res.rss - best.rss) / res.noise_sd**2 > opts.pole_min_gain_chi2:
+            res.n_eval = n_eval
+            return res, runner, 0
+        again = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
+                               self.optics, state_of(best.values, self.model), self.free,
+                               opts.frame, seed=f.frame,
+                               refit_margin_chi2=opts.refit_margin_chi2)
+        new = again.result
+        if not new.rss < res.rss:  # the refit from the probe's minimum went elsewhere
+            res.n_eval = n_eval + new.n_eval
+            return res, runner, 0
+        new.message = _join(new.message, "the fit ended near the optical axis, "
+                            f"{(res.rss - new.rss) / new.noise_sd**2:.4g} chi^2 above the "
+                            "minimum a probe tilted from it found")
+        _competitor(new, res, self.model, opts.frame.ambiguity_chi2)
+        new.n_eval = n_eval + new.n_eval
+        return new, again.carried, 1
 
     def initial_state(self, f: ChunkFrame, res: FitResult) -> State:
         """The pose of ``f``'s initial-pass row with this pass's statics (the model's) and,
@@ -384,12 +481,12 @@ def _competitor(new: FitResult, old: FitResult, model: ParticleModel,
 
 
 def _row(f: ChunkFrame, result: FitResult, source: str, jump: bool, step: tuple[float, float],
-         n_eval: int, check: _Check | None = None) -> dict[str, Any]:
+         n_eval: int, check: _Check | None = None, pole: int = -1) -> dict[str, Any]:
     result.n_eval = n_eval
     row = result_row(f.frame, f.time_s, result)
     row.update(track_source=source, track_jump=int(jump), track_step_um=step[0],
                track_step_axis_rad=step[1], track_initial=-1 if check is None else check.code,
-               track_initial_dchi2=math.nan if check is None else check.beat)
+               track_initial_dchi2=math.nan if check is None else check.beat, track_pole=pole)
     row.setdefault("runner_up_refit", 2 if result.extra.get("n_starts", 1) > 1 else -1)
     return row
 
@@ -505,30 +602,32 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
     model, opts = fitter.model, fitter.opts
     nan2 = (math.nan, math.nan)
     if acc is None or not opts.warm:  # a chunk's first frame: the library's starts
-        lib = fitter.library(f)
-        res, runner, check = fitter.check_initial(f, lib, None)
+        lib, runner, pole = fitter.probe_pole(f, fitter.library(f), None)
+        res, runner, check = fitter.check_initial(f, lib, runner)
         if check.code == 2:
             fitter.changed(res, lib, check, "library")
         good = _under_bar(res, chi2_bar)
         _flag_above_bar(res, good, chi2_bar)
         new = _accept(None, f, res, runner, model, opts) if good or res.status == OK else None
-        return _row(f, res, "library", False, nan2, lib.n_eval + check.n_eval, check), new
+        return (_row(f, res, "library", False, nan2, lib.n_eval + check.n_eval, check, pole),
+                new)
     warm = fitter.warm(f, acc)
-    n_warm = warm.result.n_eval
-    res, runner, check = fitter.check_initial(f, warm.result, warm.carried)
+    first, carried, pole = fitter.probe_pole(f, warm.result, warm.carried)
+    n_warm = first.n_eval
+    res, runner, check = fitter.check_initial(f, first, carried)
     step = _step(acc, state_of(res.values, model), model)
     lim = _limits(acc, opts, abs(f.frame - acc.frame))
     smooth = step[0] <= lim[0] and step[1] <= lim[1]
     if check.code != 2 and _under_bar(res, chi2_bar) and smooth:
-        return (_row(f, res, "warm", False, step, n_warm + check.n_eval, check),
+        return (_row(f, res, "warm", False, step, n_warm + check.n_eval, check, pole),
                 _accept(acc, f, res, runner, model, opts))
     # re-acquisition: the frame as an independent one; the better fit kept
-    again = fitter.library(f)
+    again, again_runner, again_pole = fitter.probe_pole(f, fitter.library(f), None)
     n_eval = n_warm + check.n_eval + again.n_eval
     if not res.chi2 <= again.chi2:
-        res, runner = again, None
+        res, runner, pole = again, again_runner, again_pole
     if check.code == 2:
-        fitter.changed(res, warm.result, check, "warm")
+        fitter.changed(res, first, check, "warm")
     step = _step(acc, state_of(res.values, model), model)
     smooth = step[0] <= lim[0] and step[1] <= lim[1]
     good = _under_bar(res, chi2_bar)
@@ -538,7 +637,7 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
                             f"{math.degrees(step[1]):.3g} deg from frame {acc.frame} "
                             f"(limits {lim[0]:.3g} um, {math.degrees(lim[1]):.3g} deg)")
     new = _accept(acc, f, res, runner, model, opts) if good else acc
-    return _row(f, res, "reacquired", not smooth, step, n_eval, check), new
+    return _row(f, res, "reacquired", not smooth, step, n_eval, check, pole), new
 
 
 def _join(a: str, b: str) -> str:
