@@ -299,3 +299,104 @@ def test_a_chunk_opens_at_the_frame_the_library_reads_best_and_reaches_the_rest_
                         TrackOptions(open_at_best=False))
     assert plain.loc[0, "track_source"] == "library"  # the default opens at the first frame
     assert plain.loc[0, "n_eval"] > rows[0]["n_eval"]  # from the poor candidate: dearer
+
+
+def _single_janus_frame(theory, theta_deg: float, seed: int):
+    """One simulated frame of the test Janus particle at polar angle ``theta_deg``."""
+    from holofit.camera import Camera
+    from holofit.fit.tracking import ChunkFrame
+    from holofit.simulate.holograms import simulate_movie
+    from tests.tracking_helpers import BACKGROUND, SHAPE
+
+    rng = np.random.default_rng(seed)
+    psi, theta = rng.uniform(-math.pi, math.pi), math.radians(theta_deg)
+    pos = np.array([[32.3 * PX, 31.6 * PX, 6.0]])
+    movie = simulate_movie(JANUS, INSTRUMENT, pos, SHAPE,
+                           orientations=np.array([[psi, theta, 0.0]]), alpha=0.9,
+                           theory=theory, camera=Camera(background_counts=BACKGROUND),
+                           seed=seed, keep_frames=True)
+    frame = ChunkFrame(1, movie.frames[0] / BACKGROUND, (0, 0), tuple(pos[0]), 0.9,
+                       (Candidate(psi, theta, 0.0, 0.9),), 0.01)
+    return frame, pos[0], psi, theta
+
+
+def _axis_off_deg(values, psi: float, theta: float) -> float:
+    u = [values["ux"], values["uy"], values["uz"]] if "ux" in values else [
+        math.sin(values["theta_rad"]) * math.cos(values["psi_rad"]),
+        math.sin(values["theta_rad"]) * math.sin(values["psi_rad"]),
+        math.cos(values["theta_rad"])]
+    ut = [math.sin(theta) * math.cos(psi), math.sin(theta) * math.sin(psi), math.cos(theta)]
+    return math.degrees(math.acos(min(1.0, float(np.dot(u, ut)))))
+
+
+def test_pole_probes_are_tilted_evenly_around_the_axis():
+    from holofit.conventions import euler_zyz
+    from holofit.fit.tracking import pole_probes
+    from holofit.holomodel.parameters import State
+
+    for theta in (0.0, 0.1, 2.5):
+        state = State((0.0, 0.0, 5.0), euler_zyz(0.7, theta, 0.0), 0.9, ())
+        axis = state.rotation[:, 2]
+        probes = pole_probes(state, 6, math.radians(15.0))
+        axes = np.array([p.rotation[:, 2] for p in probes])
+        assert np.allclose(np.degrees(np.arccos(axes @ axis)), 15.0)
+        # evenly around: neighbours equally far apart, opposite ones 30 deg apart
+        gaps = [math.degrees(math.acos(np.clip(axes[k] @ axes[(k + 1) % 6], -1, 1)))
+                for k in range(6)]
+        assert np.allclose(gaps, gaps[0]) and gaps[0] > 14.0
+        assert math.isclose(math.degrees(math.acos(axes[0] @ axes[3])), 30.0, abs_tol=1e-6)
+        for p in probes:  # proper rotations
+            assert np.allclose(p.rotation.T @ p.rotation, np.eye(3), atol=1e-12)
+
+
+def test_a_fit_held_near_the_pole_is_probed_onto_the_truth():
+    """A Janus frame at theta 22 deg whose fit sits at theta 4 deg (its orientation held
+    there, as a warm start near the pole holds it on the replicate): the probes tilted 15
+    deg from it find the true minimum and the frame is refitted from there, its runner-up
+    the nearest competing minimum; with no probes it stays where it was."""
+    from holofit.fit.frame import fit_frame_warm
+    from holofit.fit.tracking import _Fitter
+
+    theory = engine(JANUS)
+    f, pos, psi, theta = _single_janus_frame(theory, 22.0, seed=5)
+    near = state_of({"x_um": pos[0], "y_um": pos[1], "z_um": pos[2], "alpha": 0.9,
+                     "psi_rad": psi + 1.0, "theta_rad": math.radians(4.0)}, JANUS)
+    held = fit_frame_warm(f.crop, f.corner, PX, theory, JANUS, OPTICS, near,
+                          ("x_um", "y_um", "z_um", "alpha"), FrameFitSettings(mirror=False),
+                          seed=1).result
+    assert _axis_off_deg(held.values, psi, theta) > 15.0
+    fitter = _Fitter(theory, JANUS, OPTICS, PX, FINAL, TrackOptions())
+    n_before = held.n_eval
+    res, _, code = fitter.probe_pole(f, held, None)
+    assert code == 1
+    assert _axis_off_deg(res.values, psi, theta) < 2.0
+    assert res.rss < held.rss and "optical axis" in res.message
+    assert res.n_eval > n_before + 6  # six probes and the refit counted
+    # the runner-up is the nearest competing minimum: the pole fit or one nearer still
+    excess = (held.rss - res.rss) / res.noise_sd**2
+    assert 9.0 < res.extra["delta_chi2"] <= excess + 1e-6 and res.extra["ambiguous"] == 0
+    none = _Fitter(theory, JANUS, OPTICS, PX, FINAL, TrackOptions(pole_probes=0))
+    same, _, code0 = none.probe_pole(f, held, None)
+    assert code0 == -1 and same is held
+
+
+def test_a_right_fit_near_the_pole_is_left_as_it_is():
+    """Control: a Janus frame at theta 8 deg fitted from the truth; the probes find nothing
+    lower by the margin, and the fit (values and chi^2) is kept as it was; a fit away from
+    the pole is not probed at all."""
+    from holofit.fit.frame import fit_frame_warm
+    from holofit.fit.tracking import _Fitter
+
+    theory = engine(JANUS)
+    fitter = _Fitter(theory, JANUS, OPTICS, PX, FINAL, TrackOptions())
+    for theta_deg, probed in ((8.0, True), (40.0, False)):
+        f, pos, psi, theta = _single_janus_frame(theory, theta_deg, seed=6)
+        truth = state_of({"x_um": pos[0], "y_um": pos[1], "z_um": pos[2], "alpha": 0.9,
+                          "psi_rad": psi, "theta_rad": theta}, JANUS)
+        fit = fit_frame_warm(f.crop, f.corner, PX, theory, JANUS, OPTICS, truth, FINAL,
+                             seed=1).result
+        values, rss, n = dict(fit.values), fit.rss, fit.n_eval
+        res, _, code = fitter.probe_pole(f, fit, None)
+        assert code == (0 if probed else -1)
+        assert res is fit and res.values == values and res.rss == rss
+        assert (res.n_eval > n) == probed
