@@ -400,3 +400,43 @@ def test_a_right_fit_near_the_pole_is_left_as_it_is():
         assert code == (0 if probed else -1)
         assert res is fit and res.values == values and res.rss == rss
         assert (res.n_eval > n) == probed
+
+
+def test_a_chunk_whose_prefit_height_is_far_off_opens_from_another_height(theory):
+    """The prefit's heights 8 um above the truth (as a Janus prefit near focus took the twin
+    height): the opening library fit from there is ``poor_fit``; tried again from other
+    heights it lands on the truth and the rest of the chunk follows warm. Without the other
+    heights the opening frame stays poor."""
+    track = make_track(theory, n=4, seed=0)
+    frames = [replace(f, position_um=(f.position_um[0], f.position_um[1],
+                                      f.position_um[2] + 8.0)) for f in track.frames]
+    plain = track_chunk(frames, theory, ROD, OPTICS, PX, FINAL, 1.5,
+                        TrackOptions(reopen_dz_um=())).to_dict("records")
+    assert plain[0]["status"] == "poor_fit"
+    rows = track_chunk(frames, theory, ROD, OPTICS, PX, FINAL, 1.5).to_dict("records")
+    assert [r["track_source"] for r in rows] == ["library"] + ["warm"] * 3
+    for k, row in enumerate(rows):
+        assert row["status"] == "ok" and _right(track, row, k), (k, row["message"])
+    assert "off the prefit's height" in rows[0]["message"]
+    assert rows[0]["n_eval"] > plain[0]["n_eval"]  # the other heights' fits counted
+
+
+def test_a_chunk_no_height_fits_stops_trying_other_heights(theory):
+    """Prefit heights at the twin (z -> -z): no height of the ladder reaches the truth, and
+    after three frames whose other heights all failed the chunk stops trying (a frame then
+    costs what it costs without them)."""
+    from holofit.fit.tracking import REOPEN_MAX_FAILURES
+
+    track = make_track(theory, n=REOPEN_MAX_FAILURES + 2, seed=0)
+    frames = [replace(f, position_um=(f.position_um[0], f.position_um[1],
+                                      -f.position_um[2])) for f in track.frames]
+    plain = track_chunk(frames, theory, ROD, OPTICS, PX, FINAL, 1.5,
+                        TrackOptions(reopen_dz_um=(), open_at_best=False)).to_dict("records")
+    rows = track_chunk(frames, theory, ROD, OPTICS, PX, FINAL, 1.5,
+                       TrackOptions(open_at_best=False)).to_dict("records")
+    assert all(r["status"] != "ok" for r in rows)  # flagged, never ok
+    for k, (a, b) in enumerate(zip(plain, rows, strict=True)):
+        if k < REOPEN_MAX_FAILURES:
+            assert b["n_eval"] > 3 * a["n_eval"]
+        else:
+            assert b["n_eval"] == a["n_eval"]

@@ -402,11 +402,11 @@ class _FitPasses:
         # the final pass checks each initial frame against its initial-pass fit
         poses = initial_poses(self.out / "initial.csv") if name == "final" else {}
         overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
-        # the initial pass's direct DDA solves are too dear for the pole probes (tracking.py,
-        # step 7: six fits a probed frame); its rows are checked by their level instead
-        # (initial_level.py) and each final frame against its own
-        tracking = replace(self.tracking, frame=cfg.options,
-                           **({} if name == "final" else {"pole_probes": 0}))
+        # the initial pass's direct DDA solves are too dear for the pole probes and the other
+        # heights (tracking.py, steps 7-8: six fits a frame); its rows are checked by their
+        # level instead (initial_level.py) and each final frame against its own
+        tracking = replace(self.tracking, frame=cfg.options, **(
+            {} if name == "final" else {"pole_probes": 0, "reopen_dz_um": ()}))
         tcfg = TrackedConfig(cfg, tracking, bar, overlap)
         if name == "final":
             chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK)

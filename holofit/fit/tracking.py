@@ -45,6 +45,15 @@ that fails. Along one track (frames in time order):
    and where one ends lower by more than ``min_gain`` chi^2 the frame is refitted from it (its
    mirror runner-up as in step 2) and the warm minimum becomes the runner-up where it is the
    nearest competing minimum. ``track_pole`` records what the probes did.
+8. A library fit (a chunk's opening, a re-acquisition of a frame whose warm fit is not under
+   the bar) that is not ``ok`` under the bar is tried again from heights ``reopen_dz_um``
+   off the prefit's, in turn, until one is; the lowest is kept. Near focus the prefit of a
+   Janus particle took the twin height on the other side of the focal plane (2-5 um above
+   the truth at -1 um), the library fits from there failed one frame after another (reduced
+   chi^2 2-10), and a chunk that opens with no accepted fit has nothing to go on warm: on a
+   Janus replicate 316 frames in a row were such library fits, left to the continuity
+   sweeps (60 sweeps, 5 frames each). After :data:`REOPEN_MAX_FAILURES` frames in a row for
+   which no height worked, the chunk stops trying.
 
 Chunks of one track overlap by a few frames; :func:`stitch_chunks` joins them and reports where
 the overlaps disagree (position or axis beyond tolerance).
@@ -102,6 +111,10 @@ __all__ = [
 #: (chi^2 units, the pixel noise's; negative: it did not; NaN: not checked)
 TRACK_COLUMNS = ("track_source", "track_jump", "runner_up_refit", "track_step_um",
                  "track_step_axis_rad", "track_initial", "track_initial_dchi2", "track_pole")
+#: a chunk stops trying other heights (module docstring, step 8) after this many frames in a
+#: row for which none worked: a stretch no height fits (a wrong library, an artefact) costs
+#: seven library fits a frame only this often
+REOPEN_MAX_FAILURES = 3
 #: the codes of ``track_pole`` (module docstring, step 7)
 POLE_PROBE = {
     -1: "not probed (not a warm fit ending near the optical axis)",
@@ -212,6 +225,10 @@ class TrackOptions:
         truth, while the minimum that holds warm starts is 500-1000 above the right one.
     pole_probe_nfev : int
         Most holograms of one probe's fit (its stopping rule is the warm fits').
+    reopen_dz_um : tuple of float
+        A library fit (a chunk's opening, a re-acquisition) that is not ``ok`` under the bar
+        is tried again from these heights off the prefit's, in turn, until one is (module
+        docstring, step 8); empty: never.
     open_at_best : bool
         A chunk opens with the library fit of its frame whose best library candidate has the
         highest R^2 (not of its first frame), and reaches the frames before it warm, backward
@@ -248,6 +265,7 @@ class TrackOptions:
     pole_probe_rad: float = math.radians(15.0)
     pole_min_gain_chi2: float = 9.0
     pole_probe_nfev: int = 30
+    reopen_dz_um: tuple[float, ...] = (-1.5, 1.5, -3.0, 3.0, -4.5, 4.5)
 
     def __post_init__(self) -> None:
         if not (self.step_factor > 0 and self.history >= self.min_history >= 1
@@ -354,10 +372,39 @@ class _Fitter:
     pixel_size_um: float
     free: tuple[str, ...]
     opts: TrackOptions
+    #: the chunk's frames in a row whose other heights all failed (step 8)
+    reopen_failures: int = 0
 
-    def library(self, f: ChunkFrame) -> FitResult:
+    def library(self, f: ChunkFrame, chi2_bar: float | None = None,
+                retry: bool = True) -> FitResult:
+        """The frame's library fit from the prefit's position; where it is not ``ok`` under
+        ``chi2_bar`` (and ``retry``), again from heights ``reopen_dz_um`` off the prefit's,
+        in turn, until one is (step 8 of the module docstring); the lowest fit, ``n_eval``
+        counting all."""
+        best = self._library_at(f, 0.0)
+        n_eval = best.n_eval
+        retry = (retry and self.opts.warm and bool(self.opts.reopen_dz_um)
+                 and self.reopen_failures < REOPEN_MAX_FAILURES
+                 and not _under_bar(best, chi2_bar))
+        for dz in self.opts.reopen_dz_um if retry else ():
+            if _under_bar(best, chi2_bar):
+                break
+            alt = self._library_at(f, dz)
+            n_eval += alt.n_eval
+            if alt.status == OK and (best.status != OK or alt.chi2 < best.chi2):
+                alt.message = _join(alt.message, f"library fit from {dz:+.3g} um off the "
+                                    "prefit's height (from the prefit's: reduced chi^2 "
+                                    f"{best.chi2_red:.3g}, {best.status})")
+                best = alt
+        if retry:
+            self.reopen_failures = 0 if _under_bar(best, chi2_bar) else self.reopen_failures + 1
+        best.n_eval = n_eval
+        return best
+
+    def _library_at(self, f: ChunkFrame, dz: float) -> FitResult:
+        x, y, z = f.position_um
         return fit_frame(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
-                         self.optics, f.position_um, f.alpha, f.candidates, self.free,
+                         self.optics, (x, y, z + dz), f.alpha, f.candidates, self.free,
                          self.opts.frame, seed=f.frame)
 
     def warm(self, f: ChunkFrame, acc: _Accepted) -> WarmFit:
@@ -602,7 +649,7 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
     model, opts = fitter.model, fitter.opts
     nan2 = (math.nan, math.nan)
     if acc is None or not opts.warm:  # a chunk's first frame: the library's starts
-        lib, runner, pole = fitter.probe_pole(f, fitter.library(f), None)
+        lib, runner, pole = fitter.probe_pole(f, fitter.library(f, chi2_bar), None)
         res, runner, check = fitter.check_initial(f, lib, runner)
         if check.code == 2:
             fitter.changed(res, lib, check, "library")
@@ -622,7 +669,10 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
         return (_row(f, res, "warm", False, step, n_warm + check.n_eval, check, pole),
                 _accept(acc, f, res, runner, model, opts))
     # re-acquisition: the frame as an independent one; the better fit kept
-    again, again_runner, again_pole = fitter.probe_pole(f, fitter.library(f), None)
+    # a warm fit under the bar that stepped too far needs the library's other starts, not
+    # other heights: it has the frame's height already
+    lib = fitter.library(f, chi2_bar, retry=not _under_bar(res, chi2_bar))
+    again, again_runner, again_pole = fitter.probe_pole(f, lib, None)
     n_eval = n_warm + check.n_eval + again.n_eval
     if not res.chi2 <= again.chi2:
         res, runner, pole = again, again_runner, again_pole
