@@ -36,15 +36,16 @@ that fails. Along one track (frames in time order):
    of the two minima kept. A warm frame so changed is then re-acquired as in step 4 (the
    library's starts join, the better fit is kept, the bar and the step flag it), and the
    track goes on from it. ``track_initial`` records what the check did.
-7. A warm fit whose axis ends near the optical axis (within ``pole_rad`` of either pole) is
-   probed: near the pole the misfit has a minimum of its own that holds a warm start (a
-   Janus replicate's frames fitted at theta 5-7 deg with the truth at 18-23 deg, 500-1000
-   chi^2 units above the true minimum and still under the movie's bar, when the track came
-   from a frame near the pole). The fit is repeated from ``pole_probes`` starts whose axes
-   are tilted ``pole_probe_rad`` from its own, evenly around it (the mirror not screened),
-   and where one ends lower by more than ``min_gain`` chi^2 the frame is refitted from it (its
-   mirror runner-up as in step 2) and the warm minimum becomes the runner-up where it is the
-   nearest competing minimum. ``track_pole`` records what the probes did.
+7. A fit (warm, a chunk's opening, a re-acquisition; not with ``warm`` off) whose axis ends
+   near the optical axis (within ``pole_rad`` of either pole) is probed: near the pole the
+   misfit has minima that hold a warm start (a Janus replicate's frames fitted at theta 5-7
+   deg with the truth at 18-23 deg, 500-1000 chi^2 units above the true minimum and still
+   under the movie's bar, when the track came from a frame near the pole). The fit is
+   repeated from ``pole_probes`` starts whose axes are tilted ``pole_probe_rad`` from its
+   own, evenly around it (the mirror not screened), and where one ends lower by more than
+   ``pole_min_gain_chi2`` the frame is refitted from it (its mirror runner-up as in step 2)
+   and the minimum it left becomes the runner-up where it is the nearest competing minimum.
+   ``track_pole`` records what the probes did.
 8. A library fit (a chunk's opening, a re-acquisition of a frame whose warm fit is not under
    the bar) that is not ``ok`` under the bar is tried again from heights ``reopen_dz_um``
    off the prefit's, in turn, until one is; the lowest is kept. Near focus the prefit of a
@@ -211,8 +212,9 @@ class TrackOptions:
     initial : bool
         The fit stage's initial pass (sizes free) follows the track too (with ``warm``).
     pole_rad : float
-        A warm fit whose axis is this close to the optical axis (either pole) is probed
-        (module docstring, step 7); 0: never.
+        A fit whose axis is this close to the optical axis (either pole) is probed (module
+        docstring, step 7); 0: never. 20 deg: within 15 deg, the Janus replicate still had a
+        frame held at theta 19 deg with the truth at 11 deg.
     pole_probes : int
         Probes of such a fit (0: none).
     pole_probe_rad : float
@@ -260,7 +262,7 @@ class TrackOptions:
     warm: bool = True
     initial: bool = True
     open_at_best: bool = True
-    pole_rad: float = math.radians(15.0)
+    pole_rad: float = math.radians(20.0)
     pole_probes: int = 6
     pole_probe_rad: float = math.radians(15.0)
     pole_min_gain_chi2: float = 9.0
