@@ -440,3 +440,36 @@ def test_a_chunk_no_height_fits_stops_trying_other_heights(theory):
             assert b["n_eval"] > 3 * a["n_eval"]
         else:
             assert b["n_eval"] == a["n_eval"]
+
+
+def test_the_probes_skip_a_fit_at_its_tracks_level_and_a_rod():
+    """A fit near the pole no worse than the median of its track's recent accepted fits is
+    not probed (a fit held in a wrong minimum fits worse than its track), and neither is a
+    head-tail symmetric particle's unless asked for."""
+    from holofit.fit.frame import fit_frame_warm
+    from holofit.fit.tracking import _Accepted, _Fitter
+
+    theory = engine(JANUS)
+    f, pos, psi, theta = _single_janus_frame(theory, 8.0, seed=6)
+    truth = state_of({"x_um": pos[0], "y_um": pos[1], "z_um": pos[2], "alpha": 0.9,
+                      "psi_rad": psi, "theta_rad": theta}, JANUS)
+    fit = fit_frame_warm(f.crop, f.corner, PX, theory, JANUS, OPTICS, truth, FINAL,
+                         seed=1).result
+    fitter = _Fitter(theory, JANUS, OPTICS, PX, FINAL, TrackOptions())
+    above = _Accepted(0, truth, None, [], [], [], [fit.chi2_red * 1.01] * 3)
+    below = _Accepted(0, truth, None, [], [], [], [fit.chi2_red * 0.99] * 3)
+    n = fit.n_eval
+    assert fitter.probe_pole(f, fit, None, above)[2] == -1 and fit.n_eval == n
+    assert fitter.probe_pole(f, fit, None, below)[2] == 0 and fit.n_eval > n
+    rod_theory = engine()
+    track = make_track(rod_theory, n=1, seed=2)
+    g = track.frames[0]
+    near = state_of({"x_um": track.positions[0][0], "y_um": track.positions[0][1],
+                     "z_um": track.positions[0][2], "alpha": 0.9, "psi_rad": 0.3,
+                     "theta_rad": 0.1}, ROD)
+    rod_fit = fit_frame_warm(g.crop, g.corner, PX, rod_theory, ROD, OPTICS, near,
+                             ("x_um", "y_um", "z_um", "alpha"), seed=1).result
+    rods = _Fitter(rod_theory, ROD, OPTICS, PX, FINAL, TrackOptions())
+    assert rods.probe_pole(g, rod_fit, None)[2] == -1
+    asked = _Fitter(rod_theory, ROD, OPTICS, PX, FINAL, TrackOptions(pole_probe_symmetric=True))
+    assert asked.probe_pole(g, rod_fit, None)[2] in (0, 1)
