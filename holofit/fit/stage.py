@@ -403,7 +403,7 @@ class _FitPasses:
         poses = initial_poses(self.out / "initial.csv") if name == "final" else {}
         overlap = OVERLAP if name == "final" else INITIAL_OVERLAP
         # the initial pass's direct DDA solves are too dear for the pole probes and the other
-        # heights (tracking.py, steps 7-8: six fits a frame); its rows are checked by their
+        # heights (tracking.py, steps 7-8: up to seven fits a frame); its rows are checked by their
         # level instead (initial_level.py) and each final frame against its own
         tracking = replace(self.tracking, frame=cfg.options, **(
             {} if name == "final" else {"pole_probes": 0, "reopen_dz_um": ()}))
