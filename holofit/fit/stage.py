@@ -68,6 +68,7 @@ from holofit.fit.defaults import (
 from holofit.fit.errors import FitStageError
 from holofit.fit.frame import FrameFitSettings
 from holofit.fit.initial_level import flag_initial_table
+from holofit.fit.seeded import SEED_TOLERANCE, seed_particle
 from holofit.fit.static import read_static, static_average, static_doc, write_static
 from holofit.fit.sweeps import continuity_sweeps
 from holofit.fit.task import (
@@ -223,7 +224,7 @@ def run_fit(
             tracking or TrackOptions())
         static_path = Path(static) if static is not None else passes.out / "static.json"
         if pass_name in ("initial", "both"):
-            run.static = passes.initial(initial_frames)
+            run.static = passes.initial(initial_frames, tmatrix)
             static_path = run.static if static is None else static_path
         if pass_name in ("final", "both"):
             passes.final(static_path, tmatrix)
@@ -313,27 +314,49 @@ class _FitPasses:
         return cls(given, particle, inputs, partial(_load, frame_loader), out, *args,
                    frame_loader=frame_loader)
 
-    def initial(self, initial_frames: int | None) -> Path:
-        """The initial pass on the first fittable frames; writes ``static.json``, its path."""
+    def initial(self, initial_frames: int | None, policy: str = "auto") -> Path:
+        """The initial pass; writes ``static.json``, its path. An anisotropic particle with a
+        T-matrix (``--tmatrix`` auto on a movie of at least
+        :data:`~holofit.fit.tmatrix_policy.TMATRIX_MIN_FRAMES` frames, or always) has its
+        frames spread over the movie, each seeded from the start statics' T-matrix
+        (:mod:`holofit.fit.seeded`); without one, the pass follows the track from the first
+        frames; with ``--no-tracking`` (or a sphere) the first frames are fitted each from
+        the library (:func:`initial_choice`)."""
         crops = self.given.crops
         fittable = [f for f in self.given.frames
                     if crops.row(f).get("status") in FITTABLE_CROP_STATUSES]
+        particle = initial_particle(self.particle)
+        model = particle.model
+        tracked = self.tracking.warm and self.tracking.initial and model.anisotropic
+        seed = None
+        if tracked:
+            seeding = final_tmatrix(seed_particle(particle), self.given.instrument,
+                                    self.engine, policy, len(fittable), self.out,
+                                    self.local_workers(), name="tmatrix_start.npz",
+                                    purpose="initial pass's poses (start statics)",
+                                    tolerance=SEED_TOLERANCE)
+            if seeding.path is not None:
+                seed = str(seeding.path)
+                self.run.notes += seeding.notes
+        spread = seed is not None
         n_initial = initial_frames
         if n_initial is None:
             n_initial = default_initial_frames(len(fittable))
             self.run.notes.append(
-                f"initial pass (every parameter free) on the first {n_initial} of the "
-                f"{len(fittable)} frames that can be fitted: the default, 1 in "
-                f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX} "
-                "(--initial-frames N to choose)")
+                f"initial pass (every parameter free) on {n_initial} of the {len(fittable)} "
+                f"frames that can be fitted ({'spread over the movie' if spread else 'the first'}"
+                f"): the default, 1 in {INITIAL_SHARE}, at least {INITIAL_MIN}, at most "
+                f"{INITIAL_MAX} (--initial-frames N to choose)")
         chosen = initial_choice(fittable, [_overlapped(crops.row(f)) for f in fittable],
-                                n_initial)
-        if any(_overlapped(crops.row(f)) for f in fittable[:n_initial]):
+                                n_initial, spread=spread)
+        if any(_overlapped(crops.row(f)) for f in fittable):
             self.run.notes.append(
                 "initial pass: frames without another track's overlapping hologram first "
                 f"({sum(not _overlapped(crops.row(f)) for f in chosen)} of {len(chosen)})")
-        particle = initial_particle(self.particle)
-        if self.tracking.warm and self.tracking.initial and self.particle.model.anisotropic:
+        if seed is not None:
+            self.run.initial = self.one_pass("initial", particle, chosen, "initial.csv",
+                                             seed_tmatrix=seed)
+        elif tracked:
             self.run.initial = self.tracked_pass("initial", particle, chosen, "initial.csv")
         else:
             self.run.initial = self.one_pass("initial", particle, chosen, "initial.csv")
@@ -373,10 +396,11 @@ class _FitPasses:
 
     def one_pass(self, name: str, particle: ParticleConfig, frames: list[int],
                  table_name: str, static: dict[str, Any] | None = None,
-                 tmatrix: str | None = None) -> Path:
+                 tmatrix: str | None = None, seed_tmatrix: str | None = None) -> Path:
         """One pass through the stage skeleton; the path of its table."""
         cfg = FitConfig(particle, self.given.instrument, name, self.pass_opts(name),
-                        self.engine, self.fixed, tmatrix=tmatrix, fit_na=self.fit_na)
+                        self.engine, self.fixed, tmatrix=tmatrix, fit_na=self.fit_na,
+                        seed_tmatrix=seed_tmatrix)
         table = self.table(cfg, table_name, static)
         self.run.summaries[name], _ = run_stage(
             fit_frame_task, cfg, frames, self.load, table, batch=self.batch,
@@ -498,20 +522,26 @@ def _overlapped(crop_row: dict[str, Any]) -> bool:
     return str(crop_row.get("overlap", "")).strip().lower() in ("true", "1")
 
 
-def initial_choice(fittable: list[int], overlapped: list[bool], n: int) -> list[int]:
-    """The initial pass's frames: the first ``n`` of ``fittable`` whose crop no other
-    track's hologram overlaps, then (too few of those) the first overlapped ones; in frame
-    order. The static parameters are best measured on a particle alone; a track whose frames
-    all overlap is fitted on them, and the overlap refit (:mod:`holofit.fit.overlaps`) adds
-    the neighbour's field.
+def initial_choice(fittable: list[int], overlapped: list[bool], n: int,
+                   spread: bool = False) -> list[int]:
+    """The initial pass's frames: ``n`` of ``fittable`` whose crop no other track's hologram
+    overlaps, then (too few of those) the first overlapped ones; in frame order. The static
+    parameters are best measured on a particle alone; a track whose frames all overlap is
+    fitted on them, and the overlap refit (:mod:`holofit.fit.overlaps`) adds the neighbour's
+    field.
 
-    Frames spread over the movie (runs of two, each its own chunk) were tried on the Janus
-    replicate, for orientations other than the first frames' (all cap-down there, which gave
-    statics 3.6 nm and 4.4 nm off in radius and cap): the runs' opening library fits were
-    cold, 90-140 s a frame (98-141 solves) against 29-102 solves along one track, and three
-    of the first four settled in wrong minima (chi^2_red 1.26-1.50 against 1.00-1.03)."""
+    ``spread``: evenly spaced over the clean frames (the middle one of each of ``n`` equal
+    runs), for frames fitted each on its own; else the first ``n``, for a pass that follows
+    the track from frame to frame. The static parameters need orientations: on the Janus
+    replicate the first 10 frames (all cap-down, within 0.1 s) gave a radius 3.6 nm and a cap
+    4.4 nm off the truth, while 10 frames spread over the movie gave 0.8 and 0.4 nm
+    (:mod:`holofit.fit.seeded`). Spread frames opened from the library's starts were tried
+    first and cost 98-141 solves each, three of four in wrong minima; seeded from the start
+    statics' T-matrix they cost 14-35."""
     clean = [f for f, o in zip(fittable, overlapped, strict=True) if not o]
     rest = [f for f, o in zip(fittable, overlapped, strict=True) if o]
+    if spread and n < len(clean):
+        clean = [clean[(2 * i + 1) * len(clean) // (2 * n)] for i in range(n)]
     return sorted((clean + rest)[:n])
 
 

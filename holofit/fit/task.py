@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -21,6 +21,7 @@ from holofit.batch.stage import fingerprint
 from holofit.cache import LRUCache
 from holofit.config import Instrument, ParticleConfig
 from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitSettings, fit_frame
+from holofit.fit.seeded import fit_frame_seeded, seed_particle
 from holofit.holomodel.parameters import APERTURE, static_parameters
 from holofit.holomodel.result import result_columns, result_row
 from holofit.library.search import Candidate
@@ -107,6 +108,10 @@ class FitConfig:
         with analytic orientation columns of the Jacobian, instead of a DDA solve.
     fit_na : bool
         Fit the objective's numerical aperture (from the instrument's) in every frame.
+    seed_tmatrix : str, optional
+        The T-matrix file of the particle at its start statics (initial pass): each frame's
+        pose is first fitted from it, then every parameter by direct solves
+        (:func:`holofit.fit.seeded.fit_frame_seeded`).
     """
 
     particle: ParticleConfig
@@ -117,6 +122,7 @@ class FitConfig:
     fixed: tuple[str, ...] = ()
     tmatrix: str | None = None
     fit_na: bool = False
+    seed_tmatrix: str | None = None
 
     @property
     def free(self) -> tuple[str, ...]:
@@ -126,7 +132,8 @@ class FitConfig:
         return {"particle": self.particle.as_dict(), "instrument": self.instrument.as_dict(),
                 "pass": self.pass_name, "free": list(self.free),
                 "options": asdict(self.options), "engine": self.engine,
-                "tmatrix": self.tmatrix is not None}
+                "tmatrix": self.tmatrix is not None,
+                **({"seed_tmatrix": True} if self.seed_tmatrix is not None else {})}
 
     def key(self) -> str:
         return fingerprint({k: v for k, v in self.as_dict().items() if k != "pass"})
@@ -163,13 +170,24 @@ def worker_theory(config: FitConfig) -> ScatteringTheory:
 
 
 def fit_frame_task(config: FitConfig, frame: int, payload: FitPayload) -> dict[str, Any]:
-    """Fit one frame; the frame function of both passes."""
+    """Fit one frame; the frame function of both passes (an initial pass with
+    ``seed_tmatrix``: :func:`holofit.fit.seeded.fit_frame_seeded`)."""
     inst = config.instrument
     theory = worker_theory(config)
     start = payload.start
-    result = fit_frame(payload.crop, payload.corner, inst.pixel_size_um, theory,
-                       config.particle.model, inst.optics,
-                       (start["x_um"], start["y_um"], start["z_um"]), start["alpha"],
-                       payload.candidates, config.free, config.options, seed=frame)
+    position = (start["x_um"], start["y_um"], start["z_um"])
+    if config.seed_tmatrix is not None:
+        seeding = replace(config, particle=seed_particle(config.particle),
+                          tmatrix=config.seed_tmatrix, seed_tmatrix=None)
+        result = fit_frame_seeded(payload.crop, payload.corner, inst.pixel_size_um,
+                                  worker_theory(seeding), theory, config.particle.model,
+                                  inst.optics, position, start["alpha"], payload.candidates,
+                                  _free(config.particle.model, "final", config.fixed,
+                                        config.fit_na),
+                                  config.free, config.options, seed=frame)
+    else:
+        result = fit_frame(payload.crop, payload.corner, inst.pixel_size_um, theory,
+                           config.particle.model, inst.optics, position, start["alpha"],
+                           payload.candidates, config.free, config.options, seed=frame)
     time_s = frame / inst.frame_rate_hz if inst.frame_rate_hz else math.nan
     return result_row(frame, time_s, result)

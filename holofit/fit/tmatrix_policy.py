@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from holofit.config import Instrument, ParticleConfig
 from holofit.dda.polarizability import INCIDENCE_INDEPENDENT
@@ -50,10 +51,15 @@ def check_policy(policy: str, particle: ParticleConfig, engine: str | None,
 
 
 def final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None,
-                  policy: str, n_frames: int, out: Path, workers: int = 1) -> FinalTMatrix:
+                  policy: str, n_frames: int, out: Path, workers: int = 1,
+                  name: str = "tmatrix.npz", purpose: str = "final pass",
+                  tolerance: float | None = None) -> FinalTMatrix:
     """Build (or reuse) the final pass's T-matrix ``OUT/tmatrix.npz`` when the policy asks
     for one; a build shares its solves by ``workers`` processes (the stage's workers, idle
-    until the final pass starts)."""
+    until the final pass starts). ``name`` and ``purpose``: another T-matrix of the stage
+    under the same policy (the initial pass's seeds: :mod:`holofit.fit.seeded`), its file
+    name and what the notes call it; ``tolerance``: the build's solver tolerance (default:
+    :func:`holofit.dda.tmatrix_build.build_tmatrix`'s)."""
     model = particle.model
     if policy == "never" or not model.anisotropic:
         return FinalTMatrix()
@@ -61,18 +67,20 @@ def final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None
         return FinalTMatrix()
     theory = particle.theory(engine, fixed_lattice_for=inst.optics)
     if getattr(theory, "own_tmatrix", False):
-        return FinalTMatrix(notes=[f"final pass served by the {theory.name} engine's own "
+        return FinalTMatrix(notes=[f"{purpose} served by the {theory.name} engine's own "
                                    "T-matrix (one solve per geometry, every orientation by "
                                    "rotation)"])
     why_not = no_tmatrix_reason(theory)
     if why_not:
         if policy == "always":
             raise FitStageError(f"--tmatrix always: {why_not} (or use --tmatrix never)")
-        return FinalTMatrix(notes=[f"final pass by direct DDA solves: {why_not}"])
-    path = out / "tmatrix.npz"
+        return FinalTMatrix(notes=[f"{purpose} by direct DDA solves: {why_not}"])
+    path = out / name
     t0 = time.perf_counter()
     reused = path.exists()
-    build = {"workers": max(int(workers), 1)}
+    build: dict[str, Any] = {"workers": max(int(workers), 1)}
+    if tolerance is not None:
+        build["tolerance"] = tolerance
     try:
         theory.tmatrix(model, inst.optics, path=str(path), **build)
     except TMatrixMismatch:
@@ -82,7 +90,7 @@ def final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None
         reused = False
     seconds = time.perf_counter() - t0
     how = "loaded" if reused else f"built by {build['workers']} process(es)"
-    return FinalTMatrix(path, seconds, [f"final pass served from the particle's T-matrix "
+    return FinalTMatrix(path, seconds, [f"{purpose} served from the particle's T-matrix "
                                         f"{path} ({how} in {seconds:.1f} s)"])
 
 

@@ -1,0 +1,136 @@
+"""The initial pass's frames seeded from the start statics' T-matrix
+(:mod:`holofit.fit.seeded`) and spread over the movie, on a small simulated rod whose particle
+config starts 10-20 nm and 0.01 in index off the truth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from holofit.batch.stage import FrameLoader
+from holofit.config import load_instrument, load_particle, resolve_config
+from holofit.crop import run_crop
+from holofit.fit.frame import FrameFitSettings, fit_frame
+from holofit.fit.seeded import fit_frame_seeded
+from holofit.fit.stage import _load, initial_choice, initial_particle, run_fit
+from holofit.fit.task import _free
+from holofit.library.stage import LibrarySettings, run_library
+from holofit.prefit import run_prefit
+from holofit.simulate.holograms import simulate_movie
+from holofit.tables.cropset import CropSet
+from holofit.tables.fit import read_fit_table
+from holofit.tables.inputs import read_stage_table
+from tests.stage_helpers import ROD_TOML, SERIAL
+
+#: the fit's start: the truth (ROD_TOML: a 0.3, b 0.7, n 1.5) a little off
+START_TOML = ROD_TOML.replace("a_um = 0.3", "a_um = 0.31").replace(
+    "b_um = 0.7", "b_um = 0.68").replace("index = 1.5", "index = 1.49")
+N_FRAMES = 8
+
+
+def test_spread_frames_are_the_middles_of_equal_runs_clean_ones_first():
+    frames = list(range(20))
+    assert initial_choice(frames, [False] * 20, 4, spread=True) == [2, 7, 12, 17]
+    assert initial_choice(frames, [False] * 20, 4) == [0, 1, 2, 3]
+    over = [f % 2 == 0 for f in frames]  # the odd frames are clean
+    assert initial_choice(frames, over, 2, spread=True) == [5, 15]
+    assert initial_choice(frames, over, 12, spread=True) == sorted([0, 2, *range(1, 20, 2)])
+    assert initial_choice(frames, [False] * 20, 25, spread=True) == frames
+
+
+@pytest.fixture(scope="module")
+def movie(tmp_path_factory):
+    """An 8-frame movie of the small rod at orientations all over the sphere, cropped,
+    prefitted and with the library of the start particle."""
+    root = tmp_path_factory.mktemp("seeded")
+    (root / "truth.toml").write_text(ROD_TOML)
+    (root / "start.toml").write_text(START_TOML)
+    truth = load_particle(root / "truth.toml")
+    start = load_particle(root / "start.toml")
+    inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
+    rng = np.random.default_rng(5)
+    pos = np.column_stack([8 + 0.2 * rng.normal(size=N_FRAMES), 8 + 0.2 * rng.normal(
+        size=N_FRAMES), 9 + 0.3 * rng.normal(size=N_FRAMES)])
+    angles = np.column_stack([rng.uniform(-np.pi, np.pi, N_FRAMES),
+                              np.arccos(rng.uniform(-0.9, 0.9, N_FRAMES)),
+                              np.zeros(N_FRAMES)])
+    sim = simulate_movie(truth.model, inst, pos, (90, 90), orientations=angles, alpha=0.9,
+                         theory=truth.theory(), seed=3, out_dir=root / "sim")
+    run_crop(sim.movie, sim.background, inst, root / "crop", size=64, plot=False)
+    run_prefit(root / "crop", root / "prefit", batch=SERIAL, plot=False)
+    run_library(root / "crop", root / "prefit", start, root / "lib",
+                settings=LibrarySettings(tilt_step_deg=15, n_phi=64, n_candidates=2),
+                batch=SERIAL, plot=False)
+    return root, start, inst, angles
+
+
+def _axis(theta, psi):
+    return np.array([np.sin(theta) * np.cos(psi), np.sin(theta) * np.sin(psi), np.cos(theta)])
+
+
+def test_a_seeded_frame_reaches_the_truth_with_fewer_solves(movie):
+    """From the pose fitted on the start statics' T-matrix, the fit with every parameter free
+    lands where the fit from the library's starts does (the truth), for fewer DDA solves."""
+    root, start, inst, angles = movie
+    particle = initial_particle(start.with_fixed_lattice(inst.optics))
+    model = particle.model
+    seeding = particle.theory(fixed_lattice_for=inst.optics)
+    seeding.tmatrix(model, inst.optics)
+    crops = CropSet(root / "crop")
+    pre, _ = read_stage_table(root / "prefit" / "prefit.csv", crops, "prefit")
+    lib, _ = read_stage_table(root / "lib" / "library.csv", crops, "library")
+    loader = FrameLoader(crops, pre, lib)
+    opts = FrameFitSettings(stop_chi2=1.0)
+    free = _free(model, "initial")
+    seeded_solves, library_solves = 0, 0
+    for frame in (1, 4, 6):
+        p = _load(loader, frame)
+        at = (p.start["x_um"], p.start["y_um"], p.start["z_um"])
+        direct = particle.theory(fixed_lattice_for=inst.optics)
+        seeded = fit_frame_seeded(p.crop, p.corner, inst.pixel_size_um, seeding, direct, model,
+                                  inst.optics, at, p.start["alpha"], p.candidates,
+                                  _free(model, "final"), free, opts, seed=frame)
+        direct = particle.theory(fixed_lattice_for=inst.optics)
+        plain = fit_frame(p.crop, p.corner, inst.pixel_size_um, direct, model, inst.optics, at,
+                          p.start["alpha"], p.candidates, free, opts, seed=frame)
+        u_true = _axis(angles[frame, 1], angles[frame, 0])
+        for r in (seeded, plain):
+            assert r.status == "ok", r.message
+            u = np.array([r.values[k] for k in ("ux", "uy", "uz")])
+            assert np.degrees(np.arccos(min(abs(u @ u_true), 1.0))) < 2.0
+            assert r.values["a_um"] == pytest.approx(0.3, abs=0.01)
+            assert r.values["b_um"] == pytest.approx(0.7, abs=0.02)
+        # the seed's T-matrix holograms are counted, its start columns are the library's
+        assert seeded.n_eval > seeded.n_solves
+        assert np.isfinite(seeded.extra["start_theta_rad"])
+        assert abs(seeded.chi2 - plain.chi2) < 2.0 + 0.002 * plain.chi2
+        seeded_solves += seeded.n_solves
+        library_solves += plain.n_solves
+    print("direct solves, seeded against library starts:", seeded_solves, library_solves)
+    assert seeded_solves < 0.8 * library_solves, (seeded_solves, library_solves)
+
+
+def test_the_initial_pass_is_seeded_and_spread_with_a_tmatrix(movie, tmp_path):
+    """With a T-matrix (the default policy on 8 frames) the initial pass fits frames spread
+    over the movie, seeded, and recovers the truth's statics; without one (``--tmatrix
+    never``) it follows the track from the first frame, as before."""
+    root, start, _, _ = movie
+    run = run_fit(root / "crop", root / "prefit", root / "lib", start, tmp_path / "a",
+                  pass_name="initial", initial_frames=3, batch=SERIAL, plot=False)
+    assert (tmp_path / "a" / "tmatrix_start.npz").exists()
+    assert any("initial pass's poses (start statics) served from the particle's T-matrix" in n
+               for n in run.notes), run.notes
+    table = read_fit_table(run.initial).table
+    assert table["frame"].tolist() == [1, 4, 6]
+    assert (table["status"] == "ok").all(), table["message"].tolist()
+    static = json.loads(run.static.read_text())["values"]
+    assert static["a_um"] == pytest.approx(0.3, abs=0.01)
+    assert static["b_um"] == pytest.approx(0.7, abs=0.02)
+    assert static["n"] == pytest.approx(1.5, abs=0.005)
+    never = run_fit(root / "crop", root / "prefit", root / "lib", start, tmp_path / "b",
+                    pass_name="initial", initial_frames=3, tmatrix="never", batch=SERIAL,
+                    plot=False)
+    assert not (tmp_path / "b" / "tmatrix_start.npz").exists()
+    assert read_fit_table(never.initial).table["frame"].tolist() == [0, 1, 2]
