@@ -63,7 +63,7 @@ def movie(tmp_path_factory):
     run_library(root / "crop", root / "prefit", start, root / "lib",
                 settings=LibrarySettings(tilt_step_deg=15, n_phi=64, n_candidates=2),
                 batch=SERIAL, plot=False)
-    return root, start, inst, angles
+    return root, start, inst, angles, pos
 
 
 def _axis(theta, psi):
@@ -73,7 +73,7 @@ def _axis(theta, psi):
 def test_a_seeded_frame_reaches_the_truth_with_fewer_solves(movie):
     """From the pose fitted on the start statics' T-matrix, the fit with every parameter free
     lands where the fit from the library's starts does (the truth), for fewer DDA solves."""
-    root, start, inst, angles = movie
+    root, start, inst, angles, pos = movie
     particle = initial_particle(start.with_fixed_lattice(inst.optics))
     model = particle.model
     seeding = particle.theory(fixed_lattice_for=inst.optics)
@@ -102,6 +102,8 @@ def test_a_seeded_frame_reaches_the_truth_with_fewer_solves(movie):
             assert np.degrees(np.arccos(min(abs(u @ u_true), 1.0))) < 2.0
             assert r.values["a_um"] == pytest.approx(0.3, abs=0.01)
             assert r.values["b_um"] == pytest.approx(0.7, abs=0.02)
+            xyz = [r.values[k] for k in ("x_um", "y_um", "z_um")]
+            np.testing.assert_allclose(xyz, pos[frame], atol=0.03)
         # the seed's T-matrix holograms are counted, its start columns are the library's
         assert seeded.n_eval > seeded.n_solves
         assert np.isfinite(seeded.extra["start_theta_rad"])
@@ -116,7 +118,7 @@ def test_the_initial_pass_is_seeded_and_spread_with_a_tmatrix(movie, tmp_path):
     """With a T-matrix (the default policy on 8 frames) the initial pass fits frames spread
     over the movie, seeded, and recovers the truth's statics; without one (``--tmatrix
     never``) it follows the track from the first frame, as before."""
-    root, start, _, _ = movie
+    root, start, _, _, _ = movie
     run = run_fit(root / "crop", root / "prefit", root / "lib", start, tmp_path / "a",
                   pass_name="initial", initial_frames=3, batch=SERIAL, plot=False)
     assert (tmp_path / "a" / "tmatrix_start.npz").exists()
@@ -134,3 +136,47 @@ def test_the_initial_pass_is_seeded_and_spread_with_a_tmatrix(movie, tmp_path):
                     plot=False)
     assert not (tmp_path / "b" / "tmatrix_start.npz").exists()
     assert read_fit_table(never.initial).table["frame"].tolist() == [0, 1, 2]
+
+
+def test_a_seed_from_the_twin_height_is_tried_from_other_heights(tmp_path):
+    """The rod 1.5 um above the focal plane with the prefit's height at its twin 1.5 um below
+    (the Janus replicate's prefit did this near focus): the seed's pose fit is far from the
+    data, so it is tried from other heights until one fits, and the full fit lands on the
+    truth; without the retries (``retry_chi2_red`` infinite) the frame's fit stays at the twin
+    or is not ``ok``."""
+    from holofit.library.search import Candidate
+
+    (tmp_path / "truth.toml").write_text(ROD_TOML)
+    (tmp_path / "start.toml").write_text(START_TOML)
+    truth = load_particle(tmp_path / "truth.toml")
+    inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
+    pos = np.array([[8.0, 8.0, 1.5]])
+    angle = np.array([[0.7, 1.1, 0.0]])
+    sim = simulate_movie(truth.model, inst, pos, (90, 90), orientations=angle, alpha=0.9,
+                         theory=truth.theory(), seed=4, out_dir=tmp_path / "sim")
+    run_crop(sim.movie, sim.background, inst, tmp_path / "crop", size=64, plot=False)
+    run_prefit(tmp_path / "crop", tmp_path / "prefit", batch=SERIAL, plot=False)
+    crops = CropSet(tmp_path / "crop")
+    pre, _ = read_stage_table(tmp_path / "prefit" / "prefit.csv", crops, "prefit")
+    p = _load(FrameLoader(crops, pre), 0)
+    particle = initial_particle(load_particle(tmp_path / "start.toml")
+                                .with_fixed_lattice(inst.optics))
+    model = particle.model
+    seeding = particle.theory(fixed_lattice_for=inst.optics)
+    seeding.tmatrix(model, inst.optics)
+    starts = (Candidate(0.7, 1.1, 0.0, 0.9),)
+    results = {}
+    for retry in (1.5, np.inf):
+        direct = particle.theory(fixed_lattice_for=inst.optics)
+        results[retry] = fit_frame_seeded(
+            p.crop, p.corner, inst.pixel_size_um, seeding, direct, model, inst.optics,
+            (p.start["x_um"], p.start["y_um"], -1.5), p.start["alpha"], starts,
+            _free(model, "final"), _free(model, "initial"), FrameFitSettings(stop_chi2=1.0),
+            retry_chi2_red=retry)
+    good, bad = results[1.5], results[np.inf]
+    assert good.status == "ok" and good.values["z_um"] == pytest.approx(1.5, abs=0.05)
+    assert good.values["a_um"] == pytest.approx(0.3, abs=0.01)
+    u = np.array([good.values[k] for k in ("ux", "uy", "uz")])
+    assert np.degrees(np.arccos(min(abs(u @ _axis(1.1, 0.7)), 1.0))) < 2.0
+    assert bad.status != "ok" or abs(bad.values["z_um"] - 1.5) > 0.5
+    assert good.chi2 < bad.chi2

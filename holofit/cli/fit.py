@@ -51,7 +51,7 @@ from holofit.holomodel.result import QualityLimits
 @instrument_option(required=False)
 @click.option("--pass", "pass_name", type=click.Choice(PASSES), default="both",
               show_default=True,
-              help="initial: everything free on the first frames, writes static.json; final: "
+              help="initial: everything free on some frames, writes static.json; final: "
                    "static parameters fixed, every frame; both: one then the other.")
 @click.option("--initial-frames", type=click.IntRange(min=1), default=None,
               help="Frames of the initial pass (1 for a single hologram: everything free) "
@@ -152,7 +152,8 @@ def fit(
     overwrite: bool,
     progress: bool | None,
 ) -> None:
-    """DDA fit of every frame: an initial pass (all parameters free on the first frames), the
+    """DDA fit of every frame: an initial pass (all parameters free on some frames: spread over
+    the movie, each seeded from the start statics' T-matrix, where the particle has one), the
     static parameters' robust average (OUT/static.json), then a final pass (static ones fixed).
 
     Writes OUT/initial.csv and OUT/fit.csv (the fit-table schema: `holofit analyze` reads

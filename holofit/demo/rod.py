@@ -4,10 +4,10 @@
 diffusing and sedimenting (0.9 um/s) in water at 21 C, filmed at 100 frames/s through the
 paper's 60x water-immersion set-up with 8-bit camera noise, and runs all five stages on it
 exactly as the command line does: crop, Lorenz-Mie prefit, orientation library, DDA fit (an
-initial pass with every parameter free on the first frames, then a final pass with the sizes and
-index fixed, served from the rod's T-matrix) and the diffusion analysis. It prints what each
-stage recovered against the truth and against the spherocylinder prediction. ``holofit demo
---particle sphere`` runs the shorter sphere demo (:mod:`holofit.demo.sphere`).
+initial pass with every parameter free on frames spread over the movie, then a final pass with
+the sizes and index fixed, served from the rod's T-matrix) and the diffusion analysis. It prints
+what each stage recovered against the truth and against the spherocylinder prediction.
+``holofit demo --particle sphere`` runs the shorter sphere demo (:mod:`holofit.demo.sphere`).
 """
 
 from __future__ import annotations

@@ -2,8 +2,10 @@
 
 - **Initial pass** (``initial.csv``): every parameter free (position, orientation, alpha and
   the particle's static parameters: a rod's a, b, n; a Janus particle's core radius, cap
-  thickness and both indices; a dimer's radii, gap and indices) on the first
-  ``initial_frames`` frames, from the library's candidates and the prefit's position. The
+  thickness and both indices; a dimer's radii, gap and indices) on ``initial_frames``
+  frames: spread over the movie, each seeded from the start statics' T-matrix, where the
+  particle has one (:mod:`holofit.fit.seeded`), else the first ones, from the library's
+  candidates and the prefit's position (:meth:`_FitPasses.initial`). The
   static parameters' robust average over the ``ok`` frames (median, with the spread as 1.4826
   times the median absolute deviation) goes to ``static.json``.
 - **Final pass** (``fit.csv``): the static parameters fixed to those values (or to a
@@ -175,7 +177,8 @@ def run_fit(
     pass_name : {"both", "initial", "final"}
         Which passes to run.
     initial_frames : int, optional
-        Frames of the initial pass (the first ones that can be fitted); default
+        Frames of the initial pass (spread over the movie where the particle has a
+        T-matrix, else the first ones that can be fitted); default
         :func:`default_initial_frames` of the movie's fittable frames (said in ``notes``).
     static : str or Path, optional
         ``static.json`` for the final pass (default: ``OUT/static.json`` of the initial pass).
@@ -342,11 +345,13 @@ class _FitPasses:
         n_initial = initial_frames
         if n_initial is None:
             n_initial = default_initial_frames(len(fittable))
+            which = (f"{n_initial} of the {len(fittable)} frames that can be fitted, spread "
+                     "over the movie" if spread else
+                     f"the first {n_initial} of the {len(fittable)} frames that can be fitted")
             self.run.notes.append(
-                f"initial pass (every parameter free) on {n_initial} of the {len(fittable)} "
-                f"frames that can be fitted ({'spread over the movie' if spread else 'the first'}"
-                f"): the default, 1 in {INITIAL_SHARE}, at least {INITIAL_MIN}, at most "
-                f"{INITIAL_MAX} (--initial-frames N to choose)")
+                f"initial pass (every parameter free) on {which}: the default, 1 in "
+                f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX} "
+                "(--initial-frames N to choose)")
         chosen = initial_choice(fittable, [_overlapped(crops.row(f)) for f in fittable],
                                 n_initial, spread=spread)
         if any(_overlapped(crops.row(f)) for f in fittable):

@@ -120,6 +120,8 @@ TRACK_COLUMNS = ("track_source", "track_jump", "runner_up_refit", "track_step_um
 #: row for which none worked: a stretch no height fits (a wrong library, an artefact) costs
 #: seven library fits a frame only this often
 REOPEN_MAX_FAILURES = 3
+#: the heights (um, off the prefit's) a failing library fit is tried from again, in turn
+REOPEN_DZ_UM = (-1.5, 1.5, -3.0, 3.0, -4.5, 4.5)
 #: a probe's fit stops where the Gauss-Newton step predicts a chi^2 decrease of at most this:
 #: it decides between minima 9 chi^2 units apart, and the one it picks is refitted fully
 PROBE_STOP_CHI2 = 1.0
@@ -281,7 +283,7 @@ class TrackOptions:
     pole_probe_rad: float = math.radians(15.0)
     pole_min_gain_chi2: float = 9.0
     pole_probe_nfev: int = 20
-    reopen_dz_um: tuple[float, ...] = (-1.5, 1.5, -3.0, 3.0, -4.5, 4.5)
+    reopen_dz_um: tuple[float, ...] = REOPEN_DZ_UM
     pole_probe_symmetric: bool = False
 
     def __post_init__(self) -> None:

@@ -65,7 +65,7 @@ _GUIDE = """\
 #   crop/crops.csv        movie, background(s), dark frame(s), instrument.toml, settings/crop
 #   prefit/prefit.csv     crop/crops.csv, settings/prefit
 {library_line}#   fit/static.json       {fit_inputs}, particle.toml, settings/fit
-#                         (initial pass: every parameter free on the first frames)
+#                         (initial pass: every parameter free on some frames)
 #   fit/fit.csv           fit/static.json and the same (final pass: static parameters fixed)
 #   analysis/summary.csv  fit/fit.csv, settings/analyze
 # Editing particle.toml reruns {particle_reruns}, not crop and prefit.

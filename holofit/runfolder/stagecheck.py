@@ -100,7 +100,8 @@ def initial_pass_note(text: str, n_frames: int) -> str | None:
     if option_value(text, "--initial-frames") is not None or _flag(text, "--initial-frames"):
         return None
     k = default_initial_frames(n_frames)
-    return (f"fit: the initial pass (every parameter free, by direct DDA solves) will take the "
-            f"first {k} of the movie's {n_frames} frames that can be fitted (1 in "
+    return (f"fit: the initial pass (every parameter free, by direct DDA solves) will take "
+            f"{k} of the movie's {n_frames} frames that can be fitted (spread over the movie "
+            "where the particle has a T-matrix, else the first ones; 1 in "
             f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX}); to choose: "
             "--fit-opts '--initial-frames N', or make FIT_OPTS='--initial-frames N'")
