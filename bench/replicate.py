@@ -337,8 +337,8 @@ def main() -> None:
     args = ap.parse_args()
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    # the Janus initial pass fits every static parameter with direct DDA solves (~2 min a
-    # frame on one core, against ~7 s for the rod), so it takes the first 10 frames
+    # the Janus initial pass fits every static parameter with direct DDA solves (15-35 solves,
+    # ~25 s a frame on one core from a seed, against ~3 s for the rod), so it takes 10 frames
     for name, fn, n, k in (("rod", rod, 2000, 100), ("janus", janus, 3000, 10)):
         if args.only and args.only != name:
             continue
@@ -347,7 +347,8 @@ def main() -> None:
                      args.seed)
         lines = list(part)
         lines[2:2] = [f"Simulation seed {args.seed}, {args.frames or n} frames, the initial pass "
-                      f"on the first {args.initial_frames or k}.", ""]
+                      f"on {args.initial_frames or k} of them (spread over the movie where the "
+                      "particle has a T-matrix: holofit.fit.seeded).", ""]
         for png in ("msd.png", "orientation.png", "trajectory.png"):
             if (out / name / "analysis" / png).exists():
                 lines.append(f"![{name} {png}]({name}/analysis/{png})")

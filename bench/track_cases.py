@@ -97,7 +97,7 @@ def _axis_errors(tab: pd.DataFrame, ang: np.ndarray, head_tail: bool) -> np.ndar
     return np.degrees(np.arccos(np.clip(dot, -1, 1)))
 
 
-def run(name: str, n: int) -> dict[str, float]:
+def run(name: str, n: int, track_opts: dict | None = None) -> dict[str, float]:
     case = make_case(name)
     model, theory = case.fit_model()
     CACHE.mkdir(exist_ok=True)
@@ -130,7 +130,7 @@ def run(name: str, n: int) -> dict[str, float]:
     t0 = time.perf_counter()
     c0 = time.process_time()
     tab = track_chunk(frames, theory, model, case.inst.optics, px, FINAL, bar,
-                      TrackOptions(frame=opts))
+                      TrackOptions(frame=opts, **(track_opts or {})))
     out[f"fit_{name}_frame_final_s"] = (time.perf_counter() - t0) / n
     out[f"fit_{name}_frame_final_cpu_s"] = (time.process_time() - c0) / n
     out[f"fit_{name}_evals_per_frame"] = float(tab["n_eval"].mean())
@@ -141,6 +141,8 @@ def run(name: str, n: int) -> dict[str, float]:
     for how, label in ((0, "carried"), (1, "screened"), (2, "refitted")):
         out[f"track_{name}_runner_up_{label}_frames"] = float(
             (tab["runner_up_refit"] == how).sum())
+    for how, label in ((0, "kept"), (1, "changed")):
+        out[f"track_{name}_pole_probed_{label}_frames"] = float((tab["track_pole"] == how).sum())
     out[f"track_{name}_ok_frames"] = float((tab["status"] == "ok").sum())
     out[f"track_{name}_jump_frames"] = float(tab["track_jump"].sum())
     out[f"track_{name}_ambiguous_frames"] = float(tab["ambiguous"].sum())
@@ -163,5 +165,7 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("case", choices=("rod", "janus"))
     parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--track-opts", type=json.loads, default=None,
+                        help="TrackOptions fields as JSON (an A/B of the tracker's settings)")
     args = parser.parse_args()
-    print(json.dumps(run(args.case, args.frames)))
+    print(json.dumps(run(args.case, args.frames, args.track_opts)))

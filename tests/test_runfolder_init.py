@@ -298,7 +298,7 @@ def test_init_says_what_the_fit_initial_pass_will_take(tmp_path, inputs):
     res = _init(tmp_path, inputs)
     assert res.exit_code == 0, res.output
     assert "the initial pass (every parameter free" in res.stderr
-    assert "first 3 of the movie's 3 frames" in res.stderr
+    assert "will take 3 of the movie's 3 frames" in res.stderr
     res = _init(tmp_path, inputs, "--fit-opts", "--initial-frames 2", run="run02")
     assert res.exit_code == 0 and "initial pass" not in res.stderr
     sphere = _init(tmp_path, inputs, run="run03", particle="sphere_ps_1um")
