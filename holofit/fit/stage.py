@@ -70,7 +70,7 @@ from holofit.fit.defaults import (
 from holofit.fit.errors import FitStageError
 from holofit.fit.frame import FrameFitSettings
 from holofit.fit.initial_level import flag_initial_table
-from holofit.fit.seeded import SEED_TOLERANCE, seed_particle
+from holofit.fit.seeded import SEED_BUILD, seed_particle
 from holofit.fit.static import read_static, static_average, static_doc, write_static
 from holofit.fit.sweeps import continuity_sweeps
 from holofit.fit.task import (
@@ -337,7 +337,7 @@ class _FitPasses:
                                     self.engine, policy, len(fittable), self.out,
                                     self.local_workers(), name="tmatrix_start.npz",
                                     purpose="initial pass's poses (start statics)",
-                                    tolerance=SEED_TOLERANCE)
+                                    build_options=SEED_BUILD)
             if seeding.path is not None:
                 seed = str(seeding.path)
                 self.run.notes += seeding.notes

@@ -53,13 +53,13 @@ def check_policy(policy: str, particle: ParticleConfig, engine: str | None,
 def final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None,
                   policy: str, n_frames: int, out: Path, workers: int = 1,
                   name: str = "tmatrix.npz", purpose: str = "final pass",
-                  tolerance: float | None = None) -> FinalTMatrix:
+                  build_options: dict[str, float] | None = None) -> FinalTMatrix:
     """Build (or reuse) the final pass's T-matrix ``OUT/tmatrix.npz`` when the policy asks
     for one; a build shares its solves by ``workers`` processes (the stage's workers, idle
     until the final pass starts). ``name`` and ``purpose``: another T-matrix of the stage
     under the same policy (the initial pass's seeds: :mod:`holofit.fit.seeded`), its file
-    name and what the notes call it; ``tolerance``: the build's solver tolerance (default:
-    :func:`holofit.dda.tmatrix_build.build_tmatrix`'s)."""
+    name and what the notes call it; ``build_options``: the build's ``tolerance`` and
+    ``truncation`` where not :func:`holofit.dda.tmatrix_build.build_tmatrix`'s defaults."""
     model = particle.model
     if policy == "never" or not model.anisotropic:
         return FinalTMatrix()
@@ -78,9 +78,7 @@ def final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None
     path = out / name
     t0 = time.perf_counter()
     reused = path.exists()
-    build: dict[str, Any] = {"workers": max(int(workers), 1)}
-    if tolerance is not None:
-        build["tolerance"] = tolerance
+    build: dict[str, Any] = {**(build_options or {}), "workers": max(int(workers), 1)}
     try:
         theory.tmatrix(model, inst.optics, path=str(path), **build)
     except TMatrixMismatch:
