@@ -13,7 +13,7 @@ from holofit.batch.stage import FrameLoader
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit.frame import FrameFitSettings, fit_frame
-from holofit.fit.seeded import fit_frame_seeded
+from holofit.fit.seeded import SEED_BUILD, fit_frame_seeded
 from holofit.fit.stage import _load, initial_choice, initial_particle, run_fit
 from holofit.fit.task import _free
 from holofit.library.stage import LibrarySettings, run_library
@@ -122,6 +122,8 @@ def test_the_initial_pass_is_seeded_and_spread_with_a_tmatrix(movie, tmp_path):
     run = run_fit(root / "crop", root / "prefit", root / "lib", start, tmp_path / "a",
                   pass_name="initial", initial_frames=3, batch=SERIAL, plot=False)
     assert (tmp_path / "a" / "tmatrix_start.npz").exists()
+    built = json.loads((tmp_path / "a" / "tmatrix_start.npz.json").read_text())
+    assert built["tolerance"] == SEED_BUILD["tolerance"]  # a seed's T-matrix, not a final one
     assert any("initial pass's poses (start statics) served from the particle's T-matrix" in n
                for n in run.notes), run.notes
     table = read_fit_table(run.initial).table
