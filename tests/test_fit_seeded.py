@@ -16,13 +16,12 @@ from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.fit.seeded import SEED_BUILD, fit_frame_seeded
 from holofit.fit.stage import _load, initial_choice, initial_particle, run_fit
 from holofit.fit.task import _free
-from holofit.library.stage import LibrarySettings, run_library
 from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
 from holofit.tables.cropset import CropSet
 from holofit.tables.fit import read_fit_table
 from holofit.tables.inputs import read_stage_table
-from tests.stage_helpers import ROD_TOML, SERIAL
+from tests.stage_helpers import ROD_TOML, SERIAL, crop_prefit_library
 
 #: the fit's start: the truth (ROD_TOML: a 0.3, b 0.7, n 1.5) a little off
 START_TOML = ROD_TOML.replace("a_um = 0.3", "a_um = 0.31").replace(
@@ -58,11 +57,7 @@ def movie(tmp_path_factory):
                               np.zeros(N_FRAMES)])
     sim = simulate_movie(truth.model, inst, pos, (90, 90), orientations=angles, alpha=0.9,
                          theory=truth.theory(), seed=3, out_dir=root / "sim")
-    run_crop(sim.movie, sim.background, inst, root / "crop", size=64, plot=False)
-    run_prefit(root / "crop", root / "prefit", batch=SERIAL, plot=False)
-    run_library(root / "crop", root / "prefit", start, root / "lib",
-                settings=LibrarySettings(tilt_step_deg=15, n_phi=64, n_candidates=2),
-                batch=SERIAL, plot=False)
+    crop_prefit_library(sim, inst, start, root)
     return root, start, inst, angles, pos
 
 

@@ -12,13 +12,10 @@ import pandas as pd
 import pytest
 
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
 from holofit.fit.continuity import ContinuitySettings
 from holofit.fit.stage import run_fit
-from holofit.library.stage import LibrarySettings, run_library
-from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
-from tests.stage_helpers import ROD_TOML, SERIAL
+from tests.stage_helpers import ROD_TOML, SERIAL, crop_prefit_library
 
 N = 6
 
@@ -43,11 +40,7 @@ def tracked(tmp_path_factory):
                                                      axis=0)
     sim = simulate_movie(particle.model, inst, pos, (90, 90), orientations=angles, alpha=0.9,
                          theory=particle.theory(), seed=2, out_dir=root / "sim")
-    run_crop(sim.movie, sim.background, inst, root / "crop", size=64, plot=False)
-    run_prefit(root / "crop", root / "prefit", batch=SERIAL, plot=False)
-    run_library(root / "crop", root / "prefit", particle, root / "lib",
-                settings=LibrarySettings(tilt_step_deg=15, n_phi=64, n_candidates=2),
-                batch=SERIAL, plot=False)
+    crop_prefit_library(sim, inst, particle, root)
     (root / "static.json").write_text(json.dumps({
         "particle_model": "spherocylinder", "values": {"a_um": 0.3, "b_um": 0.7, "n": 1.5}}))
     _fit(root, particle, root / "fit", ContinuitySettings(enabled=False))
