@@ -128,6 +128,12 @@ def test_the_initial_pass_is_seeded_and_spread_with_a_tmatrix(movie, tmp_path):
     assert static["a_um"] == pytest.approx(0.3, abs=0.01)
     assert static["b_um"] == pytest.approx(0.7, abs=0.02)
     assert static["n"] == pytest.approx(1.5, abs=0.005)
+    # a rerun finds the seeds' T-matrix and every frame done, and changes nothing
+    before = run.initial.read_bytes()
+    again = run_fit(root / "crop", root / "prefit", root / "lib", start, tmp_path / "a",
+                    pass_name="initial", initial_frames=3, batch=SERIAL, plot=False)
+    assert again.summaries["initial"].n_run == 0 and again.initial.read_bytes() == before
+    assert any("initial pass's poses" in n and "loaded" in n for n in again.notes), again.notes
     never = run_fit(root / "crop", root / "prefit", root / "lib", start, tmp_path / "b",
                     pass_name="initial", initial_frames=3, tmatrix="never", batch=SERIAL,
                     plot=False)
