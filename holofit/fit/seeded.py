@@ -21,8 +21,8 @@ is what the static parameters need. A DDA model's cubic lattice breaks an axisym
 particle's symmetry about its axis; the Janus replicate's first frames (all cap-down, within
 0.1 s) gave static parameters whose minima scatter along a valley shared with that lattice
 anisotropy (radius 436-452 nm, truth 443), and their median was 3.6 nm off in radius; ten
-frames spread over the movie from good poses gave 441-443.5 nm and a median 0.8 nm off
-(bench/replicate.py, seed 11).
+seeded frames spread over the movie gave 442.4-443.8 nm but one near the pole (446.3), and a
+median 0.1 nm off (bench/replicate.py, seed 11).
 """
 
 from __future__ import annotations
@@ -123,8 +123,8 @@ def fit_frame_seeded(
     placed = fit_frame(crop, corner_rc, pixel_size_um, seed_theory, model, optics, position_um,
                        alpha, candidates, seed_free, options, seed=seed)
     n_eval = placed.n_eval
+    x, y, z = position_um
     for dz in REOPEN_DZ_UM if placed.chi2_red > retry_chi2_red else ():
-        x, y, z = position_um
         other = fit_frame(crop, corner_rc, pixel_size_um, seed_theory, model, optics,
                           (x, y, z + dz), alpha, candidates, seed_free, options, seed=seed)
         n_eval += other.n_eval

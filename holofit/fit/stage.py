@@ -354,7 +354,7 @@ class _FitPasses:
                 "(--initial-frames N to choose)")
         chosen = initial_choice(fittable, [_overlapped(crops.row(f)) for f in fittable],
                                 n_initial, spread=spread)
-        if any(_overlapped(crops.row(f)) for f in fittable):
+        if any(_overlapped(crops.row(f)) for f in (fittable if spread else fittable[:n_initial])):
             self.run.notes.append(
                 "initial pass: frames without another track's overlapping hologram first "
                 f"({sum(not _overlapped(crops.row(f)) for f in chosen)} of {len(chosen)})")
