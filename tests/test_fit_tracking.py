@@ -389,7 +389,7 @@ def test_a_right_fit_near_the_pole_is_left_as_it_is():
 
     theory = engine(JANUS)
     fitter = _Fitter(theory, JANUS, OPTICS, PX, FINAL, TrackOptions())
-    for theta_deg, probed in ((8.0, True), (40.0, False)):
+    for theta_deg, probed in ((8.0, True), (55.0, False)):
         f, pos, psi, theta = _single_janus_frame(theory, theta_deg, seed=6)
         truth = state_of({"x_um": pos[0], "y_um": pos[1], "z_um": pos[2], "alpha": 0.9,
                           "psi_rad": psi, "theta_rad": theta}, JANUS)
@@ -400,6 +400,70 @@ def test_a_right_fit_near_the_pole_is_left_as_it_is():
         assert code == (0 if probed else -1)
         assert res is fit and res.values == values and res.rss == rss
         assert (res.n_eval > n) == probed
+
+
+def test_a_warm_fit_on_a_wrong_branch_is_rechecked_from_its_neighbours():
+    """A Janus frame at theta 22 deg whose warm fit sits 15+ deg off the truth (held at
+    theta 4 deg); its predecessor's and successor's fits are 16 deg from the truth on either
+    side (one along theta, one across it), as on a fast-turning replicate: refitted from the
+    orientation between them, the frame lands on the truth and the minimum it left becomes its
+    runner-up. Controls: a right fit whose successor is as far away is rechecked and kept as
+    it was; one whose successor is within ``recheck_rad`` is not rechecked at all."""
+    from holofit.fit.tracking import _Fitter, pole_probes
+
+    theory = engine(JANUS)
+    f, pos, psi, theta = _single_janus_frame(theory, 22.0, seed=5)
+    values = {"x_um": pos[0], "y_um": pos[1], "z_um": pos[2], "alpha": 0.9}
+    truth = state_of({**values, "psi_rad": psi, "theta_rad": theta}, JANUS)
+    near = state_of({**values, "psi_rad": psi + 1.0, "theta_rad": math.radians(4.0)}, JANUS)
+    held = fit_frame_warm(f.crop, f.corner, PX, theory, JANUS, OPTICS, near,
+                          ("x_um", "y_um", "z_um", "alpha"), FrameFitSettings(mirror=False),
+                          seed=1).result
+    assert _axis_off_deg(held.values, psi, theta) > 15.0
+    before, _, _, after = pole_probes(truth, 4, math.radians(16.0))
+    later = fit_frame_warm(f.crop, f.corner, PX, theory, JANUS, OPTICS, after,
+                           ("x_um", "y_um", "z_um", "alpha"), FrameFitSettings(mirror=False),
+                           seed=1).result
+    fitter = _Fitter(theory, JANUS, OPTICS, PX, FINAL, TrackOptions())
+    res, code, n_eval = fitter.recheck(f, held, later, before)
+    assert code == 1 and n_eval > 0
+    assert _axis_off_deg(res.values, psi, theta) < 2.0
+    assert res.rss < held.rss and "next frame's orientation" in res.message
+    excess = (held.rss - res.rss) / res.noise_sd**2
+    assert 9.0 < res.extra["delta_chi2"] <= excess + 1e-6 and res.extra["ambiguous"] == 0
+
+    right = fit_frame_warm(f.crop, f.corner, PX, theory, JANUS, OPTICS, truth, FINAL,
+                           seed=1).result
+    kept, code, n_eval = fitter.recheck(f, right, later, before)
+    assert code == 0 and kept is right and n_eval > 0
+    close = fit_frame_warm(f.crop, f.corner, PX, theory, JANUS, OPTICS,
+                           pole_probes(truth, 1, math.radians(10.0))[0],
+                           ("x_um", "y_um", "z_um", "alpha"), FrameFitSettings(mirror=False),
+                           seed=1).result
+    same, code, n_eval = fitter.recheck(f, right, close, before)
+    assert code == -1 and same is right and n_eval == 0
+
+
+def test_the_orientation_between_two_neighbours():
+    """The recheck's start: the fit turned onto the bisector of its neighbours' axes (for a
+    head-tail symmetric particle, of the axes as lines), the turn a proper rotation."""
+    from holofit.conventions import euler_zyz
+    from holofit.fit.tracking import _between
+    from holofit.holomodel.parameters import State
+
+    def at(psi, theta):
+        return State((0.0, 0.0, 5.0), euler_zyz(psi, theta, 0.0), 0.9, ())
+
+    own, a, b = at(0.3, 0.5), at(1.0, 0.2), at(-0.4, 0.4)
+    mid = a.rotation[:, 2] + b.rotation[:, 2]
+    out = _between(own, a, b, head_tail=False)
+    assert np.allclose(out.rotation[:, 2], mid / np.linalg.norm(mid))
+    assert np.allclose(out.rotation.T @ out.rotation, np.eye(3), atol=1e-12)
+    flipped = State(a.position, a.rotation @ np.diag([1.0, -1.0, -1.0]), 0.9, ())  # -u
+    assert np.allclose(_between(own, flipped, b, head_tail=True).rotation[:, 2],
+                       out.rotation[:, 2])
+    assert np.allclose(_between(own, None, b, head_tail=False).rotation[:, 2],
+                       b.rotation[:, 2])
 
 
 def test_a_chunk_whose_prefit_height_is_far_off_opens_from_another_height(theory):

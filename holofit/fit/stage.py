@@ -434,8 +434,9 @@ class _FitPasses:
         # the initial pass's direct DDA solves are too dear for the pole probes and the other
         # heights (tracking.py, steps 7-8: up to seven fits a frame); its rows are checked by their
         # level instead (initial_level.py) and each final frame against its own
-        tracking = replace(self.tracking, frame=cfg.options, **(
-            {} if name == "final" else {"pole_probes": 0, "reopen_dz_um": ()}))
+        dear = {"pole_probes": 0, "recheck_rad": 0.0, "reopen_dz_um": ()}
+        tracking = replace(self.tracking, frame=cfg.options,
+                           **({} if name == "final" else dear))
         tcfg = TrackedConfig(cfg, tracking, bar, overlap)
         if name == "final":
             chunks = plan_chunks(frames, overlap, min_chunk=MIN_CHUNK)

@@ -115,7 +115,8 @@ __all__ = [
 #: (:data:`INITIAL_CHECK`) and by how much the initial row's pose beat the frame's fit there
 #: (chi^2 units, the pixel noise's; negative: it did not; NaN: not checked)
 TRACK_COLUMNS = ("track_source", "track_jump", "runner_up_refit", "track_step_um",
-                 "track_step_axis_rad", "track_initial", "track_initial_dchi2", "track_pole")
+                 "track_step_axis_rad", "track_initial", "track_initial_dchi2", "track_pole",
+                 "track_recheck")
 #: a chunk stops trying other heights (module docstring, step 8) after this many frames in a
 #: row for which none worked: a stretch no height fits (a wrong library, an artefact) costs
 #: seven library fits a frame only this often
@@ -132,6 +133,16 @@ POLE_PROBE = {
     0: "probed: no probe ended lower than the warm fit",
     1: "probed: a probe ended lower; the frame was refitted from it",
 }
+#: the codes of ``track_recheck`` (module docstring, step 9)
+RECHECK = {
+    -1: "not rechecked (not a warm fit near the optical axis, or the next frame along the "
+        "track is near it)",
+    0: "refitted from the next frame's orientation: no lower minimum",
+    1: "refitted from the next frame's orientation: a lower minimum, kept (the frame changed)",
+}
+#: frames a recheck goes back along the track from the frame just accepted (each changed frame
+#: is the next one's start)
+RECHECK_DEPTH = 3
 #: the codes of ``track_initial`` (module docstring, step 6)
 INITIAL_CHECK = {
     -1: "no initial-pass row for this frame",
@@ -278,13 +289,14 @@ class TrackOptions:
     warm: bool = True
     initial: bool = True
     open_at_best: bool = True
-    pole_rad: float = math.radians(20.0)
-    pole_probes: int = 4
+    pole_rad: float = math.radians(40.0)
+    pole_probes: int = 2
     pole_probe_rad: float = math.radians(15.0)
     pole_min_gain_chi2: float = 9.0
     pole_probe_nfev: int = 20
     reopen_dz_um: tuple[float, ...] = REOPEN_DZ_UM
     pole_probe_symmetric: bool = False
+    recheck_rad: float = math.radians(15.0)
 
     def __post_init__(self) -> None:
         if not (self.step_factor > 0 and self.history >= self.min_history >= 1
@@ -335,10 +347,14 @@ def state_of(values: dict[str, float], model: ParticleModel) -> State:
 
 def pole_probes(state: State, n: int, tilt_rad: float) -> list[State]:
     """``n`` copies of ``state`` whose axes are tilted by ``tilt_rad`` from its own, evenly
-    around it (the rotation ``exp([w]x) R`` with ``w`` perpendicular to the axis)."""
+    around it (the rotation ``exp([w]x) R`` with ``w`` perpendicular to the axis), the first
+    along the meridian (its polar angle theta larger by ``tilt_rad``; with ``n`` even, one
+    probe also smaller by it). On the optical axis the meridian is the x-z plane's."""
     assert state.rotation is not None
     axis = state.rotation[:, 2]
-    e1 = np.cross(axis, (1.0, 0.0, 0.0) if abs(axis[0]) < 0.9 else (0.0, 1.0, 0.0))
+    e1 = np.cross((0.0, 0.0, 1.0), axis)  # turning about it moves the axis along theta
+    if np.linalg.norm(e1) < 1e-6:
+        e1 = np.array([0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(axis, e1)
     out = []
@@ -347,6 +363,35 @@ def pole_probes(state: State, n: int, tilt_rad: float) -> list[State]:
         w = tilt_rad * (math.cos(phase) * e1 + math.sin(phase) * e2)
         out.append(replace(state, rotation=rotation_from_vector(w) @ state.rotation))
     return out
+
+
+def _near_pole(state: State, opts: TrackOptions) -> bool:
+    """The axis of ``state`` lies within ``opts.pole_rad`` of the optical axis (either pole)."""
+    assert state.rotation is not None
+    return abs(float(state.rotation[2, 2])) >= math.cos(opts.pole_rad)
+
+
+def _between(own: State, before: State | None, later: State, head_tail: bool) -> State:
+    """``own`` turned so that its axis lies midway between ``before``'s and ``later``'s (a
+    diffusing axis's likeliest place between two known ones), or on ``later``'s where
+    ``before`` is None or the two are nearly opposite."""
+    assert own.rotation is not None and later.rotation is not None
+    target = later.rotation[:, 2]
+    if before is not None and before.rotation is not None:
+        a = before.rotation[:, 2]
+        if head_tail and float(np.dot(a, target)) < 0:
+            a = -a
+        mid = a + target
+        if np.linalg.norm(mid) > 0.1:
+            target = mid / np.linalg.norm(mid)
+    axis = own.rotation[:, 2]
+    if head_tail and float(np.dot(axis, target)) < 0:
+        target = -target
+    w = np.cross(axis, target)
+    s, c = float(np.linalg.norm(w)), float(np.dot(axis, target))
+    if s < 1e-12:
+        return own
+    return replace(own, rotation=rotation_from_vector(w / s * math.atan2(s, c)) @ own.rotation)
 
 
 def _axis_step(a: State, b: State, head_tail: bool) -> float:
@@ -453,14 +498,12 @@ class _Fitter:
         if (not opts.pole_probes or not opts.warm or state is None or state.rotation is None
                 or not res.noise_sd > 0
                 or (self.model.head_tail_symmetric and not opts.pole_probe_symmetric)
-                or abs(float(state.rotation[2, 2])) < math.cos(opts.pole_rad)):
+                or not _near_pole(state, opts)):
             return res, runner, -1
         level = None if acc is None else acc.level(opts.min_history)
         if level is not None and not res.chi2_red > level:
             return res, runner, -1
-        quiet = replace(opts.frame, mirror=False,
-                        max_nfev=min(opts.frame.max_nfev, opts.pole_probe_nfev),
-                        stop_chi2=max(opts.frame.stop_chi2, PROBE_STOP_CHI2))
+        quiet = self._quiet()
         n_eval, best = res.n_eval, None
         for start in pole_probes(state, opts.pole_probes, opts.pole_probe_rad):
             probe = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory,
@@ -486,6 +529,52 @@ class _Fitter:
         _competitor(new, res, self.model, opts.frame.ambiguity_chi2)
         new.n_eval = n_eval + new.n_eval
         return new, again.carried, 1
+
+    def recheck(self, f: ChunkFrame, res: FitResult, later: FitResult,
+                before: State | None = None) -> tuple[FitResult, int, int]:
+        """Step 9 of the module docstring: frame ``f``'s warm fit ``res`` refitted from the
+        orientation between ``before`` (the accepted fit it started from; None: ``later``'s
+        orientation alone) and ``later``, the next frame's accepted fit along the track.
+        Returns the fit kept, the code (:data:`RECHECK`) and the holograms computed."""
+        opts = self.opts
+        if not (opts.warm and opts.recheck_rad > 0 and res.status == OK
+                and np.isfinite(res.rss) and res.noise_sd > 0 and np.isfinite(later.rss)
+                and (opts.pole_probe_symmetric or not self.model.head_tail_symmetric)):
+            return res, -1, 0
+        own, nxt = state_of(res.values, self.model), state_of(later.values, self.model)
+        if (own.rotation is None or not _near_pole(own, opts)
+                or not _axis_step(own, nxt, self.model.head_tail_symmetric)
+                > opts.recheck_rad):
+            return res, -1, 0
+        start = _between(own, before, nxt, self.model.head_tail_symmetric)
+        probe = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
+                               self.optics, start, self.free, self._quiet(),
+                               seed=f.frame).result
+        n_eval = probe.n_eval
+        if not (np.isfinite(probe.rss)
+                and (res.rss - probe.rss) / res.noise_sd**2 > opts.pole_min_gain_chi2):
+            return res, 0, n_eval
+        again = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
+                               self.optics, state_of(probe.values, self.model), self.free,
+                               opts.frame, seed=f.frame,
+                               refit_margin_chi2=opts.refit_margin_chi2)
+        new = again.result
+        n_eval += new.n_eval
+        if not new.rss < res.rss:
+            return res, 0, n_eval
+        new.message = _join(new.message, "refitted from the next frame's orientation along the "
+                            f"track: {(res.rss - new.rss) / new.noise_sd**2:.4g} chi^2 below "
+                            "the warm fit")
+        _competitor(new, res, self.model, opts.frame.ambiguity_chi2)
+        return new, 1, n_eval
+
+    def _quiet(self) -> FrameFitSettings:
+        """A probe's settings: no mirror, at most ``pole_probe_nfev`` holograms, stopping
+        within :data:`PROBE_STOP_CHI2` of its minimum."""
+        opts = self.opts
+        return replace(opts.frame, mirror=False,
+                       max_nfev=min(opts.frame.max_nfev, opts.pole_probe_nfev),
+                       stop_chi2=max(opts.frame.stop_chi2, PROBE_STOP_CHI2))
 
     def initial_state(self, f: ChunkFrame, res: FitResult) -> State:
         """The pose of ``f``'s initial-pass row with this pass's statics (the model's) and,
@@ -563,7 +652,8 @@ def _row(f: ChunkFrame, result: FitResult, source: str, jump: bool, step: tuple[
     row = result_row(f.frame, f.time_s, result)
     row.update(track_source=source, track_jump=int(jump), track_step_um=step[0],
                track_step_axis_rad=step[1], track_initial=-1 if check is None else check.code,
-               track_initial_dchi2=math.nan if check is None else check.beat, track_pole=pole)
+               track_initial_dchi2=math.nan if check is None else check.beat, track_pole=pole,
+               track_recheck=-1)
     row.setdefault("runner_up_refit", 2 if result.extra.get("n_starts", 1) > 1 else -1)
     return row
 
@@ -622,33 +712,99 @@ def track_chunk(
     if start is not None and frames:
         acc = _Accepted(frames[0].frame - 1, state_of(start, model), None, [], [])
     k = _opening(frames) if start is None and opts.warm and opts.open_at_best else 0
-    rows = []
-    opened: _Accepted | None = None
-    for i, f in enumerate(frames[k:]):
-        acc, row = _follow(fitter, f, acc, chi2_bar)
-        rows.append(row)
-        if i == 0:
-            opened = acc
+    rows: list[dict[str, Any]] = []
+    opened = _follow_run(fitter, frames[k:], acc, chi2_bar, rows)
     if k:  # the frames before the opening one, backward from it (fresh history)
         acc = None if opened is None else _Accepted(opened.frame, opened.state,
                                                    opened.runner_up, [], [])
-        back = []
-        for f in reversed(frames[:k]):
-            acc, row = _follow(fitter, f, acc, chi2_bar)
-            back.append(row)
+        back: list[dict[str, Any]] = []
+        _follow_run(fitter, frames[:k][::-1], acc, chi2_bar, back)
         rows = back[::-1] + rows
     return pd.DataFrame(rows)
 
 
+@dataclass
+class _Done:
+    """A frame followed: its fit (None: an ``error`` row), its row's index, and the track's
+    state it started from."""
+
+    frame: ChunkFrame
+    result: FitResult | None
+    index: int
+    before: _Accepted | None
+
+
+def _follow_run(fitter: _Fitter, frames: Sequence[ChunkFrame], acc: _Accepted | None,
+                chi2_bar: float | None, rows: list[dict[str, Any]]) -> _Accepted | None:
+    """Follow ``frames`` (in the order given) from ``acc``, appending their rows to ``rows``
+    and rechecking the frames before each accepted one (step 9); the track's state after the
+    first frame (None where it was not accepted)."""
+    recent: list[_Done] = []
+    first: _Accepted | None = None
+    for i, f in enumerate(frames):
+        before = acc
+        acc, row, res = _follow(fitter, f, acc, chi2_bar)
+        rows.append(row)
+        if i == 0:
+            first = acc
+        recent = [*recent, _Done(f, res, len(rows) - 1, before)][-(RECHECK_DEPTH + 1):]
+        if res is not None and acc is not None and acc.frame == f.frame:
+            _recheck_back(fitter, recent, rows)
+    return first
+
+
+def _recheck_back(fitter: _Fitter, recent: list[_Done], rows: list[dict[str, Any]]) -> None:
+    """Step 9: the warm frames before the last of ``recent`` (just accepted), each refitted
+    from the next one's orientation while that changes it; their rows replaced."""
+    for j in range(len(recent) - 1, 0, -1):
+        later, done = recent[j], recent[j - 1]
+        if (later.result is None or done.result is None
+                or abs(later.frame.frame - done.frame.frame) != 1
+                or rows[done.index].get("track_source") != "warm"):
+            return
+        new, code, n_eval = fitter.recheck(
+            done.frame, done.result, later.result,
+            None if done.before is None else done.before.state)
+        old = rows[done.index]
+        if code < 0:
+            return
+        if code == 0:
+            old.update(n_eval=int(old["n_eval"]) + n_eval, track_recheck=0)
+            return
+        row = _recheck_row(fitter, done, new, old, n_eval)
+        rows[done.index] = row
+        done.result = new
+
+
+def _recheck_row(fitter: _Fitter, done: _Done, new: FitResult, old: dict[str, Any],
+                 n_eval: int) -> dict[str, Any]:
+    """The row of a frame the recheck changed: its step from the state it started from
+    (a jump flagged as for a re-acquisition), the checks' columns as they were."""
+    step, jump = (math.nan, math.nan), False
+    if done.before is not None:
+        step = _step(done.before, state_of(new.values, fitter.model), fitter.model)
+        lim = _limits(done.before, fitter.opts, abs(done.frame.frame - done.before.frame))
+        jump = not (step[0] <= lim[0] and step[1] <= lim[1])
+        if jump:
+            new.message = _join(new.message, f"jump of {step[0]:.3g} um and "
+                                f"{math.degrees(step[1]):.3g} deg from frame "
+                                f"{done.before.frame} (limits {lim[0]:.3g} um, "
+                                f"{math.degrees(lim[1]):.3g} deg)")
+    row = _row(done.frame, new, "warm", jump, step, int(old["n_eval"]) + n_eval)
+    row.update({k: old[k] for k in ("track_initial", "track_initial_dchi2", "track_pole")},
+               track_recheck=1)
+    return row
+
+
 def _follow(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar: float | None
-            ) -> tuple[_Accepted | None, dict[str, Any]]:
+            ) -> tuple[_Accepted | None, dict[str, Any], FitResult | None]:
     """:func:`_track_frame`, an exception making the frame an ``error`` row (the track goes
-    on from the last accepted fit)."""
+    on from the last accepted fit); the fit kept (None for an ``error`` row)."""
     try:
-        row, acc = _track_frame(fitter, f, acc, chi2_bar)
+        row, acc, res = _track_frame(fitter, f, acc, chi2_bar)
     except Exception as exc:
-        row = _error_row(f, exc)
-    return acc, row
+        row, res = _error_row(f, exc), None
+    return acc, row, res
 
 
 def _opening(frames: Sequence[ChunkFrame]) -> int:
@@ -674,7 +830,7 @@ def _error_row(f: ChunkFrame, exc: Exception) -> dict[str, Any]:
 
 
 def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar: float | None
-                 ) -> tuple[dict[str, Any], _Accepted | None]:
+                 ) -> tuple[dict[str, Any], _Accepted | None, FitResult]:
     """One frame: warm fit, checks, re-acquisition; the row and the track's new state."""
     model, opts = fitter.model, fitter.opts
     nan2 = (math.nan, math.nan)
@@ -687,7 +843,7 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
         _flag_above_bar(res, good, chi2_bar)
         new = _accept(None, f, res, runner, model, opts) if good or res.status == OK else None
         return (_row(f, res, "library", False, nan2, lib.n_eval + check.n_eval, check, pole),
-                new)
+                new, res)
     warm = fitter.warm(f, acc)
     first, carried, pole = fitter.probe_pole(f, warm.result, warm.carried, acc)
     n_warm = first.n_eval
@@ -697,7 +853,7 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
     smooth = step[0] <= lim[0] and step[1] <= lim[1]
     if check.code != 2 and _under_bar(res, chi2_bar) and smooth:
         return (_row(f, res, "warm", False, step, n_warm + check.n_eval, check, pole),
-                _accept(acc, f, res, runner, model, opts))
+                _accept(acc, f, res, runner, model, opts), res)
     # re-acquisition: the frame as an independent one; the better fit kept
     # a warm fit under the bar that stepped too far needs the library's other starts, not
     # other heights: it has the frame's height already
@@ -717,7 +873,7 @@ def _track_frame(fitter: _Fitter, f: ChunkFrame, acc: _Accepted | None, chi2_bar
                             f"{math.degrees(step[1]):.3g} deg from frame {acc.frame} "
                             f"(limits {lim[0]:.3g} um, {math.degrees(lim[1]):.3g} deg)")
     new = _accept(acc, f, res, runner, model, opts) if good else acc
-    return _row(f, res, "reacquired", not smooth, step, n_eval, check, pole), new
+    return _row(f, res, "reacquired", not smooth, step, n_eval, check, pole), new, res
 
 
 def _join(a: str, b: str) -> str:
