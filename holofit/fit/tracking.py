@@ -40,11 +40,13 @@ that fails. Along one track (frames in time order):
    near the optical axis (within ``pole_rad`` of either pole) is probed: near the pole the
    misfit has minima that hold a warm start (a Janus replicate's frames fitted at theta 5-7
    deg with the truth at 18-23 deg, 500-1000 chi^2 units above the true minimum and still
-   under the movie's bar, when the track came from a frame near the pole). The fit is
+   under the movie's bar, when the track came from a frame near the pole; on another, frames
+   at 24-36 deg from the pole held 13-20 deg off the truth along the meridian). The fit is
    repeated from ``pole_probes`` starts whose axes are tilted ``pole_probe_rad`` from its
-   own, evenly around it (the mirror not screened), and where one ends lower by more than
-   ``pole_min_gain_chi2`` the frame is refitted from it (its mirror runner-up as in step 2)
-   and the minimum it left becomes the runner-up where it is the nearest competing minimum.
+   own, evenly around it starting along the meridian (two: theta larger and smaller; the
+   mirror not screened), and where one ends lower by more than ``pole_min_gain_chi2`` the
+   frame is refitted from it (its mirror runner-up as in step 2) and the minimum it left
+   becomes the runner-up where it is the nearest competing minimum.
    Only a fit above the median reduced chi^2 of the track's recent accepted fits is probed
    (once ``min_history`` are known: a held frame fits worse than its track, the replicate's
    8 by 0.1-6.6 % of their neighbours' median), and not a head-tail symmetric particle's
@@ -59,6 +61,20 @@ that fails. Along one track (frames in time order):
    Janus replicate 316 frames in a row were such library fits, left to the continuity
    sweeps (60 sweeps, 5 frames each). After :data:`REOPEN_MAX_FAILURES` frames in a row for
    which no height worked, the chunk stops trying.
+
+9. Once a frame is accepted, the warm frame before it along the track, where its axis is near
+   the optical axis (within ``pole_rad``) and the accepted frame's axis is more than
+   ``recheck_rad`` from it, is refitted from the orientation midway between its own
+   predecessor's and that accepted frame's axes (a diffusing axis's likeliest place between
+   two known ones; a probe's fit, then a full one where it ends lower by more than
+   ``pole_min_gain_chi2``); the lower minimum is kept, the one it left becomes the runner-up
+   as in step 7, and a changed frame's step from its predecessor is checked as in step 4. A
+   changed frame's own predecessor is rechecked in turn (at most :data:`RECHECK_DEPTH`
+   frames back). A particle that turns ~10 deg a frame (a Janus replicate) left frames on a
+   minimum 15-35 deg from the truth whose chi^2 sat at its track's level (the probes of step
+   7 skip those) or whose error lay across the meridian, while the next frame, fitted from
+   it, was back on the truth: a start from the next frame's side finds them.
+   ``track_recheck`` records what the recheck did.
 
 Chunks of one track overlap by a few frames; :func:`stitch_chunks` joins them and reports where
 the overlaps disagree (position or axis beyond tolerance).
@@ -234,10 +250,14 @@ class TrackOptions:
         The fit stage's initial pass (sizes free) follows the track too (with ``warm``).
     pole_rad : float
         A fit whose axis is this close to the optical axis (either pole) is probed (module
-        docstring, step 7); 0: never. 20 deg: within 15 deg, the Janus replicate still had a
-        frame held at theta 19 deg with the truth at 11 deg.
+        docstring, step 7) and rechecked (step 9); 0: never. 40 deg: within 20 deg, a Janus
+        replicate (seed 12) kept 11 frames at 20-36 deg from the pole 12-34 deg off the
+        truth (within 15 deg, another had a frame held at theta 19 deg, truth 11 deg).
     pole_probes : int
-        Probes of such a fit (0: none).
+        Probes of such a fit (0: none), the first two along the meridian. Two: on the
+        200-frame Janus track of the benchmarks four probes within 40 deg cost 24.3
+        hologram evaluations a frame, two 18.6 (four within 20 deg: 17.9), and the
+        replicate's frames held near the pole were off the truth along the meridian.
     pole_probe_rad : float
         How far each probe's axis is tilted from the warm fit's.
     pole_min_gain_chi2 : float
@@ -254,6 +274,12 @@ class TrackOptions:
         frames, two seeds) had no frame on a wrong branch without the probes, which raised a
         200-frame rod track that wanders near the pole from 12.0 to 17.8 evaluations a
         frame (four probes; 21.0 with six).
+    recheck_rad : float
+        A warm frame near the optical axis is refitted from its neighbours' side where the
+        next accepted frame's axis is farther than this from its own (module docstring, step
+        9); 0: never. 15 deg is ``pole_probe_rad``: a neighbour farther off is a start the
+        probes did not try (the Janus replicate's median step was 10 deg a frame; the
+        benchmarks' track, 4 deg, never reaches it).
     reopen_dz_um : tuple of float
         A library fit (a chunk's opening, a re-acquisition) that is not ``ok`` under the bar
         is tried again from these heights off the prefit's, in turn, until one is (module
@@ -299,6 +325,8 @@ class TrackOptions:
     recheck_rad: float = math.radians(15.0)
 
     def __post_init__(self) -> None:
+        if not self.recheck_rad >= 0:
+            raise ValueError("tracking: recheck_rad >= 0 needed")
         if not (self.step_factor > 0 and self.history >= self.min_history >= 1
                 and self.refit_margin_chi2 >= 0 and self.initial_margin_chi2 >= 0):
             raise ValueError("tracking: step_factor > 0, history >= min_history >= 1, "
