@@ -444,6 +444,59 @@ def test_a_warm_fit_on_a_wrong_branch_is_rechecked_from_its_neighbours():
     assert code == -1 and same is right and n_eval == 0
 
 
+def test_a_recheck_replaces_the_row_of_the_frame_it_changed():
+    """Three frames of a Janus track near the optical axis (theta 10, 22, 34 deg): the middle
+    frame's warm fit held 15+ deg off (theta 4 deg), its neighbours right. Once the third is
+    accepted, the recheck refits the middle one from between its neighbours: its row is
+    replaced (``track_recheck`` 1, the truth, its step from the first frame, the holograms of
+    both fits counted), and the first frame, within ``recheck_rad`` of the new fit, is not
+    rechecked."""
+    from holofit.camera import Camera
+    from holofit.fit.tracking import ChunkFrame, _accept, _Done, _Fitter, _recheck_back, _row
+    from holofit.simulate.holograms import simulate_movie
+    from tests.tracking_helpers import BACKGROUND, SHAPE
+
+    theory = engine(JANUS)
+    psi = 0.7
+    thetas = np.radians([10.0, 22.0, 34.0])
+    pos = np.array([[32.3 * PX, 31.6 * PX, 6.0]] * 3) + np.array([[0, 0, 0], [0.04, 0, 0],
+                                                                  [0.08, 0.02, 0]])
+    movie = simulate_movie(JANUS, INSTRUMENT, pos, SHAPE,
+                           orientations=np.column_stack([[psi] * 3, thetas, [0.0] * 3]),
+                           alpha=0.9, theory=theory, camera=Camera(background_counts=BACKGROUND),
+                           seed=3, keep_frames=True)
+    frames = [ChunkFrame(k, movie.frames[k] / BACKGROUND, (0, 0), tuple(pos[k]), 0.9, (),
+                         0.01 * k) for k in range(3)]
+
+    def fit_from(k, psi_start, theta_start, settings=None, free=FINAL):
+        settings = settings or FrameFitSettings()
+        start = state_of({"x_um": pos[k, 0], "y_um": pos[k, 1], "z_um": pos[k, 2],
+                          "alpha": 0.9, "psi_rad": psi_start, "theta_rad": theta_start}, JANUS)
+        return fit_frame_warm(frames[k].crop, (0, 0), PX, theory, JANUS, OPTICS, start, free,
+                              settings, seed=1).result
+
+    fits = [fit_from(0, psi, thetas[0]),
+            fit_from(1, psi + 1.0, math.radians(4.0), FrameFitSettings(mirror=False),
+                     ("x_um", "y_um", "z_um", "alpha")),
+            fit_from(2, psi, thetas[2])]
+    assert _axis_off_deg(fits[1].values, psi, thetas[1]) > 15.0
+    opts = TrackOptions()
+    fitter = _Fitter(theory, JANUS, OPTICS, PX, FINAL, opts)
+    acc0 = _accept(None, frames[0], fits[0], None, JANUS, opts)
+    rows = [_row(frames[k], fits[k], "warm", False, (0.0, 0.0), fits[k].n_eval)
+            for k in range(3)]
+    old_rows = [dict(r) for r in rows]
+    recent = [_Done(frames[0], fits[0], 0, None), _Done(frames[1], fits[1], 1, acc0),
+              _Done(frames[2], fits[2], 2, acc0)]
+    _recheck_back(fitter, recent, rows)
+    new = rows[1]
+    assert new["track_recheck"] == 1 and new["track_source"] == "warm"
+    assert _axis_off_deg(new, psi, thetas[1]) < 2.0 and new["chi2"] < old_rows[1]["chi2"]
+    assert new["n_eval"] > old_rows[1]["n_eval"]
+    assert math.isclose(new["track_step_axis_rad"], math.radians(12.0), abs_tol=0.05)
+    assert rows[0] == old_rows[0] and rows[2] == old_rows[2]
+
+
 def test_the_orientation_between_two_neighbours():
     """The recheck's start: the fit turned onto the bisector of its neighbours' axes (for a
     head-tail symmetric particle, of the axes as lines), the turn a proper rotation."""
