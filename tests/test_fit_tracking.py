@@ -428,7 +428,7 @@ def test_a_warm_fit_on_a_wrong_branch_is_rechecked_from_its_neighbours():
     res, code, n_eval = fitter.recheck(f, held, later, before)
     assert code == 1 and n_eval > 0
     assert _axis_off_deg(res.values, psi, theta) < 2.0
-    assert res.rss < held.rss and "next frame's orientation" in res.message
+    assert res.rss < held.rss and "neighbours' orientations" in res.message
     excess = (held.rss - res.rss) / res.noise_sd**2
     assert 9.0 < res.extra["delta_chi2"] <= excess + 1e-6 and res.extra["ambiguous"] == 0
 

@@ -117,6 +117,7 @@ __all__ = [
     "INITIAL_CHECK",
     "INITIAL_POSE",
     "POLE_PROBE",
+    "RECHECK",
     "TRACK_COLUMNS",
     "ChunkFrame",
     "TrackOptions",
@@ -129,7 +130,8 @@ __all__ = [
 #: accepted predecessor broke the smoothness limits, whether the runner-up was refitted, the
 #: step itself (um, rad), what the check against the frame's initial-pass fit did
 #: (:data:`INITIAL_CHECK`) and by how much the initial row's pose beat the frame's fit there
-#: (chi^2 units, the pixel noise's; negative: it did not; NaN: not checked)
+#: (chi^2 units, the pixel noise's; negative: it did not; NaN: not checked), what the probes
+#: near the optical axis did (:data:`POLE_PROBE`) and what the recheck did (:data:`RECHECK`)
 TRACK_COLUMNS = ("track_source", "track_jump", "runner_up_refit", "track_step_um",
                  "track_step_axis_rad", "track_initial", "track_initial_dchi2", "track_pole",
                  "track_recheck")
@@ -153,8 +155,9 @@ POLE_PROBE = {
 RECHECK = {
     -1: "not rechecked (not a warm fit near the optical axis, or the next frame along the "
         "track is near it)",
-    0: "refitted from the next frame's orientation: no lower minimum",
-    1: "refitted from the next frame's orientation: a lower minimum, kept (the frame changed)",
+    0: "refitted from between its neighbours' orientations: no lower minimum",
+    1: "refitted from between its neighbours' orientations: a lower minimum, kept (the frame "
+       "changed)",
 }
 #: frames a recheck goes back along the track from the frame just accepted (each changed frame
 #: is the next one's start)
@@ -590,9 +593,9 @@ class _Fitter:
         n_eval += new.n_eval
         if not new.rss < res.rss:
             return res, 0, n_eval
-        new.message = _join(new.message, "refitted from the next frame's orientation along the "
-                            f"track: {(res.rss - new.rss) / new.noise_sd**2:.4g} chi^2 below "
-                            "the warm fit")
+        new.message = _join(new.message, "refitted from between its neighbours' orientations "
+                            f"along the track: {(res.rss - new.rss) / new.noise_sd**2:.4g} "
+                            "chi^2 below the warm fit")
         _competitor(new, res, self.model, opts.frame.ambiguity_chi2)
         return new, 1, n_eval
 
