@@ -513,10 +513,25 @@ class _Fitter:
         if self.opts.extrapolate and gap == 1:
             drift = acc.velocity(self.opts.min_history)
             state = replace(state, position=tuple(np.add(state.position, drift)))
+        return self._refit(f, state, carried=acc.runner_up if gap == 1 else None)
+
+    def _refit(self, f: ChunkFrame, start: State, carried: CarriedRunnerUp | None = None
+               ) -> WarmFit:
+        """A full warm fit of ``f`` from ``start``, its mirror runner-up as in step 2
+        (``carried``: the previous frame's)."""
         return fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
-                              self.optics, state, self.free, self.opts.frame, seed=f.frame,
-                              carried=acc.runner_up if gap == 1 else None,
-                              refit_margin_chi2=self.opts.refit_margin_chi2)
+                              self.optics, start, self.free, self.opts.frame, seed=f.frame,
+                              carried=carried, refit_margin_chi2=self.opts.refit_margin_chi2)
+
+    def _probe(self, f: ChunkFrame, start: State) -> FitResult:
+        """A probe's fit of ``f`` from ``start``: no mirror, at most ``pole_probe_nfev``
+        holograms, stopping within :data:`PROBE_STOP_CHI2` of its minimum."""
+        opts = self.opts
+        quiet = replace(opts.frame, mirror=False,
+                        max_nfev=min(opts.frame.max_nfev, opts.pole_probe_nfev),
+                        stop_chi2=max(opts.frame.stop_chi2, PROBE_STOP_CHI2))
+        return fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
+                              self.optics, start, self.free, quiet, seed=f.frame).result
 
     def probe_pole(self, f: ChunkFrame, res: FitResult, runner: CarriedRunnerUp | None,
                    acc: _Accepted | None = None
@@ -534,22 +549,16 @@ class _Fitter:
         level = None if acc is None else acc.level(opts.min_history)
         if level is not None and not res.chi2_red > level:
             return res, runner, -1
-        quiet = self._quiet()
         n_eval, best = res.n_eval, None
         for start in pole_probes(state, opts.pole_probes, opts.pole_probe_rad):
-            probe = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory,
-                                   self.model, self.optics, start, self.free, quiet,
-                                   seed=f.frame).result
+            probe = self._probe(f, start)
             n_eval += probe.n_eval
             if np.isfinite(probe.rss) and (best is None or probe.rss < best.rss):
                 best = probe
         if best is None or not (res.rss - best.rss) / res.noise_sd**2 > opts.pole_min_gain_chi2:
             res.n_eval = n_eval
             return res, runner, 0
-        again = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
-                               self.optics, state_of(best.values, self.model), self.free,
-                               opts.frame, seed=f.frame,
-                               refit_margin_chi2=opts.refit_margin_chi2)
+        again = self._refit(f, state_of(best.values, self.model))
         new = again.result
         if not new.rss < res.rss:  # the refit from the probe's minimum went elsewhere
             res.n_eval = n_eval + new.n_eval
@@ -578,17 +587,12 @@ class _Fitter:
                 > opts.recheck_rad):
             return res, -1, 0
         start = _between(own, before, nxt, self.model.head_tail_symmetric)
-        probe = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
-                               self.optics, start, self.free, self._quiet(),
-                               seed=f.frame).result
+        probe = self._probe(f, start)
         n_eval = probe.n_eval
         if not (np.isfinite(probe.rss)
                 and (res.rss - probe.rss) / res.noise_sd**2 > opts.pole_min_gain_chi2):
             return res, 0, n_eval
-        again = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
-                               self.optics, state_of(probe.values, self.model), self.free,
-                               opts.frame, seed=f.frame,
-                               refit_margin_chi2=opts.refit_margin_chi2)
+        again = self._refit(f, state_of(probe.values, self.model))
         new = again.result
         n_eval += new.n_eval
         if not new.rss < res.rss:
@@ -598,14 +602,6 @@ class _Fitter:
                             "chi^2 below the warm fit")
         _competitor(new, res, self.model, opts.frame.ambiguity_chi2)
         return new, 1, n_eval
-
-    def _quiet(self) -> FrameFitSettings:
-        """A probe's settings: no mirror, at most ``pole_probe_nfev`` holograms, stopping
-        within :data:`PROBE_STOP_CHI2` of its minimum."""
-        opts = self.opts
-        return replace(opts.frame, mirror=False,
-                       max_nfev=min(opts.frame.max_nfev, opts.pole_probe_nfev),
-                       stop_chi2=max(opts.frame.stop_chi2, PROBE_STOP_CHI2))
 
     def initial_state(self, f: ChunkFrame, res: FitResult) -> State:
         """The pose of ``f``'s initial-pass row with this pass's statics (the model's) and,
@@ -631,9 +627,7 @@ class _Fitter:
         beat = own - chi2_initial
         if not beat > self.opts.initial_margin_chi2:
             return res, runner, _Check(0, n_eval, beat)
-        alt = fit_frame_warm(f.crop, f.corner, self.pixel_size_um, self.theory, self.model,
-                             self.optics, start, self.free, self.opts.frame, seed=f.frame,
-                             refit_margin_chi2=self.opts.refit_margin_chi2)
+        alt = self._refit(f, start)
         n_eval += alt.result.n_eval
         if not alt.result.rss < res.rss:
             return res, runner, _Check(1, n_eval, beat)
