@@ -22,7 +22,7 @@ from holofit.crop import find_centers, normalize
 from holofit.io.movie import open_movie
 from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie
-from holofit.simulate.holograms import simulate_movie
+from holofit.simulate.holograms import Exposure, simulate_movie
 from tests.conftest import CONFIGS
 
 INSTRUMENT = CONFIGS / "instruments" / "paper_60x_water.toml"
@@ -103,7 +103,9 @@ def _simulate(tmp_path: Path, n: int, shape: tuple[int, int], seed: int, sphere:
     inst = instrument()
     rng = np.random.default_rng(seed)
     pos = random_positions(rng, n, shape, inst.pixel_size_um)
-    result = simulate_movie(sphere, inst, pos, shape, noise=True, seed=seed, out_dir=tmp_path)
+    result = simulate_movie(
+        sphere, inst, pos, shape, seed=seed, out_dir=tmp_path, exposure=Exposure(noise=True)
+    )
     return result.truth
 
 
@@ -132,7 +134,13 @@ def test_mie_centres_polystyrene_16bit(tmp_path):
     pos = random_positions(rng, 16, shape, inst.pixel_size_um)
     camera = Camera(bit_depth=16, background_counts=30000.0, electrons_per_count=0.5)
     truth = simulate_movie(
-        Sphere(0.8, 1.59), inst, pos, shape, camera=camera, seed=5, out_dir=tmp_path
+        Sphere(0.8, 1.59),
+        inst,
+        pos,
+        shape,
+        seed=5,
+        out_dir=tmp_path,
+        exposure=Exposure(camera=camera),
     ).truth
     errors = centre_errors(tmp_path, truth)
     assert np.median(errors) <= 0.3
@@ -170,7 +178,13 @@ def test_mie_centres_full_frames(tmp_path):
         pos = random_positions(rng, 80, shape, inst.pixel_size_um)
         out = tmp_path / str(seed)
         truth = simulate_movie(
-            sphere, inst, pos, shape, seed=seed, uneven_illumination=0.05, out_dir=out
+            sphere,
+            inst,
+            pos,
+            shape,
+            seed=seed,
+            out_dir=out,
+            exposure=Exposure(uneven_illumination=0.05),
         ).truth
         errors.append(centre_errors(out, truth))
     all_errors = np.concatenate(errors)

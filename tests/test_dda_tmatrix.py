@@ -16,7 +16,7 @@ import pytest
 from holofit.conventions import DetectorGrid, pixel_centres, r_squared
 from holofit.dda.engine import BuiltinDDA
 from holofit.dda.settings import DDASettings
-from holofit.dda.tmatrix_build import build_lattice_tmatrix, build_tmatrix
+from holofit.dda.tmatrix_build import BuildSettings, build_lattice_tmatrix, build_tmatrix
 from holofit.dda.tmatrix_io import TMatrixMismatch, clear_cache, load_tmatrix, save_tmatrix
 from holofit.dda.voxelize import voxelize
 from holofit.hologram import calc_hologram
@@ -110,9 +110,10 @@ def test_holograms_and_far_fields_equal_direct_solves(engines, name):
 def test_symmetry_build_equals_build_without_symmetry(model, d, ops):
     lat = voxelize(model, d)
     kw = dict(tolerance=1e-10, order=5, validate=False)
-    sym, stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "ldr_avg", **kw)
+    sym, stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "ldr_avg",
+                                       BuildSettings(**kw))
     plain, plain_stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "ldr_avg",
-                                               use_symmetry=False, **kw)
+                                               BuildSettings(use_symmetry=False, **kw))
     assert stats.symmetry_operations == ops and plain_stats.symmetry_operations == 1
     assert stats.n_solves == -(-plain_stats.n_solves // ops)
     a, b = sym.dense(), plain.dense()
@@ -127,9 +128,10 @@ def test_build_shared_by_two_processes_equals_the_build_in_one(monkeypatch):
     monkeypatch.setattr(tb, "PARALLEL_MIN_WORK", 0)  # a small build, shared all the same
     lat = voxelize(MODELS["janus"], 0.08)
     kw = dict(tolerance=1e-8, order=5, validate=False, use_symmetry=False)
-    one, one_stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "fcd", **kw)
+    one, one_stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "fcd",
+                                           BuildSettings(**kw))
     two, two_stats = build_lattice_tmatrix(lat, OPTICS.k, OPTICS.n_medium, "fcd",
-                                           workers=2, **kw)
+                                           BuildSettings(workers=2, **kw))
     assert one_stats.n_solves == two_stats.n_solves > 8  # more than one chunk per worker
     assert one_stats.iterations == two_stats.iterations
     assert two.provenance["build_workers"] == 2 and one.provenance["build_workers"] == 1

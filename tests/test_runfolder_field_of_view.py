@@ -111,7 +111,7 @@ def test_a_run_folder_of_two_rods_runs_the_library_and_the_fit_per_track(tmp_pat
     """Two rods 12 um apart, 3 frames: make runs crop, prefit, library and both fit passes
     on (particle, frame) rows; each track is its rod (position and axis against the truth)."""
     from holofit.config import load_instrument, load_particle, resolve_config
-    from holofit.runfolder import init_run
+    from holofit.runfolder import RunInputs, init_run
     from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
 
     (tmp_path / "rod.toml").write_text(ROD_TOML)
@@ -125,14 +125,23 @@ def test_a_run_folder_of_two_rods_runs_the_library_and_the_fit_per_track(tmp_pat
         [ParticleInView(rod.model, pos[k], ang[k], 0.9, rod.theory()) for k in (0, 1)], inst,
         (96, 150), out_dir=tmp_path / "sim", seed=2)
     run = tmp_path / "rods"
-    init_run(run, sim.movie, backgrounds=[sim.background], instrument="paper_60x_water",
-             particle=tmp_path / "rod.toml", options=ROD_OPTIONS)
+    init_run(
+        run,
+        RunInputs(sim.movie, backgrounds=[sim.background]),
+        instrument="paper_60x_water",
+        particle=tmp_path / "rod.toml",
+        options=ROD_OPTIONS,
+    )
     proc = run_make(run, "fit", "JOBS=0")
     assert proc.returncode == 0, proc.stdout[-3000:]
-    assert names(stages_run(proc.stdout, run)) == ["crop", "prefit", "library", "fit initial",
-                                                   "fit final"]
-    assert list(pd.read_csv(run / "library" / "library.csv").columns[:2]) == ["particle",
-                                                                            "frame"]
+    assert names(stages_run(proc.stdout, run)) == [
+        "crop",
+        "prefit",
+        "library",
+        "fit initial",
+        "fit final",
+    ]
+    assert list(pd.read_csv(run / "library" / "library.csv").columns[:2]) == ["particle", "frame"]
     fit = pd.read_csv(run / "fit" / "fit.csv")
     assert (fit["status"] == "ok").all(), fit["message"].tolist()
     assert sorted(fit["particle"].unique()) == [0, 1] and len(fit) == 6
@@ -140,7 +149,8 @@ def test_a_run_folder_of_two_rods_runs_the_library_and_the_fit_per_track(tmp_pat
         k = 0 if rows["x_um"].mean() < 13 else 1
         np.testing.assert_allclose(rows[["x_um", "y_um", "z_um"]], pos[k], atol=0.03)
         a = ang[k]
-        u = np.column_stack([np.sin(a[:, 1]) * np.cos(a[:, 0]),
-                             np.sin(a[:, 1]) * np.sin(a[:, 0]), np.cos(a[:, 1])])
+        u = np.column_stack(
+            [np.sin(a[:, 1]) * np.cos(a[:, 0]), np.sin(a[:, 1]) * np.sin(a[:, 0]), np.cos(a[:, 1])]
+        )
         cos = np.abs(np.sum(rows[["ux", "uy", "uz"]].to_numpy() * u, axis=1))
         assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 3.0

@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.runfolder import RunFolderError, init_run
+from holofit.runfolder import RunFolderError, RunInputs, init_run
 from tests.runfolder_helpers import holofit_command, names, needs_make, run_make, stages_run
 
 
@@ -190,17 +190,17 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, inputs, case):
 
 
 def test_library_function_refuses_what_make_cannot_do(tmp_path, inputs):
-    common = dict(instrument="paper_60x_water", particle="rod_paper",
-                  backgrounds=[inputs["bg"]])
+    common = dict(instrument="paper_60x_water", particle="rod_paper")
+    bg = [inputs["bg"]]
     with pytest.raises(RunFolderError, match=r"either dark frames .* or a dark level"):
-        init_run(tmp_path / "r", inputs["movie"], darks=[inputs["dark"]], dark_count=3,
-                 **common)
+        init_run(tmp_path / "r", RunInputs(inputs["movie"], bg, [inputs["dark"]], 3), **common)
     with pytest.raises(RunFolderError, match=r"normalised movie .* takes no background"):
-        init_run(tmp_path / "r", inputs["movie"], normalized=True, **common)
+        init_run(tmp_path / "r", RunInputs(inputs["movie"], bg, normalized=True), **common)
     with pytest.raises(RunFolderError, match="unknown stage"):
-        init_run(tmp_path / "r", inputs["movie"], options={"fitt": "--no-plot"}, **common)
+        init_run(tmp_path / "r", RunInputs(inputs["movie"], bg), options={"fitt": "--no-plot"},
+                 **common)
     with pytest.raises(RunFolderError, match="analysis temperature_c"):
-        init_run(tmp_path / "r", inputs["movie"], temperature_c=294.0, **common)
+        init_run(tmp_path / "r", RunInputs(inputs["movie"], bg), temperature_c=294.0, **common)
     assert not (tmp_path / "r").exists()
 
 
@@ -234,13 +234,24 @@ def test_a_voxel_particle_brings_its_shape_file(tmp_path, inputs):
     geom = DATA / "adda" / "d_janus_o0_0_0" / "janus_d0.024.geom"
     (shapes / "janus.geom").write_bytes(geom.read_bytes())
     cfg = tmp_path / "configs" / "janus_voxels.toml"
-    cfg.write_text('[particle]\nmodel = "voxels"\npath = "shapes/janus.geom"\n'
-                   'dipole_size_um = 0.024\nindices = [1.59, 2.7]\n')
+    cfg.write_text(
+        '[particle]\nmodel = "voxels"\npath = "shapes/janus.geom"\n'
+        "dipole_size_um = 0.024\nindices = [1.59, 2.7]\n"
+    )
     with pytest.raises(RunFolderError, match="which diffusion analysis"):
-        init_run(tmp_path / "run", inputs["movie"], instrument="paper_100x_oil", particle=cfg,
-                 backgrounds=[inputs["bg"]])
-    made = init_run(tmp_path / "run", inputs["movie"], instrument="paper_100x_oil",
-                    particle=cfg, backgrounds=[inputs["bg"]], model="janus")
+        init_run(
+            tmp_path / "run",
+            RunInputs(inputs["movie"], backgrounds=[inputs["bg"]]),
+            instrument="paper_100x_oil",
+            particle=cfg,
+        )
+    made = init_run(
+        tmp_path / "run",
+        RunInputs(inputs["movie"], backgrounds=[inputs["bg"]]),
+        instrument="paper_100x_oil",
+        particle=cfg,
+        model="janus",
+    )
     assert (tmp_path / "run" / "shapes" / "janus.geom").read_bytes() == geom.read_bytes()
     copy = load_particle(made.particle).model.parameters()
     original = load_particle(cfg).model.parameters()
@@ -250,45 +261,101 @@ def test_a_voxel_particle_brings_its_shape_file(tmp_path, inputs):
     assert made.spec.anisotropic and made.spec.analysis_model == "janus"
 
 
-@pytest.mark.parametrize(("opts", "code", "message"), [
-    # issue 24, item 6: each was accepted and failed only in make
-    ((), 1, "holofit init: error: the movie's frames (96 x 96 pixels) are smaller than the "
-            "default crop (140 x 140): give --crop-opts '--size N' with N <= 96"),
-    (("--crop-opts", "--size 120"), 1, "holofit init: error: --crop-opts '--size 120': crop "
-                                       "size 120 does not fit in frames of 96 x 96 pixels: "
-                                       "give a smaller --size (at most 96)"),
-    (("--crop-opts", "--size 64 --follow all"), 2, "'all' is not one of 'strongest', "
-                                                   "'nearest'"),
-    (("--crop-opts", "--size 64 --start 40,50"), 1, "--start X,Y needs --follow nearest"),
-    (("--crop-opts", "--size 64 --follow nearest --start 40,150"), 1,
-     "--start 40,150 lies outside the frames"),
-    (("--crop-opts", "--size=64 --follow nearest --start 40"), 1, "expected X,Y in pixels"),
-    (("--crop-opts", "--size 64", "--fit-opts", "--fix b_um,radius_um"), 1,
-     "cannot fix radius_um: a spherocylinder's fit parameters are"),
-    (("--crop-opts", "--size 64", "--fit-opts", "--initial-frames 0"), 2,
-     "Invalid value for '--initial-frames'"),
-    (("--crop-opts", "--size 64", "--prefit-opts", "--max-chi2-red lots"), 2,
-     "Invalid value for '--max-chi2-red'"),
-])
+@pytest.mark.parametrize(
+    ("opts", "code", "message"),
+    [
+        # issue 24, item 6: each was accepted and failed only in make
+        (
+            (),
+            1,
+            "holofit init: error: the movie's frames (96 x 96 pixels) are smaller than the "
+            "default crop (140 x 140): give --crop-opts '--size N' with N <= 96",
+        ),
+        (
+            ("--crop-opts", "--size 120"),
+            1,
+            "holofit init: error: --crop-opts '--size 120': crop "
+            "size 120 does not fit in frames of 96 x 96 pixels: "
+            "give a smaller --size (at most 96)",
+        ),
+        (
+            ("--crop-opts", "--size 64 --follow all"),
+            2,
+            "'all' is not one of 'strongest', 'nearest'",
+        ),
+        (("--crop-opts", "--size 64 --start 40,50"), 1, "--start X,Y needs --follow nearest"),
+        (
+            ("--crop-opts", "--size 64 --follow nearest --start 40,150"),
+            1,
+            "--start 40,150 lies outside the frames",
+        ),
+        (("--crop-opts", "--size=64 --follow nearest --start 40"), 1, "expected X,Y in pixels"),
+        (
+            ("--crop-opts", "--size 64", "--fit-opts", "--fix b_um,radius_um"),
+            1,
+            "cannot fix radius_um: a spherocylinder's fit parameters are",
+        ),
+        (
+            ("--crop-opts", "--size 64", "--fit-opts", "--initial-frames 0"),
+            2,
+            "Invalid value for '--initial-frames'",
+        ),
+        (
+            ("--crop-opts", "--size 64", "--prefit-opts", "--max-chi2-red lots"),
+            2,
+            "Invalid value for '--max-chi2-red'",
+        ),
+    ],
+)
 def test_stage_settings_that_cannot_work_are_refused_at_init(tmp_path, opts, code, message):
     """A 96 x 96 movie: the crop's size against its frames (the default 140 too), the follow
     mode and start point, the parameters --fix may name, option values of the right type."""
     movie, bg = tmp_path / "movie.tif", tmp_path / "bg.tif"
     rng = np.random.default_rng(1)
     for path, n in ((movie, 4), (bg, 1)):
-        tifffile.imwrite(path, rng.integers(10, 200, (n, 96, 96), dtype=np.uint8),
-                         photometric="minisblack")
-    res = CliRunner().invoke(main, ["init", str(tmp_path / "run"), "--movie", str(movie), "-b",
-                                    str(bg), "-i", "paper_60x_water", "-p", "rod_paper", *opts])
+        tifffile.imwrite(
+            path, rng.integers(10, 200, (n, 96, 96), dtype=np.uint8), photometric="minisblack"
+        )
+    res = CliRunner().invoke(
+        main,
+        [
+            "init",
+            str(tmp_path / "run"),
+            "--movie",
+            str(movie),
+            "-b",
+            str(bg),
+            "-i",
+            "paper_60x_water",
+            "-p",
+            "rod_paper",
+            *opts,
+        ],
+    )
     assert res.exit_code == code, res.output
     assert message in res.stderr, res.stderr
     assert "Traceback" not in res.output
     assert not (tmp_path / "run").exists()
     # the same settings that do work are accepted
-    good = CliRunner().invoke(main, ["init", str(tmp_path / "ok"), "--movie", str(movie), "-b",
-                                     str(bg), "-i", "paper_60x_water", "-p", "rod_paper",
-                                     "--crop-opts", "--size 64 --follow nearest --start 40,50",
-                                     "--fit-opts", "--fix b_um"])
+    good = CliRunner().invoke(
+        main,
+        [
+            "init",
+            str(tmp_path / "ok"),
+            "--movie",
+            str(movie),
+            "-b",
+            str(bg),
+            "-i",
+            "paper_60x_water",
+            "-p",
+            "rod_paper",
+            "--crop-opts",
+            "--size 64 --follow nearest --start 40,50",
+            "--fit-opts",
+            "--fix b_um",
+        ],
+    )
     assert good.exit_code == 0, good.output
 
 

@@ -22,7 +22,7 @@ import pytest
 
 from holofit.config import load_instrument, resolve_config
 from holofit.particles import Sphere
-from holofit.runfolder import init_run
+from holofit.runfolder import RunInputs, init_run
 from holofit.simulate.holograms import simulate_movie
 from tests.runfolder_helpers import make_env, mtimes, names, needs_make, run_make, stages_run
 
@@ -59,8 +59,13 @@ def finished(movie, tmp_path_factory):
     """A run folder after its first make (the tests copy it before changing anything)."""
     movie_path, background, _ = movie
     run = tmp_path_factory.mktemp("runs") / "sphere01"
-    init_run(run, movie_path, backgrounds=[background], instrument="paper_100x_oil",
-             particle="sphere_ps_1um", options=OPTIONS)
+    init_run(
+        run,
+        RunInputs(movie_path, backgrounds=[background]),
+        instrument="paper_100x_oil",
+        particle="sphere_ps_1um",
+        options=OPTIONS,
+    )
     proc = run_make(run, "JOBS=0")
     assert proc.returncode == 0, proc.stdout[-3000:]
     return run, proc.stdout
@@ -134,7 +139,9 @@ def test_a_stage_setting_reruns_that_stage_only(finished, tmp_path):
     assert settings["settings"]["temperature_err_c"] == 0.5
     after = mtimes(run)
     assert {k for k in after if after[k] != before.get(k)} <= {
-        "settings/analyze", *(k for k in after if k.startswith("analysis/"))}
+        "settings/analyze",
+        *(k for k in after if k.startswith("analysis/")),
+    }
     # back to the Makefile's own setting: analyze is out of date again
     assert run_make(run, "-q").returncode == 1
 
@@ -155,9 +162,13 @@ def test_a_killed_make_resumes_the_stage_from_its_journal(finished, tmp_path):
     table = run / "prefit" / "prefit.csv"
     journal = run / "prefit" / "prefit.csv.journal"
     with (tmp_path / "make.log").open("w") as log:
-        proc = subprocess.Popen(["make", "-C", str(run), "prefit", "JOBS=1"], stdout=log,
-                                stderr=subprocess.STDOUT, env=make_env(),
-                                start_new_session=True)  # its own process group
+        proc = subprocess.Popen(
+            ["make", "-C", str(run), "prefit", "JOBS=1"],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=make_env(),
+            start_new_session=True,
+        )  # its own process group
         try:
             deadline = time.monotonic() + 300
             while _journal_rows(journal) < 2 and proc.poll() is None:

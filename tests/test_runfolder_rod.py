@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.runfolder import init_run
+from holofit.runfolder import RunInputs, init_run
 from holofit.simulate.holograms import simulate_movie
 from tests.runfolder_helpers import mtimes, names, needs_make, run_make, stages_run
 from tests.stage_helpers import ROD_TOML
@@ -35,19 +35,34 @@ def test_rod_run_folder_runs_the_library_and_reruns_it_for_a_new_particle(tmp_pa
     sim = simulate_movie(particle.model, inst, POSITIONS, (90, 90), orientations=ANGLES,
                          alpha=0.9, theory=particle.theory(), seed=2, out_dir=tmp_path / "sim")
     run = tmp_path / "rod01"
-    made = init_run(run, sim.movie, backgrounds=[sim.background], instrument="paper_60x_water",
-                    particle=tmp_path / "rod.toml", options=OPTIONS)
+    made = init_run(
+        run,
+        RunInputs(sim.movie, backgrounds=[sim.background]),
+        instrument="paper_60x_water",
+        particle=tmp_path / "rod.toml",
+        options=OPTIONS,
+    )
     assert made.spec.analysis_model == "rod"
 
     proc = run_make(run, "fit", "JOBS=0")
     assert proc.returncode == 0, proc.stdout[-3000:]
-    assert names(stages_run(proc.stdout, run)) == ["crop", "prefit", "library", "fit initial",
-                                                   "fit final"]
+    assert names(stages_run(proc.stdout, run)) == [
+        "crop",
+        "prefit",
+        "library",
+        "fit initial",
+        "fit final",
+    ]
     fit = pd.read_csv(run / "fit" / "fit.csv")
     assert (fit["status"] == "ok").all(), fit["message"].tolist()
     np.testing.assert_allclose(fit[["x_um", "y_um", "z_um"]], POSITIONS, atol=0.03)
-    u_true = np.column_stack([np.sin(ANGLES[:, 1]) * np.cos(ANGLES[:, 0]),
-                              np.sin(ANGLES[:, 1]) * np.sin(ANGLES[:, 0]), np.cos(ANGLES[:, 1])])
+    u_true = np.column_stack(
+        [
+            np.sin(ANGLES[:, 1]) * np.cos(ANGLES[:, 0]),
+            np.sin(ANGLES[:, 1]) * np.sin(ANGLES[:, 0]),
+            np.cos(ANGLES[:, 1]),
+        ]
+    )
     cos = np.abs(np.sum(fit[["ux", "uy", "uz"]].to_numpy() * u_true, axis=1))
     assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 3.0
 

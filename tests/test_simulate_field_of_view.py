@@ -14,7 +14,7 @@ from holofit.particles import Sphere
 from holofit.scattering.lens import lens_field_on_detector
 from holofit.scattering.mie import LorenzMie
 from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
-from holofit.simulate.holograms import SimulationError, simulate_movie
+from holofit.simulate.holograms import Exposure, SimulationError, simulate_movie
 
 SHAPE = (64, 96)
 
@@ -35,7 +35,9 @@ def test_one_particle_is_the_single_particle_movie(inst):
     fov = simulate_field_of_view(
         [ParticleInView(sphere, pos, alpha=0.9)], inst, SHAPE, noise=False, keep_frames=True
     )
-    one = simulate_movie(sphere, inst, pos, SHAPE, alpha=0.9, noise=False, keep_frames=True)
+    one = simulate_movie(
+        sphere, inst, pos, SHAPE, alpha=0.9, keep_frames=True, exposure=Exposure(noise=False)
+    )
     for a, b in zip(fov.frames, one.frames, strict=True):
         # the same hologram through the pixel-list and the detector-grid paths, quantised
         assert np.abs(a.astype(int) - b.astype(int)).max() <= 1
@@ -55,7 +57,11 @@ def test_two_particles_interfere_as_fields(inst):
     camera = Camera(bit_depth=16, background_counts=20000.0, read_noise_counts=0.0)
     fov = simulate_field_of_view(
         [ParticleInView(a, [pa], alpha=0.8), ParticleInView(b, [pb], alpha=1.1)],
-        inst, SHAPE, camera=camera, noise=False, keep_frames=True,
+        inst,
+        SHAPE,
+        camera=camera,
+        noise=False,
+        keep_frames=True,
     )
     measured = fov.frames[0] / camera.background_counts
     ia, ib = _exact(inst, a, pa, 0.8), _exact(inst, b, pb, 1.1)
@@ -78,7 +84,12 @@ def test_truth_is_keyed_by_particle_and_frame(inst, tmp_path):
     out = simulate_field_of_view(parts, inst, SHAPE, out_dir=tmp_path / "fov")
     truth = pd.read_csv(tmp_path / "fov" / "truth.csv")
     assert list(truth[["particle", "frame"]].itertuples(index=False, name=None)) == [
-        (0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (1, 2)
+        (0, 0),
+        (0, 1),
+        (0, 2),
+        (1, 0),
+        (1, 1),
+        (1, 2),
     ]
     assert truth.loc[3, "x_px"] == pytest.approx(-5.0 / inst.pixel_size_um)
     assert out.movie is not None and out.movie.exists()
@@ -90,9 +101,12 @@ def test_bad_particles_are_named(inst):
         simulate_field_of_view([], inst, SHAPE)
     with pytest.raises(SimulationError, match="particle 1 has 1 positions"):
         simulate_field_of_view(
-            [ParticleInView(Sphere(0.5, 1.59), [(2, 2, 8)] * 2),
-             ParticleInView(Sphere(0.5, 1.59), [(2, 2, 8)])],
-            inst, SHAPE,
+            [
+                ParticleInView(Sphere(0.5, 1.59), [(2, 2, 8)] * 2),
+                ParticleInView(Sphere(0.5, 1.59), [(2, 2, 8)]),
+            ],
+            inst,
+            SHAPE,
         )
     with pytest.raises(SimulationError, match="particle 0: frame 1"):
         simulate_field_of_view(
@@ -140,20 +154,25 @@ def test_scene_file_makes_a_field_of_view(tmp_path) -> None:
     d = sphere_diffusion(0.5, 21.0)["D_t"]
     assert np.mean(steps**2) < 20 * 2 * d * 0.01
     out = tmp_path / "movie"
-    res = CliRunner().invoke(main, ["simulate", "field-of-view", str(tmp_path / "scene.toml"),
-                                    "-o", str(out)])
+    res = CliRunner().invoke(
+        main, ["simulate", "field-of-view", str(tmp_path / "scene.toml"), "-o", str(out)]
+    )
     assert res.exit_code == 0, res.output
     truth = pd.read_csv(out / "truth.csv")
     assert len(truth) == 12 and set(truth["particle"]) == {0, 1}
 
 
-@pytest.mark.parametrize("body, message", [
-    (SCENE.replace('start_um = [3.0', 'strat_um = [3.0'),
-     "particle 0.*strat_um"),
-    (SCENE.split("[[particle]]")[0], "no \\[\\[particle\\]\\] tables"),
-    (SCENE.replace('"sphere_ps_1um"\nstart_um = [8.0', '"rod_paper"\nstart_um = [8.0'),
-     "particle 1.*needs d_par_um2_s"),
-])
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        (SCENE.replace("start_um = [3.0", "strat_um = [3.0"), "particle 0.*strat_um"),
+        (SCENE.split("[[particle]]")[0], "no \\[\\[particle\\]\\] tables"),
+        (
+            SCENE.replace('"sphere_ps_1um"\nstart_um = [8.0', '"rod_paper"\nstart_um = [8.0'),
+            "particle 1.*needs d_par_um2_s",
+        ),
+    ],
+)
 def test_scene_errors_name_the_particle_and_key(tmp_path, body, message) -> None:
     from holofit.config_schema import ConfigError
     from holofit.simulate.scene import load_scene

@@ -15,7 +15,7 @@ from holofit.cli.fit import fit
 from holofit.cli.library import library
 from holofit.cli.prefit import prefit
 from holofit.engines.select import ENGINE_CHOICES
-from holofit.runfolder import init_run
+from holofit.runfolder import RunInputs, init_run
 
 #: stage -> its command (to check extra options against the command's own parser)
 _COMMANDS = {"crop": crop, "prefit": prefit, "library": library, "fit": fit, "analyze": analyze}
@@ -129,19 +129,43 @@ def init(
     for stage, text in options.items():
         if text.strip():
             _check_parses(stage, text)
-    made = init_run(run_dir, movie, instrument=instrument, particle=particle,
-                    backgrounds=backgrounds, darks=darks, dark_count=dark_count,
-                    normalized=normalized, engine=engine, temperature_c=temperature_c,
-                    model=model, options=options, holofit_command=holofit_command, force=force,
-                    batch_makefile=batch_makefile)
+    made = init_run(
+        run_dir,
+        RunInputs(
+            movie,
+            backgrounds=backgrounds,
+            darks=darks,
+            dark_count=dark_count,
+            normalized=normalized,
+        ),
+        instrument=instrument,
+        particle=particle,
+        engine=engine,
+        temperature_c=temperature_c,
+        model=model,
+        options=options,
+        holofit_command=holofit_command,
+        force=force,
+        batch_makefile=batch_makefile,
+    )
     spec = made.spec
-    chain = " -> ".join(["crop", "prefit", *(["library"] if spec.anisotropic else []), "fit",
-                         f"analyze ({spec.analysis_model})"])
-    click.echo(f"wrote {made.makefile} ({chain}), {made.readme}, {made.instrument}, "
-               f"{made.particle}")
+    chain = " -> ".join(
+        [
+            "crop",
+            "prefit",
+            *(["library"] if spec.anisotropic else []),
+            "fit",
+            f"analyze ({spec.analysis_model})",
+        ]
+    )
+    click.echo(
+        f"wrote {made.makefile} ({chain}), {made.readme}, {made.instrument}, {made.particle}"
+    )
     if made.batch_makefile is not None and not made.notes:
-        click.echo(f"wrote {made.batch_makefile}: make -C {made.batch_makefile.parent} runs "
-                   "every run folder in it")
+        click.echo(
+            f"wrote {made.batch_makefile}: make -C {made.batch_makefile.parent} runs "
+            "every run folder in it"
+        )
     for note in made.notes:
         click.echo(f"holofit init: note: {note}", err=True)
     click.echo(f"run it: make -C {shlex.quote(str(run_dir))}")

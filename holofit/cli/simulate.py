@@ -22,7 +22,7 @@ from holofit.cli.simulate_trajectory import simulate_trajectory_cmd
 from holofit.engines.select import ENGINE_CHOICES
 from holofit.particles import ParticleModel, Sphere
 from holofit.progress import progress_bar
-from holofit.simulate.holograms import SimulationError, check_positions, simulate_movie
+from holofit.simulate.holograms import Exposure, SimulationError, check_positions, simulate_movie
 
 POSITIVE = click.FloatRange(min=0, min_open=True)
 NONNEGATIVE = click.FloatRange(min=0)
@@ -170,17 +170,9 @@ def simulate_sphere(
                      lens=inst.optics.numerical_aperture is not None)
     frame_shape = parse_pair(shape, "--shape")
     with progress_bar(len(pos), "simulate", unit="frame") as bar:
-        result = simulate_movie(
-            model,
-            inst,
-            pos,
-            frame_shape,
-            alpha=alpha,
-            noise=noise,
-            seed=seed,
-            out_dir=out,
-            progress=bar.update,
-        )
+        result = simulate_movie(model, inst, pos, frame_shape, alpha=alpha, seed=seed,
+                                out_dir=out, progress=bar.update,
+                                exposure=Exposure(noise=noise))
     click.echo(
         f"wrote {result.movie} ({len(pos)} frame(s) of {frame_shape[0]}x{frame_shape[1]}),"
         f" {result.background}, {result.truth_table}"
@@ -205,28 +197,68 @@ def _orientations(orientation: tuple[str, ...], table: pd.DataFrame | None, n: i
 
 
 @simulate.command("hologram")
-@click.option("--particle", "-p", required=True,
-              help="Particle-model TOML (any model: sphere, spherocylinder, janus, dimer, ...).")
+@click.option(
+    "--particle",
+    "-p",
+    required=True,
+    help="Particle-model TOML (any model: sphere, spherocylinder, janus, dimer, ...).",
+)
 @instrument_option(required=False)
-@click.option("--engine", type=click.Choice(ENGINE_CHOICES), default="auto", show_default=True,
-              help="Scattering engine (auto: Lorenz-Mie for spheres, else the config's [dda]).")
-@click.option("--position", multiple=True, metavar="X,Y,Z",
-              help="Full-frame particle centre in um (z: height above the focal plane, larger "
-                   "than the particle's bounding radius; any height for an instrument with a "
-                   "numerical_aperture); repeat for a movie.")
-@click.option("--orientation", multiple=True, metavar="PSI,THETA,PHI",
-              help="zyz Euler angles in degrees: one for all frames or one per --position.")
-@click.option("--trajectory", "trajectory_file", type=click.Path(exists=True, path_type=Path),
-              help="CSV with x_um, y_um, z_um (and psi_rad, theta_rad[, phi_rad]) per frame, "
-                   "e.g. from `holofit simulate trajectory`.")
-@click.option("--shape", default="256,256", show_default=True, metavar="ROWS,COLS",
-              help="Frame size in pixels.")
-@click.option("--alpha", type=float, default=1.0, show_default=True,
-              help="Scattered-field scaling (the fits' alpha; 1: the exact field).")
-@click.option("--noise/--no-noise", default=True, show_default=True,
-              help="Poisson shot noise and read noise (quantisation always applies).")
-@click.option("--seed", type=SEED, default=0, show_default=True,
-              help="Random seed of the camera noise: the same seed gives the same movie.")
+@click.option(
+    "--engine",
+    type=click.Choice(ENGINE_CHOICES),
+    default="auto",
+    show_default=True,
+    help="Scattering engine (auto: Lorenz-Mie for spheres, else the config's [dda]).",
+)
+@click.option(
+    "--position",
+    multiple=True,
+    metavar="X,Y,Z",
+    help="Full-frame particle centre in um (z: height above the focal plane, larger "
+    "than the particle's bounding radius; any height for an instrument with a "
+    "numerical_aperture); repeat for a movie.",
+)
+@click.option(
+    "--orientation",
+    multiple=True,
+    metavar="PSI,THETA,PHI",
+    help="zyz Euler angles in degrees: one for all frames or one per --position.",
+)
+@click.option(
+    "--trajectory",
+    "trajectory_file",
+    type=click.Path(exists=True, path_type=Path),
+    help="CSV with x_um, y_um, z_um (and psi_rad, theta_rad[, phi_rad]) per frame, "
+    "e.g. from `holofit simulate trajectory`.",
+)
+@click.option(
+    "--shape",
+    default="256,256",
+    show_default=True,
+    metavar="ROWS,COLS",
+    help="Frame size in pixels.",
+)
+@click.option(
+    "--alpha",
+    type=float,
+    default=1.0,
+    show_default=True,
+    help="Scattered-field scaling (the fits' alpha; 1: the exact field).",
+)
+@click.option(
+    "--noise/--no-noise",
+    default=True,
+    show_default=True,
+    help="Poisson shot noise and read noise (quantisation always applies).",
+)
+@click.option(
+    "--seed",
+    type=SEED,
+    default=0,
+    show_default=True,
+    help="Random seed of the camera noise: the same seed gives the same movie.",
+)
 @out_dir_option()
 def simulate_hologram(
     particle: str,
@@ -252,14 +284,31 @@ def simulate_hologram(
     except (ValueError, RuntimeError) as exc:
         raise click.BadParameter(str(exc), param_hint="--engine") from None
     table = _read_csv(trajectory_file, "--trajectory") if trajectory_file is not None else None
-    pos = _positions(cfg.model, position, trajectory_file, "--trajectory", table,
-                     lens=inst.optics.numerical_aperture is not None)
+    pos = _positions(
+        cfg.model,
+        position,
+        trajectory_file,
+        "--trajectory",
+        table,
+        lens=inst.optics.numerical_aperture is not None,
+    )
     orient = _orientations(orientation, table, len(pos))
     frame_shape = parse_pair(shape, "--shape")
     with progress_bar(len(pos), "simulate", unit="frame") as bar:
         result = simulate_movie(
-            cfg.model, inst, pos, frame_shape, orientations=orient, alpha=alpha, theory=theory,
-            noise=noise, seed=seed, out_dir=out, progress=bar.update,
+            cfg.model,
+            inst,
+            pos,
+            frame_shape,
+            orientations=orient,
+            alpha=alpha,
+            theory=theory,
+            seed=seed,
+            out_dir=out,
+            progress=bar.update,
+            exposure=Exposure(noise=noise),
         )
-    click.echo(f"wrote {result.movie} ({len(pos)} frame(s) of {cfg.model.kind}, engine "
-               f"{theory.name}), {result.background}, {result.truth_table}")
+    click.echo(
+        f"wrote {result.movie} ({len(pos)} frame(s) of {cfg.model.kind}, engine "
+        f"{theory.name}), {result.background}, {result.truth_table}"
+    )

@@ -85,8 +85,13 @@ def _slab_product(s0, s1, s2, g, f, ms, signs):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _slab_kernel(execute_fn, plans, v, w, offsets, comp_stride, box_in, xmat, slab, g, signs,
-                 c0, c1, out):  # pragma: no cover - compiled
+def _slab_kernel(execute_fn, plans, v, w, layout, buffers, g, signs, c0, c1,
+                 out):  # pragma: no cover - compiled
+    """One FFT convolution product slab by slab (the class docstring); ``layout`` is
+    ``(offsets, comp_stride)`` of the dipoles in the box, ``buffers`` ``(box_in, xmat,
+    slab)``, the work arrays."""
+    offsets, comp_stride = layout
+    box_in, xmat, slab = buffers
     ms = xmat.shape[0]
     na = xmat.shape[2]
     nb = xmat.shape[3]
@@ -285,9 +290,10 @@ class Convolver:
         if out is None:
             out = np.empty(3 * self.n_dipoles, dtype=np.complex128)
         if self.backend == "fftw":
-            _slab_kernel(self._execute, self._plan_ptrs, v, w, self._offsets,
-                         self._comp_stride, self._box_in, self._xmat, self._slab, self._tensor,
-                         self._signs, float(c0), float(c1), out)
+            _slab_kernel(self._execute, self._plan_ptrs, v, w,
+                         (self._offsets, self._comp_stride),
+                         (self._box_in, self._xmat, self._slab), self._tensor, self._signs,
+                         float(c0), float(c1), out)
             return out
         _scatter_box(self._field, v, w, self.ijk)
         self._convolve_numpy(self._field)

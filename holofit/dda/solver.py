@@ -56,13 +56,14 @@ def _lanczos_step(dst, av, v, v_prev, alpha, beta):  # pragma: no cover - compil
 
 
 @numba.njit(cache=True, nogil=True)
-def _qmr_update(p_new, v, p_prev, p_prev2, eta, theta, inv_zeta, x, tau, v_next, inv_beta,
-                r, r_scale, r_coef):  # pragma: no cover - compiled
+def _qmr_update(p_new, v, p_prev, p_prev2, x, v_next, r, coef):  # pragma: no cover - compiled
     """The rest of one QMR iteration in one pass; returns ``||r||^2``.
 
     ``p_new = (v - eta p_prev - theta p_prev2) / zeta`` (``p_new`` may be ``p_prev2``),
-    ``x += tau p_new``, ``v_next *= 1/beta``, ``r = r_scale r + r_coef v_next``.
+    ``x += tau p_new``, ``v_next *= 1/beta``, ``r = r_scale r + r_coef v_next``; ``coef`` is
+    ``(eta, theta, 1/zeta, tau, 1/beta, r_scale, r_coef)``, the iteration's scalars together.
     """
+    eta, theta, inv_zeta, tau, inv_beta, r_scale, r_coef = coef
     nrm = 0.0
     for i in range(v.shape[0]):
         p = (v[i] - eta * p_prev[i] - theta * p_prev2[i]) * inv_zeta
@@ -170,9 +171,9 @@ def qmr_cs(
         # search direction, solution, normalised v_next and the residual recurrence
         # r_k = |s_k|^2 r_{k-1} + (c_k tau_bar_{k+1} / omega_{k+1}) v_{k+1}, in one pass
         inv_beta = 1.0 / beta_next if beta_next != 0.0 else 1.0
-        rr = _qmr_update(p_prev2, v, p_prev, p_prev2, complex(eta), complex(theta),
-                         complex(1.0 / zeta), x, complex(tau), v_next, complex(inv_beta), r,
-                         float(abs(s_new) ** 2), complex(c_new * tau_bar / omega_next))
+        coef = (complex(eta), complex(theta), complex(1.0 / zeta), complex(tau),
+                complex(inv_beta), float(abs(s_new) ** 2), complex(c_new * tau_bar / omega_next))
+        rr = _qmr_update(p_prev2, v, p_prev, p_prev2, x, v_next, r, coef)
         res = float(np.sqrt(rr)) / b_norm
         history.append(res)
         if res < tol or beta_next == 0.0:

@@ -67,6 +67,7 @@ from holofit.scattering.vsw import pack, plane_wave_coefficients
 
 __all__ = [
     "DEFAULT_TRUNCATION",
+    "BuildSettings",
     "BuildStats",
     "build_lattice_tmatrix",
     "build_tmatrix",
@@ -142,13 +143,49 @@ class BuildStats:
     validation_far_field_error: float | None
 
 
+@dataclass(frozen=True)
+class BuildSettings:
+    """How a lattice's T-matrix is built (:func:`build_lattice_tmatrix`).
+
+    Attributes
+    ----------
+    tolerance : float
+        Relative residual of every solve.
+    order : int, optional
+        Truncation order; by default from ``truncation``.
+    truncation : float
+        Target of the truncation estimate when ``order`` is not given.
+    use_symmetry : bool
+        Use the lattice's symmetries (one solve per ``|G|`` columns); False solves one
+        right-hand side per column (for checks).
+    max_iterations : int
+        Solver iteration limit.
+    validate : bool
+        Compare against one direct solve of a random plane wave and record the far-field
+        error.
+    progress : callable, optional
+        ``progress(done, total)`` after each solve.
+    precision : {"double", "single"}
+        Precision of the FFT convolution in the build's solves (the validation is in double).
+    workers : int
+        Processes the solves are shared by (1: in this process), for a build of at least
+        :data:`PARALLEL_MIN_WORK`; the result does not depend on it.
+    """
+
+    tolerance: float = MAX_BUILD_TOLERANCE
+    order: int | None = None
+    truncation: float = DEFAULT_TRUNCATION
+    use_symmetry: bool = True
+    max_iterations: int = 2000
+    validate: bool = True
+    progress: Callable[[int, int], None] | None = None
+    precision: str = "double"
+    workers: int = 1
+
+
 def build_lattice_tmatrix(
     lattice: Lattice, k: float, n_medium: float, polarizability: str,
-    tolerance: float = MAX_BUILD_TOLERANCE, order: int | None = None,
-    truncation: float = DEFAULT_TRUNCATION, use_symmetry: bool = True,
-    max_iterations: int = 2000, validate: bool = True,
-    progress: Callable[[int, int], None] | None = None, precision: str = "double",
-    workers: int = 1,
+    build: BuildSettings | None = None,
 ) -> tuple[TMatrix, BuildStats]:
     """T-matrix of a lattice (see the module docstring).
 
@@ -162,27 +199,14 @@ def build_lattice_tmatrix(
         Refractive index of the medium.
     polarizability : {"fcd", "ldr_avg", "cm"}
         An incidence-independent prescription.
-    tolerance : float
-        Relative residual of every solve.
-    order : int, optional
-        Truncation order; by default from ``truncation``.
-    truncation : float
-        Target of the truncation estimate when ``order`` is not given.
-    use_symmetry : bool
-        Use the lattice's symmetries (one solve per ``|G|`` columns); False solves one right-hand
-        side per column (for checks).
-    max_iterations : int
-        Solver iteration limit.
-    validate : bool
-        Compare against one direct solve of a random plane wave and record the far-field error.
-    progress : callable, optional
-        ``progress(done, total)`` after each solve.
-    precision : {"double", "single"}
-        Precision of the FFT convolution in the build's solves (the validation is in double).
-    workers : int
-        Processes the solves are shared by (1: in this process), for a build of at least
-        :data:`PARALLEL_MIN_WORK`; the result does not depend on it.
+    build : BuildSettings, optional
+        How it is built (tolerance, order, symmetry, validation, precision, workers).
     """
+    b = build or BuildSettings()
+    tolerance, order, truncation, use_symmetry = b.tolerance, b.order, b.truncation, b.use_symmetry
+    max_iterations, validate, progress, precision = (b.max_iterations, b.validate, b.progress,
+                                                     b.precision)
+    workers = b.workers
     if polarizability not in INCIDENCE_INDEPENDENT:
         raise ValueError(
             f"a T-matrix needs an incidence-independent polarizability {INCIDENCE_INDEPENDENT};"
@@ -406,10 +430,11 @@ def _build_tmatrix(
     lattice = voxelize(model, d, settings.filling)
     tol = tolerance if tolerance is not None else min(settings.tolerance, MAX_BUILD_TOLERANCE)
     tm, _ = build_lattice_tmatrix(
-        lattice, optics.k, optics.n_medium, settings.polarizability, tolerance=tol,
-        order=order, truncation=truncation, use_symmetry=use_symmetry,
-        max_iterations=settings.max_iterations, validate=validate, progress=progress,
-        precision=precision, workers=workers,
+        lattice, optics.k, optics.n_medium, settings.polarizability,
+        BuildSettings(tolerance=tol, order=order, truncation=truncation,
+                      use_symmetry=use_symmetry, max_iterations=settings.max_iterations,
+                      validate=validate, progress=progress, precision=precision,
+                      workers=workers),
     )
     tm.provenance = {**describe(model, d, optics, settings, lattice), **tm.provenance}
     return tm

@@ -12,6 +12,7 @@ folder).
 
 from holofit.runfolder.create import (
     RunFolder,
+    RunInputs,
     default_holofit_command,
     init_run,
     write_batch_makefile,
@@ -24,6 +25,7 @@ __all__ = [
     "STAGES",
     "RunFolder",
     "RunFolderError",
+    "RunInputs",
     "RunSpec",
     "default_holofit_command",
     "init_run",

@@ -43,7 +43,8 @@ from holofit.runfolder.spec import (
 )
 from holofit.runfolder.stagecheck import check_crop_options, check_fit_options, initial_pass_note
 
-__all__ = ["RunFolder", "default_holofit_command", "init_run", "write_batch_makefile"]
+__all__ = ["RunFolder", "RunInputs", "default_holofit_command", "init_run",
+           "write_batch_makefile"]
 
 INSTRUMENT_COPY = "instrument.toml"
 PARTICLE_COPY = "particle.toml"
@@ -189,16 +190,35 @@ def write_batch_makefile(folder: str | Path) -> tuple[Path, str | None]:
     return path, None
 
 
+@dataclass(frozen=True)
+class RunInputs:
+    """The light a run folder's movie was recorded with, as ``holofit crop`` takes it.
+
+    Attributes
+    ----------
+    movie : str or Path
+        The raw movie (TIFF stack or folder of frames); referred to by absolute path.
+    backgrounds, darks : sequence of paths
+        Background and dark files (as ``holofit crop --background / --dark``).
+    dark_count : float, optional
+        Dark level in counts, instead of dark frames.
+    normalized : bool
+        The movie is background-divided already (no background).
+    """
+
+    movie: str | Path
+    backgrounds: Sequence[str | Path] = ()
+    darks: Sequence[str | Path] = ()
+    dark_count: float | None = None
+    normalized: bool = False
+
+
 def init_run(
     run_dir: str | Path,
-    movie: str | Path,
+    inputs: RunInputs,
     *,
     instrument: str | Path,
     particle: str | Path,
-    backgrounds: Sequence[str | Path] = (),
-    darks: Sequence[str | Path] = (),
-    dark_count: float | None = None,
-    normalized: bool = False,
     engine: str | None = None,
     temperature_c: float = 21.0,
     model: str | None = None,
@@ -217,16 +237,10 @@ def init_run(
     ----------
     run_dir : str or Path
         The run folder (created).
-    movie : str or Path
-        The raw movie (TIFF stack or folder of frames); referred to by absolute path.
+    inputs : RunInputs
+        The movie, its background and dark files.
     instrument, particle : str or Path
         Config files or names (``paper_60x_water``, ``rod_paper``); copied into the folder.
-    backgrounds, darks : sequence of paths
-        Background and dark files (as ``holofit crop --background / --dark``).
-    dark_count : float, optional
-        Dark level in counts, instead of dark frames.
-    normalized : bool
-        The movie is background-divided already (no background).
     engine : str, optional
         Scattering engine of library and fit (default: the particle config's).
     temperature_c : float
@@ -254,8 +268,8 @@ def init_run(
         Naming the input, option or file at fault; nothing is written then.
     """
     run = _check_run_dir(Path(run_dir), force, batch_makefile)
-    movie_abs, n_frames, frame_shape, bg_abs, dark_abs = _light_inputs(
-        movie, backgrounds, darks, dark_count, normalized)
+    movie_abs, n_frames, frame_shape, bg_abs, dark_abs = _light_inputs(inputs)
+    dark_count, normalized = inputs.dark_count, inputs.normalized
     inst_source, part_source, cfg, shape = _configs(instrument, particle)
     analysis = _check_engine_and_analysis(cfg, engine, model, temperature_c)
     opts, notes = _check_options(options, cfg, frame_shape, n_frames)
@@ -277,15 +291,14 @@ def _header() -> tuple[str, str]:
             f"{now}", _command())
 
 
-def _light_inputs(movie: str | Path, backgrounds: Sequence[str | Path],
-                  darks: Sequence[str | Path], dark_count: float | None, normalized: bool
+def _light_inputs(inputs: RunInputs
                   ) -> tuple[str, int, tuple[int, int], tuple[str, ...], tuple[str, ...]]:
     """The movie (absolute path, frames, frame shape) and its background and dark files,
     checked."""
-    bgs = [str(b) for b in backgrounds]
-    dks = [str(d) for d in darks]
-    _check_light(bgs, dks, dark_count, normalized)
-    movie_abs, n_frames, frame_shape = _read_input(movie, "movie")
+    bgs = [str(b) for b in inputs.backgrounds]
+    dks = [str(d) for d in inputs.darks]
+    _check_light(bgs, dks, inputs.dark_count, inputs.normalized)
+    movie_abs, n_frames, frame_shape = _read_input(inputs.movie, "movie")
     return (movie_abs, n_frames, frame_shape, tuple(_input(b, "background") for b in bgs),
             tuple(_input(d, "dark frame") for d in dks))
 

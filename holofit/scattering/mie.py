@@ -211,8 +211,8 @@ class SphereSeriesWave(ScatteredWave):
         ys = np.ascontiguousarray(ys_um, dtype=float).ravel()
         ex = np.empty(xs.shape[0], dtype=complex)
         ey = np.empty(xs.shape[0], dtype=complex)
-        field_on_pixels(xs, ys, xp, yp, zp, self._frame, self.optics.k, *self._coefs,
-                        bool(far_field), ex, ey)
+        field_on_pixels(xs, ys, (float(xp), float(yp), float(zp)), self._frame, self.optics.k,
+                        tuple(self._coefs), bool(far_field), ex, ey)
         return ex, ey
 
 

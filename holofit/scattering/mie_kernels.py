@@ -166,12 +166,16 @@ def field_at_points(pts_bh, k, c1r, c1i, c2r, c2i, far, out):  # pragma: no cove
 
 @numba.njit(cache=True, fastmath=FASTMATH, nogil=True)
 def field_on_pixels(
-    xs, ys, xp, yp, zp, frame, k, c1r, c1i, c2r, c2i, far, ex, ey
+    xs, ys, position, frame, k, coefs, far, ex, ey
 ):  # pragma: no cover - compiled
     """Lab transverse field at pixel centres ``(xs[q], ys[q])`` (um), incident phase included.
 
-    ``frame`` maps lab vectors to the B&H frame; ``ex, ey`` have the length of ``xs``.
+    ``position`` is the particle's ``(x, y, z)``, um; ``frame`` maps lab vectors to the B&H
+    frame; ``coefs`` the series' ``(c1r, c1i, c2r, c2i)``; ``ex, ey`` have the length of
+    ``xs``.
     """
+    xp, yp, zp = position
+    c1r, c1i, c2r, c2i = coefs
     n = xs.shape[0]
     buf = np.empty((BLOCK, 3))
     res = np.empty((BLOCK, 3), dtype=np.complex128)

@@ -396,15 +396,18 @@ def _legendre_coefficients(lmax: int) -> tuple[NDArray, ...]:
 
 
 @numba.njit(cache=True, nogil=True)
-def _plane_fourier(p, q, mu, h, dx, hk, fac, rec_a, rec_b, rec_c, sect, n_ext, n_phi, out_x,
+def _plane_fourier(p, q, mu, radial, recurrences, n_ext, n_phi, out_x,
                    out_y):  # pragma: no cover - compiled
     """Fourier coefficients over phi of ``U_x, U_y`` on every grid row (and the reflected
-    rows ``i < n_ext``), from the expansion ``p, q`` ([n, m + L]).
+    rows ``i < n_ext``), from the expansion ``p, q`` ([n, m + L]); ``radial`` is ``(h, dx,
+    hk, fac)`` per row, ``recurrences`` the Legendre coefficients ``(a, b, c, sect)``.
 
     Per row: the Legendre recurrences at ``mu = cos th``; the per-m spherical components
     ``E_r, E_th, E_ph``; then ``E_x = rho cos ph - E_ph sin ph``, ``E_y = rho sin ph +
     E_ph cos ph`` (``rho = E_r sin th + E_th cos th``) as shifts ``m -> m +- 1``.
     """
+    h, dx, hk, fac = radial
+    rec_a, rec_b, rec_c, sect = recurrences
     L = p.shape[0] - 1
     pb = np.zeros((L + 1, L + 1))
     dp = np.zeros((L + 1, L + 1))
@@ -515,11 +518,10 @@ def plane_grid(
     h, dxr, hk = _radial(np.ascontiguousarray(k * r), L, far)
     # U = kr exp(-ikr) E: smooth (the far mode's radial factors carry exp(ikr)/(kr) too)
     fac = k * r * np.exp(-1j * k * r)
-    rec_a, rec_b, rec_c, sect = _legendre_coefficients(L)
     ux = np.zeros((n_ext + n_rows, n_phi), dtype=complex)
     uy = np.zeros_like(ux)
-    _plane_fourier(np.ascontiguousarray(expansion.p), np.ascontiguousarray(expansion.q), mu, h,
-                   dxr, hk, fac, rec_a, rec_b, rec_c, sect, n_ext, n_phi, ux, uy)
+    _plane_fourier(np.ascontiguousarray(expansion.p), np.ascontiguousarray(expansion.q), mu,
+                   (h, dxr, hk, fac), _legendre_coefficients(L), n_ext, n_phi, ux, uy)
     ux = np.fft.ifft(ux, axis=1, norm="forward")
     uy = np.fft.ifft(uy, axis=1, norm="forward")
     return PlaneGrid(ux=ux, uy=uy, step=step, delta_max=float(delta_max), stencil=STENCIL,

@@ -29,6 +29,8 @@ from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 from holofit.simulate.holograms import (
     TRUTH_UNITS,
+    Exposure,
+    GroundTruth,
     SimulatedMovie,
     SimulationError,
     check_positions,
@@ -182,9 +184,10 @@ def simulate_field_of_view(
     meta = _metadata(solved, instrument, camera, noise, seed)
     pol = instrument.optics.polarization_rad
     holograms = (hologram_intensity(*_frame_field(solved, k, xs, ys), pol) for k in range(n))
+    exposure = Exposure(camera, noise, n_background=n_background)
     return film(
-        holograms, camera, rng, frame_shape, truth, FIELD_TRUTH_UNITS, meta,
-        label="simulated field of view", noise=noise, n_background=n_background,
+        holograms, exposure, rng, frame_shape,
+        GroundTruth(truth, FIELD_TRUTH_UNITS, meta, "simulated field of view"),
         out_dir=out_dir, keep_frames=keep_frames, progress=progress,
     )
 

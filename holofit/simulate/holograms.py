@@ -9,7 +9,7 @@ output goes straight into ``holofit crop``.
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,8 @@ from holofit.provenance import sidecar
 from holofit.scattering.theory import Orientation, ScatteringTheory
 
 __all__ = [
+    "Exposure",
+    "GroundTruth",
     "SimulatedMovie",
     "SimulationError",
     "check_positions",
@@ -135,6 +137,45 @@ class SimulatedMovie:
     frames: list[NDArray] | None = None
 
 
+@dataclass(frozen=True)
+class Exposure:
+    """How simulated holograms are recorded.
+
+    Attributes
+    ----------
+    camera : Camera, optional
+        Camera model; by default the instrument's (:func:`default_camera`).
+    noise : bool
+        Add shot and read noise (quantisation always applies).
+    uneven_illumination : float
+        Amplitude of a smooth illumination pattern that both movie and background carry.
+    n_background : int
+        Frames in the background stack.
+    """
+
+    camera: Camera | None = None
+    noise: bool = True
+    uneven_illumination: float = 0.0
+    n_background: int = 5
+
+    def for_instrument(self, instrument: Instrument) -> Exposure:
+        """This exposure with its camera made from ``instrument`` where it has none."""
+        if self.camera is not None:
+            return self
+        return replace(self, camera=default_camera(instrument))
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """What a simulated movie's ``truth.csv`` holds: the table, its units, the sidecar's
+    ``truth`` entry, and what the movie is (its TIFF description)."""
+
+    table: pd.DataFrame
+    units: dict[str, str]
+    meta: dict[str, Any]
+    label: str
+
+
 def smooth_illumination(
     shape: tuple[int, int], rng: np.random.Generator, amplitude: float = 0.05
 ) -> NDArray[np.float64]:
@@ -150,8 +191,7 @@ def smooth_illumination(
 def simulate_movie(
     model: ParticleModel, instrument: Instrument, positions_um: ArrayLike,
     frame_shape: tuple[int, int], *, orientations: ArrayLike | None = None, alpha: float = 1.0,
-    theory: ScatteringTheory | None = None, camera: Camera | None = None, noise: bool = True,
-    seed: int = 0, uneven_illumination: float = 0.0, n_background: int = 5,
+    theory: ScatteringTheory | None = None, exposure: Exposure | None = None, seed: int = 0,
     out_dir: str | Path | None = None, keep_frames: bool = False, progress: Any = None,
 ) -> SimulatedMovie:
     """Simulate a movie of holograms of one particle.
@@ -172,16 +212,11 @@ def simulate_movie(
         Scattered-field scaling.
     theory : ScatteringTheory, optional
         Engine; Lorenz-Mie for spheres and the built-in DDA otherwise.
-    camera : Camera, optional
-        Camera model; by default one with the instrument's bit depth and read noise.
-    noise : bool
-        Add shot and read noise (quantisation always applies).
+    exposure : Exposure, optional
+        Camera, noise, illumination and background frames (default: the instrument's camera,
+        with noise).
     seed : int
         Random seed.
-    uneven_illumination : float
-        Amplitude of a smooth illumination pattern that both movie and background carry.
-    n_background : int
-        Frames in the background stack.
     out_dir : str or Path, optional
         If given, write ``movie.tif``, ``background.tif`` and ``truth.csv`` (+ sidecars).
     keep_frames : bool
@@ -202,24 +237,25 @@ def simulate_movie(
     pos = check_positions(model, positions_um, instrument.optics.numerical_aperture is not None)
     orient = _check_orientations(orientations, pos.shape[0])
     theory = theory or select_theory(model)
-    camera = camera or default_camera(instrument)
+    exposure = (exposure or Exposure()).for_instrument(instrument)
+    assert exposure.camera is not None
     rng = np.random.default_rng(seed)
-    illum = (smooth_illumination(frame_shape, rng, uneven_illumination)
-             if uneven_illumination > 0 else None)
+    illum = (smooth_illumination(frame_shape, rng, exposure.uneven_illumination)
+             if exposure.uneven_illumination > 0 else None)
     grid = DetectorGrid(frame_shape, instrument.pixel_size_um)
     truth = truth_table(instrument, pos, orient, alpha)
     meta_common = {
         "instrument": instrument.as_dict(),
         "particle": {"model": model.kind, **{k: v for k, v in model.parameters().items()}},
         "engine": getattr(theory, "name", type(theory).__name__),
-        "camera": camera.__dict__, "noise": noise, "seed": seed, "alpha": alpha,
-        "uneven_illumination": uneven_illumination,
+        "camera": exposure.camera.__dict__, "noise": exposure.noise, "seed": seed,
+        "alpha": alpha, "uneven_illumination": exposure.uneven_illumination,
     }
     holograms = movie_holograms(model, theory, instrument, pos, orient, grid, alpha)
     return film(
-        holograms, camera, rng, frame_shape, truth, TRUTH_UNITS, meta_common,
-        label="simulated movie", illumination=illum, noise=noise, n_background=n_background,
-        out_dir=out_dir, keep_frames=keep_frames, progress=progress,
+        holograms, exposure, rng, frame_shape,
+        GroundTruth(truth, TRUTH_UNITS, meta_common, "simulated movie"),
+        illumination=illum, out_dir=out_dir, keep_frames=keep_frames, progress=progress,
     )
 
 
@@ -283,17 +319,12 @@ def default_camera(instrument: Instrument) -> Camera:
 
 def film(
     holograms: Iterable[NDArray[np.float64]],
-    camera: Camera,
+    exposure: Exposure,
     rng: np.random.Generator,
     frame_shape: tuple[int, int],
-    truth: pd.DataFrame,
-    units: dict[str, str],
-    meta: dict[str, Any],
+    truth: GroundTruth,
     *,
-    label: str,
     illumination: NDArray | None = None,
-    noise: bool = True,
-    n_background: int = 5,
     out_dir: str | Path | None = None,
     keep_frames: bool = False,
     progress: Any = None,
@@ -308,24 +339,16 @@ def film(
     ----------
     holograms : iterable of ndarray
         Normalised holograms (background 1), one per frame, of shape ``frame_shape``.
-    camera : Camera
-        Turns each into raw counts.
+    exposure : Exposure
+        Its camera (given) turns each into raw counts; noise and background frames.
     rng : numpy.random.Generator
         Source of the camera noise.
     frame_shape : tuple of int
         ``(rows, columns)``.
-    truth : pandas.DataFrame
-        The ground truth to write.
-    units, meta : dict
-        The truth table's units and the sidecar's ``truth`` entry.
-    label : str
-        What the movie is, for its TIFF description.
+    truth : GroundTruth
+        The ground truth to write, its units, sidecar entry and the movie's label.
     illumination : ndarray, optional
         Relative illumination pattern of movie and background.
-    noise : bool
-        Shot and read noise (quantisation always).
-    n_background : int
-        Frames in the background stack.
     out_dir : str or Path, optional
         Output folder; nothing is written without it.
     keep_frames : bool
@@ -333,19 +356,21 @@ def film(
     progress : callable, optional
         Called with 1 per frame done.
     """
+    camera, noise = exposure.camera, exposure.noise
+    assert camera is not None
     out = Path(out_dir) if out_dir is not None else None
-    frames = _expose_movie(holograms, camera, rng, illumination, noise, out, label,
+    frames = _expose_movie(holograms, camera, rng, illumination, noise, out, truth.label,
                            keep_frames, progress)
     if out is None:
-        return SimulatedMovie(None, None, None, truth, frames if keep_frames else None)
+        return SimulatedMovie(None, None, None, truth.table, frames if keep_frames else None)
     with TiffStackWriter(out / "background.tif", {"holofit": "simulated background"}) as bw:
-        for _ in range(max(n_background, 1)):
+        for _ in range(max(exposure.n_background, 1)):
             bw.write(camera.expose(np.ones(frame_shape), rng, illumination, noise))
     table_path = write_table(
-        out / "truth.csv", truth,
-        sidecar(kind="simulation ground truth", units=units, extra={"truth": meta}),
+        out / "truth.csv", truth.table,
+        sidecar(kind="simulation ground truth", units=truth.units, extra={"truth": truth.meta}),
     )
-    return SimulatedMovie(out / "movie.tif", out / "background.tif", table_path, truth,
+    return SimulatedMovie(out / "movie.tif", out / "background.tif", table_path, truth.table,
                           frames if keep_frames else None)
 
 
