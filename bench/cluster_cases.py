@@ -36,8 +36,10 @@ import numpy as np
 from holofit.camera import Camera
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.conventions import DetectorGrid
-from holofit.fit.frame import FrameFitSettings, fit_frame
-from holofit.fit.stage import _free
+from holofit.fit.frame import fit_frame
+from holofit.fit.problem import FrameProblem
+from holofit.fit.settings import FrameFitSettings
+from holofit.fit.task import free_parameters
 from holofit.hologram import calc_hologram
 from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
@@ -131,20 +133,40 @@ def fit(ideal: bool = False) -> dict[str, float]:
     d, w = sample_crop(crop, grid.corner, px, pg)
     scores = lib.scores(pg, d, w, start, 0.8)
     cands = pick_candidates(scores, lib.tilts, pg.phi, model, 4, math.radians(20))
-    res = fit_frame(crop, grid.corner, px, th, model, inst.optics, start, 0.8, cands,
-                    _free(model, "final"), FrameFitSettings(), seed=0)
+    res = fit_frame(
+        FrameProblem(
+            crop,
+            grid.corner,
+            px,
+            th,
+            model,
+            inst.optics,
+            free_parameters(model, "final"),
+            settings=FrameFitSettings(),
+            seed=0,
+        ),
+        start,
+        0.8,
+        cands,
+    )
     out[f"{tag}_s"] = time.perf_counter() - t0
     out[f"{tag}_cpu_s"] = time.process_time() - c0
     out[f"{tag}_ok"] = float(res.status == "ok")
     out[f"{tag}_r2"] = float(res.r2)
     out[f"{tag}_evaluations"] = float(res.n_eval)
     out[f"{tag}_starts"] = float(len(cands))
-    err = math.sqrt(sum((res.values[k] - v) ** 2
-                        for k, v in zip(("x_um", "y_um", "z_um"), pos, strict=True)))
+    err = math.sqrt(
+        sum((res.values[k] - v) ** 2 for k, v in zip(("x_um", "y_um", "z_um"), pos, strict=True))
+    )
     out[f"{tag}_position_error_nm"] = 1e3 * err
     o = TRUTH_ORIENTATION
-    ut = np.array([math.sin(o.theta) * math.cos(o.psi), math.sin(o.theta) * math.sin(o.psi),
-                   math.cos(o.theta)])
+    ut = np.array(
+        [
+            math.sin(o.theta) * math.cos(o.psi),
+            math.sin(o.theta) * math.sin(o.psi),
+            math.cos(o.theta),
+        ]
+    )
     u = np.array([res.values["ux"], res.values["uy"], res.values["uz"]])
     cos = abs(float(u @ ut) / float(np.linalg.norm(u)))
     out[f"{tag}_axis_error_deg"] = math.degrees(math.acos(min(1.0, cos)))
@@ -156,6 +178,7 @@ def realdata(engine: str) -> dict[str, float]:
 
     from holofit.batch import BatchOptions
     from holofit.crop import run_crop
+    from holofit.fit.config import FitConfig
     from holofit.fit.stage import run_fit
     from holofit.library.stage import run_library
     from holofit.prefit.stage import run_prefit
@@ -167,30 +190,74 @@ def realdata(engine: str) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         crops = root / "crops"
-        run_crop(ROOT / "tests" / "data" / "holopy" / "dimer2011.tif", None, inst, crops,
-                 normalized=True, size=100, plot=False)
+        run_crop(
+            ROOT / "tests" / "data" / "holopy" / "dimer2011.tif",
+            None,
+            inst,
+            crops,
+            normalized=True,
+            size=100,
+            plot=False,
+        )
         run_prefit(crops, root / "prefit", batch=serial, plot=False)
         t0 = time.perf_counter()
-        run_library(crops, root / "prefit", particle, root / "library", batch=serial,
-                    plot=False, engine=engine)
+        run_library(
+            crops,
+            root / "prefit",
+            particle,
+            root / "library",
+            batch=serial,
+            plot=False,
+            engine=engine,
+        )
         out[f"library_dimer2011_{engine}_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        run_fit(crops, root / "prefit", root / "library", particle, root / "fit",
-                pass_name="initial", initial_frames=1, fixed=("gap_um",), batch=serial,
-                plot=False, engine=engine)
+        run_fit(
+            crops,
+            root / "prefit",
+            root / "library",
+            root / "fit",
+            FitConfig(
+                particle,
+                passes="initial",
+                initial_frames=1,
+                fixed=("gap_um",),
+                plot=False,
+                engine=engine,
+            ),
+            batch=serial,
+        )
         out[f"fit_dimer2011_{engine}_stage_s"] = time.perf_counter() - t0
         row = pd.read_csv(root / "fit" / "initial.csv").iloc[0].to_dict()
-    for key in ("fit_time_s", "r2", "chi2_red", "x_um", "y_um", "z_um", "radius1_um",
-                "radius2_um", "n1", "n2", "alpha", "theta_rad", "psi_rad"):
+    for key in (
+        "fit_time_s",
+        "r2",
+        "chi2_red",
+        "x_um",
+        "y_um",
+        "z_um",
+        "radius1_um",
+        "radius2_um",
+        "n1",
+        "n2",
+        "alpha",
+        "theta_rad",
+        "psi_rad",
+    ):
         if key in row:
             out[f"fit_dimer2011_{engine}_{key}"] = float(row[key])
     out[f"fit_dimer2011_{engine}_ok"] = float(row["status"] == "ok")
     return out
 
 
-CASES = {"build": build, "orientation": orientation, "fit": fit,
-         "fit_ideal": lambda: fit(ideal=True),
-         "realdata": lambda: realdata("cluster"), "realdata_dda": lambda: realdata("builtin")}
+CASES = {
+    "build": build,
+    "orientation": orientation,
+    "fit": fit,
+    "fit_ideal": lambda: fit(ideal=True),
+    "realdata": lambda: realdata("cluster"),
+    "realdata_dda": lambda: realdata("builtin"),
+}
 
 if __name__ == "__main__":
     print(json.dumps(CASES[sys.argv[1]]()))

@@ -43,8 +43,10 @@ from holofit.config import (
 )
 from holofit.conventions import DetectorGrid
 from holofit.dda.tmatrix_io import TMatrixMismatch
-from holofit.fit.frame import FrameFitSettings, fit_frame
-from holofit.fit.stage import _free
+from holofit.fit.frame import fit_frame
+from holofit.fit.problem import FrameProblem
+from holofit.fit.settings import FrameFitSettings
+from holofit.fit.task import free_parameters
 from holofit.hologram import calc_hologram
 from holofit.holomodel.parameters import particle_with, static_values
 from holofit.library.polar import polar_grid, sample_crop
@@ -223,8 +225,9 @@ def run(case: str, with_tmatrix: bool = True) -> dict[str, float]:
 
     def fit(pass_name, model, label):
         t0 = time.perf_counter()
-        res = fit_frame(crop, grid.corner, px, theory, model, inst.optics, start, START_ALPHA,
-                        cands, _free(model, pass_name), FrameFitSettings(), seed=0)
+        problem = FrameProblem(crop, grid.corner, px, theory, model, inst.optics,
+                               free_parameters(model, pass_name), FrameFitSettings())
+        res = fit_frame(problem, start, START_ALPHA, cands)
         out[f"fit_{name}_frame_{label}_s"] = time.perf_counter() - t0
         return res
 
@@ -241,8 +244,11 @@ def run(case: str, with_tmatrix: bool = True) -> dict[str, float]:
         out[f"fit_{name}_frame_{pass_name}_evaluations"] = float(res.n_eval)
         out[f"fit_{name}_frame_{pass_name}_solves"] = float(res.extra["n_solves"])
         out[f"fit_{name}_frame_{pass_name}_ok"] = float(res.status == "ok")
-        err = math.sqrt(sum((res.values[k] - v) ** 2 for k, v in
-                            zip(("x_um", "y_um", "z_um"), pos, strict=True)))
+        err = math.sqrt(
+            sum(
+                (res.values[k] - v) ** 2 for k, v in zip(("x_um", "y_um", "z_um"), pos, strict=True)
+            )
+        )
         out[f"fit_{name}_frame_{pass_name}_position_error_nm"] = 1e3 * err
         out[f"fit_{name}_frame_{pass_name}_axis_error_deg"] = c.axis_error_deg(res.values)
     return out

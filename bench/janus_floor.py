@@ -36,10 +36,11 @@ from truth_compare import axis_from_angles
 
 from holofit.batch.stage import FrameLoader
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
-from holofit.fit.frame import FrameFitSettings, fit_frame_warm
+from holofit.fit.problem import FrameProblem, state_of
+from holofit.fit.settings import FrameFitSettings
 from holofit.fit.static import read_static
-from holofit.fit.task import _free
-from holofit.fit.tracking import state_of
+from holofit.fit.task import free_parameters
+from holofit.fit.warm import fit_frame_warm
 from holofit.holomodel.parameters import particle_with
 from holofit.particles import JanusSphere
 from holofit.scattering.tmatrix import TMatrix
@@ -111,9 +112,20 @@ def main() -> None:
                 "psi_rad": t.psi_rad, "alpha": fit.loc[frame, "alpha"]}
         for name, (model, theory, spin) in cases.items():
             state = state_of({**pose, **({"phi_rad": t.phi_rad} if spin else {})}, model)
-            res = fit_frame_warm(start.crop, start.corner, inst.pixel_size_um, theory, model,
-                                 inst.optics, state, _free(model, "final"), settings,
-                                 seed=frame).result
+            res = fit_frame_warm(
+                FrameProblem(
+                    start.crop,
+                    start.corner,
+                    inst.pixel_size_um,
+                    theory,
+                    model,
+                    inst.optics,
+                    free_parameters(model, "final"),
+                    settings=settings,
+                    seed=frame,
+                ),
+                state,
+            ).result
             errors[name].append(off(res.values, t))
     near_mask = np.array(near)
     out: dict[str, float] = {"frames": float(len(frames)), "frames_pole": float(near_mask.sum())}
@@ -121,8 +133,9 @@ def main() -> None:
         v = np.asarray(values)
         out[f"{name}_axis_rms_deg"] = float(np.sqrt(np.mean(v**2)))
         for label, mask in (("pole", near_mask), ("away", ~near_mask)):
-            out[f"{name}_axis_rms_{label}_deg"] = (float(np.sqrt(np.mean(v[mask]**2)))
-                                                   if mask.any() else math.nan)
+            out[f"{name}_axis_rms_{label}_deg"] = (
+                float(np.sqrt(np.mean(v[mask] ** 2))) if mask.any() else math.nan
+            )
     print(json.dumps(out, indent=1))
 
 

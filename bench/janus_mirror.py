@@ -72,8 +72,10 @@ from pathlib import Path
 
 from fit_cases import START_ALPHA, library_candidates, make_case, make_library, use_tmatrix
 
-from holofit.fit.frame import FrameFitSettings, fit_frame
-from holofit.fit.stage import _free
+from holofit.fit.frame import fit_frame
+from holofit.fit.problem import FrameProblem
+from holofit.fit.settings import FrameFitSettings
+from holofit.fit.task import free_parameters
 from holofit.library.search import Candidate
 from holofit.scattering.theory import Orientation
 
@@ -107,38 +109,76 @@ def study(seeds: int, tmatrix: Path) -> dict:
     t0 = time.perf_counter()
     lib = make_library(theory, model, case.inst)
     library_s = time.perf_counter() - t0
-    free = _free(model, "final")
+    free = free_parameters(model, "final")
     px = case.inst.pixel_size_um
     single = FrameFitSettings(n_starts=1, mirror=False)
 
     def fit_from(crop, theta: float, options: FrameFitSettings, seed: int):
         start = Candidate(START_PSI if theta else 0.0, theta, 0.0, math.nan)
-        return fit_frame(crop, case.grid.corner, px, theory, model, case.inst.optics,
-                         case.start, START_ALPHA, [start], free, options, seed=seed)
+        return fit_frame(
+            FrameProblem(
+                crop,
+                case.grid.corner,
+                px,
+                theory,
+                model,
+                case.inst.optics,
+                free,
+                settings=options,
+                seed=seed,
+            ),
+            case.start,
+            START_ALPHA,
+            [start],
+        )
 
-    out: dict = {"case": "janus, paper_100x_oil, theta 0, z 8 um, alpha 0.9, 140 x 140",
-                 "paper": PAPER, "tmatrix_s": build_s, "library_s": library_s, "seeds": []}
+    out: dict = {
+        "case": "janus, paper_100x_oil, theta 0, z 8 um, alpha 0.9, 140 x 140",
+        "paper": PAPER,
+        "tmatrix_s": build_s,
+        "library_s": library_s,
+        "seeds": [],
+    }
     noise_sd = math.nan
     for seed in range(seeds):
         crop = case.crop(seed)
-        fits = {name: _summary(fit_from(crop, th, single, seed))
-                for name, th in START_THETAS.items()}
+        fits = {
+            name: _summary(fit_from(crop, th, single, seed)) for name, th in START_THETAS.items()
+        }
         for f in fits.values():
             f["delta_chi2_to_theta0"] = f["rss_over_noise2"] - fits["0"]["rss_over_noise2"]
         noise_sd = fits["0"]["noise_sd"]
         cands = library_candidates(lib, case, crop)
         frame = {}
         for label, mirror in (("frame_fit", True), ("frame_fit_no_mirror", False)):
-            res = fit_frame(crop, case.grid.corner, px, theory, model, case.inst.optics,
-                            case.start, START_ALPHA, cands, free,
-                            FrameFitSettings(mirror=mirror), seed=seed)
-            frame[label] = {**_summary(res), **{k: res.extra[k] for k in RUNNER_UP},
-                            "candidates": [(c.psi, c.theta, c.r2) for c in cands]}
+            res = fit_frame(
+                FrameProblem(
+                    crop,
+                    case.grid.corner,
+                    px,
+                    theory,
+                    model,
+                    case.inst.optics,
+                    free,
+                    settings=FrameFitSettings(mirror=mirror),
+                    seed=seed,
+                ),
+                case.start,
+                START_ALPHA,
+                cands,
+            )
+            frame[label] = {
+                **_summary(res),
+                **{k: res.extra[k] for k in RUNNER_UP},
+                "candidates": [(c.psi, c.theta, c.r2) for c in cands],
+            }
         out["seeds"].append({"seed": seed, "single": fits, **frame})
     # the model's own difference: the noise-free hologram, chi^2 in the movie's noise units
     quiet = FrameFitSettings(n_starts=1, mirror=False, noise_sd=noise_sd)
-    free_fits = {name: _summary(fit_from(case.crop(None), th, quiet, 0), noise_sd)
-                 for name, th in (("0", 0.0), ("pi", math.pi))}
+    free_fits = {
+        name: _summary(fit_from(case.crop(None), th, quiet, 0), noise_sd)
+        for name, th in (("0", 0.0), ("pi", math.pi))
+    }
     for f in free_fits.values():
         f["delta_chi2_to_theta0"] = f["rss_over_noise2"] - free_fits["0"]["rss_over_noise2"]
     out["noise_free"] = free_fits
@@ -148,16 +188,33 @@ def study(seeds: int, tmatrix: Path) -> dict:
     held = ("x_um", "y_um", "z_um", "alpha")
     out["spin"] = {}
     for spin in (0.0, math.pi / 8, math.pi / 4, math.pi / 2):
-        res = fit_frame(crop, case.grid.corner, px, theory, model, case.inst.optics, case.start,
-                        START_ALPHA, [Candidate(spin, 0.0, 0.0, math.nan)], held, single, seed=0)
+        res = fit_frame(
+            FrameProblem(
+                crop,
+                case.grid.corner,
+                px,
+                theory,
+                model,
+                case.inst.optics,
+                held,
+                settings=single,
+                seed=0,
+            ),
+            case.start,
+            START_ALPHA,
+            [Candidate(spin, 0.0, 0.0, math.nan)],
+        )
         out["spin"][f"{spin:.4f}"] = res.rss / res.noise_sd**2
     return out
 
 
 def tables(result: dict) -> str:
     """The single-start fits and the frame fits as markdown tables."""
-    lines = ["| seed | start theta | status | theta (rad) | z (um) | R^2 | chi2 (per pixel) "
-             "| delta chi2 to theta=0 | s |", "|" + "---|" * 9]
+    lines = [
+        "| seed | start theta | status | theta (rad) | z (um) | R^2 | chi2 (per pixel) "
+        "| delta chi2 to theta=0 | s |",
+        "|" + "---|" * 9,
+    ]
     rows = [(str(s["seed"]), s["single"]) for s in result["seeds"]]
     rows.append(("no noise", result["noise_free"]))
     for seed, fits in rows:
@@ -165,10 +222,15 @@ def tables(result: dict) -> str:
             lines.append(
                 f"| {seed} | {name} | {f['status']} | {f['theta_rad']:.4f} | {f['z_um']:.4f} "
                 f"| {f['r2']:.6f} | {f['chi2']:.3e} | {f['delta_chi2_to_theta0']:.1f} "
-                f"| {f['wall_s']:.1f} |")
-    lines += ["", "| seed | mirror start | library candidates theta (R^2) | status "
-              "| best theta (rad) | best z (um) | R^2 | runner-up theta (rad) "
-              "| runner-up z (um) | delta chi2 | ambiguous | s |", "|" + "---|" * 12]
+                f"| {f['wall_s']:.1f} |"
+            )
+    lines += [
+        "",
+        "| seed | mirror start | library candidates theta (R^2) | status "
+        "| best theta (rad) | best z (um) | R^2 | runner-up theta (rad) "
+        "| runner-up z (um) | delta chi2 | ambiguous | s |",
+        "|" + "---|" * 12,
+    ]
     for s in result["seeds"]:
         for label, mirror in (("frame_fit", "yes"), ("frame_fit_no_mirror", "no")):
             f = s[label]
@@ -177,7 +239,8 @@ def tables(result: dict) -> str:
                 f"| {s['seed']} | {mirror} | {cands} | {f['status']} | {f['theta_rad']:.4f} "
                 f"| {f['z_um']:.4f} | {f['r2']:.6f} | {f['runner_up_theta_rad']:.4f} "
                 f"| {f['runner_up_z_um']:.4f} | {f['delta_chi2']:.1f} | {f['ambiguous']} "
-                f"| {f['wall_s']:.1f} |")
+                f"| {f['wall_s']:.1f} |"
+            )
     base = result["spin"]["0.0000"]
     lines += ["", "| spin about the axis (rad, theta 0 held) | chi2 above spin 0 |", "|---|---|"]
     lines += [f"| {k} | {v - base:.1f} |" for k, v in result["spin"].items()]
@@ -187,9 +250,13 @@ def tables(result: dict) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3, help="noise realisations (default 3)")
-    ap.add_argument("--tmatrix", type=Path, default=DEFAULT_TMATRIX,
-                    help="the Janus T-matrix file: loaded if it is this particle's, else built "
-                         f"(~100 s) and saved there (default {DEFAULT_TMATRIX})")
+    ap.add_argument(
+        "--tmatrix",
+        type=Path,
+        default=DEFAULT_TMATRIX,
+        help="the Janus T-matrix file: loaded if it is this particle's, else built "
+        f"(~100 s) and saved there (default {DEFAULT_TMATRIX})",
+    )
     ap.add_argument("--out", type=Path, default=None, help="write the numbers as JSON here")
     args = ap.parse_args()
     result = study(args.seeds, args.tmatrix)

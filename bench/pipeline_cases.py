@@ -28,7 +28,8 @@ import pandas as pd
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
-from holofit.fit.per_track import run_fit_tracks
+from holofit.fit.config import FitConfig
+from holofit.fit.stage import run_fit
 from holofit.library.stage import run_library
 from holofit.prefit import run_prefit
 from holofit.prefit.sphere import SphereFitSettings
@@ -89,8 +90,14 @@ def run(n_rods: int, frames: int, out_dir: Path | None = None,
         out[f"pipeline_{tag}_library_s"] = time.perf_counter() - t0
         _log(f"library done: {time.perf_counter() - t0:.0f} s")
         t0 = time.perf_counter()
-        run_fit_tracks(root / "crop", root / "prefit", root / "library", config, root / "fit",
-                       batch=batch, plot=False)
+        run_fit(
+            root / "crop",
+            root / "prefit",
+            root / "library",
+            root / "fit",
+            FitConfig(config, plot=False),
+            batch=batch,
+        )
         out[f"pipeline_{tag}_fit_s"] = time.perf_counter() - t0
         _log(f"fit done: {time.perf_counter() - t0:.0f} s")
         out[f"pipeline_{tag}_s"] = time.perf_counter() - t_all
@@ -113,31 +120,47 @@ def _errors(tag: str, root: Path, truth_path: Path, n_rods: int) -> dict[str, fl
     for _, rows in ok.groupby("particle"):
         first = rows.iloc[0]
         at = truth[truth["frame"] == first["frame"]]
-        rod = int(at.iloc[int(np.argmin(np.hypot(at["x_um"] - first["x_um"],
-                                                 at["y_um"] - first["y_um"])))]["particle"])
+        rod = int(
+            at.iloc[
+                int(np.argmin(np.hypot(at["x_um"] - first["x_um"], at["y_um"] - first["y_um"])))
+            ]["particle"]
+        )
         t = truth[truth["particle"] == rod].set_index("frame").loc[rows["frame"]]
         st = np.sin(t["theta_rad"].to_numpy())
-        u_true = np.stack([st * np.cos(t["psi_rad"]), st * np.sin(t["psi_rad"]),
-                           np.cos(t["theta_rad"])], axis=1)
+        u_true = np.stack(
+            [st * np.cos(t["psi_rad"]), st * np.sin(t["psi_rad"]), np.cos(t["theta_rad"])], axis=1
+        )
         u = rows[["ux", "uy", "uz"]].to_numpy()
         axis_err += list(np.degrees(np.arccos(np.clip(np.abs((u * u_true).sum(1)), 0, 1))))
-        pos_err += list(np.hypot(rows["x_um"].to_numpy() - t["x_um"].to_numpy(),
-                                 rows["y_um"].to_numpy() - t["y_um"].to_numpy()))
-    return {f"pipeline_{tag}_tracks": float(fit["particle"].nunique()),
-            f"pipeline_{tag}_rows": float(len(fit)),
-            f"pipeline_{tag}_ok_rows": float(len(ok)),
-            f"pipeline_{tag}_axis_rms_deg": float(math.sqrt(np.mean(np.square(axis_err))))
-            if axis_err else math.nan,
-            f"pipeline_{tag}_xy_rms_nm": 1e3 * float(math.sqrt(np.mean(np.square(pos_err))))
-            if pos_err else math.nan}
+        pos_err += list(
+            np.hypot(
+                rows["x_um"].to_numpy() - t["x_um"].to_numpy(),
+                rows["y_um"].to_numpy() - t["y_um"].to_numpy(),
+            )
+        )
+    return {
+        f"pipeline_{tag}_tracks": float(fit["particle"].nunique()),
+        f"pipeline_{tag}_rows": float(len(fit)),
+        f"pipeline_{tag}_ok_rows": float(len(ok)),
+        f"pipeline_{tag}_axis_rms_deg": float(math.sqrt(np.mean(np.square(axis_err))))
+        if axis_err
+        else math.nan,
+        f"pipeline_{tag}_xy_rms_nm": 1e3 * float(math.sqrt(np.mean(np.square(pos_err))))
+        if pos_err
+        else math.nan,
+    }
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("n_rods", type=int)
     parser.add_argument("--frames", type=int, default=40)
-    parser.add_argument("--out-dir", type=Path, default=None,
-                        help="keep the run here (stages resume) instead of a temporary folder")
+    parser.add_argument(
+        "--out-dir",
+        type=Path,
+        default=None,
+        help="keep the run here (stages resume) instead of a temporary folder",
+    )
     parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
     print(json.dumps(run(args.n_rods, args.frames, args.out_dir, args.workers)))

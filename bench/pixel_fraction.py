@@ -51,8 +51,10 @@ from pathlib import Path
 import numpy as np
 from fit_cases import START_ALPHA, library_candidates, make_case, make_library, use_tmatrix
 
-from holofit.fit.frame import FrameFitSettings, fit_frame
-from holofit.fit.stage import _free
+from holofit.fit.frame import fit_frame
+from holofit.fit.problem import FrameProblem
+from holofit.fit.settings import FrameFitSettings
+from holofit.fit.task import free_parameters
 from holofit.scattering.theory import Orientation
 
 POSITION = ("x_um", "y_um", "z_um")
@@ -65,7 +67,7 @@ def study(fractions: list[float], seeds: int, tmatrix: str | None = None) -> dic
     model, theory = case.fit_model()
     build_s = use_tmatrix(theory, model, case.inst, tmatrix)
     lib = make_library(theory, model, case.inst)
-    free = _free(model, "final")
+    free = free_parameters(model, "final")
     px = case.inst.pixel_size_um
     rows = []
     for seed in range(seeds):
@@ -73,26 +75,54 @@ def study(fractions: list[float], seeds: int, tmatrix: str | None = None) -> dic
         cands = library_candidates(lib, case, crop)
         for f in fractions:
             t0 = time.perf_counter()
-            res = fit_frame(crop, case.grid.corner, px, theory, model, case.inst.optics,
-                            case.start, START_ALPHA, cands, free,
-                            FrameFitSettings(pixel_fraction=f), seed=seed)
+            res = fit_frame(
+                FrameProblem(
+                    crop,
+                    case.grid.corner,
+                    px,
+                    theory,
+                    model,
+                    case.inst.optics,
+                    free,
+                    settings=FrameFitSettings(pixel_fraction=f),
+                    seed=seed,
+                ),
+                case.start,
+                START_ALPHA,
+                cands,
+            )
             wall = time.perf_counter() - t0
-            rows.append({
-                "fraction": f, "seed": seed, "status": res.status, "n_pixels": res.n_pixels,
-                **{f"err_{k}_nm": 1e3 * (res.values[k] - p)
-                   for k, p in zip(POSITION, case.position_um, strict=True)},
-                **{f"sigma_{k}_nm": 1e3 * res.errors[k] for k in POSITION},
-                "err_axis_deg": case.axis_error_deg(res.values),
-                **{k: res.values[k] for k in AXIS},
-                "sigma_axis_deg": math.degrees(math.sqrt(sum(res.errors[k] ** 2 for k in AXIS))),
-                "chi2_red": res.chi2_red, "n_eval": res.n_eval,
-                "n_solves": res.extra["n_solves"], "wall_s": wall,
-            })
+            rows.append(
+                {
+                    "fraction": f,
+                    "seed": seed,
+                    "status": res.status,
+                    "n_pixels": res.n_pixels,
+                    **{
+                        f"err_{k}_nm": 1e3 * (res.values[k] - p)
+                        for k, p in zip(POSITION, case.position_um, strict=True)
+                    },
+                    **{f"sigma_{k}_nm": 1e3 * res.errors[k] for k in POSITION},
+                    "err_axis_deg": case.axis_error_deg(res.values),
+                    **{k: res.values[k] for k in AXIS},
+                    "sigma_axis_deg": math.degrees(
+                        math.sqrt(sum(res.errors[k] ** 2 for k in AXIS))
+                    ),
+                    "chi2_red": res.chi2_red,
+                    "n_eval": res.n_eval,
+                    "n_solves": res.extra["n_solves"],
+                    "wall_s": wall,
+                }
+            )
     summary = []
     for f in fractions:
         sel = [r for r in rows if r["fraction"] == f]
-        s = {"fraction": f, "n_fits": len(sel), "n_ok": sum(r["status"] == "ok" for r in sel),
-             "n_pixels": float(np.mean([r["n_pixels"] for r in sel]))}
+        s = {
+            "fraction": f,
+            "n_fits": len(sel),
+            "n_ok": sum(r["status"] == "ok" for r in sel),
+            "n_pixels": float(np.mean([r["n_pixels"] for r in sel])),
+        }
         for k in (*POSITION, "axis"):
             unit = "deg" if k == "axis" else "nm"
             err = np.array([r[f"err_{k}_{unit}"] for r in sel])
@@ -111,15 +141,22 @@ def study(fractions: list[float], seeds: int, tmatrix: str | None = None) -> dic
         for k in ("x_um_nm", "y_um_nm", "z_um_nm", "axis_deg"):
             s[f"rms_ratio_{k}"] = s[f"rms_{k}"] / ref[f"rms_{k}"]
             s[f"sigma_ratio_{k}"] = s[f"sigma_{k}"] / ref[f"sigma_{k}"]
-    return {"case": "rod, paper_60x_water, z 12 um, theta 1 rad, psi 0.6 rad, 140 x 140",
-            "seeds": seeds, "tmatrix_s": build_s, "summary": summary, "fits": rows}
+    return {
+        "case": "rod, paper_60x_water, z 12 um, theta 1 rad, psi 0.6 rad, 140 x 140",
+        "seeds": seeds,
+        "tmatrix_s": build_s,
+        "summary": summary,
+        "fits": rows,
+    }
 
 
 def table(result: dict) -> str:
     """The summary as a markdown table."""
-    head = ("| F | pixels | ok | rms x / y / z (nm) | sigma x / y / z (nm) | rms axis (deg) "
-            "| sigma axis (deg) | bias axis (deg) | mean z (nm) | rms ratio z, axis "
-            "| sigma ratio z, axis | 1/sqrt(F) | s per fit |")
+    head = (
+        "| F | pixels | ok | rms x / y / z (nm) | sigma x / y / z (nm) | rms axis (deg) "
+        "| sigma axis (deg) | bias axis (deg) | mean z (nm) | rms ratio z, axis "
+        "| sigma ratio z, axis | 1/sqrt(F) | s per fit |"
+    )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for s in result["summary"]:
         lines.append(
@@ -130,18 +167,25 @@ def table(result: dict) -> str:
             f"| {s['mean_z_um_nm']:+.1f} "
             f"| {s['rms_ratio_z_um_nm']:.2f}, {s['rms_ratio_axis_deg']:.2f} "
             f"| {s['sigma_ratio_z_um_nm']:.2f}, {s['sigma_ratio_axis_deg']:.2f} "
-            f"| {s['expected_ratio']:.2f} | {s['mean_wall_s']:.2f} |")
+            f"| {s['expected_ratio']:.2f} | {s['mean_wall_s']:.2f} |"
+        )
     return "\n".join(lines)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--fractions", default="1,0.5,0.25,0.1",
-                    help="pixel fractions, the first the reference (default 1,0.5,0.25,0.1)")
+    ap.add_argument(
+        "--fractions",
+        default="1,0.5,0.25,0.1",
+        help="pixel fractions, the first the reference (default 1,0.5,0.25,0.1)",
+    )
     ap.add_argument("--seeds", type=int, default=24, help="noise realisations (default 24)")
-    ap.add_argument("--tmatrix", default=None,
-                    help="the rod's T-matrix file: loaded if it is this rod's, else built and "
-                         "saved there (default: built, ~15 s)")
+    ap.add_argument(
+        "--tmatrix",
+        default=None,
+        help="the rod's T-matrix file: loaded if it is this rod's, else built and "
+        "saved there (default: built, ~15 s)",
+    )
     ap.add_argument("--out", type=Path, default=None, help="write the numbers as JSON here")
     args = ap.parse_args()
     fractions = [float(f) for f in args.fractions.split(",")]

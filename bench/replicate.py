@@ -36,6 +36,7 @@ from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diff
 from holofit.batch import BatchOptions
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
+from holofit.fit.config import FitConfig
 from holofit.fit.stage import run_fit
 from holofit.library.stage import run_library
 from holofit.particles import JanusSphere, Spherocylinder
@@ -77,15 +78,15 @@ def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dy
     _stage(times, "prefit", run_prefit, out / "crop", out / "prefit", batch=batch, fit=prefit_fit)
     _stage(times, "library", run_library, out / "crop", out / "prefit", config,
            out / "library", batch=batch)
-    run = _stage(times, "fit", run_fit, out / "crop", out / "prefit", out / "library", config,
-                 out / "fit", initial_frames=initial_frames, batch=batch)
+    run = _stage(times, "fit", run_fit, out / "crop", out / "prefit", out / "library",
+                 out / "fit", FitConfig(config, initial_frames=initial_frames), batch=batch)
     settings = AnalysisConfig(model=model, temperature_c=T_C)
-    result, files = _stage(times, "analyze", run_analysis, run.final, settings,
-                           out / "analysis")
+    analysis = _stage(times, "analyze", run_analysis, run.final, settings, out / "analysis")
+    result, files = analysis.result, analysis.files
     fit = pd.read_csv(run.final).set_index("frame")
-    if "track_source" in fit:
-        print(f"  tracking: {fit['track_source'].value_counts().to_dict()}, "
-              f"{int(fit['track_jump'].fillna(0).sum())} jump(s), evaluations per frame "
+    if "follow_source" in fit:
+        print(f"  tracking: {fit['follow_source'].value_counts().to_dict()}, "
+              f"{int(fit['follow_jump'].fillna(0).sum())} jump(s), evaluations per frame "
               f"{fit['n_eval'].mean():.1f}; runner-up refit "
               f"{fit['runner_up_refit'].value_counts().to_dict()}; "
               f"statuses {fit['status'].value_counts().to_dict()}", flush=True)
@@ -120,7 +121,7 @@ def _analyse_truth(truth: pd.DataFrame, final: Path, settings: AnalysisConfig, o
     table.to_csv(path, index=False)
     sidecar = json.loads(Path(str(final) + ".json").read_text())
     Path(str(path) + ".json").write_text(json.dumps(sidecar))
-    result, _ = run_analysis(path, settings, out)
+    result = run_analysis(path, settings, out).result
     return result
 
 
@@ -277,42 +278,63 @@ def dask_check(out: Path, n: int) -> list[str]:
     tables = {}
     for name, opts in (("processes", BatchOptions(workers=2, progress=False)),
                        ("dask", BatchOptions(workers=2, dask_local=True, progress=False))):
-        run = run_fit(out / "crop", out / "prefit", out / "library", config,
-                      out / f"fit_{name}", pass_name="final", static=out / "fit" / "static.json",
-                      frames=list(range(n)), batch=opts, plot=False)
+        config_final = FitConfig(config, passes="final", static=out / "fit" / "static.json",
+                                 frames=tuple(range(n)), plot=False)
+        run = run_fit(out / "crop", out / "prefit", out / "library", out / f"fit_{name}",
+                      config_final, batch=opts)
         tables[name] = pd.read_csv(run.final).drop(columns=["fit_time_s"])
     a, b = tables["processes"], tables["dask"]
     numeric = [c for c in a.columns if pd.api.types.is_float_dtype(a[c])]
     others = [c for c in a.columns if c not in numeric]
     same_labels = a[others].equals(b[others])
-    diff = {c: float(np.nanmax(np.abs(a[c].to_numpy() - b[c].to_numpy()) /
-                               np.maximum(1.0, np.abs(a[c].to_numpy()))))
-            for c in numeric if not a[c].equals(b[c])}
+    diff = {
+        c: float(
+            np.nanmax(
+                np.abs(a[c].to_numpy() - b[c].to_numpy()) / np.maximum(1.0, np.abs(a[c].to_numpy()))
+            )
+        )
+        for c in numeric
+        if not a[c].equals(b[c])
+    }
     worst = max(diff, key=diff.get) if diff else None
     if same_labels and not diff:
         verdict = "the tables are identical"
     elif same_labels and diff[worst] < 1e-5:
-        verdict = (f"statuses and flags identical; {len(diff)} numeric column(s) differ "
-                   f"in the last digits (largest: {worst}, {diff[worst]:.1e}; "
-                   "floating-point summation order)")
+        verdict = (
+            f"statuses and flags identical; {len(diff)} numeric column(s) differ "
+            f"in the last digits (largest: {worst}, {diff[worst]:.1e}; "
+            "floating-point summation order)"
+        )
     else:
         verdict = "the tables DIFFER: " + (
-            "statuses or flags differ" if not same_labels else f"{worst} by {diff[worst]:.2e}")
-    return ["## The distributed path", "",
-            f"The rod's final pass over frames 0-{n - 1} on a local Dask cluster (2 workers) and "
-            f"on the process pool (timing columns aside): {verdict}.", ""]
+            "statuses or flags differ" if not same_labels else f"{worst} by {diff[worst]:.2e}"
+        )
+    return [
+        "## The distributed path",
+        "",
+        f"The rod's final pass over frames 0-{n - 1} on a local Dask cluster (2 workers) and "
+        f"on the process pool (timing columns aside): {verdict}.",
+        "",
+    ]
 
 
 #: the report's parts, in order: one file each, so that one experiment can be rerun alone
-SECTIONS = (("rod", "rod/section.md"), ("janus", "janus/section.md"),
-            ("dask", "rod/dask_section.md"))
+SECTIONS = (
+    ("rod", "rod/section.md"),
+    ("janus", "janus/section.md"),
+    ("dask", "rod/dask_section.md"),
+)
 
 
 def _write_report(out: Path) -> str:
     """``OUT/report.md`` from the sections that exist."""
-    lines = ["# holofit replicates the paper on synthetic truth", "",
-             "Generated by `make replicate` (bench/replicate.py). Each movie has known truth; the "
-             "pipeline runs with its defaults, as a user runs it.", ""]
+    lines = [
+        "# holofit replicates the paper on synthetic truth",
+        "",
+        "Generated by `make replicate` (bench/replicate.py). Each movie has known truth; the "
+        "pipeline runs with its defaults, as a user runs it.",
+        "",
+    ]
     for _, rel in SECTIONS:
         if (out / rel).exists():
             lines.append((out / rel).read_text())
@@ -322,15 +344,23 @@ def _write_report(out: Path) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--out", type=Path, default=Path("replicate"))
-    ap.add_argument("--only", choices=("rod", "janus", "dask"),
-                    help="one experiment (its section of the report is replaced, the others "
-                         "kept), or only the Dask check on an earlier rod run")
+    ap.add_argument(
+        "--only",
+        choices=("rod", "janus", "dask"),
+        help="one experiment (its section of the report is replaced, the others "
+        "kept), or only the Dask check on an earlier rod run",
+    )
     ap.add_argument("--frames", type=int, default=None, help="override the movie length")
-    ap.add_argument("--initial-frames", type=int, default=None,
-                    help="override the initial pass's frames (rod 100, Janus 10)")
+    ap.add_argument(
+        "--initial-frames",
+        type=int,
+        default=None,
+        help="override the initial pass's frames (rod 100, Janus 10)",
+    )
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--dask-check", type=int, default=0)
     ap.add_argument("--seed", type=int, default=11, help="the simulation's random seed")
@@ -343,12 +373,16 @@ def main() -> None:
         if args.only and args.only != name:
             continue
         print(f"{name}:", flush=True)
-        part, _ = fn(out / name, args.frames or n, args.workers, args.initial_frames or k,
-                     args.seed)
+        part, _ = fn(
+            out / name, args.frames or n, args.workers, args.initial_frames or k, args.seed
+        )
         lines = list(part)
-        lines[2:2] = [f"Simulation seed {args.seed}, {args.frames or n} frames, the initial pass "
-                      f"on {args.initial_frames or k} of them (spread over the movie where the "
-                      "particle has a T-matrix: holofit.fit.seeded).", ""]
+        lines[2:2] = [
+            f"Simulation seed {args.seed}, {args.frames or n} frames, the initial pass "
+            f"on {args.initial_frames or k} of them (spread over the movie where the "
+            "particle has a T-matrix: holofit.fit.seeded).",
+            "",
+        ]
         for png in ("msd.png", "orientation.png", "trajectory.png"):
             if (out / name / "analysis" / png).exists():
                 lines.append(f"![{name} {png}]({name}/analysis/{png})")
@@ -358,7 +392,8 @@ def main() -> None:
         _write_report(out)
     if args.dask_check and args.only in (None, "rod", "dask"):
         (out / "rod" / "dask_section.md").write_text(
-            "\n".join(dask_check(out / "rod", args.dask_check)) + "\n")
+            "\n".join(dask_check(out / "rod", args.dask_check)) + "\n"
+        )
     print(_write_report(out))
 
 

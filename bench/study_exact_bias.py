@@ -44,7 +44,9 @@ from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
 from holofit.engines.select import select_theory
-from holofit.fit.frame import FrameFitSettings, fit_frame
+from holofit.fit.frame import fit_frame
+from holofit.fit.problem import FrameProblem
+from holofit.fit.settings import FrameFitSettings
 from holofit.hologram import calc_hologram
 from holofit.holomodel.parameters import static_parameters
 from holofit.library.search import Candidate
@@ -97,8 +99,22 @@ def run_case(case: str, dpl: float, seed: int, o_index: int) -> dict[str, object
     start = tuple(p + s for p, s in zip(pos, START_OFFSET_UM, strict=True))
     cands = [Candidate(o.psi, o.theta, o.phi, 0.0)]
     t0 = time.perf_counter()
-    res = fit_frame(crop, grid.corner, px, dda, start_model, inst.optics, start, 0.8, cands,
-                    tuple(free), FrameFitSettings(), seed=0)
+    res = fit_frame(
+        FrameProblem(
+            crop,
+            grid.corner,
+            px,
+            dda,
+            start_model,
+            inst.optics,
+            tuple(free),
+            settings=FrameFitSettings(),
+            seed=0,
+        ),
+        start,
+        0.8,
+        cands,
+    )
     wall = time.perf_counter() - t0
     truth_values = {"x_um": pos[0], "y_um": pos[1], "z_um": pos[2], "alpha": ALPHA}
     for p in static_parameters(truth):
@@ -109,23 +125,47 @@ def run_case(case: str, dpl: float, seed: int, o_index: int) -> dict[str, object
             continue
         bias = res.values[name] - value
         err = res.errors.get(name, float("nan"))
-        rows[name] = {"truth": value, "fitted": res.values[name], "bias": bias, "error": err,
-                      "bias_over_error": bias / err if err else float("nan")}
+        rows[name] = {
+            "truth": value,
+            "fitted": res.values[name],
+            "bias": bias,
+            "error": err,
+            "bias_over_error": bias / err if err else float("nan"),
+        }
     if truth.anisotropic:
-        ut = np.array([np.sin(o.theta) * np.cos(o.psi), np.sin(o.theta) * np.sin(o.psi),
-                       np.cos(o.theta)])
+        ut = np.array(
+            [np.sin(o.theta) * np.cos(o.psi), np.sin(o.theta) * np.sin(o.psi), np.cos(o.theta)]
+        )
         u = np.array([res.values[k] for k in ("ux", "uy", "uz")])
-        rows["axis_deg"] = {"bias": float(np.degrees(np.arccos(min(1.0, abs(u @ ut)
-                                                                    / np.linalg.norm(u))))),
-                            "error": float("nan"), "bias_over_error": float("nan"),
-                            "truth": 0.0, "fitted": float("nan")}
-    return {"case": case, "orientation": dataclasses.astuple(o), "dpl": dpl, "d_um": d,
-            "seed": seed, "status": res.status, "r2": res.r2, "wall_s": wall, "params": rows}
+        rows["axis_deg"] = {
+            "bias": float(np.degrees(np.arccos(min(1.0, abs(u @ ut) / np.linalg.norm(u))))),
+            "error": float("nan"),
+            "bias_over_error": float("nan"),
+            "truth": 0.0,
+            "fitted": float("nan"),
+        }
+    return {
+        "case": case,
+        "orientation": dataclasses.astuple(o),
+        "dpl": dpl,
+        "d_um": d,
+        "seed": seed,
+        "status": res.status,
+        "r2": res.r2,
+        "wall_s": wall,
+        "params": rows,
+    }
 
 
 #: central-difference steps of the exact model's Jacobian (um for sizes and positions)
-LINEAR_STEPS = {"x_um": 1e-3, "y_um": 1e-3, "z_um": 2e-3, "alpha": 1e-3, "size": 5e-4,
-                "index": 5e-4}
+LINEAR_STEPS = {
+    "x_um": 1e-3,
+    "y_um": 1e-3,
+    "z_um": 2e-3,
+    "alpha": 1e-3,
+    "size": 5e-4,
+    "index": 5e-4,
+}
 
 
 def _setup(case: str, o_index: int):
@@ -138,8 +178,9 @@ def _setup(case: str, o_index: int):
     return inst, truth, o, grid, pos
 
 
-def linear_case(case: str, dpls: list[float], o_index: int = 0,
-                **settings: str) -> list[dict[str, object]]:
+def linear_case(
+    case: str, dpls: list[float], o_index: int = 0, **settings: str
+) -> list[dict[str, object]]:
     """First-order bias and error of every parameter (see the module docstring); position,
     alpha, sizes and indices (orientation held); ``settings``: the DDA's (e.g. ``filling``,
     ``polarizability``)."""
@@ -165,15 +206,23 @@ def linear_case(case: str, dpls: list[float], o_index: int = 0,
         kind = "size" if field in truth.size_fields else "index"
         step = LINEAR_STEPS[kind]
         v = complex(getattr(truth, field)).real if kind == "index" else getattr(truth, field)
-        cols.append((holo(truth.replace(**{field: v + step}), pos, ALPHA)
-                     - holo(truth.replace(**{field: v - step}), pos, ALPHA)) / (2 * step))
+        cols.append(
+            (
+                holo(truth.replace(**{field: v + step}), pos, ALPHA)
+                - holo(truth.replace(**{field: v - step}), pos, ALPHA)
+            )
+            / (2 * step)
+        )
         names.append(field)
     jac = np.column_stack(cols)
     cov = np.linalg.inv(jac.T @ jac)
     cam = Camera(background_counts=120.0)
     img = h0.reshape(grid.shape)
-    noise = np.std(np.concatenate([
-        (cam.expose(img, np.random.default_rng(s)) / 120.0 - img).ravel() for s in range(4)]))
+    noise = np.std(
+        np.concatenate(
+            [(cam.expose(img, np.random.default_rng(s)) / 120.0 - img).ravel() for s in range(4)]
+        )
+    )
     sigma = noise * np.sqrt(np.diag(cov))
     out = []
     for dpl in dpls:
@@ -184,19 +233,34 @@ def linear_case(case: str, dpls: list[float], o_index: int = 0,
         hd = calc_hologram(wave, pos, grid, ALPHA).ravel()
         wall = time.perf_counter() - t0
         bias = cov @ (jac.T @ (h0 - hd))
-        rows = {n: {"bias": float(b), "error": float(e), "bias_over_error": float(b / e)}
-                for n, b, e in zip(names, bias, sigma, strict=True)}
+        rows = {
+            n: {"bias": float(b), "error": float(e), "bias_over_error": float(b / e)}
+            for n, b, e in zip(names, bias, sigma, strict=True)
+        }
         n_dip = int(wave.solution.P.shape[0]) if hasattr(wave, "solution") else -1
-        out.append({"case": case, "dpl": dpl, "d_um": d, "settings": settings,
-                    "dipoles": n_dip, "solve_s": wall,
-                    "one_minus_r2": float(np.sum((h0 - hd) ** 2)
-                                          / np.sum((h0 - h0.mean()) ** 2)),
-                    "pixel_noise": float(noise), "params": rows})
-        print(f"## linear {case} {settings} dpl {dpl:g} (d {1e3 * d:.1f} nm), solve {wall:.0f} s, "
-              f"1-R^2 {out[-1]['one_minus_r2']:.2e}", flush=True)
+        out.append(
+            {
+                "case": case,
+                "dpl": dpl,
+                "d_um": d,
+                "settings": settings,
+                "dipoles": n_dip,
+                "solve_s": wall,
+                "one_minus_r2": float(np.sum((h0 - hd) ** 2) / np.sum((h0 - h0.mean()) ** 2)),
+                "pixel_noise": float(noise),
+                "params": rows,
+            }
+        )
+        print(
+            f"## linear {case} {settings} dpl {dpl:g} (d {1e3 * d:.1f} nm), solve {wall:.0f} s, "
+            f"1-R^2 {out[-1]['one_minus_r2']:.2e}",
+            flush=True,
+        )
         for n, r in rows.items():
-            print(f"| {n} | {r['bias']:.2e} | {r['error']:.2e} | {r['bias_over_error']:.2f} |",
-                  flush=True)
+            print(
+                f"| {n} | {r['bias']:.2e} | {r['error']:.2e} | {r['bias_over_error']:.2f} |",
+                flush=True,
+            )
     return out
 
 
@@ -214,8 +278,9 @@ def main() -> None:
     if args.linear:
         results_lin = []
         for case in args.cases:
-            settings = {k: v for k in ("polarizability", "filling")
-                        if (v := getattr(args, k)) is not None}
+            settings = {
+                k: v for k in ("polarizability", "filling") if (v := getattr(args, k)) is not None
+            }
             results_lin += linear_case(case, args.dpl, **settings)
             if args.out:
                 args.out.write_text(json.dumps(results_lin) + "\n")
@@ -225,21 +290,26 @@ def main() -> None:
     for case in args.cases:
         n_o = len(CASES[case][2])
         for dpl in args.dpl:
-            for oi in (args.orientations if args.orientations is not None else range(n_o)):
+            for oi in args.orientations if args.orientations is not None else range(n_o):
                 if oi >= n_o:
                     continue
                 for seed in args.seeds:
                     r = run_case(case, dpl, seed, oi)
                     results.append(r)
-                    print(f"## {case} o{oi} dpl {dpl:g} (d {1e3 * r['d_um']:.1f} nm) seed "
-                          f"{seed}: {r['status']}, R^2 {r['r2']:.5f}, {r['wall_s']:.0f} s",
-                          flush=True)
+                    print(
+                        f"## {case} o{oi} dpl {dpl:g} (d {1e3 * r['d_um']:.1f} nm) seed "
+                        f"{seed}: {r['status']}, R^2 {r['r2']:.5f}, {r['wall_s']:.0f} s",
+                        flush=True,
+                    )
                     print("| parameter | truth | fitted | bias | error | bias/error |")
                     print("| --- | --- | --- | --- | --- | --- |")
                     for name, p in r["params"].items():
-                        print(f"| {name} | {p['truth']:.4f} | {p['fitted']:.4f} | "
-                              f"{p['bias']:.2e} | {p['error']:.2e} | "
-                              f"{p['bias_over_error']:.2f} |", flush=True)
+                        print(
+                            f"| {name} | {p['truth']:.4f} | {p['fitted']:.4f} | "
+                            f"{p['bias']:.2e} | {p['error']:.2e} | "
+                            f"{p['bias_over_error']:.2f} |",
+                            flush=True,
+                        )
                     if args.out:
                         args.out.write_text(json.dumps(results) + "\n")
     print(json.dumps(results))

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from holofit.fit.per_track import track_dir
 
 from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.tracks import analyze_tracks
@@ -37,7 +38,8 @@ from holofit.batch import BatchOptions
 from holofit.config import Instrument, load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.crop.tracks import LinkOptions
-from holofit.fit.per_track import run_fit_tracks, track_dir
+from holofit.fit.config import FitConfig
+from holofit.fit.stage import run_fit
 from holofit.particles import Sphere
 from holofit.prefit.stage import run_prefit
 from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
@@ -151,9 +153,14 @@ def _fit_overlapping(work: Path, prefit: Path, frames: pd.DataFrame, workers: in
         (folder / "static.json").write_text(json.dumps({"particle_model": "sphere",
                                                         "values": values}))
         statics[str(p)] = {**values, "from_prefit_rows": source, "n_rows": len(rows)}
-    run = run_fit_tracks(work / "crop", prefit, None, cfg, work / "fit", plot=False,
-                         pass_name="final", tracks=pair,
-                         batch=BatchOptions(workers=workers, progress=False))
+    run = run_fit(
+        work / "crop",
+        prefit,
+        None,
+        work / "fit",
+        FitConfig(cfg, plot=False, passes="final", tracks=pair),
+        batch=BatchOptions(workers=workers, progress=False),
+    )
     fit = pd.read_csv(run.final)
     keep = [c for c in pre.columns if c in fit.columns]
     table = pd.concat([pre[~pre["particle"].isin(pair)][keep], fit[keep]], ignore_index=True)
@@ -167,8 +174,10 @@ def _say(text: str) -> None:
 def _times(path: Path) -> dict:
     """The prefit's seconds per crop (mean, median, max) by status, and its set-up."""
     t = pd.read_csv(path)
-    out = {str(k): [float(g.mean()), float(g.median()), float(g.max()), len(g)]
-           for k, g in t.groupby("status")["fit_time_s"]}
+    out = {
+        str(k): [float(g.mean()), float(g.median()), float(g.max()), len(g)]
+        for k, g in t.groupby("status")["fit_time_s"]
+    }
     out["setup_s_total"] = float(t["setup_time_s"].sum()) if "setup_time_s" in t else math.nan
     return out
 
@@ -188,8 +197,7 @@ def _first_frames(sim: SimulatedMovie, m: int, folder: Path) -> SimulatedMovie:
     return SimulatedMovie(folder / "movie.tif", sim.background, folder / "truth.csv", truth)
 
 
-def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None = None
-         ) -> dict:
+def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None = None) -> dict:
     inst = load_instrument(resolve_config("paper_100x_oil", "instruments"))
     rng = np.random.default_rng(22)
     particles, d_true = scene(n, rng)
@@ -199,14 +207,25 @@ def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None
         sim = _first_frames(sim, first, work / f"sim_first_{first}")
     t_sim = time.perf_counter() - t0
     t0 = time.perf_counter()
-    crop = run_crop(sim.movie, sim.background, inst, work / "crop", size=SIZE, plot=False,
-                    link=LinkOptions(memory=MEMORY),
-                    batch=BatchOptions(workers=workers, progress=False))
+    crop = run_crop(
+        sim.movie,
+        sim.background,
+        inst,
+        work / "crop",
+        size=SIZE,
+        plot=False,
+        link=LinkOptions(memory=MEMORY),
+        batch=BatchOptions(workers=workers, progress=False),
+    )
     t_crop = time.perf_counter() - t0
     _say(f"crop {t_crop:.0f} s: {crop.counts}, tracks {sorted(crop.frames['particle'].unique())}")
     t0 = time.perf_counter()
-    pre = run_prefit(work / "crop", work / "prefit", plot=False,
-                     batch=BatchOptions(workers=workers, progress=False))
+    pre = run_prefit(
+        work / "crop",
+        work / "prefit",
+        plot=False,
+        batch=BatchOptions(workers=workers, progress=False),
+    )
     t_prefit = time.perf_counter() - t0
     _say(f"prefit {t_prefit:.0f} s: {pre.summary.statuses}")
     t0 = time.perf_counter()
@@ -224,7 +243,8 @@ def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None
         here = truth[truth["frame"] == row.frame]
         d = np.hypot(here["x_px"] - row.x_px, here["y_px"] - row.y_px).to_numpy()
         owners.setdefault(int(row.particle), set()).add(
-            int(here["particle"].iloc[int(np.argmin(d))]) if d.min() < 3 else -1)
+            int(here["particle"].iloc[int(np.argmin(d))]) if d.min() < 3 else -1
+        )
     # a swap: a track holding two true particles; frames whose centre is > 3 px from every
     # true one (a pair closer than the finder resolves, found as one centre between them) are
     # counted apart
@@ -239,22 +259,24 @@ def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None
             off_truth.setdefault(str(row.particle), []).append(int(row.frame))
     both = table.merge(frames[["particle", "frame", "overlap"]], on=["particle", "frame"])
     both["truth"] = both["particle"].map(mapping)
-    both = both.merge(truth.rename(columns={"particle": "truth"}), on=["truth", "frame"],
-                      suffixes=("", "_true"))
+    both = both.merge(
+        truth.rename(columns={"particle": "truth"}), on=["truth", "frame"], suffixes=("", "_true")
+    )
     ok = both[both["status"] == "ok"]
     err = np.hypot(ok["x_um"] - ok["x_um_true"], ok["y_um"] - ok["y_um_true"]) * 1e3 / math.sqrt(2)
 
     def rms(mask: pd.Series) -> float:
         v = err[mask.to_numpy()]
-        return float(np.sqrt(np.mean(v ** 2))) if len(v) else math.nan
+        return float(np.sqrt(np.mean(v**2))) if len(v) else math.nan
 
     overlap = ok["overlap"].astype(str).str.lower().eq("true")
     combined = work / "combined.csv"
     table.to_csv(combined, index=False)
     d_rows: list[dict] = []
     try:
-        analysed = analyze_tracks(combined, AnalysisConfig(model="sphere"),
-                                  frame_interval_s=0.01).tracks
+        analysed = analyze_tracks(
+            combined, AnalysisConfig(model="sphere"), frame_interval_s=0.01
+        ).tracks
     except Exception as exc:
         analysed, d_rows = [], [{"error": repr(exc)}]
     for t in analysed:
@@ -263,34 +285,58 @@ def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None
             continue
         m = t.result.measured["D_t"]
         truth_d = d_true[mapping[t.particle]] if t.particle in mapping else math.nan
-        d_rows.append({"particle": t.particle, "truth_particle": mapping.get(t.particle),
-                       "D_t": m.value, "err": m.error, "D_true": truth_d,
-                       "pull": (m.value - truth_d) / m.error if m.error else math.nan})
+        d_rows.append(
+            {
+                "particle": t.particle,
+                "truth_particle": mapping.get(t.particle),
+                "D_t": m.value,
+                "err": m.error,
+                "D_true": truth_d,
+                "pull": (m.value - truth_d) / m.error if m.error else math.nan,
+            }
+        )
     result = {
-        "study": "field_of_view_five_spheres", "n_frames": len(sim.truth["frame"].unique()),
-        "simulated_frames": n, "frame_shape": list(SHAPE),
-        "crop_size": SIZE, "tracks_found": sorted(int(p) for p in frames["particle"].unique()),
-        "true_particles_tracked": sorted(set(mapping.values())), "identity_swaps": swaps,
+        "study": "field_of_view_five_spheres",
+        "n_frames": len(sim.truth["frame"].unique()),
+        "simulated_frames": n,
+        "frame_shape": list(SHAPE),
+        "crop_size": SIZE,
+        "tracks_found": sorted(int(p) for p in frames["particle"].unique()),
+        "true_particles_tracked": sorted(set(mapping.values())),
+        "identity_swaps": swaps,
         "frames_off_every_particle": {p: [len(v), v[:5], v[-5:]] for p, v in off_truth.items()},
         "link_memory": MEMORY,
-        "track_spans": {str(p): [int(g["frame"].min()), int(g["frame"].max())]
-                        for p, g in frames.groupby("particle")},
-        "crop_status": crop.counts, "warnings": crop.warnings,
+        "track_spans": {
+            str(p): [int(g["frame"].min()), int(g["frame"].max())]
+            for p, g in frames.groupby("particle")
+        },
+        "crop_status": crop.counts,
+        "warnings": crop.warnings,
         "prefit_status": pre.summary.statuses,
-        "xy_rms_nm_no_overlap": rms(~overlap), "xy_rms_nm_overlap": rms(overlap),
-        "n_ok_no_overlap": int((~overlap).sum()), "n_ok_overlap": int(overlap.sum()),
+        "xy_rms_nm_no_overlap": rms(~overlap),
+        "xy_rms_nm_overlap": rms(overlap),
+        "n_ok_no_overlap": int((~overlap).sum()),
+        "n_ok_overlap": int(overlap.sum()),
         "n_overlap_rows": int(frames["overlap"].astype(str).str.lower().eq("true").sum()),
-        "D": d_rows, "all_D_within_2_sigma": all(abs(r.get("pull", 99)) <= 2 for r in d_rows),
+        "D": d_rows,
+        "all_D_within_2_sigma": all(abs(r.get("pull", 99)) <= 2 for r in d_rows),
         "xy_rms_nm_per_track": {
-            str(p): {"apart": rms(~overlap & (ok["particle"] == p)),
-                     "overlap": rms(overlap & (ok["particle"] == p))}
-            for p in sorted(ok["particle"].unique())},
-        "status_of_overlap_rows": both.loc[both["overlap"].astype(str).str.lower().eq("true"),
-                                           "status"].value_counts().to_dict(),
+            str(p): {
+                "apart": rms(~overlap & (ok["particle"] == p)),
+                "overlap": rms(overlap & (ok["particle"] == p)),
+            }
+            for p in sorted(ok["particle"].unique())
+        },
+        "status_of_overlap_rows": both.loc[
+            both["overlap"].astype(str).str.lower().eq("true"), "status"
+        ]
+        .value_counts()
+        .to_dict(),
         "prefit_fit_time_s": _times(pre.table),
         "fit_stage": fit_note,
-        "fit_status": table.loc[table["particle"].isin(fit_note.get("tracks", [])),
-                                "status"].value_counts().to_dict(),
+        "fit_status": table.loc[table["particle"].isin(fit_note.get("tracks", [])), "status"]
+        .value_counts()
+        .to_dict(),
         "seconds": {"simulate": t_sim, "crop": t_crop, "prefit": t_prefit, "fit": t_fit},
     }
     with out_path.open("a") as fh:
@@ -304,9 +350,11 @@ if __name__ == "__main__":
     workdir = Path(sys.argv[3]) if len(sys.argv) > 3 else Path("fov_study")
     n_workers = int(sys.argv[4]) if len(sys.argv) > 4 else 2
     if len(sys.argv) > 5 and sys.argv[5] == "--simulate-only":
-        _simulated(scene(n_frames, np.random.default_rng(22))[0],
-                   load_instrument(resolve_config("paper_100x_oil", "instruments")),
-                   workdir / "sim")
+        _simulated(
+            scene(n_frames, np.random.default_rng(22))[0],
+            load_instrument(resolve_config("paper_100x_oil", "instruments")),
+            workdir / "sim",
+        )
         raise SystemExit(0)
     first_m = int(sys.argv[5]) if len(sys.argv) > 5 else None
     print(json.dumps(main(n_frames, target, workdir, n_workers, first_m), indent=1, default=str))

@@ -66,8 +66,8 @@ def _track(root: Path, p: int, rows: pd.DataFrame, truth: pd.DataFrame,
 
 def _diffusion(table: Path, out_dir: Path) -> dict[str, float]:
     """One track's D's from ``holofit analyze --model rod`` (its own fit table)."""
-    result, _ = run_analysis(table, AnalysisConfig(model="rod", temperature_c=21.0), out_dir,
-                             plots=False)
+    result = run_analysis(table, AnalysisConfig(model="rod", temperature_c=21.0), out_dir,
+                          plots=False).result
     got: dict[str, float] = {}
     for row in result.rows:
         q = row.get("quantity")

@@ -14,13 +14,13 @@ and exposed with its own noise. Each frame's "prefit" start is the truth moved b
 start (:func:`fit_cases.library_candidates`, precomputed: the library is its own stage).
 
 Reported: the mean time (wall, and the process's CPU time: ``..._cpu_s``, less sensitive to
-other jobs on a shared machine) and hologram evaluations per frame of :func:`track_chunk` over the
+other jobs on a shared machine) and hologram evaluations per frame of :func:`follow_chunk` over the
 whole track (one chunk: its first frame a library fit, re-acquisitions included), with the
 chi^2 bar of :func:`holofit.fit.continuity.chi2_bar` over the first 12 frames fitted
 independently (their mean time and evaluations are the ``independent`` baseline on the same
 frames and machine); how the frames were obtained; the errors against the truth; frames on a
 wrong branch (axis > 20 deg from the truth) that are ``ok`` and not flagged (``ambiguous`` or
-``track_jump``); the frames the continuity sweeps would still refit
+``follow_jump``); the frames the continuity sweeps would still refit
 (:func:`holofit.fit.continuity.suspects`, an upper bound of what they change).
 """
 
@@ -51,11 +51,15 @@ from fit_cases import (
 
 from holofit.camera import Camera
 from holofit.conventions import DetectorGrid
-from holofit.fit.continuity import ContinuitySettings, chi2_bar, suspects
-from holofit.fit.frame import FrameFitSettings, fit_frame
-from holofit.fit.tracking import ChunkFrame, TrackOptions, track_chunk
+from holofit.fit.continuity import ContinuitySettings, suspects
+from holofit.fit.follow import chunk_fitter, follow_chunk
+from holofit.fit.follower import ChunkFrame
+from holofit.fit.frame import fit_frame
+from holofit.fit.problem import FrameProblem
+from holofit.fit.settings import FollowSettings, FrameFitSettings
 from holofit.hologram import calc_hologram
 from holofit.holomodel.result import result_row
+from holofit.quality import chi2_bar
 from holofit.scattering.theory import Orientation
 
 CACHE = Path(__file__).resolve().parent / ".cache"
@@ -119,8 +123,22 @@ def run(name: str, n: int, track_opts: dict | None = None) -> dict[str, float]:
     t0 = time.perf_counter()
     rows = []
     for f in frames[:N_BAR]:
-        res = fit_frame(f.crop, f.corner, px, theory, model, case.inst.optics, f.position_um,
-                        f.alpha, f.candidates, FINAL, opts, seed=f.frame)
+        res = fit_frame(
+            FrameProblem(
+                f.crop,
+                f.corner,
+                px,
+                theory,
+                model,
+                case.inst.optics,
+                FINAL,
+                settings=opts,
+                seed=f.frame,
+            ),
+            f.position_um,
+            f.alpha,
+            f.candidates,
+        )
         rows.append(result_row(f.frame, f.time_s, res))
     indep = pd.DataFrame(rows)
     out[f"fit_{name}_frame_independent_s"] = (time.perf_counter() - t0) / N_BAR
@@ -129,22 +147,31 @@ def run(name: str, n: int, track_opts: dict | None = None) -> dict[str, float]:
     out[f"track_{name}_chi2_bar"] = bar
     t0 = time.perf_counter()
     c0 = time.process_time()
-    tab = track_chunk(frames, theory, model, case.inst.optics, px, FINAL, bar,
-                      TrackOptions(frame=opts, **(track_opts or {})))
+    tab = follow_chunk(
+        frames,
+        chunk_fitter(
+            theory,
+            model,
+            case.inst.optics,
+            px,
+            FINAL,
+            FollowSettings(frame=opts, **(track_opts or {})),
+        ),
+        bar,
+    )
     out[f"fit_{name}_frame_final_s"] = (time.perf_counter() - t0) / n
     out[f"fit_{name}_frame_final_cpu_s"] = (time.process_time() - c0) / n
     out[f"fit_{name}_evals_per_frame"] = float(tab["n_eval"].mean())
     out[f"fit_{name}_solves_per_frame"] = float(tab["n_solves"].mean())
     out[f"track_{name}_frames"] = float(n)
     for src in ("library", "warm", "reacquired"):
-        out[f"track_{name}_{src}_frames"] = float((tab["track_source"] == src).sum())
+        out[f"track_{name}_{src}_frames"] = float((tab["follow_source"] == src).sum())
     for how, label in ((0, "carried"), (1, "screened"), (2, "refitted")):
-        out[f"track_{name}_runner_up_{label}_frames"] = float(
-            (tab["runner_up_refit"] == how).sum())
+        out[f"track_{name}_runner_up_{label}_frames"] = float((tab["runner_up_refit"] == how).sum())
     for how, label in ((0, "kept"), (1, "changed")):
-        out[f"track_{name}_pole_probed_{label}_frames"] = float((tab["track_pole"] == how).sum())
+        out[f"track_{name}_pole_probed_{label}_frames"] = float((tab["follow_pole"] == how).sum())
     out[f"track_{name}_ok_frames"] = float((tab["status"] == "ok").sum())
-    out[f"track_{name}_jump_frames"] = float(tab["track_jump"].sum())
+    out[f"track_{name}_jump_frames"] = float(tab["follow_jump"].sum())
     out[f"track_{name}_ambiguous_frames"] = float(tab["ambiguous"].sum())
     err = tab[["x_um", "y_um", "z_um"]].to_numpy(dtype=float) - pos
     for i, axis in enumerate("xyz"):
@@ -152,12 +179,13 @@ def run(name: str, n: int, track_opts: dict | None = None) -> dict[str, float]:
     ax = _axis_errors(tab, ang, model.head_tail_symmetric)
     out[f"track_{name}_axis_rms_deg"] = float(np.sqrt(np.mean(ax**2)))
     wrong = ax > 20.0
-    flagged = (tab["status"] != "ok") | (tab["ambiguous"] == 1) | (tab["track_jump"] == 1)
+    flagged = (tab["status"] != "ok") | (tab["ambiguous"] == 1) | (tab["follow_jump"] == 1)
     out[f"track_{name}_wrong_branch_frames"] = float(wrong.sum())
     out[f"track_{name}_wrong_branch_ok_unflagged"] = float((wrong & ~flagged).sum())
     # what the continuity sweeps would still refit (an upper bound of what they change)
     out[f"track_{name}_sweep_suspects"] = float(
-        suspects(tab, ContinuitySettings(), model.head_tail_symmetric).sum())
+        suspects(tab, ContinuitySettings(), model.head_tail_symmetric).sum()
+    )
     return out
 
 
@@ -165,7 +193,11 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("case", choices=("rod", "janus"))
     parser.add_argument("--frames", type=int, default=200)
-    parser.add_argument("--track-opts", type=json.loads, default=None,
-                        help="TrackOptions fields as JSON (an A/B of the tracker's settings)")
+    parser.add_argument(
+        "--track-opts",
+        type=json.loads,
+        default=None,
+        help="FollowSettings fields as JSON (an A/B of the tracker's settings)",
+    )
     args = parser.parse_args()
     print(json.dumps(run(args.case, args.frames, args.track_opts)))

@@ -28,6 +28,7 @@ from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diff
 from holofit.batch import BatchOptions
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
+from holofit.fit.config import FitConfig
 from holofit.fit.stage import run_fit
 from holofit.holomodel.parameters import static_values
 from holofit.library.stage import run_library
@@ -96,38 +97,65 @@ def main() -> None:
     run_library(out / "crop", out / "prefit", cfg, out / "library", batch=batch)
     times["library_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    run = run_fit(out / "crop", out / "prefit", out / "library", cfg, out / "fit",
-                  initial_frames=args.initial_frames, batch=batch)
+    run = run_fit(
+        out / "crop",
+        out / "prefit",
+        out / "library",
+        out / "fit",
+        FitConfig(cfg, initial_frames=args.initial_frames),
+        batch=batch,
+    )
     times["fit_s"] = time.perf_counter() - t0
-    report: dict[str, object] = {"case": args.case, "frames": args.frames,
-                                 "seed": args.seed, "times": times}
+    report: dict[str, object] = {
+        "case": args.case,
+        "frames": args.frames,
+        "seed": args.seed,
+        "times": times,
+    }
 
     static = json.loads(run.static.read_text())
     true_static = dict(static_values(truth_model))
-    report["static"] = {k: {"fitted": static["values"][k], "truth": v,
-                            "error": static["values"][k] - v, "spread": static["spread"][k]}
-                        for k, v in true_static.items()}
+    report["static"] = {
+        k: {
+            "fitted": static["values"][k],
+            "truth": v,
+            "error": static["values"][k] - v,
+            "spread": static["spread"][k],
+        }
+        for k, v in true_static.items()
+    }
     fit = pd.read_csv(run.final).set_index("frame")
-    report.update(compare_with_truth(fit, truth.set_index("frame"),
-                                     head_tail_symmetric=truth_model.head_tail_symmetric))
+    report.update(
+        compare_with_truth(
+            fit, truth.set_index("frame"), head_tail_symmetric=truth_model.head_tail_symmetric
+        )
+    )
     if args.analyze:
         settings = AnalysisConfig(model=case["model"], temperature_c=21.0)
-        result, _ = run_analysis(run.final, settings, out / "analysis")
-        report["analysis"] = {k: {"value": m.value, "error": m.error, "unit": m.unit}
-                              for k, m in result.measured.items()}
+        result = run_analysis(run.final, settings, out / "analysis").result
+        report["analysis"] = {
+            k: {"value": m.value, "error": m.error, "unit": m.unit}
+            for k, m in result.measured.items()
+        }
         report["analysis_truth"] = {"D_par": d_par, "D_perp": d_perp, "D_r": d_r}
         if args.case == "rod":
             report["theory_spherocylinder"] = {
-                k: float(v) for k, v in spherocylinder_diffusion(0.501, 1.079, 21.0).items()
-                if k in ("D_t", "D_r")}
+                k: float(v)
+                for k, v in spherocylinder_diffusion(0.501, 1.079, 21.0).items()
+                if k in ("D_t", "D_r")
+            }
     text = json.dumps(report, indent=2, default=float)
     (out / "report.json").write_text(text + "\n")
-    lines = [f"# validation: {args.case}, {args.frames} frames, seed {args.seed}", "",
-             "```", text, "```"]
+    lines = [
+        f"# validation: {args.case}, {args.frames} frames, seed {args.seed}",
+        "",
+        "```",
+        text,
+        "```",
+    ]
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print(text)
 
 
 if __name__ == "__main__":
     main()
-

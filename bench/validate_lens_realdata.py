@@ -52,6 +52,7 @@ from holofit.batch.aperture import FROM_INSTRUMENT
 from holofit.batch.errors import BatchError
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
+from holofit.fit.config import FitConfig
 from holofit.fit.stage import run_fit
 from holofit.holomodel.pictures import model_image
 from holofit.library.stage import run_library
@@ -354,17 +355,22 @@ def run_dimer(out_root: Path, configs: list[str] | None = None) -> dict[str, Any
         table = folder / "initial.csv"
         t0 = time.perf_counter()
         if not table.exists():
-            run_fit(crops, prefit, library, particle, folder, pass_name="initial",
-                    initial_frames=1, fixed=fixed, batch=SERIAL, plot=True,
-                    numerical_aperture=na, fit_na=fit_na)
+            config = FitConfig(particle, passes="initial", initial_frames=1, fixed=fixed,
+                               plot=True, numerical_aperture=na, fit_na=fit_na)
+            run_fit(crops, prefit, library, folder, config, batch=SERIAL)
         row = pd.read_csv(table).iloc[0].to_dict()
         row.update(config=label, wall_s=time.perf_counter() - t0, folder=str(folder))
         rows.append(row)
-        print(f"dimer {label}: R^2 {row['r2']:.4f}, {row['status']} ({row['wall_s']:.0f} s)",
-              flush=True)
-    return {"case": "dimer2011", "reference": DIMER_REFERENCE,
-            "source": "HoloPy 2011 test_fit gold_dimerslow (T-matrix; x = HoloPy's y)",
-            "rows": rows}
+        print(
+            f"dimer {label}: R^2 {row['r2']:.4f}, {row['status']} ({row['wall_s']:.0f} s)",
+            flush=True,
+        )
+    return {
+        "case": "dimer2011",
+        "reference": DIMER_REFERENCE,
+        "source": "HoloPy 2011 test_fit gold_dimerslow (T-matrix; x = HoloPy's y)",
+        "rows": rows,
+    }
 
 
 # -- the report -------------------------------------------------------------------------
@@ -380,42 +386,73 @@ def _f(v: Any, spec: str) -> str:
 
 def _sphere_table(result: dict[str, Any]) -> list[str]:
     ref = result["reference"]
-    lines = [f"### {result['case']}", "",
-             "| model | R^2 | chi2_red | z (um) | radius (um) | n | alpha | NA | status |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    lines.append(f"| reference ({result['source']}) | | | {_f(ref.get('z_um'), '.3f')} | "
-                 f"{_f(ref.get('radius_um'), '.4f')} | {_f(ref.get('n'), '.4f')} | "
-                 f"{_f(ref.get('alpha'), '.3f')} | | |")
+    lines = [
+        f"### {result['case']}",
+        "",
+        "| model | R^2 | chi2_red | z (um) | radius (um) | n | alpha | NA | status |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    lines.append(
+        f"| reference ({result['source']}) | | | {_f(ref.get('z_um'), '.3f')} | "
+        f"{_f(ref.get('radius_um'), '.4f')} | {_f(ref.get('n'), '.4f')} | "
+        f"{_f(ref.get('alpha'), '.3f')} | | |"
+    )
     for r in result["rows"]:
-        na = (f"{r['numerical_aperture']:.3f} ± {r['d_numerical_aperture']:.3f}"
-              if r["config"].startswith("NA fitted") else "")
-        lines.append(f"| {r['config']} | {_f(r['r2'], '.5f')} | {_f(r['chi2_red'], '.3f')} | "
-                     f"{_f(r['z_um'], '.3f')} | {_f(r['radius_um'], '.4f')} | "
-                     f"{_f(r['n'], '.4f')} | {_f(r['alpha'], '.3f')} | {na} | {r['status']} |")
+        na = (
+            f"{r['numerical_aperture']:.3f} ± {r['d_numerical_aperture']:.3f}"
+            if r["config"].startswith("NA fitted")
+            else ""
+        )
+        lines.append(
+            f"| {r['config']} | {_f(r['r2'], '.5f')} | {_f(r['chi2_red'], '.3f')} | "
+            f"{_f(r['z_um'], '.3f')} | {_f(r['radius_um'], '.4f')} | "
+            f"{_f(r['n'], '.4f')} | {_f(r['alpha'], '.3f')} | {na} | {r['status']} |"
+        )
     prof = result["profile"]
-    lines += ["", "NA profile (prefit at fixed NA; R^2): " + ", ".join(
-        f"{'ideal' if not math.isfinite(p['na']) else format(p['na'], 'g')}: {p['r2']:.4f}"
-        for p in prof), ""]
+    lines += [
+        "",
+        "NA profile (prefit at fixed NA; R^2): "
+        + ", ".join(
+            f"{'ideal' if not math.isfinite(p['na']) else format(p['na'], 'g')}: {p['r2']:.4f}"
+            for p in prof
+        ),
+        "",
+    ]
     for label, env in result.get("envelope", {}).items():
-        lines.append(f"Fringe gain g by ring ({label}; ring reaches NA -> g): " + ", ".join(
-            f"{a:.2f} -> {g:.3f}" for a, g in zip(env["reach_na"], env["gain"], strict=True)))
+        lines.append(
+            f"Fringe gain g by ring ({label}; ring reaches NA -> g): "
+            + ", ".join(
+                f"{a:.2f} -> {g:.3f}" for a, g in zip(env["reach_na"], env["gain"], strict=True)
+            )
+        )
     return [*lines, ""]
 
 
 def _dimer_table(result: dict[str, Any]) -> list[str]:
     ref = result["reference"]
     cols = ("x_um", "y_um", "z_um", "radius1_um", "radius2_um", "gap_um", "n1", "n2", "alpha")
-    lines = ["### dimer2011 (DDA fit, initial pass, one frame)", "",
-             "| model | R^2 | chi2_red | " + " | ".join(cols) + " | NA | status | time (s) |",
-             "| --- " * (len(cols) + 6) + "|"]
-    lines.append(f"| reference ({result['source']}) | | | "
-                 + " | ".join(_f(ref.get(c), ".4f") for c in cols) + " | | | |")
+    lines = [
+        "### dimer2011 (DDA fit, initial pass, one frame)",
+        "",
+        "| model | R^2 | chi2_red | " + " | ".join(cols) + " | NA | status | time (s) |",
+        "| --- " * (len(cols) + 6) + "|",
+    ]
+    lines.append(
+        f"| reference ({result['source']}) | | | "
+        + " | ".join(_f(ref.get(c), ".4f") for c in cols)
+        + " | | | |"
+    )
     for r in result["rows"]:
-        na = (f"{r['numerical_aperture']:.3f} ± {r['d_numerical_aperture']:.3f}"
-              if "numerical_aperture" in r else "")
-        lines.append(f"| {r['config']} | {_f(r['r2'], '.4f')} | {_f(r['chi2_red'], '.3f')} | "
-                     + " | ".join(_f(r.get(c), ".4f") for c in cols)
-                     + f" | {na} | {r['status']} | {_f(r['fit_time_s'], '.0f')} |")
+        na = (
+            f"{r['numerical_aperture']:.3f} ± {r['d_numerical_aperture']:.3f}"
+            if "numerical_aperture" in r
+            else ""
+        )
+        lines.append(
+            f"| {r['config']} | {_f(r['r2'], '.4f')} | {_f(r['chi2_red'], '.3f')} | "
+            + " | ".join(_f(r.get(c), ".4f") for c in cols)
+            + f" | {na} | {r['status']} | {_f(r['fit_time_s'], '.0f')} |"
+        )
     return [*lines, ""]
 
 
@@ -445,8 +482,11 @@ def main() -> None:
             t0 = time.perf_counter()
             result = run_sphere(case, out)
             best = max(result["rows"], key=lambda r: r["r2"])
-            print(f"{case.name}: done in {time.perf_counter() - t0:.0f} s; best R^2 "
-                  f"{best['r2']:.4f} ({best['config']})", flush=True)
+            print(
+                f"{case.name}: done in {time.perf_counter() - t0:.0f} s; best R^2 "
+                f"{best['r2']:.4f} ({best['config']})",
+                flush=True,
+            )
             record(case.name, result)
     if not args.skip_dimer:
         record("dimer2011", run_dimer(out, args.dimer_configs))

@@ -3,7 +3,8 @@
 The public API, by job (the command line is a thin layer over these functions)::
 
     stages         run_crop, run_prefit, run_library, run_fit, run_analysis
-                   (LibrarySettings, FrameFitSettings, ContinuitySettings, AnalysisConfig)
+                   (BatchOptions, LibrarySettings, FitConfig, FrameFitSettings, FollowSettings,
+                   ContinuitySettings, AnalysisConfig)
     simulation     simulate_movie, simulate_trajectory, BrownianParameters
     configuration  Instrument, load_instrument, ParticleConfig, load_particle, DDASettings
     particles      Sphere, Spherocylinder, JanusSphere, Dimer, Spheroid, Ellipsoid, Cylinder,
@@ -13,7 +14,8 @@ The public API, by job (the command line is a thin layer over these functions)::
                    get_theory
     holograms      hologram, calc_hologram
     fitting        HologramModel, ParameterSpace, solve_least_squares, FitResult,
-                   fit_sphere_crop, fit_frame
+                   QualityLimits, fit_sphere_crop, FrameProblem, fit_frame, fit_frame_warm,
+                   evaluate_frame
     tables         read_fit_table, write_fit_table
 
 Names are imported on first use (``holofit.run_crop`` loads the crop stage only), so that
@@ -42,9 +44,12 @@ _API: dict[str, str] = {
     "run_library": "holofit.library.stage",
     "LibrarySettings": "holofit.library.stage",
     "run_fit": "holofit.fit.stage",
-    "FrameFitSettings": "holofit.fit.frame",
+    "FitConfig": "holofit.fit.config",
+    "FrameFitSettings": "holofit.fit.settings",
+    "FollowSettings": "holofit.fit.settings",
     "ContinuitySettings": "holofit.fit.continuity",
     "run_analysis": "holofit.analysis",
+    "BatchOptions": "holofit.batch.runner",
     "AnalysisConfig": "holofit.analysis",
     # simulation
     "simulate_movie": "holofit.simulate.holograms",
@@ -87,8 +92,12 @@ _API: dict[str, str] = {
     "ParameterSpace": "holofit.holomodel.parameters",
     "solve_least_squares": "holofit.holomodel.leastsq",
     "FitResult": "holofit.holomodel.result",
+    "QualityLimits": "holofit.quality",
     "fit_sphere_crop": "holofit.prefit.sphere",
+    "FrameProblem": "holofit.fit.problem",
     "fit_frame": "holofit.fit.frame",
+    "fit_frame_warm": "holofit.fit.warm",
+    "evaluate_frame": "holofit.fit.warm",
     # tables
     "read_fit_table": "holofit.tables.fit",
     "write_fit_table": "holofit.tables.fit",

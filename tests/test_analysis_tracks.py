@@ -118,7 +118,7 @@ def test_cli_analyze_runs_every_track_and_pools(tmp_path) -> None:
     assert res.exit_code == 0, res.output
     assert "pooled over tracks" in res.output
     for name in ("tracks.csv", "pooled.csv", "summary.csv", "tracks.png", "track_msds.png",
-                 "particle_0/summary.csv", "particle_2/msd.png"):
+                 "particle_0_summary.csv", "particle_2_msd.png"):
         assert (out / name).is_file(), name
     summary = pd.read_csv(out / "summary.csv")
     assert set(summary["particle"]) == {0, 1, 2}

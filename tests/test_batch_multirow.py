@@ -35,15 +35,23 @@ def chunk_item(config: dict, key: tuple[int, int], payload: list[int]) -> list[d
              "message": ""} for f in payload]
 
 
-def _load(key: tuple[int, int]) -> list[int]:
+def load_payload(key: tuple[int, int]) -> list[int]:
     return list(CHUNKS[key[0]])
 
 
 def _run(out: Path, config: dict) -> object:
-    return run_batch(chunk_item, config, [(c, r.start) for c, r in CHUNKS.items()], _load, out,
-                     COLUMNS, fingerprint="chunks-1",
-                     options=BatchOptions(workers=0, progress=False), desc="chunks",
-                     key_columns=KEYS)
+    return run_batch(
+        chunk_item,
+        config,
+        [(c, r.start) for c, r in CHUNKS.items()],
+        load_payload,
+        out,
+        COLUMNS,
+        fingerprint="chunks-1",
+        options=BatchOptions(workers=0, progress=False),
+        desc="chunks",
+        key_columns=KEYS,
+    )
 
 
 def test_item_rows_put_the_items_own_row_last():
@@ -78,7 +86,7 @@ def test_resume_redoes_only_unfinished_chunks(tmp_path):
     ran = log.read_text().split()
     assert sorted(int(c) for c in ran) == done
     summary = _run(out, {"log": str(log)})
-    again = log.read_text().split()[len(ran):]
+    again = log.read_text().split()[len(ran) :]
     assert sorted(int(c) for c in again) == [c for c in CHUNKS if c not in done]  # none redone
     assert summary.n_done_before == len(done) and summary.n_run == 3 - len(done)
     assert len(pd.read_csv(out)) == sum(len(r) for r in CHUNKS.values())
@@ -88,11 +96,18 @@ def test_a_failed_chunk_is_one_error_row_and_is_retried(tmp_path):
     out = tmp_path / "chunks.csv"
     log = tmp_path / "log"
 
-    summary = run_batch(_failing_chunk, {"log": str(log)}, [(c, r.start) for c, r in
-                                                             CHUNKS.items()], _load, out,
-                        COLUMNS, fingerprint="chunks-2",
-                        options=BatchOptions(workers=0, progress=False), desc="chunks",
-                        key_columns=KEYS)
+    summary = run_batch(
+        _failing_chunk,
+        {"log": str(log)},
+        [(c, r.start) for c, r in CHUNKS.items()],
+        load_payload,
+        out,
+        COLUMNS,
+        fingerprint="chunks-2",
+        options=BatchOptions(workers=0, progress=False),
+        desc="chunks",
+        key_columns=KEYS,
+    )
     table = pd.read_csv(out)
     bad = table[table["chunk"] == 1]
     assert len(bad) == 1 and bad["frame"].tolist() == [4] and bad["status"].tolist() == ["error"]

@@ -11,6 +11,7 @@ from scipy.special import spherical_jn
 
 from holofit.config import ConfigError, load_particle
 from holofit.engines.select import select_theory
+from holofit.fit.problem import FrameProblem
 from holofit.optics import Optics
 from holofit.particles import Cluster, CoatedSphere, Dimer, Sphere, Spherocylinder
 from holofit.scattering.cluster import (
@@ -393,7 +394,7 @@ def test_frame_fit_with_the_cluster_engine_recovers_the_truth() -> None:
 
     from holofit.camera import Camera
     from holofit.conventions import DetectorGrid
-    from holofit.fit.frame import FrameFitSettings, fit_frame
+    from holofit.fit.frame import fit_frame
     from holofit.hologram import calc_hologram
     from holofit.library.polar import polar_grid, sample_crop
     from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
@@ -413,13 +414,19 @@ def test_frame_fit_with_the_cluster_engine_recovers_the_truth() -> None:
     d, w = sample_crop(crop, grid.corner, px, pg)
     cands = pick_candidates(lib.scores(pg, d, w, start, 0.8), lib.tilts, pg.phi, model, 4,
                             math.radians(20))
-    res = fit_frame(crop, grid.corner, px, th, model, optics, start, 0.8, cands,
-                    ("x_um", "y_um", "z_um", "orientation", "alpha"), FrameFitSettings(), seed=0)
+    free = ("x_um", "y_um", "z_um", "orientation", "alpha")
+    res = fit_frame(FrameProblem(crop, grid.corner, px, th, model, optics, free), start, 0.8,
+                    cands)
     assert res.status == "ok"
     err = math.dist([res.values[k] for k in ("x_um", "y_um", "z_um")], pos)
     assert err < 0.005
-    ut = np.array([math.sin(truth.theta) * math.cos(truth.psi),
-                   math.sin(truth.theta) * math.sin(truth.psi), math.cos(truth.theta)])
+    ut = np.array(
+        [
+            math.sin(truth.theta) * math.cos(truth.psi),
+            math.sin(truth.theta) * math.sin(truth.psi),
+            math.cos(truth.theta),
+        ]
+    )
     u = np.array([res.values[k] for k in ("ux", "uy", "uz")])
     assert math.degrees(math.acos(min(1.0, float(u @ ut) / np.linalg.norm(u)))) < 1.0
 

@@ -174,40 +174,54 @@ def test_overlap_is_marked_closer_than_half_a_crop():
 
 
 @pytest.mark.slow
-def test_fit_per_track_combines_the_tracks(scene, tmp_path):
-    from holofit.fit.per_track import run_fit_tracks
+def test_the_fit_combines_the_tracks(scene, tmp_path):
+    from holofit.fit.config import FitConfig
+    from holofit.fit.stage import run_fit
 
     _, sim, crop = scene
     run_prefit(crop.out_dir, tmp_path / "prefit", plot=False)
     cfg = load_particle(resolve_config("sphere_ps_1um", "particles"))
-    run = run_fit_tracks(crop.out_dir, tmp_path / "prefit", None, cfg, tmp_path / "fit",
-                         plot=False)
+    run = run_fit(crop.out_dir, tmp_path / "prefit", None, tmp_path / "fit",
+                  FitConfig(cfg, plot=False))
     fit = pd.read_csv(run.final)
     assert list(fit.columns[:2]) == ["particle", "frame"] and len(fit) == len(crop.frames)
     mapping = _track_to_truth(crop.frames, sim.truth)
-    truth = sim.truth.assign(particle=sim.truth["particle"].map(
-        {t: p for p, t in mapping.items()}))
+    truth = sim.truth.assign(particle=sim.truth["particle"].map({t: p for p, t in mapping.items()}))
     both = fit.merge(truth, on=["particle", "frame"], suffixes=("", "_true"))
-    rms = np.sqrt(((both[["x_um", "y_um"]].to_numpy()
-                    - both[["x_um_true", "y_um_true"]].to_numpy()) ** 2).mean())
+    rms = np.sqrt(
+        (
+            (both[["x_um", "y_um"]].to_numpy() - both[["x_um_true", "y_um_true"]].to_numpy()) ** 2
+        ).mean()
+    )
     assert rms < 0.01  # 10 nm
-    for p in mapping:
-        assert (tmp_path / "fit" / f"particle_{p}" / "fit.csv").exists()
+    assert not list((tmp_path / "fit").glob("particle_*"))  # a track is keys, not a folder
 
 
 def test_failed_fits_of_overlapping_frames_become_overlap():
-    from holofit.fit.per_track import mark_overlap
+    from holofit.fit.overlaps import mark_overlap
 
-    fit = pd.DataFrame({"particle": [0, 0, 0, 1], "frame": [1, 2, 3, 2],
-                        "status": ["poor_fit", "ok", "poor_fit", "failed"],
-                        "message": ["far above the noise", "", "x", ""]})
-    overlaps = pd.DataFrame({"particle": [0, 0, 1], "frame": [1, 2, 2], "neighbour": [1, 1, 0],
-                             "neighbour_px": [20.0, 18.0, 18.0]})
+    fit = pd.DataFrame(
+        {
+            "particle": [0, 0, 0, 1],
+            "frame": [1, 2, 3, 2],
+            "status": ["poor_fit", "ok", "poor_fit", "failed"],
+            "message": ["far above the noise", "", "x", ""],
+        }
+    )
+    overlaps = pd.DataFrame(
+        {
+            "particle": [0, 0, 1],
+            "frame": [1, 2, 2],
+            "neighbour": [1, 1, 0],
+            "neighbour_px": [20.0, 18.0, 18.0],
+        }
+    )
     out = mark_overlap(fit, overlaps)
     # overlapping and failing: overlap; overlapping and ok: ok; failing alone: unchanged
     assert out["status"].tolist() == ["overlap", "ok", "poor_fit", "overlap"]
-    assert out["message"][0] == ("track 1's hologram overlaps (20 px away); fit poor_fit: far "
-                                 "above the noise")
+    assert out["message"][0] == (
+        "track 1's hologram overlaps (20 px away); fit poor_fit: far above the noise"
+    )
 
 
 def test_fringes_of_a_strong_hologram_are_not_a_track():
@@ -217,25 +231,67 @@ def test_fringes_of_a_strong_hologram_are_not_a_track():
 
     det = {}
     for k in range(12):
-        found = [[50.0 + 0.1 * k, 50.0, 300.0, 0.9, 0.99, "symmetry"],
-                 [70.0, 50.0 + 0.05 * k, 100.0, 0.5, 0.9, "symmetry"],
-                 [200.0 - 0.1 * k, 150.0, 90.0, 0.8, 0.95, "symmetry"]]
+        found = [
+            [50.0 + 0.1 * k, 50.0, 300.0, 0.9, 0.99, "symmetry"],
+            [70.0, 50.0 + 0.05 * k, 100.0, 0.5, 0.9, "symmetry"],
+            [200.0 - 0.1 * k, 150.0, 90.0, 0.8, 0.95, "symmetry"],
+        ]
         det[k] = {"status": "ok", "n_found": 3, "candidates": json.dumps(found)}
     plan = link_detections(det, 12, 0.1, LinkOptions(min_track_length=4), 48)
     assert sorted(plan.spans) == [0, 1]
     assert plan.linked.groupby("particle")["x_px"].median().round().tolist() == [51.0, 199.0]
-    assert any("fringes of a stronger hologram" in w and "(70, 50) px" in w
-               for w in plan.warnings)
+    assert any("fringes of a stronger hologram" in w and "(70, 50) px" in w for w in plan.warnings)
 
 
-def test_run_fit_on_several_tracks_names_them(scene, tmp_path):
-    from holofit.fit.errors import FitStageError
-    from holofit.fit.stage import run_fit
+def test_run_fit_on_several_tracks_is_what_holofit_fit_runs(scene, tmp_path):
+    """The public ``holofit.run_fit`` on the crop stage's own output of three tracks gives
+    the very table ``holofit fit`` writes; every row keyed by (particle, frame), no per-track
+    folder."""
+    from click.testing import CliRunner
+
+    import holofit
+    from holofit.cli import main
 
     _, _, crop = scene
+    run_prefit(crop.out_dir, tmp_path / "prefit", plot=False)
     cfg = load_particle(resolve_config("sphere_ps_1um", "particles"))
-    with pytest.raises(FitStageError, match=r"3 tracks \(particle 0, 1, 2\).*run_fit_tracks"):
-        run_fit(crop.out_dir, tmp_path / "prefit", None, cfg, tmp_path / "fit", plot=False)
+    config = holofit.FitConfig(cfg, initial_frames=2, frames=(6, 7, 8), plot=False)
+    run = holofit.run_fit(
+        crop.out_dir,
+        tmp_path / "prefit",
+        None,
+        tmp_path / "api",
+        config,
+        batch=holofit.BatchOptions(workers=0, progress=False),
+    )
+    res = CliRunner().invoke(
+        main,
+        [
+            "fit",
+            str(crop.out_dir),
+            "--prefit",
+            str(tmp_path / "prefit"),
+            "-p",
+            "sphere_ps_1um",
+            "-o",
+            str(tmp_path / "cli"),
+            "--initial-frames",
+            "2",
+            "--frames",
+            "6:9",
+            "--no-plot",
+            "-j",
+            "0",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    api = pd.read_csv(run.final).drop(columns="fit_time_s")
+    cli = pd.read_csv(tmp_path / "cli" / "fit.csv").drop(columns="fit_time_s")
+    pd.testing.assert_frame_equal(api, cli)
+    assert sorted(api["particle"].unique()) == [0, 1, 2] and len(api) == 9
+    assert not [
+        p for p in (tmp_path / "api").iterdir() if p.is_dir() and p.name.startswith("particle")
+    ]
 
 
 def test_sparse_detections_strung_by_the_memory_are_not_a_track():
@@ -248,5 +304,7 @@ def test_sparse_detections_strung_by_the_memory_are_not_a_track():
     assert len(result.particles) == 1
     dropped = result.summary[~result.summary["kept"].astype(bool)]
     assert dropped["reason"].str.contains("detected in 11 of the 31 frames").all()
-    assert len(link_tracks(table, 0.1, LinkOptions(memory=10, min_detected_fraction=0.0))
-               .particles) == 2
+    assert (
+        len(link_tracks(table, 0.1, LinkOptions(memory=10, min_detected_fraction=0.0)).particles)
+        == 2
+    )

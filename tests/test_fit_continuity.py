@@ -13,12 +13,11 @@ import pytest
 from holofit.fit.continuity import (
     ContinuitySettings,
     NeighbourStart,
-    chi2_bar,
-    flag_bars,
+    followed_suspects,
     repair_by_continuity,
     suspects,
-    tracked_suspects,
 )
+from holofit.quality import chi2_bar, flag_bars
 from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
 
 NOISE = 0.02
@@ -292,8 +291,8 @@ def test_the_flag_probability_is_the_users():
 def _tracked(table: pd.DataFrame) -> pd.DataFrame:
     """``table`` as the tracking final pass writes it: frame 0 a library fit, the rest warm."""
     t = table.copy()
-    t["track_source"] = ["library"] + ["warm"] * (len(t) - 1)
-    t["track_jump"] = 0
+    t["follow_source"] = ["library"] + ["warm"] * (len(t) - 1)
+    t["follow_jump"] = 0
     return t
 
 
@@ -314,7 +313,7 @@ def test_a_clean_tracked_table_is_not_refitted_where_an_untracked_one_is(truth):
     _, report = repair_by_continuity(_tracked(table), refit, ContinuitySettings(),
                                        head_tail=False, ambiguity_chi2=9.0)
     assert not calls and report.refitted == 0 and report.replaced == 0
-    assert not tracked_suspects(_tracked(table), ContinuitySettings(), head_tail=False).any()
+    assert not followed_suspects(_tracked(table), ContinuitySettings(), head_tail=False).any()
     refit, calls = _oracle(truth, u_true, chi)
     _, untracked = repair_by_continuity(table.copy(), refit, ContinuitySettings(),
                                         head_tail=False, ambiguity_chi2=9.0)
@@ -323,7 +322,7 @@ def test_a_clean_tracked_table_is_not_refitted_where_an_untracked_one_is(truth):
 
 def test_the_trackers_suspects_are_still_refitted_and_repaired(truth):
     """On a tracked table: a re-acquired frame left in a wrong minimum (chi^2 inside the
-    movie's spread), an ambiguous one, a frame flagged ``track_jump`` (and its neighbours), a
+    movie's spread), an ambiguous one, a frame flagged ``follow_jump`` (and its neighbours), a
     warm frame 90 deg off its neighbours (a seam of the chunks) and a poor_fit one are refitted;
     the wrong ones come back to the truth; no other frame is refitted."""
     table, u_true, chi = _clean(truth)
@@ -339,10 +338,10 @@ def test_the_trackers_suspects_are_still_refitted_and_repaired(truth):
                    (math.nan, math.nan))
         for col, value in new.items():
             t.at[f, col] = value
-    t.at[reacq, "track_source"] = "reacquired"
+    t.at[reacq, "follow_source"] = "reacquired"
     t.at[poor, "status"] = "poor_fit"
     t.at[ambig, "ambiguous"] = 1
-    t.at[jump, "track_source"], t.at[jump, "track_jump"] = "reacquired", 1
+    t.at[jump, "follow_source"], t.at[jump, "follow_jump"] = "reacquired", 1
     refit, calls = _oracle(truth, u_true, chi)
     out, report = repair_by_continuity(t, refit, ContinuitySettings(), head_tail=False,
                                        ambiguity_chi2=9.0)
@@ -360,7 +359,7 @@ def test_the_small_sample_bar_rarely_flags_a_right_frame_and_catches_one_clearly
     the chi^2 distribution's variance for 19600 pixels plus an excess of 0 or 1 %: a new
     right frame lies above the bar built from 1-9 such frames in at most 0.3 % of movies,
     a frame 15 % off the data in at least 99 %, and from 10 rows on the bar is chi2_bar's."""
-    from holofit.fit.continuity import small_sample_bar
+    from holofit.quality import small_sample_bar
 
     rng = np.random.default_rng(3)
     nu = 19600

@@ -12,7 +12,9 @@ import pytest
 from holofit.camera import Camera
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
-from holofit.fit.frame import FrameFitSettings, fit_frame
+from holofit.fit.frame import fit_frame
+from holofit.fit.problem import FrameProblem
+from holofit.fit.settings import FrameFitSettings
 from holofit.hologram import calc_hologram
 from holofit.library.search import Candidate
 from holofit.optics import Optics
@@ -44,8 +46,22 @@ def _fit(engine, data, free=FINAL, model=ROD, start_off=(0.05, -0.04, 0.25),
     cands = cands or [Candidate(TRUTH["psi_rad"] + 0.08, TRUTH["theta_rad"] - 0.1, 0.0, 0.95)]
     start = (TRUTH["x_um"] + start_off[0], TRUTH["y_um"] + start_off[1],
              TRUTH["z_um"] + start_off[2])
-    return fit_frame(data, GRID.corner, PX, engine, model, OPTICS, start, 0.85, cands, free,
-                     FrameFitSettings(**opts), seed=1)
+    return fit_frame(
+        FrameProblem(
+            data,
+            GRID.corner,
+            PX,
+            engine,
+            model,
+            OPTICS,
+            free,
+            settings=FrameFitSettings(**opts),
+            seed=1,
+        ),
+        start,
+        0.85,
+        cands,
+    )
 
 
 def test_noise_free_frame_converges_to_the_truth_from_a_library_grade_start(engine):
@@ -60,8 +76,14 @@ def test_noise_free_frame_converges_to_the_truth_from_a_library_grade_start(engi
 
 def test_initial_pass_recovers_the_static_parameters(engine):
     start_model = Spherocylinder(0.315, 0.68, 1.51)
-    res = _fit(engine, _hologram(engine), free=(*FINAL, "a_um", "b_um", "n"),
-               model=start_model, mirror=False, noise_sd=1e-3)
+    res = _fit(
+        engine,
+        _hologram(engine),
+        free=(*FINAL, "a_um", "b_um", "n"),
+        model=start_model,
+        mirror=False,
+        noise_sd=1e-3,
+    )
     assert res.status == "ok", res.message
     assert abs(res.values["a_um"] - 0.3) < 1e-4
     assert abs(res.values["b_um"] - 0.7) < 1e-4
@@ -119,14 +141,26 @@ def test_the_fits_of_a_frame_share_their_solved_orientations():
     solve = theory.solve
 
     def counting(model, optics, orientation=None):
-        keys.append(np.round([orientation.psi, orientation.theta, orientation.phi], 12)
-                    .tobytes())
+        keys.append(np.round([orientation.psi, orientation.theta, orientation.phi], 12).tobytes())
         return solve(model, optics, orientation)
 
     theory.solve = counting
-    res = fit_frame(f.crop, f.corner, INSTRUMENT.pixel_size_um, theory, SMALL_ROD,
-                    INSTRUMENT.optics, f.position_um, f.alpha, f.candidates, FINAL_PASS,
-                    FrameFitSettings(), seed=0)
+    res = fit_frame(
+        FrameProblem(
+            f.crop,
+            f.corner,
+            INSTRUMENT.pixel_size_um,
+            theory,
+            SMALL_ROD,
+            INSTRUMENT.optics,
+            FINAL_PASS,
+            settings=FrameFitSettings(),
+            seed=0,
+        ),
+        f.position_um,
+        f.alpha,
+        f.candidates,
+    )
     assert res.status == "ok" and res.extra["n_solves"] == len(keys) > 2
     assert len(set(keys)) == len(keys), "an orientation was solved twice"
 
@@ -139,8 +173,10 @@ def test_the_initial_pass_stop_keeps_the_statics_within_a_standard_error(engine)
     data = _hologram(engine) + rng.normal(0.0, 0.02, GRID.shape)
     start_model = Spherocylinder(0.315, 0.68, 1.51)
     free = (*FINAL, "a_um", "b_um", "n")
-    fits = [_fit(engine, data, free=free, model=start_model, mirror=False, stop_chi2=stop)
-            for stop in (0.0, 1.0)]
+    fits = [
+        _fit(engine, data, free=free, model=start_model, mirror=False, stop_chi2=stop)
+        for stop in (0.0, 1.0)
+    ]
     tight, stopped = fits
     assert tight.status == stopped.status == "ok"
     for key in ("a_um", "b_um", "n", "x_um", "y_um", "z_um", "theta_rad"):

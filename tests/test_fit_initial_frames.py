@@ -12,6 +12,7 @@ from holofit.batch import stage as skeleton
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
 from holofit.fit import stage
+from holofit.fit.config import FitConfig
 from holofit.fit.defaults import default_initial_frames
 from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
@@ -44,19 +45,31 @@ def test_a_30_frame_movie_fits_8_frames_everything_free_and_says_so(tmp_path, mo
     given: list[list[int]] = []
 
     def intercept(func, config, frames, *args, **kwargs):
-        given.append(list(frames))
+        given.append([k[1] for k in frames])  # the (particle, frame) keys of track 0
         raise _Stop
 
     monkeypatch.setattr(skeleton, "run_batch", intercept)
     run = stage.FitRun()
     monkeypatch.setattr(stage, "FitRun", lambda: run)
     with pytest.raises(_Stop):
-        stage.run_fit(tmp_path / "crop", tmp_path / "prefit", None, particle, tmp_path / "fit",
-                      pass_name="initial", batch=SERIAL, plot=False)
+        stage.run_fit(
+            tmp_path / "crop",
+            tmp_path / "prefit",
+            None,
+            tmp_path / "fit",
+            FitConfig(particle, passes="initial", plot=False),
+            batch=SERIAL,
+        )
     assert given == [list(range(8))]
     assert any("first 8 of the 30 frames" in n and "--initial-frames" in n for n in run.notes)
     given.clear()
     with pytest.raises(_Stop):
-        stage.run_fit(tmp_path / "crop", tmp_path / "prefit", None, particle, tmp_path / "fit",
-                      pass_name="initial", initial_frames=12, batch=SERIAL, plot=False)
+        stage.run_fit(
+            tmp_path / "crop",
+            tmp_path / "prefit",
+            None,
+            tmp_path / "fit",
+            FitConfig(particle, passes="initial", initial_frames=12, plot=False),
+            batch=SERIAL,
+        )
     assert given == [list(range(12))]

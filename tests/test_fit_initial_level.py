@@ -1,4 +1,5 @@
-"""The initial pass's rows clearly worse than its best ones (holofit.fit.initial_level): flagged
+"""The initial pass's rows clearly worse than its best ones (holofit.quality.flag_off_level):
+flagged
 on simulated reduced chi^2 with known labels, never flagging right-minimum rows, and kept out of
 the static parameters and the final pass's bar."""
 
@@ -11,12 +12,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from holofit.fit.continuity import chi2_bar, small_sample_bar
-from holofit.fit.initial_level import flag_initial_table, flag_off_level, initial_level
+from holofit.fit.chunk_task import FIXED_STATICS_FLOOR, REFIT_MIN_ROWS, bar_from_initial
+from holofit.fit.passes import flag_initial
 from holofit.fit.static import static_average
-from holofit.fit.tracked import FIXED_STATICS_FLOOR, REFIT_MIN_ROWS, bar_from_initial
 from holofit.io.tables import read_table, sidecar_path, write_table
 from holofit.particles import JanusSphere
+from holofit.quality import chi2_bar, flag_off_level, initial_level, small_sample_bar
 
 N_PIXELS = 19600
 JANUS = JanusSphere(0.443, 0.047, 1.581, 2.74)
@@ -25,9 +26,20 @@ JANUS = JanusSphere(0.443, 0.047, 1.581, 2.74)
 def _table(chi2, caps=None, status="ok"):
     n = len(chi2)
     caps = np.full(n, 0.047) if caps is None else np.asarray(caps)
-    return pd.DataFrame({"frame": np.arange(n), "status": status, "message": "",
-                         "chi2_red": chi2, "n_pixels": N_PIXELS, "radius_um": 0.443,
-                         "cap_thickness_um": caps, "n_core": 1.581, "n_cap": 2.74})
+    return pd.DataFrame(
+        {
+            "particle": 0,
+            "frame": np.arange(n),
+            "status": status,
+            "message": "",
+            "chi2_red": chi2,
+            "n_pixels": N_PIXELS,
+            "radius_um": 0.443,
+            "cap_thickness_um": caps,
+            "n_core": 1.581,
+            "n_cap": 2.74,
+        }
+    )
 
 
 def _right(rng, n, level=1.02, excess=0.01):
@@ -89,7 +101,9 @@ def test_the_table_is_rewritten_with_its_sidecar_and_the_bar_ignores_flagged_row
     chi[off] = [1.26, 1.27, 1.12, 1.16, 1.13]
     path = write_table(tmp_path / "initial.csv", _table(chi), {"kind": "fit table"})
     bar_all, _ = bar_from_initial(path, 4.0)
-    assert flag_initial_table(path, 4.0) == len(off)
+    table = read_table(path)
+    level = flag_initial(table, 4.0)
+    write_table(path, table, {"kind": "fit table", "initial_level": level})
     table = read_table(path)
     assert list(table.index[table["status"] == "poor_fit"]) == off
     meta = json.loads(sidecar_path(path).read_text())
@@ -99,7 +113,7 @@ def test_the_table_is_rewritten_with_its_sidecar_and_the_bar_ignores_flagged_row
     assert bar == pytest.approx(small_sample_bar(right, 4.0), rel=1e-8)  # (CSV round trip)
     assert bar < 1.1 < bar_all
     assert "7 ok frame(s)" in note
-    assert flag_initial_table(path, 4.0) == 0
+    assert flag_initial(read_table(path), 4.0) is None
 
 
 def test_the_bar_is_taken_from_the_initial_frames_as_the_final_pass_fits_them(tmp_path):

@@ -13,8 +13,9 @@ import pytest
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.fit import overlaps as overlaps_module
-from holofit.fit.per_track import run_fit_tracks, track_dir
-from holofit.fit.stage import initial_choice
+from holofit.fit.config import FitConfig
+from holofit.fit.passes import initial_choice
+from holofit.fit.stage import run_fit
 from holofit.holomodel.parameters import static_values
 from holofit.particles import Sphere
 from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
@@ -49,15 +50,24 @@ def pair(tmp_path_factory):
 
 
 def _fit(pair, out, workers=0, **kwargs):
-    return run_fit_tracks(pair["crop"], pair["prefit"], None, pair["cfg"], out, plot=False,
-                          batch=BatchOptions(workers=workers, progress=False), **kwargs)
+    return run_fit(
+        pair["crop"],
+        pair["prefit"],
+        None,
+        out,
+        FitConfig(pair["cfg"], plot=False, **kwargs),
+        batch=BatchOptions(workers=workers, progress=False),
+    )
 
 
 def _xyz_errors(pair, fit):
-    truth = {int(p): (pair["pa"] if g["x_um"].mean() < 10 else pair["pb"])
-             for p, g in fit.groupby("particle")}
-    return np.array([[r.x_um, r.y_um, r.z_um] - truth[int(r.particle)][int(r.frame)]
-                     for r in fit.itertuples()])
+    truth = {
+        int(p): (pair["pa"] if g["x_um"].mean() < 10 else pair["pb"])
+        for p, g in fit.groupby("particle")
+    }
+    return np.array(
+        [[r.x_um, r.y_um, r.z_um] - truth[int(r.particle)][int(r.frame)] for r in fit.itertuples()]
+    )
 
 
 class _Stop:
@@ -82,11 +92,11 @@ def test_an_interrupted_refit_resumes_without_redoing_a_row(pair, tmp_path, monk
     first: list = []
     monkeypatch.setattr(overlaps_module, "refit_overlap_task", _Stop(3, first))
     with pytest.raises(KeyboardInterrupt):
-        _fit(pair, out, pass_name="final", static=pair["static"])
+        _fit(pair, out, passes="final", static=pair["static"])
     assert len(first) == 3 and not (out / "fit.csv").exists()
     again: list = []
     monkeypatch.setattr(overlaps_module, "refit_overlap_task", _Stop(None, again))
-    run = _fit(pair, out, pass_name="final", static=pair["static"])
+    run = _fit(pair, out, passes="final", static=pair["static"])
     summary = run.summaries["final, overlaps"]
     assert set(again).isdisjoint(first), "a finished row was refitted again"
     assert sorted(first + again) == sorted((p, f) for p in (0, 1) for f in range(N))
@@ -98,22 +108,24 @@ def test_an_interrupted_refit_resumes_without_redoing_a_row(pair, tmp_path, monk
     # a rerun of the complete run refits nothing
     done: list = []
     monkeypatch.setattr(overlaps_module, "refit_overlap_task", _Stop(None, done))
-    rerun = _fit(pair, out, pass_name="final", static=pair["static"])
-    assert done == [] and rerun.summaries["final, overlaps"].n_run == 0
+    rerun = _fit(pair, out, passes="final", static=pair["static"])
+    assert done == [] and rerun.summaries["final"].n_run == 0  # fit.csv complete: no refit
     pd.testing.assert_frame_equal(pd.read_csv(rerun.final), fit)
     # a track's first fits changed since (here by hand: 1 nm in x): the refits start afresh
     # (no "other settings" refusal), every row again
-    track0 = track_dir(out, 0) / "fit.csv"
-    edited = pd.read_csv(track0)
-    edited.loc[0, "x_um"] += 0.001
-    edited.to_csv(track0, index=False)
+    rows = out / "fit_frames.csv"  # the final pass's own rows (first fits, every track)
+    edited = pd.read_csv(rows)
+    edited.loc[(edited["particle"] == 0).idxmax(), "x_um"] += 0.001
+    edited.to_csv(rows, index=False)
     redone: list = []
     monkeypatch.setattr(overlaps_module, "refit_overlap_task", _Stop(None, redone))
-    assert _fit(pair, out, pass_name="final", static=pair["static"]).summaries[
-        "final, overlaps"].n_run == 2 * N
+    assert (
+        _fit(pair, out, passes="final", static=pair["static"]).summaries["final, overlaps"].n_run
+        == 2 * N
+    )
     assert sorted(redone) == sorted((p, f) for p in (0, 1) for f in range(N))
     # two workers give the rows one gives
-    two = _fit(pair, tmp_path / "fit2", workers=2, pass_name="final", static=pair["static"])
+    two = _fit(pair, tmp_path / "fit2", workers=2, passes="final", static=pair["static"])
     other = pd.read_csv(two.final)
     cols = ["particle", "frame", "status", "x_um", "y_um", "z_um", "alpha", "chi2"]
     pd.testing.assert_frame_equal(other[cols], fit[cols], rtol=1e-9)
@@ -126,14 +138,13 @@ def test_a_track_whose_every_frame_overlaps_gets_a_sound_initial_pass(pair, tmp_
     out = tmp_path / "fit"
     run = _fit(pair, out)
     initial = pd.read_csv(run.initial)
-    first = pd.concat([pd.read_csv(track_dir(out, p) / "initial.csv").assign(particle=p)
-                       for p in (0, 1)], ignore_index=True)
+    first = pd.read_csv(out / "initial_frames.csv")  # the pass's own rows: the first fits
     assert initial["message"].str.startswith("refitted with track").all()
     assert (initial["status"] == "ok").all()
     print(first[["particle", "frame", "status", "radius_um", "n"]])
     print(initial[["particle", "frame", "status", "radius_um", "n"]])
     for p in (0, 1):
-        values = json.loads((track_dir(out, p) / "static.json").read_text())["values"]
+        values = json.loads((out / "static.json").read_text())["tracks"][str(p)]["values"]
         assert values["radius_um"] == pytest.approx(0.5, abs=0.005), p
         assert values["n"] == pytest.approx(1.59, abs=0.005), p
     # the first fits (no neighbour field) are all pulled off (n 1.580-1.582, poor_fit): without
@@ -158,10 +169,10 @@ def test_pooled_static_parameters_reach_the_final_pass_run_on_its_own(pair, tmp_
     """make runs the passes as two commands (``--pass initial``, then ``--pass final``): with
     ``static_mode="pooled"`` the second must use the pooled ``static.json``, not each track's."""
     out = tmp_path / "fit"
-    _fit(pair, out, pass_name="initial", static_mode="pooled")
+    _fit(pair, out, passes="initial", static_mode="pooled")
     pooled = json.loads((out / "static.json").read_text())["values"]
     assert pooled["radius_um"] == pytest.approx(0.5, abs=0.005)
-    _fit(pair, out, pass_name="final", static_mode="pooled")
+    _fit(pair, out, passes="final", static_mode="pooled")
     for p in (0, 1):
-        used = json.loads((track_dir(out, p) / "fit.csv.json").read_text())["static"]
+        used = json.loads((out / "fit.csv.json").read_text())["static"]["tracks"][str(p)]
         assert used["values"] == pooled

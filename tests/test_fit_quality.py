@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from holofit.holomodel.result import flag_outliers
 from holofit.prefit.estimate import SearchSpace
+from holofit.quality import flag_outliers
 from holofit.status import OK, POOR_FIT
 from tests.test_prefit_fit import TRUTH, _fit, _hologram
 

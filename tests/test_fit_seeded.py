@@ -12,10 +12,14 @@ import pytest
 from holofit.batch.stage import FrameLoader
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import run_crop
-from holofit.fit.frame import FrameFitSettings, fit_frame
+from holofit.fit.config import FitConfig
+from holofit.fit.frame import fit_frame
+from holofit.fit.passes import initial_choice, initial_particle, load_payload
+from holofit.fit.problem import FrameProblem
 from holofit.fit.seeded import SEED_BUILD, fit_frame_seeded
-from holofit.fit.stage import _load, initial_choice, initial_particle, run_fit
-from holofit.fit.task import _free
+from holofit.fit.settings import FrameFitSettings
+from holofit.fit.stage import run_fit
+from holofit.fit.task import free_parameters
 from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
 from holofit.tables.cropset import CropSet
@@ -78,18 +82,46 @@ def test_a_seeded_frame_reaches_the_truth_with_fewer_solves(movie):
     lib, _ = read_stage_table(root / "lib" / "library.csv", crops, "library")
     loader = FrameLoader(crops, pre, lib)
     opts = FrameFitSettings(stop_chi2=1.0)
-    free = _free(model, "initial")
+    free = free_parameters(model, "initial")
     seeded_solves, library_solves = 0, 0
     for frame in (1, 4, 6):
-        p = _load(loader, frame)
+        p = load_payload(loader, frame)
         at = (p.start["x_um"], p.start["y_um"], p.start["z_um"])
         direct = particle.theory(fixed_lattice_for=inst.optics)
-        seeded = fit_frame_seeded(p.crop, p.corner, inst.pixel_size_um, seeding, direct, model,
-                                  inst.optics, at, p.start["alpha"], p.candidates,
-                                  _free(model, "final"), free, opts, seed=frame)
+        seeded = fit_frame_seeded(
+            FrameProblem(
+                p.crop,
+                p.corner,
+                inst.pixel_size_um,
+                direct,
+                model,
+                inst.optics,
+                free,
+                settings=opts,
+                seed=frame,
+            ),
+            seeding,
+            at,
+            p.start["alpha"],
+            p.candidates,
+        )
         direct = particle.theory(fixed_lattice_for=inst.optics)
-        plain = fit_frame(p.crop, p.corner, inst.pixel_size_um, direct, model, inst.optics, at,
-                          p.start["alpha"], p.candidates, free, opts, seed=frame)
+        plain = fit_frame(
+            FrameProblem(
+                p.crop,
+                p.corner,
+                inst.pixel_size_um,
+                direct,
+                model,
+                inst.optics,
+                free,
+                settings=opts,
+                seed=frame,
+            ),
+            at,
+            p.start["alpha"],
+            p.candidates,
+        )
         u_true = _axis(angles[frame, 1], angles[frame, 0])
         for r in (seeded, plain):
             assert r.status == "ok", r.message
@@ -114,13 +146,21 @@ def test_the_initial_pass_is_seeded_and_spread_with_a_tmatrix(movie, tmp_path):
     over the movie, seeded, and recovers the truth's statics; without one (``--tmatrix
     never``) it follows the track from the first frame, as before."""
     root, start, _, _, _ = movie
-    run = run_fit(root / "crop", root / "prefit", root / "lib", start, tmp_path / "a",
-                  pass_name="initial", initial_frames=3, batch=SERIAL, plot=False)
+    run = run_fit(
+        root / "crop",
+        root / "prefit",
+        root / "lib",
+        tmp_path / "a",
+        FitConfig(start, passes="initial", initial_frames=3, plot=False),
+        batch=SERIAL,
+    )
     assert (tmp_path / "a" / "tmatrix_start.npz").exists()
     built = json.loads((tmp_path / "a" / "tmatrix_start.npz.json").read_text())
     assert built["tolerance"] == SEED_BUILD["tolerance"]  # a seed's T-matrix, not a final one
-    assert any("initial pass's poses (start statics) served from the particle's T-matrix" in n
-               for n in run.notes), run.notes
+    assert any(
+        "initial pass's poses (start statics) served from the particle's T-matrix" in n
+        for n in run.notes
+    ), run.notes
     table = read_fit_table(run.initial).table
     assert table["frame"].tolist() == [1, 4, 6]
     assert (table["status"] == "ok").all(), table["message"].tolist()
@@ -130,13 +170,24 @@ def test_the_initial_pass_is_seeded_and_spread_with_a_tmatrix(movie, tmp_path):
     assert static["n"] == pytest.approx(1.5, abs=0.005)
     # a rerun finds the seeds' T-matrix and every frame done, and changes nothing
     before = run.initial.read_bytes()
-    again = run_fit(root / "crop", root / "prefit", root / "lib", start, tmp_path / "a",
-                    pass_name="initial", initial_frames=3, batch=SERIAL, plot=False)
+    again = run_fit(
+        root / "crop",
+        root / "prefit",
+        root / "lib",
+        tmp_path / "a",
+        FitConfig(start, passes="initial", initial_frames=3, plot=False),
+        batch=SERIAL,
+    )
     assert again.summaries["initial"].n_run == 0 and again.initial.read_bytes() == before
     assert any("initial pass's poses" in n and "loaded" in n for n in again.notes), again.notes
-    never = run_fit(root / "crop", root / "prefit", root / "lib", start, tmp_path / "b",
-                    pass_name="initial", initial_frames=3, tmatrix="never", batch=SERIAL,
-                    plot=False)
+    never = run_fit(
+        root / "crop",
+        root / "prefit",
+        root / "lib",
+        tmp_path / "b",
+        FitConfig(start, passes="initial", initial_frames=3, tmatrix="never", plot=False),
+        batch=SERIAL,
+    )
     assert not (tmp_path / "b" / "tmatrix_start.npz").exists()
     assert read_fit_table(never.initial).table["frame"].tolist() == [0, 1, 2]
 
@@ -155,15 +206,25 @@ def test_a_seed_from_the_twin_height_is_tried_from_other_heights(tmp_path):
     inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
     pos = np.array([[8.0, 8.0, 1.5]])
     angle = np.array([[0.7, 1.1, 0.0]])
-    sim = simulate_movie(truth.model, inst, pos, (90, 90), orientations=angle, alpha=0.9,
-                         theory=truth.theory(), seed=4, out_dir=tmp_path / "sim")
+    sim = simulate_movie(
+        truth.model,
+        inst,
+        pos,
+        (90, 90),
+        orientations=angle,
+        alpha=0.9,
+        theory=truth.theory(),
+        seed=4,
+        out_dir=tmp_path / "sim",
+    )
     run_crop(sim.movie, sim.background, inst, tmp_path / "crop", size=64, plot=False)
     run_prefit(tmp_path / "crop", tmp_path / "prefit", batch=SERIAL, plot=False)
     crops = CropSet(tmp_path / "crop")
     pre, _ = read_stage_table(tmp_path / "prefit" / "prefit.csv", crops, "prefit")
-    p = _load(FrameLoader(crops, pre), 0)
-    particle = initial_particle(load_particle(tmp_path / "start.toml")
-                                .with_fixed_lattice(inst.optics))
+    p = load_payload(FrameLoader(crops, pre), 0)
+    particle = initial_particle(
+        load_particle(tmp_path / "start.toml").with_fixed_lattice(inst.optics)
+    )
     model = particle.model
     seeding = particle.theory(fixed_lattice_for=inst.optics)
     seeding.tmatrix(model, inst.optics)
@@ -172,10 +233,22 @@ def test_a_seed_from_the_twin_height_is_tried_from_other_heights(tmp_path):
     for retry in (1.5, np.inf):
         direct = particle.theory(fixed_lattice_for=inst.optics)
         results[retry] = fit_frame_seeded(
-            p.crop, p.corner, inst.pixel_size_um, seeding, direct, model, inst.optics,
-            (p.start["x_um"], p.start["y_um"], -1.5), p.start["alpha"], starts,
-            _free(model, "final"), _free(model, "initial"), FrameFitSettings(stop_chi2=1.0),
-            retry_chi2_red=retry)
+            FrameProblem(
+                p.crop,
+                p.corner,
+                inst.pixel_size_um,
+                direct,
+                model,
+                inst.optics,
+                free_parameters(model, "initial"),
+                settings=FrameFitSettings(stop_chi2=1.0),
+            ),
+            seeding,
+            (p.start["x_um"], p.start["y_um"], -1.5),
+            p.start["alpha"],
+            starts,
+            retry_chi2_red=retry,
+        )
     good, bad = results[1.5], results[np.inf]
     assert good.status == "ok" and good.values["z_um"] == pytest.approx(1.5, abs=0.05)
     assert good.values["a_um"] == pytest.approx(0.3, abs=0.01)

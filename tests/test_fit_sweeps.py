@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 
 from holofit.config import load_instrument, load_particle, resolve_config
+from holofit.fit.config import FitConfig
 from holofit.fit.continuity import ContinuitySettings
 from holofit.fit.stage import run_fit
 from holofit.simulate.holograms import simulate_movie
@@ -48,9 +49,16 @@ def tracked(tmp_path_factory):
 
 
 def _fit(root, particle, out, continuity):
-    return run_fit(root / "crop", root / "prefit", root / "lib", particle, out,
-                   pass_name="final", static=root / "static.json", batch=SERIAL, plot=False,
-                   continuity=continuity)
+    return run_fit(
+        root / "crop",
+        root / "prefit",
+        root / "lib",
+        out,
+        FitConfig(
+            particle, passes="final", static=root / "static.json", plot=False, continuity=continuity
+        ),
+        batch=SERIAL,
+    )
 
 
 def _off_deg(table: pd.DataFrame, u_true: np.ndarray) -> np.ndarray:
@@ -58,13 +66,13 @@ def _off_deg(table: pd.DataFrame, u_true: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1, 1)))
 
 
-def test_a_clean_tracked_run_is_not_refitted(tracked, tmp_path):
+def test_a_clean_followed_run_is_not_refitted(tracked, tmp_path):
     """Every frame warm, in its right minimum: the sweeps refit none (the untracked rule
     refits the frames whose step is above the median: 4 of the 6 here)."""
     root, particle, u_true = tracked
     shutil.copytree(root / "fit", tmp_path / "fit")
     before = pd.read_csv(tmp_path / "fit" / "fit.csv").sort_values("frame")
-    assert (before["status"] == "ok").all() and (before["track_source"] != "reacquired").all()
+    assert (before["status"] == "ok").all() and (before["follow_source"] != "reacquired").all()
     assert _off_deg(before, u_true).max() < 2
     run = _fit(root, particle, tmp_path / "fit", ContinuitySettings())
     assert run.summaries["final"].n_run == 0
@@ -80,13 +88,25 @@ def test_a_reacquired_frame_with_a_jump_is_still_refitted(tracked, tmp_path):
     path = tmp_path / "fit" / "fit.csv"
     table = pd.read_csv(path).sort_values("frame").reset_index(drop=True)
     psi, theta = np.radians(124.0), np.radians(90.0)
-    wrong = {"psi_rad": psi, "theta_rad": theta, "ux": np.sin(theta) * np.cos(psi),
-             "uy": np.sin(theta) * np.sin(psi), "uz": np.cos(theta),
-             "chi2": 3 * table["chi2"][3], "chi2_red": 3 * table["chi2_red"][3],
-             "track_source": "reacquired", "track_jump": 1}
+    wrong = {
+        "psi_rad": psi,
+        "theta_rad": theta,
+        "ux": np.sin(theta) * np.cos(psi),
+        "uy": np.sin(theta) * np.sin(psi),
+        "uz": np.cos(theta),
+        "chi2": 3 * table["chi2"][3],
+        "chi2_red": 3 * table["chi2_red"][3],
+        "follow_source": "reacquired",
+        "follow_jump": 1,
+    }
     for col, value in wrong.items():
         table.loc[3, col] = value
-    table.to_csv(path, index=False)
+    # the pass's own rows (its batch table, from which fit.csv is derived) so changed
+    chunks_csv = tmp_path / "fit" / "fit_chunks.csv"
+    rows = pd.read_csv(chunks_csv)
+    for col, value in wrong.items():
+        rows.loc[rows["frame"] == 3, col] = value
+    rows.to_csv(chunks_csv, index=False)
     assert _off_deg(table, u_true)[3] > 60
     run = _fit(root, particle, tmp_path / "fit", ContinuitySettings())
     assert run.continuity.replaced == 1 and 3 <= run.continuity.refitted <= 5

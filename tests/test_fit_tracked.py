@@ -1,4 +1,4 @@
-"""The tracked final pass's chunks: every frame in a chunk, neighbours overlapping, the plan
+"""The followed final pass's chunks: every frame in a chunk, neighbours overlapping, the plan
 independent of the workers; stitching a chunk table (a failed chunk's frames are errors)."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import itertools
 
 import pandas as pd
 
-from holofit.fit.tracked import (
+from holofit.fit.chunks import (
     INITIAL_OVERLAP,
     MAX_CHUNK,
     OVERLAP,
@@ -15,7 +15,7 @@ from holofit.fit.tracked import (
     plan_chunks,
     stitch_table,
 )
-from holofit.io.tables import write_table
+from holofit.io.tables import read_table, write_table
 
 
 def test_chunks_cover_every_frame_and_overlap():
@@ -37,7 +37,7 @@ def test_chunks_cover_every_frame_and_overlap():
 
 
 def test_the_initial_passs_frames_are_cut_into_their_runs():
-    from holofit.fit.stage import initial_choice
+    from holofit.fit.passes import initial_choice
 
     assert consecutive_runs([]) == []
     assert consecutive_runs([5, 1, 2, 3, 9, 10]) == [[1, 2, 3], [5], [9, 10]]
@@ -48,7 +48,7 @@ def test_the_initial_passs_frames_are_cut_into_their_runs():
 
 
 def _row(chunk, frame, x, status="ok", message=""):
-    return {"chunk": chunk, "frame": frame, "x_um": x, "y_um": 0.0, "z_um": 5.0,
+    return {"particle": 0, "chunk": chunk, "frame": frame, "x_um": x, "y_um": 0.0, "z_um": 5.0,
             "ux": 0.0, "uy": 0.0, "uz": 1.0, "chi2": 10.0 + x, "status": status,
             "message": message}
 
@@ -61,7 +61,7 @@ def test_stitch_keeps_the_earlier_row_and_fills_a_failed_chunk(tmp_path):
     rows += [_row(2, 4, 0.0, "error", "RuntimeError: broke")]  # chunk 2 failed whole
     path = tmp_path / "chunks.csv"
     write_table(path, pd.DataFrame(rows))
-    table, bad = stitch_table(path, chunks, head_tail=True)
+    table, bad = stitch_table(read_table(path), {0: chunks}, head_tail=True)
     assert table["frame"].tolist() == list(range(7))
     assert table.set_index("frame").loc[3, "x_um"] == 0.0  # the earlier (better) kept
     assert bad["frame"].tolist() == [3] and bad["kept"].tolist() == ["earlier"]

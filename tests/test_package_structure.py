@@ -4,8 +4,8 @@ the public API of ``holofit/__init__`` resolvable, and the README's layout compl
 
 The layers, lowest first (a module may import from its own layer and the layers below it):
 
-0. foundation - conventions, statuses, particle models, optics, file I/O, the configuration-file
-   schema, the camera model, provenance, progress, the cache;
+0. foundation - conventions, statuses and the quality rules, particle models, optics, file I/O,
+   the configuration-file schema, the camera model, provenance, progress, the cache;
 1. ``scattering`` - the scattering theories that need no dipoles: Mie, coated sphere, sphere
    clusters, multipole expansions, T-matrices, the lens;
 2. ``dda`` - the discrete dipole approximation (and ADDA), built on ``scattering``;
@@ -117,8 +117,8 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 LAYERS: tuple[frozenset[str], ...] = (
-    frozenset({"conventions", "status", "cache", "progress", "provenance", "camera", "io",
-               "config_schema", "optics", "particles"}),
+    frozenset({"conventions", "status", "quality", "cache", "progress", "provenance", "camera",
+               "io", "config_schema", "optics", "particles"}),
     frozenset({"scattering"}),
     frozenset({"dda"}),
     frozenset({"engines", "config", "hologram"}),

@@ -160,7 +160,7 @@ def test_sigkill_halfway_then_rerun_finishes_without_refitting(tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert f"{n - len(rows_at_kill)} fitted now, {len(rows_at_kill)} done before" in res.stdout
-    final = pd.read_csv(out / "prefit.csv")
+    final = pd.read_csv(out / "prefit.csv").set_index(["particle", "frame"])
     # the frames finished before the kill were not fitted again: their rows, timings
     # included, are the ones recorded before the kill
     for frame, row in rows_at_kill.items():

@@ -35,6 +35,7 @@ class _Crops:
 
     def __init__(self):
         self.frames = [0, 1, 2, 3]
+        self.keys = [(0, f) for f in self.frames]
         self.table_path = "crops.csv"
 
     def row(self, frame):
@@ -49,8 +50,8 @@ class _Crops:
 
 
 def test_unknown_frames_refused_with_the_crop_table_named():
-    assert check_frames(_Crops(), None) == [0, 1, 2, 3]
-    assert check_frames(_Crops(), [3, 0]) == [3, 0]
+    assert check_frames(_Crops(), None) == [(0, 0), (0, 1), (0, 2), (0, 3)]
+    assert check_frames(_Crops(), [3, 0]) == [(0, 3), (0, 0)]
     with pytest.raises(CropSetError, match=r"crops.csv: no frame\(s\) \[7, 9\]"):
         check_frames(_Crops(), [0, 9, 7])
 

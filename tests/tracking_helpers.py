@@ -13,10 +13,10 @@ import numpy as np
 from holofit.camera import Camera
 from holofit.config import Instrument
 from holofit.dda.engine import BuiltinDDA
-from holofit.fit.tracking import ChunkFrame
+from holofit.fit.follower import ChunkFrame
 from holofit.library.search import Candidate
 from holofit.particles import JanusSphere, ParticleModel, Spherocylinder
-from holofit.simulate.holograms import simulate_movie
+from holofit.simulate.holograms import Exposure, simulate_movie
 
 INSTRUMENT = Instrument("test", 0.66, 1.33, 0.12, extra={"numerical_aperture": 1.2})
 ROD = Spherocylinder(0.25, 0.6, 1.5)
@@ -72,14 +72,24 @@ def make_track(theory, n: int = 6, seed: int = 0, jump_at: int | None = None,
         pos[jump_at:] += (0.3, -0.3, 0.25)
         angles[jump_at:, 1] += math.radians(25)
         numbers[jump_at:] += dropped
-    movie = simulate_movie(model, INSTRUMENT, pos, SHAPE, orientations=angles, alpha=0.9,
-                           theory=theory, camera=Camera(background_counts=BACKGROUND),
-                           seed=seed, keep_frames=True)
+    movie = simulate_movie(
+        model,
+        INSTRUMENT,
+        pos,
+        SHAPE,
+        orientations=angles,
+        alpha=0.9,
+        theory=theory,
+        seed=seed,
+        keep_frames=True,
+        exposure=Exposure(camera=Camera(background_counts=BACKGROUND)),
+    )
     frames = []
     for k in range(n):
         crop = movie.frames[k] / BACKGROUND
         start = tuple(pos[k] + (0.03, -0.02, 0.25))  # a prefit-like start
         cands = (Candidate(angles[k, 0] + 0.08, angles[k, 1] - 0.1, 0.0, 0.95),)
-        frames.append(ChunkFrame(int(numbers[k]), crop, (0, 0), start, 0.85, cands,
-                                 float(numbers[k]) * 0.01))
+        frames.append(
+            ChunkFrame(int(numbers[k]), crop, (0, 0), start, 0.85, cands, float(numbers[k]) * 0.01)
+        )
     return Track(frames, pos, angles, model.head_tail_symmetric)

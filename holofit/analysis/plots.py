@@ -178,13 +178,14 @@ def plot_trajectory(result: AnalysisResult, path: str | Path) -> Path:
     return _save(fig, Path(path))
 
 
-def write_plots(result: AnalysisResult, out_dir: str | Path) -> list[Path]:
-    """``msd.png``, ``orientation.png`` (not for spheres) and ``trajectory.png``."""
+def write_plots(result: AnalysisResult, out_dir: str | Path, prefix: str = "") -> list[Path]:
+    """``msd.png``, ``orientation.png`` (not for spheres) and ``trajectory.png``, each name
+    after ``prefix`` (one track of several: ``particle_<id>_``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = [plot_msd(result, out / "msd.png")]
-    p = plot_orientation(result, out / "orientation.png")
+    paths = [plot_msd(result, out / f"{prefix}msd.png")]
+    p = plot_orientation(result, out / f"{prefix}orientation.png")
     if p is not None:
         paths.append(p)
-    paths.append(plot_trajectory(result, out / "trajectory.png"))
+    paths.append(plot_trajectory(result, out / f"{prefix}trajectory.png"))
     return paths

@@ -219,15 +219,17 @@ def format_report(result: AnalysisResult) -> str:
 
 
 def write_summary(
-    result: AnalysisResult, out_dir: str | Path, inputs: list[str | Path] | None = None
+    result: AnalysisResult, out_dir: str | Path, inputs: list[str | Path] | None = None,
+    prefix: str = "",
 ) -> dict[str, Path]:
-    """Write ``summary.csv`` (+ sidecar), ``summary.json`` and ``msd.csv`` (every lag statistic)."""
+    """Write ``summary.csv`` (+ sidecar), ``summary.json`` and ``msd.csv`` (every lag
+    statistic), each name after ``prefix`` (one track of several: ``particle_<id>_``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     doc = result.summary()
     meta = sidecar(kind="diffusion analysis summary", units=SUMMARY_UNITS,
                    config=doc["settings"], inputs=inputs)
-    write_json(out / "summary.json", {**meta, "analysis": doc})
+    write_json(out / f"{prefix}summary.json", {**meta, "analysis": doc})
     frames = []
     for name, st in result.stats.items():
         frames.append(pd.DataFrame({
@@ -238,9 +240,9 @@ def write_summary(
     msd_units = {"observable": "text", "lag_frames": "frames", "tau_s": "s",
                  "mean": "um^2 (MSDs), 1 (orient, proj)", "sem": "same as mean",
                  "pairs": "count", "rejected_pairs": "count", "error_plateau": "bool"}
-    msd = write_table(out / "msd.csv", pd.concat(frames, ignore_index=True),
+    msd = write_table(out / f"{prefix}msd.csv", pd.concat(frames, ignore_index=True),
                       sidecar(kind="lag statistics", units=msd_units, inputs=inputs))
     # the last file written: make waits for it
-    csv = write_table(out / "summary.csv", pd.DataFrame(result.rows, columns=SUMMARY_COLUMNS),
-                      meta)
-    return {"summary_csv": csv, "summary_json": out / "summary.json", "msd_csv": msd}
+    csv = write_table(out / f"{prefix}summary.csv",
+                      pd.DataFrame(result.rows, columns=SUMMARY_COLUMNS), meta)
+    return {"summary_csv": csv, "summary_json": out / f"{prefix}summary.json", "msd_csv": msd}

@@ -86,9 +86,12 @@ def check_frames(crops: CropSet, frames: Sequence[int] | None) -> list[Any]:
     unknown = sorted(set(asked or []) - set(crops.frames))
     if unknown:
         raise CropSetError(f"{crops.table_path}: no frame(s) {unknown[:5]}")
-    if getattr(crops, "multi", False):  # several tracks: each (particle, frame) of those frames
-        return [k for k in crops.keys if asked is None or k[1] in set(asked)]
-    return crops.frames if asked is None else asked
+    if asked is None:
+        return list(crops.keys)
+    by_frame: dict[int, list[Any]] = {}
+    for k in crops.keys:
+        by_frame.setdefault(int(k[1]), []).append(k)
+    return [k for f in asked for k in by_frame.get(f, [])]
 
 
 def _finite(value: Any) -> bool:
@@ -172,6 +175,7 @@ class FrameLoader:
         return table.loc[frame].to_dict() if frame in table.index else None
 
     def __call__(self, frame: Any) -> FrameStart | Precomputed:
+        frame = self.crops.key(frame) if hasattr(self.crops, "key") else frame
         crow = self.crops.row(frame)
         skip = crop_skip(crow)
         if skip is not None:

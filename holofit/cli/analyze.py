@@ -148,19 +148,11 @@ def analyze(
 
     Writes OUT/summary.csv (+ .json sidecar), OUT/summary.json, OUT/msd.csv and PNG plots
     (msd.png, orientation.png, trajectory.png), and prints a short report. A table of several
-    tracks (a ``particle`` column) is analysed track by track (OUT/particle_N/) and pooled
-    (OUT/tracks.csv, OUT/pooled.csv, tracks.png, track_msds.png).
+    tracks is analysed track by track (OUT/particle_N_summary.csv, ...) and pooled
+    (OUT/tracks.csv, OUT/pooled.csv, tracks.png, track_msds.png; OUT/summary.csv with every
+    track's rows).
     """
-    from holofit.analysis import (
-        AnalysisConfig,
-        SettingError,
-        TrackPooling,
-        format_report,
-        format_tracks_report,
-        n_tracks,
-        run_analysis,
-        run_track_analysis,
-    )
+    from holofit.analysis import AnalysisConfig, SettingError, TrackPooling, run_analysis
 
     if model is None:
         model, why = model_from_sidecar(fit_table)
@@ -180,16 +172,8 @@ def analyze(
         raise click.BadParameter(exc.problem, param_hint=OPTION_OF_SETTING[exc.setting]) from None
     # FitTableError / AnalysisError name the file; the top-level handler shows them as
     # "holofit analyze: error: ..." like every stage's
-    if n_tracks(fit_table) > 1:  # a field of view: every track, then the tracks pooled
-        tracks, files = run_track_analysis(fit_table, settings, out, plots=plots,
-                                           frame_interval_s=frame_interval_s,
-                                           pooling=TrackPooling(min_frames=min_track_frames))
-        click.echo(format_tracks_report(tracks))
-        click.echo("")
-        click.echo("wrote " + ", ".join(str(p) for p in files.values()))
-        return
-    result, files = run_analysis(fit_table, settings, out, plots=plots,
-                                 frame_interval_s=frame_interval_s)
-    click.echo(format_report(result))
+    run = run_analysis(fit_table, settings, out, plots=plots, frame_interval_s=frame_interval_s,
+                       pooling=TrackPooling(min_frames=min_track_frames))
+    click.echo(run.report())
     click.echo("")
-    click.echo("wrote " + ", ".join(str(p) for p in files.values()))
+    click.echo("wrote " + ", ".join(str(p) for p in run.files.values()))

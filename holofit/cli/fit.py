@@ -23,18 +23,14 @@ from holofit.cli.stage_options import (
     quality_options,
 )
 from holofit.engines.select import ENGINE_CHOICES
+from holofit.fit.config import PASSES, FitConfig, FitRun
 from holofit.fit.continuity import ContinuitySettings
-from holofit.fit.frame import FrameFitSettings
-from holofit.fit.per_track import STATIC_MODES, run_fit_tracks
-from holofit.fit.stage import (
-    PASSES,
-    TMATRIX_CHOICES,
-    FitRun,
-    check_fixed,
-    fixable_names,
-)
-from holofit.fit.tracking import TrackOptions
-from holofit.holomodel.result import QualityLimits
+from holofit.fit.settings import FollowSettings, FrameFitSettings
+from holofit.fit.stage import run_fit
+from holofit.fit.static import STATIC_MODES
+from holofit.fit.task import check_fixed, fixable_names
+from holofit.fit.tmatrix_policy import TMATRIX_CHOICES
+from holofit.quality import QualityLimits
 
 
 @click.command()
@@ -84,11 +80,12 @@ from holofit.holomodel.result import QualityLimits
 @click.option("--no-continuity", is_flag=True,
               help="Skip the continuity sweeps (final-pass frames that look like a wrong "
                    "minimum refitted from their neighbours' orientations).")
-@click.option("--no-tracking", is_flag=True,
-              help="Final pass: fit every frame independently from the library's starts "
-                   "(default for a non-spherical particle: follow the track, each frame "
-                   "from its predecessor's fit, re-acquired from the library where that "
-                   "fails).")
+@click.option("--independent-frames", "independent", is_flag=True,
+              help="Fit every frame independently from the library's starts (default for a "
+                   "non-spherical particle: follow each track, each frame from its "
+                   "predecessor's fit, re-acquired from the library where that fails).")
+@click.option("--no-tracking", "no_tracking", is_flag=True, hidden=True,
+              help="Deprecated spelling of --independent-frames.")
 @click.option("--flag-probability", type=click.FloatRange(min=0, max=0.5, min_open=True,
                                                           max_open=True),
               default=1e-4, show_default=True,
@@ -129,6 +126,7 @@ def fit(
     n_starts: int,
     no_mirror: bool,
     no_continuity: bool,
+    independent: bool,
     no_tracking: bool,
     flag_probability: float,
     ambiguity_chi2: float,
@@ -173,18 +171,20 @@ def fit(
         check_fixed(cfg.model, names)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--fix") from None
-    run = run_fit_tracks(crop_dir, prefit_dir, library_dir, cfg, out,
-                  static_mode=static_mode, pass_name=pass_name,
-                  initial_frames=initial_frames, static=static_file, instrument=inst,
-                  override_instrument=override_instrument, options=opts, engine=engine,
-                  fixed=names, tmatrix=tmatrix,
-                  frames=frame_list(crop_dir, frame_range), batch=batch, plot=plot,
-                  plot_frames=parse_int_list(plot_frames, "--plot-frames"),
-                  outlier_factor=outlier_factor,
-                  numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na,
-                  continuity=ContinuitySettings(enabled=not no_continuity,
-                                                flag_probability=flag_probability),
-                  tracking=TrackOptions(warm=not no_tracking))
+    if no_tracking:
+        click.echo("note: --no-tracking is deprecated; use --independent-frames", err=True)
+    config = FitConfig(
+        cfg, passes=pass_name, initial_frames=initial_frames, static=static_file,
+        static_mode=static_mode, frame=opts, engine=engine, fixed=names, tmatrix=tmatrix,
+        follow=FollowSettings(warm=not (independent or no_tracking)),
+        continuity=ContinuitySettings(enabled=not no_continuity,
+                                      flag_probability=flag_probability),
+        frames=_tuple(frame_list(crop_dir, frame_range)), instrument=inst,
+        override_instrument=override_instrument,
+        numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na,
+        outlier_factor=outlier_factor, plot=plot,
+        plot_frames=_tuple(parse_int_list(plot_frames, "--plot-frames")))
+    run = run_fit(crop_dir, prefit_dir, library_dir, out, config, batch=batch)
     _report(run)
 
 
@@ -206,3 +206,7 @@ def _report(run: FitRun) -> None:
                    f"row(s) improved, {c.flagged} flagged poor_fit")
     if run.final is not None:
         click.echo(f"final fit table -> {run.final}")
+
+
+def _tuple(values: list[int] | None) -> tuple[int, ...] | None:
+    return None if values is None else tuple(values)

@@ -16,10 +16,10 @@ from holofit.cli.stage_options import (
     parse_int_list,
     quality_options,
 )
-from holofit.holomodel.result import QualityLimits
 from holofit.prefit.estimate import SearchSpace
 from holofit.prefit.sphere import SphereFitSettings
 from holofit.prefit.stage import run_prefit
+from holofit.quality import QualityLimits
 
 
 def _range(value: str | None, name: str) -> tuple[float, float] | None:

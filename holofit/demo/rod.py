@@ -34,7 +34,7 @@ from holofit.config import (
 )
 from holofit.crop import run_crop
 from holofit.demo.sphere import run_sphere_demo
-from holofit.fit.stage import run_fit
+from holofit.fit.stage import FitConfig, run_fit
 from holofit.library.stage import run_library
 from holofit.particles import Spherocylinder
 from holofit.prefit import run_prefit
@@ -174,8 +174,8 @@ def _fit(demo: _Demo, config: ParticleConfig, batch: BatchOptions, initial_frame
     """Step 5: both DDA passes; the static parameters, the ok mask and the final-pass errors."""
     out = demo.out
     t0 = time.perf_counter()
-    run = run_fit(out / "crop", out / "prefit", out / "library", config, out / "fit",
-                  initial_frames=initial_frames, batch=batch)
+    run = run_fit(out / "crop", out / "prefit", out / "library", out / "fit",
+                  FitConfig(config, initial_frames=initial_frames), batch=batch)
     demo.timed("fit", t0)
     static = json.loads(run.static.read_text())["values"]
     fit = pd.read_csv(run.final).set_index("frame")
@@ -203,7 +203,8 @@ def _analyze(demo: _Demo) -> tuple[dict[str, float], dict]:
     echo = demo.echo
     t0 = time.perf_counter()
     settings = AnalysisConfig(model="rod", temperature_c=TEMPERATURE_C)
-    result, _ = run_analysis(demo.final_table, settings, demo.out / "analysis")
+    result = run_analysis(demo.final_table, settings, demo.out / "analysis").result
+    assert result is not None
     demo.timed("analyze", t0)
     theory = spherocylinder_diffusion(ROD.a_um, ROD.b_um, TEMPERATURE_C)
     truth_d = {"D_par": ROD_D_PAR, "D_perp": ROD_D_PERP,

@@ -92,7 +92,8 @@ def run_sphere_demo(out: Path, echo: Callable[[str], None] = print, workers: int
 
     t0 = time.perf_counter()
     settings = AnalysisConfig(model="sphere", temperature_c=TEMPERATURE_C)
-    result, _ = run_analysis(pre.table, settings, out / "analysis")
+    result = run_analysis(pre.table, settings, out / "analysis").result
+    assert result is not None
     echo(f"4. analyze ({time.perf_counter() - t0:.1f} s):")
     for line in format_report(result).splitlines():
         echo("   " + line)

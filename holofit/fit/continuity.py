@@ -1,48 +1,34 @@
 """Trajectory continuity: frames left in a wrong local minimum, refitted from their neighbours.
 
-A particle turns little between frames (the rod of the paper by ~4 deg rms, its Janus particle
-by ~12 deg), so a good neighbour's fitted orientation is a start inside the right basin for a
-frame whose library candidates led the fit into another one. After the final pass:
+A particle turns little between frames, so a good neighbour's fitted orientation is a start
+inside the right basin for a frame whose library candidates led the fit into another one.
+After the final pass (the sweeps, as batches: :mod:`holofit.fit.sweeps`):
 
 1. **Suspects**: frames not ``ok`` (and not failed or skipped), frames whose reduced chi^2 is
-   above the movie's bar (:func:`chi2_bar`: the median plus ``chi2_sigmas`` times the spread of
-   the *lower* half of the converged frames' values, which wrong-minimum frames cannot
-   inflate), and frames whose axis is more than ``jump_factor`` (1) times the movie's median
-   frame-to-frame step away from a neighbour's. The last catches the frames whose wrong
-   minimum is close to the data (on the replicate's Janus movie: 10-30 deg off the truth with
-   a reduced chi^2 inside the movie's spread, so only a fit from the right start can show it).
+   above the movie's bar (:func:`holofit.quality.chi2_bar`, which wrong-minimum frames cannot
+   inflate), and frames whose axis is more than ``jump_factor`` times the movie's median
+   frame-to-frame step away from a neighbour's (a wrong minimum close to the data shows only
+   against a fit from the right start).
 2. **Starts**: the fitted orientations (and heights and alphas) of the nearest *sources*
    before and after (``ok`` frames under the chi^2 bar), at most ``max_gap`` frames away; a
    start tried once for a frame is not tried again.
-3. **Refit and merge**: the stage fits those frames from those starts (the same pixels and noise
-   as the first fit, so the chi^2 compare exactly); a refit replaces the row when its chi^2 is
-   lower by more than ``min_gain_chi2`` (a refit into the same minimum differs by solver
-   precision only), and the replaced fit becomes the runner-up if it is the closer competitor
-   (the ``ambiguous`` flag then compares the two).
+3. **Refit and merge**: the stage fits those frames from those starts (the same pixels and
+   noise as the first fit, so the chi^2 compare exactly); a refit replaces the row when its
+   chi^2 is lower by more than ``min_gain_chi2``, and the replaced fit becomes the runner-up
+   if it is the closer competitor.
 4. Sweeps repeat while rows improve (a run of bad frames is eaten from its ends), at most
    ``max_sweeps``.
-5. **Flag** (``flag``): an ``ok`` frame becomes ``poor_fit`` only when its chi^2 is improbable
-   for a frame in the right minimum (:func:`flag_bars`): the bar follows the chi^2
-   distribution of the frame's pixel count and the movie's measured excess scatter (the noise
-   estimate's own error, the model's small imperfections), widened for the uncertainty of
-   that scatter measured on few frames, so a frame in the right minimum is flagged with
-   probability at most ``flag_probability`` (default 1e-4). The suspect bar of step 1 is
-   lower: it only decides which frames are refitted, and a refit replaces a row only when it
-   finds a better minimum.
+5. **Flag** (``flag``): an ``ok`` frame still improbable for a frame in the right minimum
+   becomes ``poor_fit`` (:func:`holofit.quality.flag_improbable`).
 
-**Tracked tables** (:func:`is_tracked`: the final pass followed the track,
-:mod:`holofit.fit.tracking`) have been checked frame by frame already: each warm fit was
-accepted only under the movie's chi^2 bar and with a smooth step, and every other frame was
-re-acquired from the library. There the suspects of step 1 are only (:func:`tracked_suspects`)
-the frames not ``ok``, above the bar, ``ambiguous``, re-acquired (``track_source``), flagged
-``track_jump`` (with their neighbours: either side of a jump may be the wrong one), and
-frames whose axis is more than ``tracked_jump_factor`` (5, the tracker's own ``step_factor``)
-times the median step from a neighbour's (where chunks of the track were stitched, or a
-replaced row now disagrees with its neighbour). The median-step rule of step 1, which marks
-most frames of a smooth track (on a tracked rod movie the sweeps refitted ~75 % of the frames
-and changed none), is kept for untracked tables (``--no-tracking``).
-
-The table logic lives here; :mod:`holofit.fit.stage` runs the refits through the batch runner.
+**Followed tables** (:func:`is_followed`: the pass followed the track,
+:mod:`holofit.fit.follow`) were checked frame by frame already, so their suspects
+(:func:`followed_suspects`) are only the frames not ``ok``, above the bar, ``ambiguous``,
+re-acquired (``follow_source``), flagged ``follow_jump`` (with their neighbours: either side of
+a jump may be the wrong one), and frames whose axis is more than ``followed_jump_factor``
+times the median step from a neighbour's (where chunks were stitched). The median-step rule
+of step 1, which would mark most frames of a smooth track, is kept for tables of independent
+frames (``--independent-frames``).
 """
 
 from __future__ import annotations
@@ -54,31 +40,25 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from scipy import stats
 
 from holofit.fit.frame import SAME_BASIN_RAD, SAME_BASIN_Z_UM
 from holofit.library.search import Candidate
+from holofit.quality import chi2_bar, flag_bars, flag_improbable, join_message
 from holofit.status import NOT_CONVERGED, OK, POOR_FIT
 
 __all__ = [
     "ContinuityReport",
     "ContinuitySettings",
-    "FlagBars",
     "NeighbourStart",
-    "chi2_bar",
-    "flag_bars",
-    "is_tracked",
+    "followed_suspects",
+    "is_followed",
     "merge_refits",
     "neighbour_starts",
     "repair_by_continuity",
-    "small_sample_bar",
     "sources",
     "suspects",
-    "tracked_suspects",
 ]
 
-#: the lower-half spread is median minus this quantile (one normal sd below the median)
-_ONE_SIGMA_BELOW = 15.87
 _CONVERGED = (OK, POOR_FIT)
 #: statuses a refit may improve (failed, error and skipped frames have no fit to improve on)
 _REFITTABLE = (OK, POOR_FIT, NOT_CONVERGED)
@@ -100,9 +80,9 @@ class ContinuitySettings:
         Suspect bar on the reduced chi^2: the median plus this many lower-half spreads.
     jump_factor : float
         Suspect when the axis is this many median frame-to-frame steps from a neighbour's.
-    tracked_jump_factor : float
-        On a tracked table (:func:`is_tracked`): suspect when the axis is this many median
-        frame-to-frame steps from a neighbour's (the tracker's ``step_factor``).
+    followed_jump_factor : float
+        On a followed table (:func:`is_followed`): suspect when the axis is this many median
+        frame-to-frame steps from a neighbour's (the follower's ``step_factor``).
     min_gain_chi2 : float
         A refit replaces a row only if its chi^2 (residual sum of squares over the pixel
         noise^2) is lower by more than this: a refit that lands in the same minimum differs
@@ -120,7 +100,7 @@ class ContinuitySettings:
     max_gap: int = 5
     chi2_sigmas: float = 4.0
     jump_factor: float = 1.0
-    tracked_jump_factor: float = 5.0
+    followed_jump_factor: float = 5.0
     min_gain_chi2: float = 1.0
     flag: bool = True
     flag_probability: float = 1e-4
@@ -128,9 +108,9 @@ class ContinuitySettings:
     def __post_init__(self) -> None:
         if self.max_sweeps < 0 or self.max_gap < 1:
             raise ValueError("continuity: max_sweeps >= 0 and max_gap >= 1 needed")
-        if not (self.chi2_sigmas > 0 and self.jump_factor > 0 and self.tracked_jump_factor > 0
+        if not (self.chi2_sigmas > 0 and self.jump_factor > 0 and self.followed_jump_factor > 0
                 and self.min_gain_chi2 >= 0):
-            raise ValueError("continuity: chi2_sigmas, jump_factor and tracked_jump_factor "
+            raise ValueError("continuity: chi2_sigmas, jump_factor and followed_jump_factor "
                              "must be > 0, min_gain_chi2 >= 0")
         if not 0 < self.flag_probability < 0.5:
             raise ValueError("continuity: flag_probability must be in (0, 0.5), got "
@@ -183,215 +163,6 @@ class ContinuityReport:
 
     def as_dict(self) -> dict[str, object]:
         return asdict(self)
-
-
-def chi2_bar(table: pd.DataFrame, sigmas: float, min_rows: int = 10) -> float:
-    """The reduced chi^2 above which a frame is a suspect (NaN: too few converged rows).
-
-    Parameters
-    ----------
-    table : DataFrame
-        A fit table.
-    sigmas : float
-        How many lower-half spreads above the median.
-    min_rows : int
-        Fewer converged rows than this: no bar.
-
-    Returns
-    -------
-    float
-        ``median + sigmas * (median - q15.87)`` of the converged rows' ``chi2_red``.
-    """
-    chi = table.loc[table["status"].isin(_CONVERGED), "chi2_red"].to_numpy(dtype=float)
-    chi = chi[np.isfinite(chi)]
-    if chi.size < min_rows:
-        return math.nan
-    med = float(np.median(chi))
-    return med + sigmas * max(med - float(np.percentile(chi, _ONE_SIGMA_BELOW)), 0.0)
-
-
-#: the relative scatter of a right-minimum frame's reduced chi^2 beyond the chi^2
-#: distribution's that :func:`small_sample_bar` assumes at least (the noise estimate's error,
-#: the model's frame-to-frame misfit): measured 0.8 % on the 24 frames of a simulated Janus
-#: movie (100x oil, z 8 um) fitted with the true statics (sd 1.28 % of the reduced chi^2
-#: against 1.01 % for 19600 pixels), rounded up
-EXCESS_FLOOR = 0.01
-
-
-def small_sample_bar(table: pd.DataFrame, sigmas: float, min_rows: int = 10,
-                     excess_floor: float = EXCESS_FLOOR) -> float:
-    """The suspect bar of :func:`chi2_bar` for a table with too few converged rows to measure
-    the movie's spread (a short movie's initial pass: 8 frames by default).
-
-    The bar has :func:`chi2_bar`'s form, ``median * (1 + sigmas * spread)``, with the relative
-    spread the larger of the one measured on the rows (median minus the 15.87 % quantile, over
-    the median; from 5 rows on) and the noise model's, ``sqrt(2 / nu + excess_floor^2)`` for
-    the rows' median pixel count ``nu`` (the chi^2 distribution's scatter plus the excess a
-    frame in the right minimum shows at least), widened by ``sqrt(1 + pi / (2 n))`` for the
-    error of a median of ``n`` rows. From ``min_rows`` rows on it is :func:`chi2_bar` itself.
-
-    Parameters
-    ----------
-    table : DataFrame
-        A fit table (``status``, ``chi2_red``; ``n_pixels`` for the noise model).
-    sigmas : float
-        How many spreads above the median.
-    min_rows : int
-        From this many converged rows on, :func:`chi2_bar`.
-    excess_floor : float
-        Least relative excess scatter assumed (:data:`EXCESS_FLOOR`).
-
-    Returns
-    -------
-    float
-        The bar on the reduced chi^2; NaN when no row converged or no pixel count is known.
-    """
-    conv = table["status"].isin(_CONVERGED).to_numpy()
-    chi = table["chi2_red"].to_numpy(dtype=float)
-    keep = conv & np.isfinite(chi)
-    n = int(keep.sum())
-    if n >= min_rows:
-        return chi2_bar(table, sigmas, min_rows)
-    if n == 0 or "n_pixels" not in table:
-        return math.nan
-    nu = table["n_pixels"].to_numpy(dtype=float)[keep]
-    nu = nu[np.isfinite(nu) & (nu > 0)]
-    if nu.size == 0:
-        return math.nan
-    chi = chi[keep]
-    med = float(np.median(chi))
-    model = math.sqrt(2.0 / float(np.median(nu)) + excess_floor**2)
-    measured = (max(med - float(np.percentile(chi, _ONE_SIGMA_BELOW)), 0.0) / med
-                if n >= 5 else 0.0)
-    spread = max(model, measured) * math.sqrt(1.0 + math.pi / (2.0 * n))
-    return med * (1.0 + sigmas * spread)
-
-
-#: scatter measured from the lower half of n values is as uncertain as a sample standard
-#: deviation with n / 3 degrees of freedom (normal samples: n / 2.65 at n = 10, n / 2.97 at
-#: n = 1000); its relative bias, about -0.8 / n, is divided out
-_DOF_PER_ROW = 1.0 / 3.0
-_LOWER_HALF_BIAS = 0.8
-
-
-
-
-def _to_symmetric(ratio: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Box-Cox transform with exponent -1/2, ``2 (1 - ratio^(-1/2))``, of reduced chi^2
-    ratios (to the movie's median): the scale on which the scatter is measured and the bar set.
-
-    A frame's excess scatter comes mostly from its noise estimate (``chi2_red`` goes as
-    ``1 / noise_sd^2``, with ``noise_sd`` close to normal): on this scale that part is
-    symmetric, where on the ratio itself or its logarithm it has a longer upper tail (skewness
-    9e and 3e for a relative noise-estimate error e) that would let the normal quantile flag
-    too often. The chi^2 part (and a model misfit that adds to the residual) keeps a *shorter*
-    upper tail here (skewness -2.5 sqrt(2/nu)), which errs on the safe side. To first order
-    the transform is ``ratio - 1``: spreads keep their meaning.
-    """
-    return 2.0 * (1.0 - 1.0 / np.sqrt(ratio))
-
-
-def _from_symmetric(y: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The ratio whose :func:`_to_symmetric` is ``y`` (infinite for ``y >= 2``)."""
-    y = np.asarray(y, dtype=float)
-    with np.errstate(divide="ignore"):
-        return np.where(y < 2.0, 1.0 / np.square(1.0 - np.minimum(y, 2.0) / 2.0), np.inf)
-
-
-@dataclass(frozen=True)
-class FlagBars:
-    """The flag bars of a fit table (:func:`flag_bars`).
-
-    Attributes
-    ----------
-    bars : ndarray
-        Per row, the reduced chi^2 above which the row is improbable (NaN: no bar).
-    median : float
-        The converged rows' median reduced chi^2 (the movie's level of a right minimum).
-    excess : float
-        Relative scatter of the reduced chi^2 beyond the chi^2 distribution's (0 when the
-        measured scatter is no larger than that distribution's).
-    typical : float
-        The bar of a row with the median pixel count.
-    n_rows : int
-        Converged rows the scatter was measured on.
-    """
-
-    bars: NDArray[np.float64]
-    median: float = math.nan
-    excess: float = math.nan
-    typical: float = math.nan
-    n_rows: int = 0
-
-
-def flag_bars(table: pd.DataFrame, probability: float, min_rows: int = 10) -> FlagBars:
-    """Per-row bars on the reduced chi^2 that a frame in the right minimum exceeds with
-    probability ``probability`` at most.
-
-    A frame in the right minimum has ``chi2_red = m (1 + r)``: ``m`` the movie's level (the
-    median of the converged rows: the noise estimate's bias and the model's imperfection move
-    every frame alike) and ``r`` a relative scatter of variance ``2 / nu + e^2``: the chi^2
-    distribution's for the frame's ``nu`` pixels, plus an excess ``e`` common to the movie
-    (the error of each frame's noise estimate, frame-to-frame differences of the model's
-    misfit). The scatter ``s`` is measured on the *lower* half of the converged rows
-    (``sqrt(pi/2)`` times their mean distance below the median), which frames in a wrong
-    minimum cannot inflate, on the scale of :func:`_to_symmetric` (to first order
-    ``chi2_red / m - 1``); ``e^2 = max(s^2 - 2 / nu_med, 0)``. Measured on n rows, ``s`` is
-    as uncertain as a sample standard deviation with n/3 degrees of freedom, so the bar takes
-    Student's t quantile, not the normal one, and ``sqrt(1 + pi / (2 n))`` for the median's
-    own error; the bar is the larger of that one and the chi^2 distribution's alone::
-
-        bar = m * max(from_symmetric(t(p; n/3) sqrt(e^2 + 2/nu) sqrt(1 + pi/(2n))),
-                      chi2_isf(p, nu) / nu)
-
-    Few frames give high bars (n = 30: t = 5.3); a long movie's approach the normal quantile
-    (3.7 at p = 1e-4). On simulated movies (chi^2 of 19600 pixels, noise-estimate errors of
-    0 to 3 %, 30 to 1000 frames) the share of frames flagged is 0.3 to 0.9 times ``p``.
-
-    Parameters
-    ----------
-    table : DataFrame
-        A fit table (``status``, ``chi2_red``, ``n_pixels``).
-    probability : float
-        One-sided tail probability of a frame in the right minimum, 0 < p < 0.5.
-    min_rows : int
-        Fewer converged rows than this: no bar (NaN).
-
-    Returns
-    -------
-    FlagBars
-    """
-    n_all = len(table)
-    chi_all = table["chi2_red"].to_numpy(dtype=float)
-    nu_all = (table["n_pixels"].to_numpy(dtype=float) if "n_pixels" in table
-              else np.full(n_all, np.nan))
-    converged = table["status"].isin(_CONVERGED).to_numpy() & np.isfinite(chi_all)
-    chi = chi_all[converged]
-    n = int(chi.size)
-    if n < min_rows:
-        return FlagBars(np.full(n_all, np.nan), n_rows=n)
-    med = float(np.median(chi))
-    rel = _to_symmetric(chi / med)
-    below = -rel[rel < 0]
-    spread = (math.sqrt(math.pi / 2.0) * float(below.mean()) / (1.0 - _LOWER_HALF_BIAS / n)
-              if below.size else 0.0)
-    nu_conv = nu_all[converged]
-    nu_conv = nu_conv[np.isfinite(nu_conv) & (nu_conv > 0)]
-    nu_med = float(np.median(nu_conv)) if nu_conv.size else math.inf
-    excess2 = max(spread**2 - 2.0 / nu_med, 0.0)
-    t = float(stats.t.isf(probability, max(n * _DOF_PER_ROW, 1.0)))
-    widen = math.sqrt(1.0 + math.pi / (2.0 * n))
-
-    def bar(nu: NDArray[np.float64]) -> NDArray[np.float64]:
-        known = np.isfinite(nu) & (nu > 0)
-        nu_safe = np.where(known, nu, 1.0)
-        theory = np.where(known, 2.0 / nu_safe, 2.0 / nu_med)
-        measured = _from_symmetric(t * np.sqrt(excess2 + theory) * widen)
-        chi2_only = np.where(known, stats.chi2.isf(probability, nu_safe) / nu_safe, 1.0)
-        return med * np.maximum(measured, chi2_only)
-
-    typical = float(bar(np.array([nu_med]))[0])
-    return FlagBars(bar(nu_all), med, math.sqrt(excess2), typical, n)
 
 
 def _axes(table: pd.DataFrame) -> NDArray[np.float64]:
@@ -463,28 +234,28 @@ def _axis_jumps(table: pd.DataFrame, factor: float, head_tail: bool) -> NDArray[
     return out
 
 
-def is_tracked(table: pd.DataFrame) -> bool:
-    """Whether the final pass followed the track (some row fitted warm, ``track_source``)."""
-    return "track_source" in table and bool(
-        table["track_source"].astype(str).isin(("warm", "reacquired")).any())
+def is_followed(table: pd.DataFrame) -> bool:
+    """Whether the final pass followed the track (some row fitted warm, ``follow_source``)."""
+    return "follow_source" in table and bool(
+        table["follow_source"].astype(str).isin(("warm", "reacquired")).any())
 
 
-def tracked_suspects(table: pd.DataFrame, opts: ContinuitySettings, head_tail: bool,
+def followed_suspects(table: pd.DataFrame, opts: ContinuitySettings, head_tail: bool,
                      bar: float | None = None) -> NDArray[np.bool_]:
-    """The suspects of a frame-sorted tracked table (see the module doc).
+    """The suspects of a frame-sorted followed table (see the module doc).
 
     Parameters and returns as :func:`suspects`.
     """
     status = table["status"].to_numpy()
     refittable = np.isin(status, _REFITTABLE)
     out = _unsound(table, opts, bar)
-    out |= _axis_jumps(table, opts.tracked_jump_factor, head_tail)
-    out |= refittable & (table["track_source"].astype(str) == "reacquired").to_numpy()
+    out |= _axis_jumps(table, opts.followed_jump_factor, head_tail)
+    out |= refittable & (table["follow_source"].astype(str) == "reacquired").to_numpy()
     if "ambiguous" in table:
         out |= refittable & (pd.to_numeric(table["ambiguous"], errors="coerce")
                              .fillna(0).to_numpy() > 0)
-    if "track_jump" in table:
-        jump = pd.to_numeric(table["track_jump"], errors="coerce").fillna(0).to_numpy() > 0
+    if "follow_jump" in table:
+        jump = pd.to_numeric(table["follow_jump"], errors="coerce").fillna(0).to_numpy() > 0
         frames = table["frame"].to_numpy()
         near = jump.copy()
         for i in np.flatnonzero(jump):  # the frames either side of the jump
@@ -609,7 +380,7 @@ def merge_refits(table: pd.DataFrame, refits: pd.DataFrame, starts: Mapping[int,
                 f"{source} (trajectory continuity)" if source is not None
                 else "refitted from a neighbour's orientation (trajectory continuity)")
         msg = str(new.get("message") or "")
-        new["message"] = f"{msg}; {note}" if msg and msg != "nan" else note
+        new["message"] = join_message(msg, note)
         for col in table.columns:
             if col in new:
                 table.iat[i, table.columns.get_loc(col)] = new[col]
@@ -670,7 +441,7 @@ def repair_by_continuity(
     if not opts.enabled or table.empty:
         return table, report
     tried: set[tuple[int, int, float, float]] = set()
-    pick = tracked_suspects if is_tracked(table) else suspects
+    pick = followed_suspects if is_followed(table) else suspects
     for sweep in range(1, opts.max_sweeps + 1):
         bar = chi2_bar(table, opts.chi2_sigmas)
         suspect = pick(table, opts, head_tail, bar)
@@ -689,22 +460,10 @@ def repair_by_continuity(
         if n == 0:
             break
     report.chi2_bar = chi2_bar(table, opts.chi2_sigmas)
-    flags = flag_bars(table, opts.flag_probability)
+    if opts.flag:
+        report.flagged, flags = flag_improbable(table, opts.flag_probability)
+    else:
+        flags = flag_bars(table, opts.flag_probability)
     report.flag_bar, report.excess_scatter = flags.typical, flags.excess
-    if opts.flag and math.isfinite(flags.typical):
-        chi = table["chi2_red"].to_numpy(dtype=float)
-        hit = (table["status"] == OK).to_numpy() & (chi > flags.bars)
-        col_status = table.columns.get_loc("status")
-        col_message = table.columns.get_loc("message")
-        for i in np.flatnonzero(hit):
-            note = (f"reduced chi2 {chi[i]:.4g} above {flags.bars[i]:.4g}, which a frame in "
-                    f"the right minimum exceeds with probability {opts.flag_probability:g} "
-                    f"(chi^2 of its pixels and the movie's excess scatter "
-                    f"{flags.excess:.2g}, measured on {flags.n_rows} frames), and no "
-                    "neighbour's orientation fits better: likely a wrong local minimum")
-            table.iat[i, col_status] = POOR_FIT
-            msg = str(table.iat[i, col_message])
-            table.iat[i, col_message] = f"{msg}; {note}" if msg and msg != "nan" else note
-        report.flagged = int(hit.sum())
     return table, report
 

@@ -1,16 +1,19 @@
-"""The frame function of both DDA fit passes and its settings (picklable: it runs in workers).
+"""The frame function of the fit passes and its settings (picklable: it runs in workers).
 
-:class:`FitConfig` is everything a worker needs for one pass; :class:`FitPayload` what the
-driver sends it for one frame; :func:`fit_frame_task` fits the frame
-(:func:`holofit.fit.frame.fit_frame`) with the engine this worker keeps for the particle.
-:func:`fit_columns` is the table's columns for a particle and its free parameters (the
-fit-table schema: :mod:`holofit.tables.fit`).
+:class:`PassConfig` is everything a worker needs for one pass over every track; its
+:meth:`~PassConfig.for_track` is the pass as one track sees it (that track's settled static
+parameters and T-matrix in the final pass). :class:`FitPayload` is what the driver sends a
+worker for one ``(particle, frame)`` item; :func:`fit_frame_task` fits it
+(:func:`holofit.fit.frame.fit_frame`, or :func:`holofit.fit.seeded.fit_frame_seeded`) with the
+engine this worker keeps for the track's particle. :func:`fit_columns` is the table's columns
+for a particle and its free parameters (the fit-table schema: :mod:`holofit.tables.fit`).
 """
 
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -20,27 +23,33 @@ from numpy.typing import NDArray
 from holofit.batch.stage import fingerprint
 from holofit.cache import LRUCache
 from holofit.config import Instrument, ParticleConfig
-from holofit.fit.frame import RUNNER_UP_COLUMNS, FrameFitSettings, fit_frame
+from holofit.fit.frame import RUNNER_UP_COLUMNS, fit_frame
+from holofit.fit.problem import FrameProblem
 from holofit.fit.seeded import fit_frame_seeded, seed_particle
-from holofit.holomodel.parameters import APERTURE, static_parameters
+from holofit.fit.settings import FrameFitSettings
+from holofit.holomodel.parameters import APERTURE, particle_with, static_parameters
 from holofit.holomodel.result import result_columns, result_row
 from holofit.library.search import Candidate
 from holofit.particles import ParticleModel
 from holofit.scattering.theory import ScatteringTheory
 
 __all__ = [
-    "FitConfig",
     "FitPayload",
+    "PassConfig",
+    "TrackSetup",
     "check_fixed",
     "fit_columns",
     "fit_frame_task",
     "fixable_names",
+    "free_parameters",
     "worker_theory",
 ]
 
 
-def _free(model: ParticleModel, pass_name: str, fixed: tuple[str, ...] = (),
-          fit_na: bool = False) -> tuple[str, ...]:
+def free_parameters(model: ParticleModel, pass_name: str, fixed: tuple[str, ...] = (),
+                    fit_na: bool = False) -> tuple[str, ...]:
+    """The parameters a pass fits: position, orientation and alpha; the static ones in the
+    initial pass; the objective's NA with ``fit_na``; less those ``fixed``."""
     names = ["x_um", "y_um", "z_um", "orientation", "alpha"]
     if pass_name == "initial":
         names += [p.name for p in static_parameters(model)]
@@ -71,8 +80,9 @@ def check_fixed(model: ParticleModel, fixed: tuple[str, ...]) -> None:
 
 
 def fit_columns(model: ParticleModel, free: tuple[str, ...]) -> tuple[str, ...]:
-    """Columns of a DDA fit table for ``model`` with parameters ``free``."""
-    orient = ()
+    """Columns of a DDA fit table for ``model`` with parameters ``free`` (``particle``
+    first: every fit table is keyed by ``(particle, frame)``)."""
+    orient: tuple[str, ...] = ()
     if model.anisotropic:
         orient = ("theta_rad", "psi_rad", *(() if model.axisymmetric else ("phi_rad",)),
                   "ux", "uy", "uz")
@@ -81,18 +91,27 @@ def fit_columns(model: ParticleModel, free: tuple[str, ...]) -> tuple[str, ...]:
     values = ("x_um", "y_um", "z_um", *orient, "alpha", *statics, *optics)
     errors = ("x_um", "y_um", "z_um", *orient, "alpha", *(s for s in statics if s in free),
               *optics)
-    return result_columns(values, errors, (*RUNNER_UP_COLUMNS, "n_masked"))
+    return ("particle", *result_columns(values, errors, (*RUNNER_UP_COLUMNS, "n_masked")))
 
 
 @dataclass(frozen=True)
-class FitConfig:
+class TrackSetup:
+    """One track's part of a pass: the static parameters its final pass fixes and the
+    T-matrix file that serves it (None: direct solves)."""
+
+    statics: tuple[tuple[str, float], ...] = ()
+    tmatrix: str | None = None
+
+
+@dataclass(frozen=True)
+class PassConfig:
     """Everything a worker needs for one pass (picklable).
 
     Attributes
     ----------
     particle : ParticleConfig
-        The particle; its static parameters are the fit's start (initial pass) or fixed values
-        (final pass).
+        The particle; its static parameters are the fit's start (initial pass) or, for a
+        track without a :class:`TrackSetup`, the fixed values (final pass).
     instrument : Instrument
         Optics and pixel size.
     pass_name : {"initial", "final"}
@@ -104,14 +123,16 @@ class FitConfig:
     fixed : tuple of str
         Parameters held at their start values in both passes (e.g. a dimer's ``gap_um``).
     tmatrix : str, optional
-        The particle's T-matrix file (final pass): every orientation is then served from it,
-        with analytic orientation columns of the Jacobian, instead of a DDA solve.
+        The particle's T-matrix file (final pass; a track's :class:`TrackSetup` may name its
+        own): every orientation is then served from it instead of a DDA solve.
     fit_na : bool
         Fit the objective's numerical aperture (from the instrument's) in every frame.
     seed_tmatrix : str, optional
         The T-matrix file of the particle at its start statics (initial pass): each frame's
         pose is first fitted from it, then every parameter by direct solves
         (:func:`holofit.fit.seeded.fit_frame_seeded`).
+    tracks : tuple
+        ``(particle, TrackSetup)`` per track of the final pass.
     """
 
     particle: ParticleConfig
@@ -123,17 +144,35 @@ class FitConfig:
     tmatrix: str | None = None
     fit_na: bool = False
     seed_tmatrix: str | None = None
+    tracks: tuple[tuple[int, TrackSetup], ...] = ()
 
     @property
     def free(self) -> tuple[str, ...]:
-        return _free(self.particle.model, self.pass_name, self.fixed, self.fit_na)
+        return free_parameters(self.particle.model, self.pass_name, self.fixed, self.fit_na)
+
+    def for_track(self, particle: int) -> PassConfig:
+        """The pass as track ``particle`` sees it: its settled particle and T-matrix."""
+        setup = dict(self.tracks).get(int(particle))
+        if setup is None:
+            return replace(self, tracks=())
+        model = particle_with(self.particle.model, dict(setup.statics))
+        settled = ParticleConfig(model, self.particle.settings, self.particle.path)
+        return replace(self, particle=settled, tmatrix=setup.tmatrix, tracks=())
+
+    def with_tracks(self, tracks: Mapping[int, TrackSetup]) -> PassConfig:
+        """This pass with each track's setup (sorted by track)."""
+        return replace(self, tracks=tuple(sorted((int(p), s) for p, s in tracks.items())))
 
     def as_dict(self) -> dict[str, Any]:
-        return {"particle": self.particle.as_dict(), "instrument": self.instrument.as_dict(),
-                "pass": self.pass_name, "free": list(self.free),
-                "options": asdict(self.options), "engine": self.engine,
-                "tmatrix": self.tmatrix is not None,
-                **({"seed_tmatrix": True} if self.seed_tmatrix is not None else {})}
+        doc = {"particle": self.particle.as_dict(), "instrument": self.instrument.as_dict(),
+               "pass": self.pass_name, "free": list(self.free),
+               "options": asdict(self.options), "engine": self.engine,
+               "tmatrix": self.tmatrix is not None,
+               **({"seed_tmatrix": True} if self.seed_tmatrix is not None else {})}
+        if self.tracks:
+            doc["tracks"] = {str(p): {"statics": dict(s.statics), "tmatrix": s.tmatrix is not None}
+                             for p, s in self.tracks}
+        return doc
 
     def key(self) -> str:
         return fingerprint({k: v for k, v in self.as_dict().items() if k != "pass"})
@@ -150,10 +189,10 @@ class FitPayload:
 
 
 #: per worker process: one engine per particle configuration, with its caches
-_THEORIES: LRUCache[str, ScatteringTheory] = LRUCache(2)
+_THEORIES: LRUCache[str, ScatteringTheory] = LRUCache(4)
 
 
-def worker_theory(config: FitConfig) -> ScatteringTheory:
+def worker_theory(config: PassConfig) -> ScatteringTheory:
     """The engine this worker keeps for ``config``'s particle (and T-matrix), with its
     caches: made on first use, then reused by every frame (or chunk) of the pass."""
     inst = config.instrument
@@ -169,25 +208,31 @@ def worker_theory(config: FitConfig) -> ScatteringTheory:
     return _THEORIES.get_or_create(key + str(config.tmatrix), make_theory)
 
 
-def fit_frame_task(config: FitConfig, frame: int, payload: FitPayload) -> dict[str, Any]:
-    """Fit one frame; the frame function of both passes (an initial pass with
-    ``seed_tmatrix``: :func:`holofit.fit.seeded.fit_frame_seeded`)."""
+def frame_problem(config: PassConfig, payload: FitPayload, frame: int,
+                  theory: ScatteringTheory | None = None) -> FrameProblem:
+    """The fitting problem of one frame of a pass (``config`` as its track sees it)."""
     inst = config.instrument
-    theory = worker_theory(config)
+    return FrameProblem(payload.crop, payload.corner, inst.pixel_size_um,
+                        theory or worker_theory(config), config.particle.model, inst.optics,
+                        config.free, config.options, seed=frame)
+
+
+def fit_frame_task(config: PassConfig, key: tuple[int, int], payload: FitPayload
+                   ) -> dict[str, Any]:
+    """Fit one ``(particle, frame)`` item; the frame function of the passes (an initial
+    pass with ``seed_tmatrix``: :func:`holofit.fit.seeded.fit_frame_seeded`)."""
+    particle, frame = int(key[0]), int(key[1])
+    config = config.for_track(particle)
+    inst = config.instrument
     start = payload.start
     position = (start["x_um"], start["y_um"], start["z_um"])
+    problem = frame_problem(config, payload, frame)
     if config.seed_tmatrix is not None:
         seeding = replace(config, particle=seed_particle(config.particle),
                           tmatrix=config.seed_tmatrix, seed_tmatrix=None)
-        result = fit_frame_seeded(payload.crop, payload.corner, inst.pixel_size_um,
-                                  worker_theory(seeding), theory, config.particle.model,
-                                  inst.optics, position, start["alpha"], payload.candidates,
-                                  _free(config.particle.model, "final", config.fixed,
-                                        config.fit_na),
-                                  config.free, config.options, seed=frame)
+        result = fit_frame_seeded(problem, worker_theory(seeding), position, start["alpha"],
+                                  payload.candidates)
     else:
-        result = fit_frame(payload.crop, payload.corner, inst.pixel_size_um, theory,
-                           config.particle.model, inst.optics, position, start["alpha"],
-                           payload.candidates, config.free, config.options, seed=frame)
+        result = fit_frame(problem, position, start["alpha"], payload.candidates)
     time_s = frame / inst.frame_rate_hz if inst.frame_rate_hz else math.nan
-    return result_row(frame, time_s, result)
+    return {"particle": particle, **result_row(frame, time_s, result)}

@@ -17,7 +17,8 @@ from holofit.holomodel.forward import HologramModel, InvalidParameters
 from holofit.holomodel.leastsq import Solution, solve_least_squares
 from holofit.holomodel.parameters import Parameter, ParameterSpace, State
 from holofit.holomodel.pixels import PixelSelection, select_pixels
-from holofit.holomodel.result import FitResult, QualityLimits, fit_result, result_row
+from holofit.holomodel.result import FitResult, fit_result, result_row
+from holofit.quality import QualityLimits
 
 __all__ = [
     "FitResult",

@@ -12,12 +12,13 @@ __all__ = ["CropSource"]
 
 
 class CropSource(Protocol):
-    """Crops by frame number, with their table rows."""
+    """Crops by key (a frame number, or a ``(particle, frame)`` tuple), with their table
+    rows."""
 
-    def row(self, frame: int) -> dict[str, Any]:
+    def row(self, frame: Any) -> dict[str, Any]:
         """The crop-table row of ``frame`` (``corner_row``, ``corner_col``, ``status``, ...)."""
         ...
 
-    def crop(self, frame: int) -> NDArray[np.float32]:
+    def crop(self, frame: Any) -> NDArray[np.float32]:
         """The crop of ``frame`` (NaN marks pixels to leave out)."""
         ...

@@ -82,21 +82,26 @@ def write_frame_pictures(
     optics: Optics, pixel_size_um: float, out_dir: str | Path, stage: str,
     frames: Iterable[int] | None = None, far_field: bool = False,
 ) -> list[Path]:
-    """Draw data, model and residual of chosen frames into ``out_dir/frame_<n>.png``.
+    """Draw data, model and residual of chosen frames of one track into
+    ``out_dir/frame_<n>.png`` (``out_dir/p<particle>_frame_<n>.png`` for a track other than 0
+    of a table keyed by ``(particle, frame)``).
 
     Frames whose model cannot be rendered (no values) are skipped.
     """
     out = Path(out_dir)
     written: list[Path] = []
     by_frame = table.set_index("frame")
+    particle = int(table["particle"].iloc[0]) if "particle" in table and len(table) else None
+    prefix = "" if not particle else f"p{particle}_"
     for frame in choose_frames(table, frames):
         row = by_frame.loc[frame].to_dict()
         if not all(math.isfinite(float(row.get(c, math.nan))) for c in
                    ("x_um", "y_um", "z_um", "alpha")):
             continue
-        crop_row = crops.row(frame)
+        key: Any = frame if particle is None else (particle, frame)
+        crop_row = crops.row(key)
         corner = (int(crop_row["corner_row"]), int(crop_row["corner_col"]))
-        data = crops.crop(frame).astype(float)
+        data = crops.crop(key).astype(float)
         try:
             image = model_image(row, model, theory, optics, data.shape, corner, pixel_size_um,
                                 far_field)
@@ -110,8 +115,9 @@ def write_frame_pictures(
             f"z {float(row['z_um']):.3f} um, alpha {float(row['alpha']):.3f}, "
             + _aperture_note(row, optics),
         ]
-        written.append(plot_frame_fit(data, image, out / f"frame_{frame:06d}.png",
-                                      f"holofit {stage}: frame {frame}", notes))
+        who = "" if not particle else f"particle {particle}, "
+        written.append(plot_frame_fit(data, image, out / f"{prefix}frame_{frame:06d}.png",
+                                      f"holofit {stage}: {who}frame {frame}", notes))
     return written
 
 

@@ -11,10 +11,8 @@ Goodness of fit, the same words everywhere:
 - ``r2``: the coefficient of determination (the paper's R^2).
 
 Status (:mod:`holofit.status`): a converged fit is ``ok`` only if it is also close to the data
-and physical; otherwise it is ``poor_fit``, with the reason in ``message``: a parameter outside
-its physical or search range, an R^2 below ``min_r2``, or a reduced chi^2 far above the noise
-together with an R^2 below ``good_r2`` (:class:`QualityLimits`). ``holofit analyze`` uses
-``ok`` rows only.
+and physical (:func:`holofit.quality.judge_fit`); otherwise it is ``poor_fit``, with the reason in
+``message``. ``holofit analyze`` uses ``ok`` rows only.
 """
 
 from __future__ import annotations
@@ -25,23 +23,21 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.conventions import r_squared
 from holofit.holomodel.leastsq import Solution
 from holofit.holomodel.parameters import APERTURE, ParameterSpace
 from holofit.holomodel.statistics import covariance_from_jacobian
-from holofit.status import FAILED, NOT_CONVERGED, OK, POOR_FIT
+from holofit.quality import QualityLimits, judge_fit
+from holofit.status import FAILED, NOT_CONVERGED, OK
 
 __all__ = [
     "APERTURE_CHI2",
     "GOODNESS_COLUMNS",
     "FitResult",
-    "QualityLimits",
     "aperture_spread",
     "fit_result",
-    "flag_outliers",
     "result_columns",
     "result_row",
 ]
@@ -53,39 +49,6 @@ __all__ = [
 APERTURE_CHI2 = 10.0
 #: columns every fit table has after the parameters (their units: holofit.tables.fit)
 GOODNESS_COLUMNS = ("chi2", "chi2_red", "noise_sd", "r2", "n_pixels", "n_eval", "fit_time_s")
-
-
-@dataclass(frozen=True)
-class QualityLimits:
-    """When a converged fit is still not ``ok``.
-
-    Attributes
-    ----------
-    max_chi2_red : float
-        Largest reduced chi^2 (residual over the camera noise) of an ``ok`` fit whose R^2 is
-        below ``good_r2``.
-    min_r2 : float
-        Smallest R^2 of an ``ok`` fit.
-    good_r2 : float
-        A fit that explains this much of the fringe variance is close to the data even when
-        its reduced chi^2 is large: real holograms carry imperfections of the set-up (the
-        lens, dust, a neighbour's fringes) far above a low camera noise, so a large reduced
-        chi^2 alone does not make a fit poor.
-    ranges : dict
-        Parameter name -> (low, high): an ``ok`` fit ends inside (besides each parameter's
-        physical range).
-    """
-
-    max_chi2_red: float = 10.0
-    min_r2: float = 0.5
-    good_r2: float = 0.8
-    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if not self.max_chi2_red > 0:
-            raise ValueError(f"max_chi2_red must be > 0, got {self.max_chi2_red}")
-        if not self.min_r2 < 1:
-            raise ValueError(f"min_r2 must be < 1, got {self.min_r2}")
 
 
 @dataclass
@@ -204,19 +167,8 @@ def _assess(space: ParameterSpace, solution: Solution, values: dict[str, float],
         return FAILED, "the fit diverged (non-finite parameters or residuals)"
     if not solution.converged:
         return NOT_CONVERGED, solution.message
-    reasons = space.out_of_range(space.state(solution.vector))
-    for name, (lo, hi) in limits.ranges.items():
-        v = values.get(name, math.nan)
-        if name in space.names and not lo <= v <= hi:
-            reasons.append(f"{name} = {v:.4g} outside [{lo:.4g}, {hi:.4g}]")
-    if math.isfinite(chi2_red) and chi2_red > limits.max_chi2_red and r2 < limits.good_r2:
-        reasons.append(f"reduced chi2 {chi2_red:.3g} > {limits.max_chi2_red:g} with R^2 "
-                       f"{r2:.3g} < {limits.good_r2:g} (residual far above the pixel noise)")
-    if not r2 >= limits.min_r2:
-        reasons.append(f"R^2 {r2:.3g} < {limits.min_r2:g}")
-    if reasons:
-        return POOR_FIT, "; ".join(reasons)
-    return OK, ""
+    return judge_fit(space.out_of_range(space.state(solution.vector)), values, space.names,
+                     chi2_red, r2, limits)
 
 
 def result_columns(value_columns: Iterable[str], error_columns: Iterable[str],
@@ -236,44 +188,3 @@ def result_row(frame: int, time_s: float, result: FitResult) -> dict[str, Any]:
                fit_time_s=result.time_s, status=result.status, message=result.message)
     row.update(result.extra)
     return row
-
-
-def flag_outliers(table: pd.DataFrame, factor: float = 4.0, min_rows: int = 10) -> int:
-    """Mark ``ok`` rows whose reduced chi^2 is far above the movie's typical one.
-
-    Real holograms never match a model down to the camera noise (the lens, dust, an imperfect
-    background), so an absolute threshold on the reduced chi^2 is either loose or flags every
-    frame. Within one movie, though, a frame whose reduced chi^2 is ``factor`` times the median
-    of all converged frames (``ok`` and ``poor_fit``) is an outlier: it becomes ``poor_fit``.
-    The median is taken over a set that flagging does not change, so applying this twice
-    changes nothing more.
-
-    Parameters
-    ----------
-    table : pandas.DataFrame
-        A fit table (modified in place).
-    factor : float
-        How many times the median an outlier's reduced chi^2 is.
-    min_rows : int
-        Fewer converged rows than this: nothing is flagged (no meaningful median).
-
-    Returns
-    -------
-    int
-        Rows newly flagged.
-    """
-    converged = table["status"].isin([OK, POOR_FIT]).to_numpy()
-    chi = table["chi2_red"].to_numpy(dtype=float)
-    good = converged & np.isfinite(chi)
-    if good.sum() < min_rows:
-        return 0
-    median = float(np.median(chi[good]))
-    bad = (table["status"] == OK).to_numpy() & (chi > factor * median)
-    if not bad.any():
-        return 0
-    table.loc[bad, "status"] = POOR_FIT
-    note = (f"reduced chi2 more than {factor:g} times the movie's median ({median:.3g}): an "
-            "outlier frame")
-    table.loc[bad, "message"] = [f"{m}; {note}" if isinstance(m, str) and m else note
-                                 for m in table.loc[bad, "message"]]
-    return int(bad.sum())

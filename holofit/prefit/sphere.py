@@ -34,14 +34,14 @@ from holofit.holomodel.forward import HologramModel, InvalidParameters
 from holofit.holomodel.leastsq import Solution, solve_least_squares
 from holofit.holomodel.parameters import ParameterSpace, State
 from holofit.holomodel.pixels import select_pixels
-from holofit.holomodel.result import FitResult, QualityLimits, fit_result
+from holofit.holomodel.result import FitResult, fit_result
 from holofit.holomodel.statistics import estimate_noise_sd
 from holofit.optics import Optics
 from holofit.particles import Sphere
 from holofit.prefit.estimate import ProfileStart, SearchSpace, estimate_starts, profile_table
 from holofit.prefit.profile import radial_profile
+from holofit.quality import QualityLimits, flag_small_crop
 from holofit.scattering.mie import LorenzMie
-from holofit.status import POOR_FIT
 
 __all__ = ["SPHERE_COLUMNS", "SphereFitSettings", "fit_sphere_crop"]
 
@@ -236,8 +236,7 @@ def fit_sphere_crop(
     if result.ok:
         why = _crop_too_small(result.values, data.shape, corner_rc, pixel_size_um,
                               optics.wavelength_medium_um)
-        if why:
-            result.status, result.message = POOR_FIT, why
+        flag_small_crop(result, why)
     result.extra = {
         "n_starts": len(crop_fit.starts),
         "start_z_um": chosen.z_um,

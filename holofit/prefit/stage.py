@@ -23,13 +23,13 @@ from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
 from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed
 from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage, stage_inputs
 from holofit.config import ConfigError, Instrument
-from holofit.holomodel.finish import outlier_rule, outlier_sidecar
 from holofit.holomodel.pictures import write_frame_pictures
 from holofit.holomodel.result import result_row
 from holofit.io.tables import read_table
 from holofit.particles import Sphere
 from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.provenance import sidecar
+from holofit.quality import outlier_rule, outlier_sidecar
 from holofit.scattering.mie import LorenzMie
 from holofit.tables.crop import CROP_UNITS, keyed_columns
 from holofit.tables.cropset import CropSet

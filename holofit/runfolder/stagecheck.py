@@ -83,7 +83,7 @@ def check_fit_options(text: str, model: ParticleModel) -> None:
     RunFolderError
         Naming ``--fit-opts`` and the parameters the particle has.
     """
-    from holofit.fit.stage import check_fixed
+    from holofit.fit.task import check_fixed
 
     fixed = option_value(text, "--fix")
     if fixed is None:

@@ -13,12 +13,10 @@ A crop folder holds
 
 Crops are read lazily, one page at a time.
 
-A crop folder of several tracks (``holofit crop``'s tracks mode) has a ``particle`` column; its
-rows are keyed by ``(particle, frame)`` (:attr:`CropSet.key_columns`, :attr:`CropSet.keys`), and
-:meth:`CropSet.row` and :meth:`CropSet.crop` take such a key. A folder of one track (or without
-the column) is keyed by frame, as before. :func:`write_track_view` writes one track's *view*: a
-crop folder whose table holds that track's rows with a ``page`` column naming their pages in
-the parent's stack (linked, not copied), which every stage reads as a one-particle folder.
+Every row is keyed by ``(particle, frame)`` (:attr:`CropSet.key_columns`,
+:attr:`CropSet.keys`): a track is the group of keys of one ``particle``. A table without the
+``particle`` column (one track) is track 0. :meth:`CropSet.row` and :meth:`CropSet.crop` take a
+key; a frame number alone names the frame of a folder of one track.
 """
 
 from __future__ import annotations
@@ -44,10 +42,9 @@ __all__ = [
     "CropSet",
     "CropSetError",
     "open_crops",
-    "write_track_view",
 ]
 
-#: the key columns of a crop folder of several tracks
+#: the key columns of every stage table
 PARTICLE_KEY: tuple[str, ...] = ("particle", "frame")
 
 
@@ -133,8 +130,7 @@ class CropSet:
             )
         self.crop_shape: tuple[int, int] = tuple(self._movie.frame_shape)  # type: ignore[assignment]
         particles = self.table["particle"].to_numpy()
-        keys = ([(int(p), int(f)) for p, f in zip(particles, frames, strict=True)]
-                if self.multi else [int(f) for f in frames])
+        keys = [(int(p), int(f)) for p, f in zip(particles, frames, strict=True)]
         #: key -> page of the stack; key -> row of the table
         self._position: dict[Any, int] = {k: int(i) for k, i in zip(keys, pages, strict=True)}
         self._row_of: dict[Any, int] = {k: i for i, k in enumerate(keys)}
@@ -160,12 +156,12 @@ class CropSet:
 
     @property
     def key_columns(self) -> tuple[str, ...]:
-        """What names a row: ``("frame",)``, or ``("particle", "frame")`` for several tracks."""
-        return PARTICLE_KEY if self.multi else ("frame",)
+        """What names a row: ``("particle", "frame")``."""
+        return PARTICLE_KEY
 
     @property
-    def keys(self) -> list[Any]:
-        """Every row's key, in table order (frames, or (particle, frame) tuples)."""
+    def keys(self) -> list[tuple[int, int]]:
+        """Every row's ``(particle, frame)`` key, in table order."""
         return list(self._position)
 
     @property
@@ -188,17 +184,23 @@ class CropSet:
         except MovieError as exc:
             raise CropSetError(f"{exc} (the crop of movie frame {frame})") from None
 
-    def _key(self, frame: Any) -> Any:
-        if self.multi:
-            if not (isinstance(frame, tuple) and len(frame) == 2):
-                raise CropSetError(f"{self.table_path}: holds several tracks; a row is named "
-                                   f"by (particle, frame), not {frame!r}")
-            key: Any = (int(frame[0]), int(frame[1]))
+    def key(self, frame: Any) -> tuple[int, int]:
+        """The ``(particle, frame)`` key of ``frame`` (a key, or a frame number of a folder of
+        one track)."""
+        return self._key(frame)
+
+    def _key(self, frame: Any) -> tuple[int, int]:
+        if isinstance(frame, tuple) and len(frame) == 2:
+            key = (int(frame[0]), int(frame[1]))
+        elif self.multi:
+            raise CropSetError(f"{self.table_path}: holds several tracks; a row is named "
+                               f"by (particle, frame), not {frame!r}")
         else:
-            key = int(frame[-1]) if isinstance(frame, tuple) else int(frame)
+            f = int(frame[-1]) if isinstance(frame, tuple) else int(frame)
+            key = (self.particles[0] if self.particles else 0, f)
         if key not in self._position:
-            what = (f"particle {key[0]} in frame {key[1]}" if isinstance(key, tuple)
-                    else f"frame {key}")
+            what = (f"particle {key[0]} in frame {key[1]}" if self.multi
+                    else f"frame {key[1]}")
             raise CropSetError(f"{self.table_path}: no {what}")
         return key
 
@@ -263,39 +265,3 @@ def resolve_instrument(crops: CropSet, given: Instrument | None, override: bool 
 def open_crops(directory: str | Path) -> CropSet:
     """Open a crop folder (see the module docstring)."""
     return CropSet(directory)
-
-
-def write_track_view(crops: CropSet, particle: int, out_dir: str | Path) -> Path:
-    """Write the crop folder of one track of ``crops`` into ``out_dir`` (see the module
-    docstring): ``crops.csv`` (+ sidecar, ``extra.track_of`` naming the parent folder) with a
-    ``page`` column, and ``crops.tif`` a link to the parent's stack; the folder.
-
-    Raises
-    ------
-    CropSetError
-        ``particle`` is not one of the folder's tracks.
-    """
-    from holofit.io.tables import write_table
-
-    if particle not in crops.particles:
-        raise CropSetError(f"{crops.table_path}: no particle {particle} (tracks: "
-                           f"{', '.join(map(str, crops.particles))})")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    pages = (crops.table["page"] if "page" in crops.table.columns
-             else pd.Series(np.arange(len(crops.table)), index=crops.table.index))
-    view = crops.table.assign(page=pages)[crops.table["particle"] == particle]
-    view = view.sort_values("frame", kind="stable")
-    stack = out / "crops.tif"
-    if stack.is_symlink() or stack.exists():
-        stack.unlink()
-    stack.symlink_to(crops.stack_path.resolve())
-    meta = dict(crops.sidecar)
-    meta["extra"] = {**dict(meta.get("extra") or {}),
-                     "track_of": {"folder": str(crops.directory), "particle": int(particle),
-                                  **crops.fingerprint()}}
-    units = dict(meta.get("units") or {})
-    units["page"] = "page of crops.tif (the parent folder's stack) holding this row's crop"
-    meta["units"] = units
-    write_table(out / "crops.csv", view.reset_index(drop=True), meta)
-    return out

@@ -41,7 +41,8 @@ def read_stage_table(path: str | Path, crops: CropSet, what: str) -> tuple[pd.Da
     Returns
     -------
     table : pandas.DataFrame
-        Indexed by frame; by (particle, frame) for crops of several tracks.
+        Indexed by ``(particle, frame)`` (a table of one track without the ``particle``
+        column: the crops' track).
     meta : dict
         The sidecar.
 
@@ -62,10 +63,12 @@ def read_stage_table(path: str | Path, crops: CropSet, what: str) -> tuple[pd.Da
     if "frame" not in table.columns or "status" not in table.columns:
         raise StageInputError(f"{path}: not a {what} table (no frame/status columns)")
     multi = bool(getattr(crops, "multi", False))
-    keys = ["particle", "frame"] if multi else ["frame"]
-    if multi and "particle" not in table.columns:
-        raise StageInputError(f"{path}: no particle column, but {crops.table_path} holds "
-                              "several tracks: rerun `holofit " + what + "` on these crops")
+    keys = ["particle", "frame"]
+    if "particle" not in table.columns:
+        if multi:
+            raise StageInputError(f"{path}: no particle column, but {crops.table_path} holds "
+                                  "several tracks: rerun `holofit " + what + "` on these crops")
+        table.insert(0, "particle", crops.particles[0] if crops.particles else 0)
     if table.duplicated(keys).any():
         raise StageInputError(f"{path}: repeated frame numbers" if not multi
                               else f"{path}: repeated (particle, frame) rows")
@@ -84,9 +87,7 @@ def read_stage_table(path: str | Path, crops: CropSet, what: str) -> tuple[pd.Da
                 f"{path} was made from other crops than {crops.table_path} (the crop table's "
                 f"checksum differs): rerun `holofit {what}` on these crops"
             )
-    if multi:  # indexed by (particle, frame), the columns kept
-        return table.set_index(keys, drop=False).rename_axis([None, None]), meta
-    return table.set_index("frame", drop=False), meta
+    return table.set_index(keys, drop=False).rename_axis([None, None]), meta
 
 
 def usable_start(row: dict[str, Any] | None) -> str:
