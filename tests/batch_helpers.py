@@ -69,8 +69,8 @@ def run_toy_batch(out: str, workers: int, n_frames: int, sleep_s: float) -> None
     from holofit.batch import BatchOptions, run_batch
 
     summary = run_batch(
-        toy_frame, ToyConfig(sleep_s=sleep_s), range(n_frames), toy_payload, out, COLUMNS,
-        fingerprint="toy", options=BatchOptions(workers=workers, progress=False), desc="toy",
+        toy_frame, ToyConfig(sleep_s=sleep_s), range(n_frames), toy_payload,
+        toy_table(out, desc="toy"), options=BatchOptions(workers=workers, progress=False),
     )
     for note in summary.notes:
         print("note:", note, flush=True)

@@ -9,7 +9,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions, run_batch
+from holofit.batch import BatchOptions, StageTable, run_batch
 from holofit.batch.journal import read_journal
 from holofit.batch.keys import item_rows
 from holofit.batch.runner import journal_path
@@ -40,10 +40,9 @@ def _load(key: tuple[int, int]) -> list[int]:
 
 
 def _run(out: Path, config: dict) -> object:
-    return run_batch(chunk_item, config, [(c, r.start) for c, r in CHUNKS.items()], _load, out,
-                     COLUMNS, fingerprint="chunks-1",
-                     options=BatchOptions(workers=0, progress=False), desc="chunks",
-                     key_columns=KEYS)
+    return run_batch(chunk_item, config, [(c, r.start) for c, r in CHUNKS.items()], _load,
+                     StageTable(out, COLUMNS, {}, "chunks-1", "chunks", key_columns=KEYS),
+                     options=BatchOptions(workers=0, progress=False))
 
 
 def test_item_rows_put_the_items_own_row_last():
@@ -89,10 +88,9 @@ def test_a_failed_chunk_is_one_error_row_and_is_retried(tmp_path):
     log = tmp_path / "log"
 
     summary = run_batch(_failing_chunk, {"log": str(log)}, [(c, r.start) for c, r in
-                                                             CHUNKS.items()], _load, out,
-                        COLUMNS, fingerprint="chunks-2",
-                        options=BatchOptions(workers=0, progress=False), desc="chunks",
-                        key_columns=KEYS)
+                                                             CHUNKS.items()], _load,
+                        StageTable(out, COLUMNS, {}, "chunks-2", "chunks", key_columns=KEYS),
+                        options=BatchOptions(workers=0, progress=False))
     table = pd.read_csv(out)
     bad = table[table["chunk"] == 1]
     assert len(bad) == 1 and bad["frame"].tolist() == [4] and bad["status"].tolist() == ["error"]
