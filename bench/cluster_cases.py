@@ -155,7 +155,7 @@ def realdata(engine: str) -> dict[str, float]:
     import pandas as pd
 
     from holofit.batch import BatchOptions
-    from holofit.crop import run_crop
+    from holofit.crop import CropConfig, run_crop
     from holofit.fit.stage import run_fit
     from holofit.library.stage import run_library
     from holofit.prefit.stage import run_prefit
@@ -168,7 +168,7 @@ def realdata(engine: str) -> dict[str, float]:
         root = Path(tmp)
         crops = root / "crops"
         run_crop(ROOT / "tests" / "data" / "holopy" / "dimer2011.tif", None, inst, crops,
-                 normalized=True, size=100, plot=False)
+                 CropConfig(normalized=True, size=100, plot=False))
         run_prefit(crops, root / "prefit", batch=serial, plot=False)
         t0 = time.perf_counter()
         run_library(crops, root / "prefit", particle, root / "library", batch=serial,

@@ -92,7 +92,7 @@ def test_fit_per_track_refits_overlapping_frames_with_the_neighbour(tmp_path):
     import json
 
     from holofit.config import load_particle
-    from holofit.crop import run_crop
+    from holofit.crop import CropConfig, run_crop
     from holofit.fit.per_track import run_fit_tracks, track_dir
     from holofit.prefit.stage import run_prefit
 
@@ -102,7 +102,8 @@ def test_fit_per_track_refits_overlapping_frames_with_the_neighbour(tmp_path):
     pb = pa + np.array([6.0, 0.5, 0.5])
     sim = simulate_field_of_view([ParticleInView(A, pa), ParticleInView(A, pb)], inst,
                                  (160, 224), out_dir=tmp_path / "sim", seed=5)
-    crop = run_crop(sim.movie, sim.background, inst, tmp_path / "crop", size=128, plot=False)
+    crop = run_crop(sim.movie, sim.background, inst, tmp_path / "crop",
+                    CropConfig(size=128, plot=False))
     assert crop.frames["overlap"].astype(str).str.lower().eq("true").all()
     run_prefit(crop.out_dir, tmp_path / "prefit", plot=False)
     cfg = load_particle(resolve_config("sphere_ps_1um", "particles"))  # the spheres' truth

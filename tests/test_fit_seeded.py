@@ -11,7 +11,7 @@ import pytest
 
 from holofit.batch.stage import FrameLoader
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.fit.frame import FrameFitSettings, fit_frame
 from holofit.fit.seeded import SEED_BUILD, fit_frame_seeded
 from holofit.fit.stage import _load, initial_choice, initial_particle, run_fit
@@ -157,7 +157,7 @@ def test_a_seed_from_the_twin_height_is_tried_from_other_heights(tmp_path):
     angle = np.array([[0.7, 1.1, 0.0]])
     sim = simulate_movie(truth.model, inst, pos, (90, 90), orientations=angle, alpha=0.9,
                          theory=truth.theory(), seed=4, out_dir=tmp_path / "sim")
-    run_crop(sim.movie, sim.background, inst, tmp_path / "crop", size=64, plot=False)
+    run_crop(sim.movie, sim.background, inst, tmp_path / "crop", CropConfig(size=64, plot=False))
     run_prefit(tmp_path / "crop", tmp_path / "prefit", batch=SERIAL, plot=False)
     crops = CropSet(tmp_path / "crop")
     pre, _ = read_stage_table(tmp_path / "prefit" / "prefit.csv", crops, "prefit")
