@@ -2,7 +2,7 @@
 ``library``, ``fit``): parallel (local processes or Dask), failure-isolating, resumable,
 writing results as they come.
 
-- :mod:`holofit.batch.runner`: :func:`run_batch`, the run loop;
+- :mod:`holofit.batch.runner`: :func:`run_batch`; :mod:`holofit.batch.loop`, its run loop;
 - :mod:`holofit.batch.options`: how a batch runs (:class:`BatchOptions`) and what it did
   (:class:`BatchSummary`);
 - :mod:`holofit.batch.layout`: a stage table's files (:class:`StageTable`), publishing a
