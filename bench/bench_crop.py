@@ -20,7 +20,7 @@ from timing import median_time
 from holofit.camera import Camera
 from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid, hologram_intensity
-from holofit.crop import find_centers, normalize, run_crop
+from holofit.crop import CropConfig, find_centers, normalize, run_crop
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.particles import Sphere
 from holofit.scattering.mie import LorenzMie
@@ -88,13 +88,8 @@ def bench_crop_movie(n_frames: int = 200) -> dict[str, float]:
             for _ in range(5):
                 writer.write(CAMERA.expose(np.ones(SHAPE), rng))
         t0 = time.perf_counter()
-        result = run_crop(
-            folder / "movie.tif",
-            folder / "background.tif",
-            _instrument(),
-            folder / "out",
-            plot=False,
-        )
+        result = run_crop(folder / "movie.tif", folder / "background.tif", _instrument(),
+                          folder / "out", CropConfig(plot=False))
         elapsed = time.perf_counter() - t0
         assert result.counts["ok"] == n_frames, result.counts
     return {"crop_frames_per_s": n_frames / elapsed, "crop_movie_frames": float(n_frames)}

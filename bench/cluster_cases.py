@@ -177,7 +177,7 @@ def realdata(engine: str) -> dict[str, float]:
     import pandas as pd
 
     from holofit.batch import BatchOptions
-    from holofit.crop import run_crop
+    from holofit.crop import CropConfig, run_crop
     from holofit.fit.config import FitConfig
     from holofit.fit.stage import run_fit
     from holofit.library.stage import run_library
@@ -190,15 +190,7 @@ def realdata(engine: str) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         crops = root / "crops"
-        run_crop(
-            ROOT / "tests" / "data" / "holopy" / "dimer2011.tif",
-            None,
-            inst,
-            crops,
-            normalized=True,
-            size=100,
-            plot=False,
-        )
+        run_crop(ROOT / "tests" / "data" / "holopy" / "dimer2011.tif", None, inst, crops, CropConfig(normalized=True, size=100, plot=False))
         run_prefit(crops, root / "prefit", batch=serial, plot=False)
         t0 = time.perf_counter()
         run_library(

@@ -27,7 +27,7 @@ import pandas as pd
 
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
 from holofit.fit.stage import run_fit
 from holofit.library.stage import run_library
@@ -76,8 +76,7 @@ def run(n_rods: int, frames: int, out_dir: Path | None = None,
         out: dict[str, float] = {}
         t_all = time.perf_counter()
         t0 = time.perf_counter()
-        run_crop(sim.movie, sim.background, scene.instrument, root / "crop", size=140,
-                 plot=False)
+        run_crop(sim.movie, sim.background, scene.instrument, root / "crop", CropConfig(size=140, plot=False))
         out[f"pipeline_{tag}_crop_s"] = time.perf_counter() - t0
         _log(f"crop done: {time.perf_counter() - t0:.0f} s")
         t0 = time.perf_counter()

@@ -27,7 +27,7 @@ from holofit.analysis import AnalysisConfig, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diffusion
 from holofit.batch import BatchOptions
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
 from holofit.fit.stage import run_fit
 from holofit.holomodel.parameters import static_values
@@ -87,7 +87,7 @@ def main() -> None:
     truth = movie.trajectory.truth
     batch = BatchOptions(workers=args.workers, progress=False)
     t0 = time.perf_counter()
-    run_crop(sim.movie, sim.background, inst, out / "crop", size=140, plot=False)
+    run_crop(sim.movie, sim.background, inst, out / "crop", CropConfig(size=140, plot=False))
     times["crop_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     run_prefit(out / "crop", out / "prefit", batch=batch)

@@ -51,7 +51,7 @@ from holofit.batch import BatchOptions
 from holofit.batch.aperture import FROM_INSTRUMENT
 from holofit.batch.errors import BatchError
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
 from holofit.fit.stage import run_fit
 from holofit.holomodel.pictures import model_image
@@ -148,10 +148,7 @@ ALPHA_CONFIGS: list[tuple[str, Any, bool]] = [("ideal, alpha free", None, False)
 def _crop(case: Case, out: Path) -> Path:
     crops = out / "crops"
     if not (crops / "crops.csv").exists():
-        run_crop(case.movie, None if case.normalized else list(case.background),
-                 case.instrument, crops, normalized=case.normalized, dark=case.dark,
-                 size=case.size, follow="nearest" if case.start else "strongest",
-                 start=case.start, plot=False)
+        run_crop(case.movie, None if case.normalized else list(case.background), case.instrument, crops, CropConfig(normalized=case.normalized, dark=case.dark, size=case.size, follow="nearest" if case.start else "strongest", start=case.start, plot=False))
     return crops
 
 
@@ -339,8 +336,7 @@ def run_dimer(out_root: Path, configs: list[str] | None = None) -> dict[str, Any
     particle = load_particle(resolve_config("dimer_holopy2011", "particles"))
     crops = out / "crops"
     if not (crops / "crops.csv").exists():
-        run_crop(HOLOPY / "dimer2011.tif", None, inst, crops, normalized=True, size=100,
-                 plot=False)
+        run_crop(HOLOPY / "dimer2011.tif", None, inst, crops, CropConfig(normalized=True, size=100, plot=False))
     prefit = out / "prefit"
     if not (prefit / "prefit.csv").exists():
         run_prefit(crops, prefit, batch=SERIAL, plot=False)

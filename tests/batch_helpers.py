@@ -69,8 +69,8 @@ def run_toy_batch(out: str, workers: int, n_frames: int, sleep_s: float) -> None
     from holofit.batch import BatchOptions, run_batch
 
     summary = run_batch(
-        toy_frame, ToyConfig(sleep_s=sleep_s), range(n_frames), toy_payload, out, COLUMNS,
-        fingerprint="toy", options=BatchOptions(workers=workers, progress=False), desc="toy",
+        toy_frame, ToyConfig(sleep_s=sleep_s), range(n_frames), toy_payload,
+        toy_table(out, desc="toy"), options=BatchOptions(workers=workers, progress=False),
     )
     for note in summary.notes:
         print("note:", note, flush=True)
@@ -90,3 +90,27 @@ def pair_item(config: ToyConfig, key: tuple[int, int], payload: float) -> dict:
     if particle == 1 and frame in config.fail_frames:
         raise ValueError(f"bad item {key}")
     return {"status": "ok", "message": "", "value": payload}
+
+
+def toy_table(out: str | Path, columns=COLUMNS, fingerprint: str = "toy", **fields):
+    """The :class:`~holofit.batch.layout.StageTable` of a toy batch into ``out`` (meta empty
+    and desc ``"batch"`` unless given)."""
+    from holofit.batch import StageTable
+
+    fields.setdefault("meta", {})
+    fields.setdefault("desc", "batch")
+    return StageTable(Path(out), tuple(columns), fingerprint=fingerprint, **fields)
+
+
+#: columns of the worker-resource toy table
+RESOURCE_COLUMNS = ("frame", "status", "message", "pid", "made", "resource", "fit_time_s")
+
+
+def resource_frame(config: dict, frame: int, payload: object) -> dict:
+    """A frame function that takes a per-worker resource (:func:`holofit.batch.worker_resource`)
+    and says which process made it and how many times."""
+    from holofit.batch.worker import worker_resource, worker_resource_kinds
+
+    value = worker_resource("toy resource", config["key"], lambda: f"made in {os.getpid()}")
+    return {"status": "ok", "message": "", "pid": os.getpid(), "resource": value,
+            "made": worker_resource_kinds()["toy resource"][config["key"]]}

@@ -25,11 +25,11 @@ dipole_size_um = 0.1
 def crop_prefit_library(sim: Any, inst: Any, particle: Any, root: Path) -> None:
     """``sim`` (a simulated movie) through crop (64-pixel crops), prefit and the library of
     ``particle`` (15 deg tilts) into ``root``'s ``crop``, ``prefit`` and ``lib``, serially."""
-    from holofit.crop import run_crop
+    from holofit.crop import CropConfig, run_crop
     from holofit.library.stage import LibrarySettings, run_library
     from holofit.prefit import run_prefit
 
-    run_crop(sim.movie, sim.background, inst, root / "crop", size=64, plot=False)
+    run_crop(sim.movie, sim.background, inst, root / "crop", CropConfig(size=64, plot=False))
     run_prefit(root / "crop", root / "prefit", batch=SERIAL, plot=False)
     run_library(root / "crop", root / "prefit", particle, root / "lib",
                 settings=LibrarySettings(tilt_step_deg=15, n_phi=64, n_candidates=2),

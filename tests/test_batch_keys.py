@@ -10,7 +10,7 @@ from holofit.batch import BatchOptions, run_batch
 from holofit.batch.journal import read_journal
 from holofit.batch.keys import FRAME_KEY, key_of_row, key_row, normal_key
 from holofit.batch.runner import journal_path
-from tests.batch_helpers import PAIR_COLUMNS, ToyConfig, pair_item
+from tests.batch_helpers import PAIR_COLUMNS, ToyConfig, pair_item, toy_table
 
 KEYS = [(p, f) for p in (0, 1, 2) for f in range(4)]
 KEY_COLUMNS = ("particle", "frame")
@@ -22,10 +22,10 @@ def _payload(key):
 
 
 def _run(out, config, keys=KEYS, **opts):
-    return run_batch(pair_item, config, keys, _payload, out, PAIR_COLUMNS,
-                     fingerprint="pairs-1", options=BatchOptions(workers=0, progress=False,
-                                                                 **opts),
-                     desc="pairs", key_columns=KEY_COLUMNS)
+    return run_batch(pair_item, config, keys, _payload,
+                     toy_table(out, PAIR_COLUMNS, "pairs-1", desc="pairs",
+                               key_columns=KEY_COLUMNS),
+                     options=BatchOptions(workers=0, progress=False, **opts))
 
 
 def test_keys_normalised_and_written_back():

@@ -22,7 +22,7 @@ from holofit.batch import BatchOptions, SchedulerError, WorkerLost, journal_path
 from holofit.batch.backends import DaskBackend, SerialBackend
 from holofit.cli import main
 from holofit.io.lock import LOCK_NAME, OutputLocked
-from tests.batch_helpers import COLUMNS, ToyConfig, toy_frame, toy_payload
+from tests.batch_helpers import ToyConfig, toy_frame, toy_payload, toy_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -49,8 +49,8 @@ def _wait_for(condition, timeout_s: float = 60.0) -> None:
 
 def _run_toy(out: Path, **options) -> object:
     return run_batch(
-        toy_frame, ToyConfig(), range(4), toy_payload, out, COLUMNS, fingerprint="toy",
-        options=BatchOptions(**({"workers": 0, "progress": False} | options)), desc="toy",
+        toy_frame, ToyConfig(), range(4), toy_payload, toy_table(out, desc="toy"),
+        options=BatchOptions(**({"workers": 0, "progress": False} | options)),
     )
 
 
@@ -160,8 +160,8 @@ def _raise(exc: BaseException) -> None:
 def test_a_frame_lost_beside_the_culprit_is_retried_alone_and_succeeds(tmp_path):
     backend = _ClusterLike()
     summary = run_batch(
-        toy_frame, ToyConfig(), range(8), toy_payload, tmp_path / "t.csv", COLUMNS,
-        fingerprint="toy", options=BatchOptions(progress=False), backend=backend,
+        toy_frame, ToyConfig(), range(8), toy_payload, toy_table(tmp_path / "t.csv"),
+        options=BatchOptions(progress=False), backend=backend,
     )
     table = pd.read_csv(tmp_path / "t.csv")
     assert summary.statuses == {"ok": 7, "error": 1}

@@ -9,7 +9,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions, run_batch
+from holofit.batch import BatchOptions, StageTable, run_batch
 from holofit.batch.journal import read_journal
 from holofit.batch.keys import item_rows
 from holofit.batch.runner import journal_path
@@ -35,23 +35,14 @@ def chunk_item(config: dict, key: tuple[int, int], payload: list[int]) -> list[d
              "message": ""} for f in payload]
 
 
-def load_payload(key: tuple[int, int]) -> list[int]:
+def _load(key: tuple[int, int]) -> list[int]:
     return list(CHUNKS[key[0]])
 
 
 def _run(out: Path, config: dict) -> object:
-    return run_batch(
-        chunk_item,
-        config,
-        [(c, r.start) for c, r in CHUNKS.items()],
-        load_payload,
-        out,
-        COLUMNS,
-        fingerprint="chunks-1",
-        options=BatchOptions(workers=0, progress=False),
-        desc="chunks",
-        key_columns=KEYS,
-    )
+    return run_batch(chunk_item, config, [(c, r.start) for c, r in CHUNKS.items()], _load,
+                     StageTable(out, COLUMNS, {}, "chunks-1", "chunks", key_columns=KEYS),
+                     options=BatchOptions(workers=0, progress=False))
 
 
 def test_item_rows_put_the_items_own_row_last():
@@ -86,7 +77,7 @@ def test_resume_redoes_only_unfinished_chunks(tmp_path):
     ran = log.read_text().split()
     assert sorted(int(c) for c in ran) == done
     summary = _run(out, {"log": str(log)})
-    again = log.read_text().split()[len(ran) :]
+    again = log.read_text().split()[len(ran):]
     assert sorted(int(c) for c in again) == [c for c in CHUNKS if c not in done]  # none redone
     assert summary.n_done_before == len(done) and summary.n_run == 3 - len(done)
     assert len(pd.read_csv(out)) == sum(len(r) for r in CHUNKS.values())
@@ -96,18 +87,10 @@ def test_a_failed_chunk_is_one_error_row_and_is_retried(tmp_path):
     out = tmp_path / "chunks.csv"
     log = tmp_path / "log"
 
-    summary = run_batch(
-        _failing_chunk,
-        {"log": str(log)},
-        [(c, r.start) for c, r in CHUNKS.items()],
-        load_payload,
-        out,
-        COLUMNS,
-        fingerprint="chunks-2",
-        options=BatchOptions(workers=0, progress=False),
-        desc="chunks",
-        key_columns=KEYS,
-    )
+    summary = run_batch(_failing_chunk, {"log": str(log)}, [(c, r.start) for c, r in
+                                                             CHUNKS.items()], _load,
+                        StageTable(out, COLUMNS, {}, "chunks-2", "chunks", key_columns=KEYS),
+                        options=BatchOptions(workers=0, progress=False))
     table = pd.read_csv(out)
     bad = table[table["chunk"] == 1]
     assert len(bad) == 1 and bad["frame"].tolist() == [4] and bad["status"].tolist() == ["error"]

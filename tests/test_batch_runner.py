@@ -20,7 +20,7 @@ from holofit.batch import (
     run_batch,
 )
 from holofit.batch.journal import Journal, JournalError, read_journal
-from tests.batch_helpers import COLUMNS, ToyConfig, calls, toy_frame, toy_payload
+from tests.batch_helpers import COLUMNS, ToyConfig, calls, toy_frame, toy_payload, toy_table
 
 FRAMES = list(range(12))
 TIMING = ["fit_time_s"]
@@ -35,13 +35,10 @@ def _run(tmp_path, name, config=None, frames=FRAMES, load=toy_payload, **opts):
         config,
         frames,
         load,
-        out,
-        COLUMNS,
-        fingerprint=opts.pop("fingerprint", "toy-1"),
-        meta={"kind": "toy"},
+        toy_table(out, fingerprint=opts.pop("fingerprint", "toy-1"), meta={"kind": "toy"},
+                  desc="toy"),
         options=BatchOptions(**({"workers": 0, "progress": False} | opts)),
         backend=backend,
-        desc="toy",
     )
     return out, summary
 

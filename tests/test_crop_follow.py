@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.crop.follow import off_track
 from holofit.simulate.holograms import simulate_movie
 
@@ -66,8 +66,8 @@ def two_particles(tmp_path_factory):
 
 def test_the_other_particles_frames_are_off_track_and_said(two_particles, tmp_path):
     out, inst = two_particles
-    result = run_crop(out / "movie.tif", out / "bg.tif", inst, tmp_path / "crop", size=48,
-                      plot=False, follow="strongest")
+    result = run_crop(out / "movie.tif", out / "bg.tif", inst, tmp_path / "crop",
+                      CropConfig(size=48, plot=False, follow="strongest"))
     status = result.frames.set_index("frame")["status"]
     # the strongest hologram is the second particle's while it is in view: before, these
     # five frames were `ok` at (85, 85) px, and a fit would have followed the other particle

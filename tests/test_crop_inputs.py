@@ -14,7 +14,7 @@ import tifffile
 from click.testing import CliRunner
 
 from holofit.cli import main
-from holofit.crop import CropError, run_crop
+from holofit.crop import CropConfig, CropError, run_crop
 from holofit.crop.reference import read_reference_frame
 from tests.conftest import DATA
 
@@ -116,7 +116,7 @@ def test_normalised_and_background_exclude_each_other(tmp_path):
     with pytest.raises(CropError, match=r"no background given.*normalized=True"):
         run_crop(movie, None, "pylorenzmie", tmp_path / "o")
     with pytest.raises(CropError, match="takes no background"):
-        run_crop(movie, BACKGROUNDS[0], "pylorenzmie", tmp_path / "o", normalized=True)
+        run_crop(movie, BACKGROUNDS[0], "pylorenzmie", tmp_path / "o", CropConfig(normalized=True))
     res = _invoke(["crop", movie, "-i", "pylorenzmie", "-o", tmp_path / "o"])
     assert res.exit_code == 2 and "--background" in res.output and "--normalized" in res.output
     res = _invoke(["crop", movie, "--normalized", "-b", BACKGROUNDS[0], "-i", "pylorenzmie",

@@ -12,7 +12,7 @@ import pytest
 import tifffile
 
 from holofit.config import load_instrument, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.crop.centerfind import find_centers
 from holofit.crop.peel import ring_model
 from holofit.particles import Sphere
@@ -90,7 +90,8 @@ def crossing(tmp_path_factory, inst):
     particles = [ParticleInView(Sphere(0.5, 1.59), a), ParticleInView(Sphere(0.4, 1.59), b),
                  ParticleInView(Sphere(0.6, 1.45), c)]
     sim = simulate_field_of_view(particles, inst, (170, 240), out_dir=out / "sim", seed=2)
-    crop = run_crop(sim.movie, sim.background, inst, out / "crop", size=SIZE, plot=False)
+    crop = run_crop(sim.movie, sim.background, inst, out / "crop",
+                    CropConfig(size=SIZE, plot=False))
     return sim, crop
 
 

@@ -12,9 +12,9 @@ import pytest
 import tifffile
 
 import holofit.crop.detect as detect_module
-from holofit.batch import BatchOptions, journal_path
+from holofit.batch import BatchOptions, journal_path, published_fingerprint
 from holofit.batch.journal import read_journal
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from tests.test_crop_run import _outputs, simulated  # noqa: F401 (fixture)
 from tests.test_crop_synthetic import INSTRUMENT
 
@@ -48,8 +48,9 @@ def _same(a, b):
     np.testing.assert_array_equal(a[1], b[1])
 
 
-def _run(folder, background, out, **kw):
-    return run_crop(folder / "movie.tif", background, INSTRUMENT, out, size=100, **kw)
+def _run(folder, background, out, batch=None, **kw):
+    return run_crop(folder / "movie.tif", background, INSTRUMENT, out, CropConfig(size=100, **kw),
+                    batch=batch)
 
 
 def test_workers_give_the_outputs_of_a_run_in_this_process(simulated, tmp_path):  # noqa: F811
@@ -90,3 +91,26 @@ def test_interrupted_crop_resumes_where_it_stopped(simulated, tmp_path, monkeypa
     pd.testing.assert_frame_equal(again.frames, whole.frames)
     _same(_snapshot(tmp_path / "whole"), _snapshot(out))
     assert "detections.csv" not in _outputs(out) and "detections.csv.journal" not in _outputs(out)
+
+
+def test_the_crop_table_is_published_with_its_fingerprint(simulated, tmp_path):  # noqa: F811
+    folder, background, _, _ = simulated
+    first = _run(folder, background, tmp_path / "a", plot=False)
+    key = published_fingerprint(first.table)
+    assert key and key == published_fingerprint(_run(folder, background, tmp_path / "b",
+                                                     plot=False).table)
+    other = _run(folder, background, tmp_path / "c", plot=False, max_jump_px=7.0)
+    assert published_fingerprint(other.table) not in (None, key)
+    assert not (tmp_path / "a" / "crops.partial.csv").exists()
+
+
+def test_settings_as_keywords_still_work_and_warn(simulated, tmp_path):  # noqa: F811
+    folder, background, _, _ = simulated
+    given = _run(folder, background, tmp_path / "config", plot=False)
+    with pytest.warns(DeprecationWarning, match="CropConfig"):
+        old = run_crop(folder / "movie.tif", background, INSTRUMENT, tmp_path / "keywords",
+                       size=100, plot=False)
+    pd.testing.assert_frame_equal(given.frames, old.frames)
+    with pytest.raises(TypeError, match="no_such_setting"):
+        run_crop(folder / "movie.tif", background, INSTRUMENT, tmp_path / "bad",
+                 no_such_setting=1)

@@ -15,7 +15,7 @@ import pytest
 import tifffile
 
 from holofit.camera import Camera
-from holofit.crop import CenterFinder, CropError, normalize, run_crop
+from holofit.crop import CenterFinder, CropConfig, CropError, normalize, run_crop
 from holofit.io.tiffstack import write_tiff_stack
 from holofit.particles import Sphere
 from holofit.simulate.holograms import simulate_movie
@@ -71,7 +71,7 @@ def simulated(tmp_path_factory):
 def test_outputs_follow_the_contract(simulated, tmp_path):
     folder, background, truth, frames = simulated
     out = tmp_path / "out"
-    result = run_crop(folder / "movie.tif", background, INSTRUMENT, out, size=100)
+    result = run_crop(folder / "movie.tif", background, INSTRUMENT, out, CropConfig(size=100))
     assert _outputs(out) == {
         "crops.tif",
         "crops.tif.json",
@@ -140,11 +140,12 @@ def test_follow_nearest_tracks_the_chosen_particle(tmp_path):
     tifffile.imwrite(tmp_path / "bg.tif", np.full(shape, 120, np.uint8))
 
     best = run_crop(tmp_path / "movie.tif", tmp_path / "bg.tif", inst, tmp_path / "a",
-                    size=100, plot=False, follow="strongest").frames  # fmt: skip
+                    CropConfig(size=100, plot=False, follow="strongest")).frames  # fmt: skip
     assert np.hypot(best["x_px"] - strong[:, 0], best["y_px"] - strong[:, 1]).max() < 0.3
 
     near = run_crop(tmp_path / "movie.tif", tmp_path / "bg.tif", inst, tmp_path / "b",
-                    size=100, follow="nearest", start=(72, 128), plot=False).frames  # fmt: skip
+                    CropConfig(size=100, follow="nearest", start=(72, 128),
+                               plot=False)).frames  # fmt: skip
     assert near["status"][5] == "no_particle" and "max jump" in near["message"][5]
     rest = near.drop(index=5)
     err = np.hypot(rest["x_px"] - np.delete(weak[:, 0], 5), rest["y_px"] - np.delete(weak[:, 1], 5))
@@ -171,7 +172,7 @@ def _peak_memory(tmp_path: Path, n: int, shape: tuple[int, int]) -> int:
     tracemalloc.start()
     try:
         result = run_crop(folder / "movie.tif", folder / "bg.tif", INSTRUMENT, folder / "out",
-                          plot=False)  # fmt: skip
+                          CropConfig(plot=False))  # fmt: skip
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -201,7 +202,7 @@ def test_folder_of_16bit_frames_and_dark_frame(tmp_path):
     tifffile.imwrite(tmp_path / "bg.tif", np.full(shape, 3200, np.uint16))
     tifffile.imwrite(tmp_path / "dark.tif", np.full(shape, 200, np.uint16))
     result = run_crop(movie, tmp_path / "bg.tif", inst16, tmp_path / "out",
-                      dark=tmp_path / "dark.tif", size=80, plot=False)  # fmt: skip
+                      CropConfig(dark=tmp_path / "dark.tif", size=80, plot=False))  # fmt: skip
     t = result.frames
     assert (t["status"] == "ok").all()
     for k in range(4):
@@ -212,7 +213,7 @@ def test_folder_of_16bit_frames_and_dark_frame(tmp_path):
     assert any(i["path"].endswith("dark.tif") for i in meta["inputs"])
     # an 8-bit instrument cannot have recorded these counts: say so instead of masking all
     with pytest.raises(CropError, match=r"bg\.tif: background counts up to 3200 exceed.*255"):
-        run_crop(movie, tmp_path / "bg.tif", INSTRUMENT, tmp_path / "o2", plot=False)
+        run_crop(movie, tmp_path / "bg.tif", INSTRUMENT, tmp_path / "o2", CropConfig(plot=False))
 
 
 # -- bad input -----------------------------------------------------------------------------
@@ -229,7 +230,7 @@ def small_movie(tmp_path):
 def _crop(folder, movie="movie.tif", bg="bg.tif", **kw):
     kw.setdefault("size", 64)
     kw.setdefault("plot", False)
-    return run_crop(folder / movie, folder / bg, INSTRUMENT, folder / "out", **kw)
+    return run_crop(folder / movie, folder / bg, INSTRUMENT, folder / "out", CropConfig(**kw))
 
 
 def test_unreadable_movie(small_movie):

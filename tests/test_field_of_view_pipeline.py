@@ -11,7 +11,7 @@ import pytest
 import tifffile
 
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.crop.errors import CropError
 from holofit.crop.track_crops import link_detections, track_rows
 from holofit.crop.tracks import LinkOptions
@@ -48,7 +48,8 @@ def scene(tmp_path_factory, inst):
                  ParticleInView(Sphere(0.4, 1.59), walk(16.0, 5.0, 12.0)),
                  ParticleInView(Sphere(0.6, 1.45), pc)]
     sim = simulate_field_of_view(particles, inst, SHAPE, out_dir=out / "sim", seed=3)
-    crop = run_crop(sim.movie, sim.background, inst, out / "crop", size=SIZE, plot=False)
+    crop = run_crop(sim.movie, sim.background, inst, out / "crop",
+                    CropConfig(size=SIZE, plot=False))
     return out, sim, crop
 
 
@@ -113,15 +114,15 @@ def mapping_inverse(mapping: dict[int, int], truth_id: int) -> int:
 def test_one_track_kept_with_particle(scene, inst, tmp_path):
     _, sim, crop = scene
     entering = mapping_inverse(_track_to_truth(crop.frames, sim.truth), 2)
-    one = run_crop(sim.movie, sim.background, inst, tmp_path / "one", size=SIZE, plot=False,
-                   particle=entering)
+    one = run_crop(sim.movie, sim.background, inst, tmp_path / "one",
+                   CropConfig(size=SIZE, plot=False, particle=entering))
     # one track: a row per movie frame, as the single-particle modes give
     assert one.frames["particle"].eq(0).all() and len(one.frames) == N
     assert (one.frames["status"].iloc[:ENTERS] == "no_particle").all()
     assert (one.frames["status"].iloc[ENTERS:] == "ok").all()
     with pytest.raises(CropError, match=r"--particle 7: no such track \(tracks found: 0, 1, 2\)"):
-        run_crop(sim.movie, sim.background, inst, tmp_path / "bad", size=SIZE, plot=False,
-                 particle=7)
+        run_crop(sim.movie, sim.background, inst, tmp_path / "bad",
+                 CropConfig(size=SIZE, plot=False, particle=7))
     assert not (tmp_path / "bad" / "crops.csv").exists()
 
 
@@ -143,8 +144,8 @@ def test_a_movie_without_holograms_says_so(inst, tmp_path):
     tifffile.imwrite(tmp_path / "m.tif", movie, photometric="minisblack")
     tifffile.imwrite(tmp_path / "bg.tif", np.full((96, 96), 120, np.uint8),
                      photometric="minisblack")
-    res = run_crop(tmp_path / "m.tif", tmp_path / "bg.tif", inst, tmp_path / "o", size=48,
-                   plot=False)
+    res = run_crop(tmp_path / "m.tif", tmp_path / "bg.tif", inst, tmp_path / "o",
+                   CropConfig(size=48, plot=False))
     assert (res.frames["status"] == "no_particle").all()
     assert any("no hologram found in any frame" in w for w in res.notes)
 

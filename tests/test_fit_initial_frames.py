@@ -10,7 +10,7 @@ import pytest
 from holofit.batch import BatchOptions
 from holofit.batch import stage as skeleton
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.fit import stage
 from holofit.fit.config import FitConfig
 from holofit.fit.defaults import default_initial_frames
@@ -40,7 +40,7 @@ def test_a_30_frame_movie_fits_8_frames_everything_free_and_says_so(tmp_path, mo
                            np.full(30, 10.0)])
     sim = simulate_movie(particle.model, inst, pos, (72, 72), theory=particle.theory(), seed=1,
                          out_dir=tmp_path / "sim")
-    run_crop(sim.movie, sim.background, inst, tmp_path / "crop", size=48, plot=False)
+    run_crop(sim.movie, sim.background, inst, tmp_path / "crop", CropConfig(size=48, plot=False))
     run_prefit(tmp_path / "crop", tmp_path / "prefit", batch=SERIAL, plot=False)
     given: list[list[int]] = []
 

@@ -27,7 +27,7 @@ TRUTH = Sphere(0.5, 1.59)
 @pytest.fixture(scope="module")
 def pair(tmp_path_factory):
     """Crops and prefit of the pair; the truth per track (ids follow the finder)."""
-    from holofit.crop import run_crop
+    from holofit.crop import CropConfig, run_crop
     from holofit.prefit.stage import run_prefit
 
     root = tmp_path_factory.mktemp("overlap_pair")
@@ -37,7 +37,8 @@ def pair(tmp_path_factory):
     pb = pa + np.array([6.0, 0.5, 0.5])
     sim = simulate_field_of_view([ParticleInView(TRUTH, pa), ParticleInView(TRUTH, pb)], inst,
                                  (160, 224), out_dir=root / "sim", seed=7)
-    crop = run_crop(sim.movie, sim.background, inst, root / "crop", size=128, plot=False)
+    crop = run_crop(sim.movie, sim.background, inst, root / "crop",
+                    CropConfig(size=128, plot=False))
     assert crop.frames["overlap"].astype(str).str.lower().eq("true").all()
     run_prefit(crop.out_dir, root / "prefit", plot=False,
                batch=BatchOptions(workers=0, progress=False))

@@ -11,7 +11,7 @@ import pytest
 
 from holofit.batch.stage import FrameLoader
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
 from holofit.fit.frame import fit_frame
 from holofit.fit.passes import initial_choice, initial_particle, load_payload
@@ -217,7 +217,7 @@ def test_a_seed_from_the_twin_height_is_tried_from_other_heights(tmp_path):
         seed=4,
         out_dir=tmp_path / "sim",
     )
-    run_crop(sim.movie, sim.background, inst, tmp_path / "crop", size=64, plot=False)
+    run_crop(sim.movie, sim.background, inst, tmp_path / "crop", CropConfig(size=64, plot=False))
     run_prefit(tmp_path / "crop", tmp_path / "prefit", batch=SERIAL, plot=False)
     crops = CropSet(tmp_path / "crop")
     pre, _ = read_stage_table(tmp_path / "prefit" / "prefit.csv", crops, "prefit")

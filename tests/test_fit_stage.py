@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.fit import follower, stage, task, tmatrix_policy
 from holofit.fit.config import FitConfig
 from holofit.fit.continuity import ContinuitySettings
@@ -41,7 +41,7 @@ def movie(tmp_path_factory):
     pos = np.array([[8.0, 8.0, 9.0], [8.1, 7.9, 9.2], [7.9, 8.05, 9.1]])
     sim = simulate_movie(particle.model, inst, pos, (90, 90), orientations=TRUTH_ANGLES,
                          alpha=0.9, theory=particle.theory(), seed=2, out_dir=root / "sim")
-    run_crop(sim.movie, sim.background, inst, root / "crop", size=64, plot=False)
+    run_crop(sim.movie, sim.background, inst, root / "crop", CropConfig(size=64, plot=False))
     run_prefit(root / "crop", root / "prefit", batch=SERIAL, plot=False)
     run_library(root / "crop", root / "prefit", particle, root / "lib", settings=LIB,
                 batch=SERIAL, plot=False)

@@ -22,7 +22,7 @@ import tifffile
 
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.prefit.stage import run_prefit
 from tests.conftest import CONFIGS, DATA
@@ -34,8 +34,8 @@ PYLM = load_instrument(CONFIGS / "instruments" / "pylorenzmie.toml")
 def test_holopy_image0001_through_the_lens(tmp_path):
     inst = load_instrument(CONFIGS / "instruments" / "holopy_image0001.toml")
     crops = tmp_path / "crops"
-    run_crop(DATA / "holopy" / "image0001.tif", None, inst, crops, normalized=True, size=100,
-             plot=False)
+    run_crop(DATA / "holopy" / "image0001.tif", None, inst, crops,
+             CropConfig(normalized=True, size=100, plot=False))
     rows = {}
     for label, na in (("ideal", None), ("lens", 1.2)):
         result = run_prefit(crops, tmp_path / label, batch=SERIAL, plot=False,

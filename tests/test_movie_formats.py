@@ -17,7 +17,7 @@ import pytest
 import tifffile
 from PIL import Image
 
-from holofit.crop import CropError, run_crop
+from holofit.crop import CropConfig, CropError, run_crop
 from holofit.io.movie import MovieError, open_movie
 from holofit.io.tiffstack import write_tiff_stack
 from tests.test_crop_synthetic import instrument, ring_pattern
@@ -56,8 +56,8 @@ def test_pages_appended_one_by_one_are_all_frames(tmp_path):
     for frame in frames:
         tifffile.imwrite(path, frame, append=True)
     _check_odd_movie(path, frames)
-    result = run_crop(path, None, instrument(), tmp_path / "out", normalized=True, size=64,
-                      plot=False)
+    result = run_crop(path, None, instrument(), tmp_path / "out",
+                      CropConfig(normalized=True, size=64, plot=False))
     table = result.frames.set_index("frame")
     assert len(table) == 6
     assert table.loc[3, "status"] == "error" and "shape (128, 200)" in table.loc[3, "message"]
@@ -88,7 +88,7 @@ def test_pillow_stack_of_equal_pages(tmp_path):
 
 def _crop_positions(path, tmp_path, name, **kw):
     result = run_crop(path, None, kw.pop("inst", instrument()), tmp_path / name,
-                      normalized=True, size=64, plot=False, **kw)
+                      CropConfig(normalized=True, size=64, plot=False, **kw))
     assert (result.frames["status"] == "ok").all(), result.frames["message"].tolist()
     return result.frames[["x_px", "y_px"]].to_numpy()
 
@@ -184,8 +184,8 @@ def test_sixteen_bit_movie_with_an_eight_bit_instrument_is_an_error(tmp_path, wi
         background = tmp_path / "bg.tif"
         tifffile.imwrite(background, np.full(SHAPE, 200, np.uint8))
     with pytest.raises(CropError) as info:
-        run_crop(movie, background, instrument(), tmp_path / "out", normalized=not background,
-                 size=64, plot=False)
+        run_crop(movie, background, instrument(), tmp_path / "out",
+                 CropConfig(normalized=not background, size=64, plot=False))
     message = str(info.value)
     assert "m16.tif: frame 0 has counts up to" in message
     assert "exceed the full scale 255" in message and "bit_depth = 8" in message
@@ -193,8 +193,9 @@ def test_sixteen_bit_movie_with_an_eight_bit_instrument_is_an_error(tmp_path, wi
     assert not (tmp_path / "out" / "crops.csv").exists()
     # with the camera's bit depth the same movie is cropped
     sixteen = dataclasses.replace(instrument(), bit_depth=16)
-    assert (run_crop(movie, None, sixteen, tmp_path / "ok", normalized=True, size=64,
-                     plot=False).frames["status"] == "ok").all()
+    assert (run_crop(movie, None, sixteen, tmp_path / "ok",
+                     CropConfig(normalized=True, size=64,
+                                plot=False)).frames["status"] == "ok").all()
 
 
 def test_a_later_frame_beyond_full_scale_is_an_error_row(tmp_path):
@@ -202,8 +203,8 @@ def test_a_later_frame_beyond_full_scale_is_an_error_row(tmp_path):
     frames[2] = frames[2] * 10  # counts above 255
     movie = tmp_path / "m.tif"
     write_tiff_stack(movie, frames)
-    result = run_crop(movie, None, instrument(), tmp_path / "out", normalized=True, size=64,
-                      plot=False)
+    result = run_crop(movie, None, instrument(), tmp_path / "out",
+                      CropConfig(normalized=True, size=64, plot=False))
     table = result.frames.set_index("frame")
     assert table.loc[2, "status"] == "error"
     assert "frame 2: counts up to" in table.loc[2, "message"]

@@ -24,7 +24,7 @@ import tifffile
 
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.prefit.sphere import SphereFitSettings
 from holofit.prefit.stage import run_prefit
 from tests.conftest import CONFIGS, DATA
@@ -39,8 +39,8 @@ def _crop_folder(tmp_path, raw, background_level, size, instrument, follow_start
     tifffile.imwrite(movie, raw)
     tifffile.imwrite(background, np.full(raw.shape, background_level, dtype=raw.dtype))
     follow = "strongest" if follow_start is None else "nearest"
-    result = run_crop(movie, background, instrument, tmp_path / "crops", size=size,
-                      follow=follow, start=follow_start, plot=False)
+    result = run_crop(movie, background, instrument, tmp_path / "crops",
+                      CropConfig(size=size, follow=follow, start=follow_start, plot=False))
     row = pd.read_csv(result.table).iloc[0]
     assert row["status"] in ("ok", "edge"), row["message"]
     return tmp_path / "crops"
@@ -118,8 +118,9 @@ def test_a_fit_far_from_the_data_is_not_plain_ok(tmp_path):
     movie, background = tmp_path / "m.tif", tmp_path / "b.tif"
     tifffile.imwrite(movie, raw)
     tifffile.imwrite(background, bg)
-    crops = run_crop(movie, background, inst, tmp_path / "crops", size=301, follow="nearest",
-                     start=(921, 303), dark=13.0, plot=False)
+    crops = run_crop(movie, background, inst, tmp_path / "crops",
+                     CropConfig(size=301, follow="nearest", start=(921, 303), dark=13.0,
+                                plot=False))
     assert pd.read_csv(crops.table).iloc[0]["status"] in ("ok", "edge")
     result = run_prefit(tmp_path / "crops", tmp_path / "prefit",
                         fit=SphereFitSettings(fix_alpha=1.0), batch=SERIAL, plot=False)
@@ -137,7 +138,7 @@ def test_pylorenzmie_image0400_two_tracks_without_a_start_point(tmp_path):
     movie, background = tmp_path / "movie.tif", tmp_path / "background.tif"
     tifffile.imwrite(movie, raw)
     tifffile.imwrite(background, np.full(raw.shape, 100, dtype=raw.dtype))
-    crop = run_crop(movie, background, inst, tmp_path / "crops", size=200, plot=False)
+    crop = run_crop(movie, background, inst, tmp_path / "crops", CropConfig(size=200, plot=False))
     frames = crop.frames.sort_values("x_px")
     assert frames["particle"].tolist() == sorted(frames["particle"])  # ids by x, from 0
     assert len(frames) == 2 and set(frames["status"]) <= {"ok", "edge"}

@@ -35,53 +35,49 @@ What the runner guarantees:
   died, the most common cause) instead of writing its table; the journal and the partial
   table keep the rows, and a rerun tries them all again.
 
-The pieces: :func:`run_batch` checks its arguments, takes the folder lock and finds the rows of
-earlier runs (:func:`_earlier_rows`); :class:`_OutputFiles` knows the files of one output
-(table, partial table, journal); :class:`_BatchRun` owns the state of one run (rows, journal,
-progress, frames in flight) and moves frames through it: :meth:`~_BatchRun.feed` loads and
-submits, :meth:`~_BatchRun.collect` takes finished frames (and handles dead workers),
-:meth:`~_BatchRun.record` files one row, :meth:`~_BatchRun.flush` rewrites the partial table.
+The pieces: :mod:`holofit.batch.options` holds the settings, the summary and the choice of
+backend; :mod:`holofit.batch.layout` the files of one output (table, partial table, journal,
+fingerprint, publishing) and the rows of earlier runs (:func:`~holofit.batch.layout.earlier_rows`);
+:mod:`holofit.batch.loop` the run loop (:class:`~holofit.batch.loop.BatchRun`: rows, journal,
+progress, frames in flight; :func:`~holofit.batch.loop.run_frame`, what a worker runs); here,
+:func:`run_batch` checks its arguments, takes the folder lock, finds the earlier rows and
+hands the rest to the loop.
 """
 
 from __future__ import annotations
 
 import collections
-import contextlib
-import functools
-import json
-import math
-import os
 import time
-import traceback
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+import warnings
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
-
-from holofit.batch.backends import (
-    Backend,
-    DaskBackend,
-    ProcessPoolBackend,
-    SerialBackend,
+from holofit.batch.backends import Backend
+from holofit.batch.errors import BatchError
+from holofit.batch.keys import FRAME_KEY, Key, check_key_columns, normal_key
+from holofit.batch.layout import (
+    OutputFiles,
+    StageTable,
+    earlier_fingerprint,
+    earlier_rows,
+    journal_path,
+    partial_path,
 )
-from holofit.batch.errors import BatchError, WorkerLost
-from holofit.batch.journal import Journal, JournalError, read_journal
-from holofit.batch.keys import (
-    FRAME_KEY,
-    Key,
-    check_key_columns,
-    item_rows,
-    key_of_row,
-    key_row,
-    normal_key,
+from holofit.batch.loop import BatchRun, run_frame
+from holofit.batch.mainguard import refuse_while_worker_starts
+from holofit.batch.options import (
+    BatchOptions,
+    BatchSummary,
+    Precomputed,
+    available_cpus,
+    backend_for,
+    make_backend,
 )
-from holofit.batch.mainguard import GUARD_ADVICE, refuse_while_worker_starts
 from holofit.io.lock import output_lock
-from holofit.io.tables import read_table, sidecar_path, write_table
 from holofit.progress import progress_bar
-from holofit.status import ERROR, FAILED_STATUSES, SKIPPED
+from holofit.status import ERROR, FAILED_STATUSES
 
 __all__ = [
     "FAILED_STATUSES",
@@ -89,6 +85,7 @@ __all__ = [
     "BatchOptions",
     "BatchSummary",
     "Precomputed",
+    "StageTable",
     "available_cpus",
     "earlier_fingerprint",
     "journal_path",
@@ -97,544 +94,6 @@ __all__ = [
     "run_batch",
     "run_frame",
 ]
-
-#: seconds the driver waits for a finished frame before it looks at the clock again
-WAIT_S = 0.5
-
-
-@dataclass(frozen=True)
-class Precomputed:
-    """A frame whose row is known without running the frame function (e.g. no particle)."""
-
-    row: dict[str, Any]
-
-
-@dataclass(frozen=True)
-class BatchOptions:
-    """How a batch runs.
-
-    Attributes
-    ----------
-    workers : int, optional
-        Worker processes (default: the CPUs available to this process); 0 runs the frames in
-        this process. With ``dask_local``, the workers of the local Dask cluster.
-    scheduler : str, optional
-        Address (``tcp://host:8786``) or scheduler-file path of a running Dask scheduler.
-    dask_local : bool
-        Run on a Dask ``LocalCluster`` on 127.0.0.1 (mostly to check a Dask set-up).
-    retry_failed : bool
-        On a rerun, run again the frames recorded as ``not_converged`` too (those recorded
-        as ``error`` are always run again).
-    overwrite : bool
-        Discard earlier results of the same output even if they came from other settings.
-    progress : bool, optional
-        Show a progress bar (default: when stderr is a terminal).
-    flush_interval_s : float
-        Seconds between atomic rewrites of the output table while the batch runs.
-    max_in_flight : int, optional
-        Frames submitted but not finished (default: 2 per worker + 2).
-    """
-
-    workers: int | None = None
-    scheduler: str | None = None
-    dask_local: bool = False
-    retry_failed: bool = False
-    overwrite: bool = False
-    progress: bool | None = None
-    flush_interval_s: float = 5.0
-    max_in_flight: int | None = None
-
-    def __post_init__(self) -> None:
-        if self.workers is not None and self.workers < 0:
-            raise ValueError(f"workers must be >= 0, got {self.workers}")
-        if self.scheduler and self.dask_local:
-            raise ValueError("give either a Dask scheduler address or dask_local, not both")
-
-
-@dataclass
-class BatchSummary:
-    """What a batch did.
-
-    ``notes`` holds what the user should know that is not an error (e.g. that the lock of a
-    killed earlier run was taken over).
-    """
-
-    output: Path
-    n_frames: int
-    n_done_before: int
-    n_run: int
-    statuses: dict[str, int] = field(default_factory=dict)
-    elapsed_s: float = 0.0
-    backend: dict[str, Any] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def n_failed(self) -> int:
-        return sum(self.statuses.get(s, 0) for s in FAILED_STATUSES)
-
-
-def available_cpus() -> int:
-    """CPUs this process may run on."""
-    try:
-        return max(len(os.sched_getaffinity(0)), 1)
-    except AttributeError:  # pragma: no cover - not Linux
-        return max(os.cpu_count() or 1, 1)
-
-
-def journal_path(output: str | Path) -> Path:
-    """``prefit.csv`` -> ``prefit.csv.journal``."""
-    output = Path(output)
-    return output.with_name(output.name + ".journal")
-
-
-def partial_path(output: str | Path) -> Path:
-    """``prefit.csv`` -> ``prefit.partial.csv``: the table of the frames done so far."""
-    output = Path(output)
-    return output.with_name(output.stem + ".partial" + output.suffix)
-
-
-def make_backend(options: BatchOptions) -> Backend:
-    """The backend chosen by ``options``."""
-    workers = options.workers if options.workers is not None else available_cpus()
-    if options.scheduler:
-        return DaskBackend(scheduler=options.scheduler)
-    if options.dask_local:
-        return DaskBackend(scheduler=None, workers=max(workers, 1))
-    if workers == 0:
-        return SerialBackend()
-    return ProcessPoolBackend(workers)
-
-
-def run_frame(
-    func: Callable[[Any, Any, Any], Any], config: Any, frame: Key, payload: Any,
-    key_columns: Sequence[str] = FRAME_KEY,
-) -> dict[str, Any] | list[dict[str, Any]]:
-    """Run the frame function for one item (a frame), turning an exception into an ``error``
-    row.
-
-    This is what a worker executes. The item's key columns (:mod:`holofit.batch.keys`) are
-    set from its key; ``fit_time_s`` (wall time in the worker) is added if the frame function
-    did not set it. A *multi-row item* (e.g. a chunk of a track: :mod:`holofit.fit.tracked`)
-    returns a list of rows, each with its own key columns, one of them the item's own key:
-    that row is put last (:func:`holofit.batch.keys.item_rows`), so that a journal holding
-    it holds the whole item.
-    """
-    t0 = time.perf_counter()
-    try:
-        got = func(config, frame, payload)
-        if isinstance(got, list):
-            rows = item_rows(got, frame, key_columns)
-            for row in rows:
-                row.setdefault("fit_time_s", (time.perf_counter() - t0) / len(rows))
-            return rows
-        row = dict(got)
-    except Exception as exc:
-        where = traceback.extract_tb(exc.__traceback__)[-1]
-        row = {
-            "status": ERROR,
-            "message": f"{type(exc).__name__}: {exc} "
-            f"(at {Path(where.filename).name}:{where.lineno})",
-        }
-    row.update(key_row(frame, key_columns))
-    row.setdefault("fit_time_s", time.perf_counter() - t0)
-    return row
-
-
-def _complete_row(row: dict[str, Any], columns: Sequence[str],
-                  key_columns: Sequence[str] = FRAME_KEY) -> dict[str, Any]:
-    out = {c: row.get(c, math.nan) for c in columns}
-    out.update(key_row(key_of_row(row, key_columns), key_columns))
-    out["status"] = str(row.get("status") or ERROR)
-    msg = row.get("message")
-    out["message"] = "" if msg is None or (isinstance(msg, float) and math.isnan(msg)) else msg
-    return out
-
-
-class _OutputFiles:
-    """The files of one batch output: the table, the partial table and the journal.
-
-    Parameters
-    ----------
-    output : Path
-        The table (CSV; sidecar JSON beside it).
-    columns : list of str
-        Its columns, in order.
-    meta : dict
-        The sidecar document; a ``batch`` entry is added on every write.
-    finish : callable, optional
-        Applied to the final table (in place) before it is written.
-    before_publish : callable, optional
-        Called with the complete table, written under the partial table's name, before it is
-        published under its own (see :func:`run_batch`).
-    """
-
-    def __init__(self, output: Path, columns: list[str], meta: dict[str, Any],
-                 finish: Callable[[pd.DataFrame], Any] | None = None,
-                 before_publish: Callable[[Path], Any] | None = None,
-                 key_columns: tuple[str, ...] = FRAME_KEY) -> None:
-        self.output = output
-        self.columns = columns
-        self.key_columns = key_columns
-        self.meta = meta
-        self.finish_table = finish
-        self.before_publish = before_publish
-        self.journal = journal_path(output)
-        self.partial = partial_path(output)
-        self._staged = False
-
-    def complete(self, row: dict[str, Any]) -> dict[str, Any]:
-        """``row`` with every column (NaN where missing), its key, status and message."""
-        return _complete_row(row, self.columns, self.key_columns)
-
-    def write(self, rows: dict[Key, dict[str, Any]], info: dict[str, Any], *, final: bool,
-              staged: bool = False) -> None:
-        """Write the rows (sorted by key) as the final or the partial table, atomically
-        (``staged``: the final table under the partial table's name)."""
-        frames = sorted(rows)
-        table = pd.DataFrame([rows[f] for f in frames], columns=self.columns)
-        if final and self.finish_table is not None:
-            self.finish_table(table)
-            kept = [*self.key_columns, "status", "message"]
-            for rec in table[kept].to_dict(orient="records"):
-                rows[key_of_row(rec, self.key_columns)].update(status=rec["status"],
-                                                               message=rec["message"])
-        doc = dict(self.meta)
-        doc["batch"] = info | {"frames_done": len(frames)}
-        write_table(self.output if final and not staged else self.partial, table, doc)
-
-    def finish(self, rows: dict[Key, dict[str, Any]], info: dict[str, Any]) -> None:
-        """Write the final table, then remove the journal and the partial table; with
-        ``before_publish``, only stage it (:meth:`publish` completes)."""
-        staged = self.before_publish is not None
-        self.write(rows, info | {"complete": True}, final=True, staged=staged)
-        if not staged:
-            self.remove(self.journal)
-            self.remove_partial()
-        self._staged = staged
-
-    def publish(self) -> bool:
-        """With ``before_publish``: call it on the staged table, then rename the table (its
-        sidecar first) into place and remove the journal. Returns whether it published."""
-        if self.before_publish is None or not self._staged:
-            return False
-        self.before_publish(self.partial)
-        os.replace(sidecar_path(self.partial), sidecar_path(self.output))
-        os.replace(self.partial, self.output)  # the last file written: the run is complete
-        os.utime(self.output)  # and the newest
-        self.remove(self.journal)
-        return True
-
-    def remove_partial(self) -> None:
-        self.remove(self.partial, sidecar_path(self.partial))
-
-    def discard_all(self) -> None:
-        """Remove every file of earlier runs (``overwrite``)."""
-        self.remove(self.journal, self.output, sidecar_path(self.output))
-        self.remove_partial()
-
-    @staticmethod
-    def remove(*paths: Path) -> None:
-        for p in paths:
-            with contextlib.suppress(FileNotFoundError):
-                p.unlink()
-
-
-def _rows_from_table(path: Path, files: _OutputFiles) -> dict[Key, dict[str, Any]]:
-    table = read_table(path)
-    missing = set(files.columns) - set(table.columns)
-    if missing:
-        raise BatchError(
-            f"{path}: existing table lacks column(s) {', '.join(sorted(missing))}; "
-            "use --overwrite or another output"
-        )
-    rows = {}
-    for rec in table.to_dict(orient="records"):
-        rows[key_of_row(rec, files.key_columns)] = files.complete(rec)
-    return rows
-
-
-def earlier_fingerprint(output: str | Path) -> str | None:
-    """The fingerprint of the earlier run of a batch into ``output`` (its journal's, else its
-    finished table's); None if there is none, '' if its journal cannot be read."""
-    output = Path(output)
-    journal = journal_path(output)
-    if journal.exists():
-        try:
-            return read_journal(journal)[0].get("fingerprint")
-        except (JournalError, ValueError, KeyError):
-            return ""
-    return _read_fingerprint(output) if output.exists() else None
-
-
-def _read_fingerprint(path: Path) -> str | None:
-    side = sidecar_path(path)
-    if not side.exists():
-        return None
-    try:
-        return json.loads(side.read_text()).get("batch", {}).get("fingerprint")
-    except (ValueError, AttributeError):
-        return None
-
-
-def _earlier_rows(
-    files: _OutputFiles, fingerprint: str, overwrite: bool
-) -> dict[Key, dict[str, Any]]:
-    """Rows of an earlier run of the same batch (journal first, else the finished table)."""
-    if overwrite:
-        files.discard_all()
-        return {}
-    hint = "rerun with --overwrite to discard them, or choose another output"
-    if files.journal.exists():
-        try:
-            header, rows, _ = read_journal(files.journal, files.key_columns)
-        except JournalError as exc:
-            raise BatchError(f"{exc}; {hint}") from None
-        if header.get("fingerprint") != fingerprint:
-            raise BatchError(
-                f"{files.journal}: holds results of a batch with other settings or inputs; "
-                f"{hint}"
-            )
-        return {k: files.complete(r) for k, r in rows.items()}
-    if files.output.exists():
-        if _read_fingerprint(files.output) != fingerprint:
-            raise BatchError(
-                f"{files.output}: exists and was made with other settings or inputs; {hint}"
-            )
-        return _rows_from_table(files.output, files)
-    return {}
-
-
-@dataclass(frozen=True)
-class _Task:
-    """An item on its way to a worker; ``attempts`` counts the workers it was lost with."""
-
-    frame: Key
-    payload: Any
-    attempts: int = 0
-
-
-class _BatchRun:
-    """The state of one run: rows so far, journal, progress bar, frames in flight.
-
-    Parameters
-    ----------
-    func, config
-        The frame function and its settings.
-    backend : Backend
-        Where frames run.
-    files : _OutputFiles
-        The output's files; the journal is continued or started here.
-    rows : dict
-        Frame -> complete row of the frames done (earlier runs included); updated in place.
-    progress : tqdm
-        The progress bar.
-    summary : BatchSummary
-        ``n_run`` is counted up.
-    info : dict
-        The sidecar's ``batch`` entry.
-    options : BatchOptions
-        In-flight bound and flush interval.
-    n_failed : int
-        Failed frames among those done before (shown beside the progress bar).
-    """
-
-    def __init__(
-        self,
-        func: Callable[[Any, Any, Any], dict[str, Any]],
-        config: Any,
-        backend: Backend,
-        files: _OutputFiles,
-        rows: dict[Key, dict[str, Any]],
-        progress: Any,
-        summary: BatchSummary,
-        info: dict[str, Any],
-        options: BatchOptions,
-        n_failed: int,
-    ) -> None:
-        self.func = func
-        self.config = config
-        self.backend = backend
-        self.files = files
-        self.rows = rows
-        self.progress = progress
-        self.summary = summary
-        self.info = info
-        self.max_in_flight = options.max_in_flight or 2 * backend.slots + 2
-        self.flush_interval_s = options.flush_interval_s
-        self.n_failed = n_failed
-        self.in_flight: dict[Any, _Task] = {}
-        self.retry: collections.deque[_Task] = collections.deque()
-        self.journal = _open_journal(files, info["fingerprint"], rows)
-        #: what a worker runs: the frame function for one item, its key columns set
-        self.run_item = (run_frame if files.key_columns == FRAME_KEY
-                         else functools.partial(run_frame, key_columns=files.key_columns))
-        self._last_flush = time.monotonic()
-
-    def run(self, todo: collections.deque[Key], load: Callable[[Any], Any]) -> None:
-        """Run every frame of ``todo``; on success write the final table; on any
-        interruption keep what is done (journal, partial table) and re-raise; if every
-        frame ended in ``error``, write the partial table only and raise :class:`BatchError`."""
-        try:
-            while todo or self.in_flight or self.retry:
-                self.feed(todo, load)
-                if not self.in_flight:
-                    continue
-                self.collect(WAIT_S)
-                self.flush()
-            self.journal.close()
-            failure = _total_failure(self.rows, self.files)
-            if failure:  # no table: the journal and the partial table keep the rows
-                self.files.write(self.rows, self.info, final=False)
-            else:
-                self.files.finish(self.rows, self.info)
-        except BaseException:
-            self.salvage()
-            raise
-        if failure:
-            raise BatchError(failure)
-
-    def record(self, row: dict[str, Any] | list[dict[str, Any]]) -> None:
-        """File one finished item (one row, or a multi-row item's rows, its own last): rows,
-        journal, progress."""
-        for one in row if isinstance(row, list) else [row]:
-            full = self.files.complete(one)
-            self.rows[key_of_row(full, self.files.key_columns)] = full
-            self.journal.append(full)
-        self.summary.n_run += 1
-        if full["status"] in FAILED_STATUSES:
-            self.n_failed += 1
-            self.progress.set_postfix(failed=self.n_failed, refresh=False)
-        self.progress.update(1)
-
-    def submit(self, task: _Task) -> None:
-        fut = self.backend.submit(self.run_item, self.func, self.config, task.frame,
-                                  task.payload)
-        self.in_flight[fut] = task
-
-    def failed_row(self, key: Key, message: str) -> dict[str, Any]:
-        """The ``error`` row of item ``key``."""
-        return {**key_row(key, self.files.key_columns), "status": ERROR, "message": message}
-
-    def feed(self, todo: collections.deque[Key], load: Callable[[Any], Any]) -> None:
-        """Load and submit frames while the in-flight bound allows; frames that were running
-        when a worker died go one at a time, alone (quarantine)."""
-        quarantine = any(t.attempts >= 1 for t in self.in_flight.values())
-        if self.retry and not self.in_flight:
-            self.submit(self.retry.popleft())
-            quarantine = True
-        while (todo and not self.retry and not quarantine
-               and len(self.in_flight) < self.max_in_flight):
-            frame = todo.popleft()
-            try:
-                payload = load(frame)
-            except Exception as exc:
-                self.record(self.failed_row(frame, f"loading: {exc}"))
-                continue
-            if isinstance(payload, Precomputed):
-                self.record({**payload.row, **key_row(frame, self.files.key_columns)})
-                continue
-            self.submit(_Task(frame, payload))
-
-    def collect(self, timeout: float) -> None:
-        """Record the frames that finish within ``timeout`` s."""
-        for fut in self.backend.wait(self.in_flight, timeout=timeout):
-            task = self.in_flight.pop(fut)
-            try:
-                self.record(self.backend.result(fut))
-            except WorkerLost as exc:
-                if self.backend.isolates_lost_workers:  # only this frame was lost
-                    self._requeue([task], exc)
-                    continue
-                self._worker_lost(task, exc)
-                break
-            except Exception as exc:  # infrastructure error for this one future
-                self.record(self.failed_row(task.frame, f"{exc}"))
-
-    def _worker_lost(self, task: _Task, exc: WorkerLost) -> None:
-        """A pool worker died: every frame in flight is lost. Restart the pool, requeue them."""
-        lost = [task, *self.in_flight.values()]
-        self.in_flight.clear()
-        self.backend.restart()
-        self._requeue(lost, exc)
-
-    def _requeue(self, lost: list[_Task], exc: WorkerLost) -> None:
-        """Frames lost with a worker are retried one at a time, alone (a frame that was only
-        beside the culprit then succeeds); a frame that ran alone and lost its worker again
-        killed it: ``error``."""
-        for t in lost:
-            if t.attempts >= 1 and len(lost) == 1:
-                self.record(self.failed_row(t.frame, str(exc)))
-            else:
-                self.retry.append(_Task(t.frame, t.payload, t.attempts + 1))
-
-    def flush(self) -> None:
-        """Rewrite the partial table if the last rewrite is ``flush_interval_s`` old."""
-        if time.monotonic() - self._last_flush >= self.flush_interval_s:
-            self.files.write(self.rows, self.info, final=False)
-            self._last_flush = time.monotonic()
-
-    def salvage(self) -> None:
-        """After an interruption: record results already back, close the journal, write the
-        partial table of everything recorded."""
-        for fut in list(self.in_flight):
-            if fut.done():
-                with contextlib.suppress(BaseException):
-                    self.record(self.backend.result(fut))
-        self.journal.close()
-        with contextlib.suppress(Exception):
-            self.files.write(self.rows, self.info, final=False)
-
-
-#: messages of frames whose worker died (holofit.batch.backends)
-_WORKER_DIED = ("a worker process died", "Dask workers died")
-
-
-def _total_failure(rows: dict[Key, dict[str, Any]], files: _OutputFiles) -> str:
-    """Why a batch failed as a whole ('' if it did not): every frame tried (not ``skipped``)
-    ended in ``error``."""
-    tried = [r for r in rows.values() if r["status"] != SKIPPED]
-    if not tried or any(r["status"] != ERROR for r in tried):
-        return ""
-    messages = collections.Counter(str(r.get("message") or "(no message)") for r in tried)
-    message, count = messages.most_common(1)[0]
-    if any(message.startswith(w) for w in _WORKER_DIED):
-        cause = ("workers that die on every frame are most often started by a script that "
-                 "calls holofit's stages without the main guard, which they run again: "
-                 f"{GUARD_ADVICE}; or they lack memory: use fewer (-j, JOBS=)")
-    else:
-        cause = "fix the cause and rerun: frames in error are run again"
-    return (f"every frame failed: {len(tried)} of {len(tried)} in error; the most common "
-            f"message ({count} frame(s)): {message}. {cause[0].upper()}{cause[1:]}; each "
-            f"frame's message is in {files.partial}")
-
-
-def _open_journal(
-    files: _OutputFiles, fingerprint: str, rows: dict[Key, dict[str, Any]]
-) -> Journal:
-    """Continue the journal, or start one holding the rows of a finished table (so that
-    they survive if this run is killed)."""
-    fresh = not files.journal.exists()
-    header: dict[str, Any] = {"fingerprint": fingerprint, "columns": files.columns}
-    if files.key_columns != FRAME_KEY:
-        header["key_columns"] = list(files.key_columns)
-    journal = Journal(files.journal, header)
-    if fresh:
-        for f in sorted(rows):
-            journal.append(rows[f])
-    return journal
-
-
-@contextlib.contextmanager
-def _backend_for(options: BatchOptions, given: Backend | None) -> Iterator[Backend]:
-    """The backend given (left open), or one made from ``options`` (closed afterwards)."""
-    if given is not None:
-        yield given
-        return
-    backend = make_backend(options)
-    try:
-        yield backend
-    finally:
-        backend.close()
 
 
 def _checked_frames(frames: Iterable[Any], columns: Sequence[str],
@@ -656,26 +115,26 @@ class _Batch:
     config: Any
     frames: list[Key]
     load: Callable[[Any], Any]
-    files: _OutputFiles
-    fingerprint: str
+    table: StageTable
+    files: OutputFiles
     options: BatchOptions
     backend: Backend | None
-    desc: str
 
     def run(self) -> BatchSummary:
         """Take the lock, reuse earlier rows, run the rest, write and publish the table."""
         t0 = time.perf_counter()
-        files, opts, frames = self.files, self.options, self.frames
-        with output_lock(files.output.parent, stage=self.desc) as lock:
-            rows = _earlier_rows(files, self.fingerprint, opts.overwrite)
+        files, opts, frames, key = self.files, self.options, self.frames, self.table.fingerprint
+        with output_lock(files.output.parent, stage=self.table.desc) as lock:
+            stale = (self.table.replace_stale
+                     and earlier_fingerprint(files.output) not in (None, key))
+            rows = earlier_rows(files, key, opts.overwrite or stale)
             again = (ERROR, *FAILED_STATUSES) if opts.retry_failed else (ERROR,)
             rows = {k: r for k, r in rows.items() if r["status"] not in again}
             todo = collections.deque(f for f in frames if f not in rows)
             summary = BatchSummary(files.output, len(frames), len(frames) - len(todo), 0)
             if lock.note:
                 summary.notes.append(lock.note)
-            info = {"fingerprint": self.fingerprint, "complete": False,
-                    "frames_total": len(frames)}
+            info = {"fingerprint": key, "complete": False, "frames_total": len(frames)}
             if todo:
                 self._run_todo(todo, rows, summary, info)
             elif not files.output.exists() or files.journal.exists():
@@ -694,33 +153,52 @@ class _Batch:
                        if f in rows and rows[f]["status"] in FAILED_STATUSES)
         disable = None if opts.progress is None else not opts.progress
         with (
-            _backend_for(opts, self.backend) as be,
-            progress_bar(len(self.frames), self.desc, disable=disable) as bar,
+            backend_for(opts, self.backend) as be,
+            progress_bar(len(self.frames), self.table.desc, disable=disable) as bar,
         ):
             summary.backend = be.describe()
             info.update(summary.backend)
             bar.update(summary.n_done_before)
-            run = _BatchRun(self.func, self.config, be, self.files, rows, bar, summary, info,
+            run = BatchRun(self.func, self.config, be, self.files, rows, bar, summary, info,
                             opts, n_failed)
             run.run(todo, self.load)
+
+
+#: the keywords of the old form of :func:`run_batch` (the table's fields spelled out)
+_LEGACY_TABLE = ("columns", "fingerprint", "meta", "desc", "finish", "key_columns")
+
+
+def _legacy_table(output: str | Path, columns: tuple[Any, ...],
+                  given: dict[str, Any]) -> StageTable:
+    """The :class:`StageTable` of a call in the old form ``run_batch(func, config, frames,
+    load, output, columns, *, fingerprint, meta, desc, finish, key_columns, ...)``."""
+    unknown = sorted(set(given) - set(_LEGACY_TABLE))
+    if unknown:
+        raise TypeError(f"run_batch() got unexpected keyword argument(s) {unknown}")
+    if len(columns) > 1 or (columns and "columns" in given) or not (columns or "columns" in given):
+        raise TypeError("run_batch() takes its table as one StageTable")
+    if "fingerprint" not in given:
+        raise TypeError("run_batch() needs a StageTable (or, in the old form, fingerprint=)")
+    warnings.warn("run_batch(func, config, frames, load, output, columns, fingerprint=...) is "
+                  "deprecated: give the table as a StageTable", DeprecationWarning,
+                  stacklevel=3)
+    cols = columns[0] if columns else given["columns"]
+    return StageTable(Path(output), tuple(cols), dict(given.get("meta") or {}),
+                      given["fingerprint"], given.get("desc", "batch"), given.get("finish"),
+                      tuple(given.get("key_columns", FRAME_KEY)))
 
 
 def run_batch(
     func: Callable[[Any, Any, Any], dict[str, Any]],
     config: Any,
-    frames: Sequence[Any],
+    items: Sequence[Any],
     load: Callable[[Any], Any],
-    output: str | Path,
-    columns: Sequence[str],
-    *,
-    fingerprint: str,
-    meta: dict[str, Any] | None = None,
+    table: StageTable,
+    *legacy: Any,
     options: BatchOptions | None = None,
     backend: Backend | None = None,
-    desc: str = "batch",
-    finish: Callable[[pd.DataFrame], Any] | None = None,
     before_publish: Callable[[Path], Any] | None = None,
-    key_columns: Sequence[str] = FRAME_KEY,
+    **legacy_table: Any,
 ) -> BatchSummary:
     """Run ``func`` on every item, in parallel, resumably, writing a table keyed by item.
 
@@ -731,38 +209,31 @@ def run_batch(
         should hold ``status`` (``ok``, ``not_converged``, ...) and ``message``.
     config : object
         Picklable settings passed to every call.
-    frames : sequence
+    items : sequence
         Keys of the items to run (:mod:`holofit.batch.keys`): frame numbers for the default
-        ``key_columns``, tuples for several key columns.
+        key columns, tuples for several key columns.
     load : callable
         ``load(key)`` in the driver process returns the payload of an item, or a
         :class:`Precomputed` row. An exception is recorded as that item's ``error``.
-    output : str or Path
-        The CSV table (sidecar JSON beside it; while running, the journal
-        ``<output>.journal`` and the table so far, ``<name>.partial.csv``). Its folder is
-        locked for the run (:func:`holofit.io.lock.output_lock`, stage ``desc``).
-    columns : sequence of str
-        Columns of the table, in order; must include the key columns, ``status``, ``message``.
-    fingerprint : str
-        Identity of the settings and inputs: earlier results are reused only if it matches.
-    meta : dict, optional
-        Sidecar document (:func:`holofit.provenance.sidecar`); a ``batch`` entry is added.
+    table : StageTable
+        The CSV table written (path, columns, sidecar, fingerprint, the stage's name,
+        ``finish``, key columns; :mod:`holofit.batch.layout`): its sidecar JSON beside it;
+        while running, the journal ``<name>.csv.journal`` and the table so far,
+        ``<name>.partial.csv``. Its folder is locked for the run
+        (:func:`holofit.io.lock.output_lock`, stage ``table.desc``). Earlier results are
+        reused only if their fingerprint matches.
     options : BatchOptions, optional
         Backend and resumption settings.
     backend : Backend, optional
         Use this backend (left open) instead of making one from ``options``.
-    desc : str
-        Label of the progress bar; the stage named in the folder's lock.
-    finish : callable, optional
-        Applied (in place) to the complete table just before it is written, with the whole
-        movie at hand (e.g. flagging outlier frames); changed statuses and messages are kept.
     before_publish : callable, optional
         ``before_publish(table_path)`` is called with the complete table, written under the
         partial table's name, after the backend has closed and before it is renamed to
-        ``output`` (the file ``make`` waits for, so the last one written): a stage draws its
-        pictures there. An interruption keeps the journal; a rerun calls it again.
-    key_columns : sequence of str
-        The columns that name an item (default ``("frame",)``); the table is sorted by them.
+        its own name (the file ``make`` waits for, so the last one written): a stage draws
+        its pictures there. An interruption keeps the journal; a rerun calls it again.
+    *legacy, **legacy_table
+        Deprecated: the old form, ``table`` a path followed by ``columns`` and the keywords
+        ``fingerprint``, ``meta``, ``desc``, ``finish``, ``key_columns``.
 
     Returns
     -------
@@ -779,8 +250,13 @@ def run_batch(
     SystemExit
         In a spawned worker re-running a script without the main guard (:mod:`.mainguard`).
     """
-    refuse_while_worker_starts(f"the {desc} stage")
-    keys, columns = check_key_columns(key_columns), list(columns)
-    files = _OutputFiles(Path(output), columns, dict(meta or {}), finish, before_publish, keys)
-    return _Batch(func, config, _checked_frames(frames, columns, keys), load, files,
-                  fingerprint, options or BatchOptions(), backend, desc).run()
+    if not isinstance(table, StageTable):
+        table = _legacy_table(table, legacy, legacy_table)
+    elif legacy or legacy_table:
+        raise TypeError("run_batch() takes its table as one StageTable: no columns or "
+                        f"table keywords beside it (got {sorted(legacy_table)})")
+    refuse_while_worker_starts(f"the {table.desc} stage")
+    table = replace(table, key_columns=check_key_columns(table.key_columns))
+    items = _checked_frames(items, table.columns, table.key_columns)
+    return _Batch(func, config, items, load, table, OutputFiles(table, before_publish),
+                  options or BatchOptions(), backend).run()

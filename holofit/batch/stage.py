@@ -11,7 +11,9 @@ continuity sweeps) is
    library found a candidate orientation; otherwise it becomes a ``skipped`` row without
    running;
 3. **the batch** (:func:`holofit.batch.runner.run_batch`): parallel, resumable, failures
-   recorded;
+   recorded; its table (:class:`~holofit.batch.layout.StageTable`) laid out and published by
+   :mod:`holofit.batch.layout` alone; what a frame function makes once per worker (an engine,
+   a library, an open movie) kept by :func:`holofit.batch.worker.worker_resource`;
 4. **a fingerprint** of the settings and inputs (:func:`fingerprint`): earlier results are
    reused only if it matches;
 5. **finish and plots** (:func:`run_stage`'s ``complete``): run on the complete table before
@@ -39,8 +41,9 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice, fit_instrument
-from holofit.batch.keys import FRAME_KEY
-from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, run_batch
+from holofit.batch.layout import StageTable
+from holofit.batch.options import BatchOptions, BatchSummary, Precomputed
+from holofit.batch.runner import run_batch
 from holofit.config import Instrument
 from holofit.status import FITTABLE_CROP_STATUSES, SKIPPED
 from holofit.tables.cropset import CropSet, CropSetError, resolve_instrument
@@ -229,37 +232,6 @@ def stage_inputs(
         yield StageInputs(crops, inst, check_frames(crops, frames))
 
 
-@dataclass(frozen=True)
-class StageTable:
-    """The table one batch of a stage writes.
-
-    Attributes
-    ----------
-    path : Path
-        The CSV (sidecar beside it).
-    columns : tuple of str
-        Its columns, in order (the schema module's: :mod:`holofit.tables`).
-    meta : dict
-        The sidecar document.
-    fingerprint : str
-        :func:`fingerprint` of the settings and inputs the table depends on.
-    desc : str
-        The stage's name (progress bar, the folder's lock).
-    finish : callable, optional
-        Applied to the complete table before it is written (e.g. outlier flags).
-    key_columns : tuple of str
-        The columns that name a row (:mod:`holofit.batch.keys`).
-    """
-
-    path: Path
-    columns: tuple[str, ...]
-    meta: dict[str, Any]
-    fingerprint: str
-    desc: str
-    finish: Callable[[pd.DataFrame], Any] | None = None
-    key_columns: tuple[str, ...] = FRAME_KEY
-
-
 def run_stage(
     func: Callable[[Any, Any, Any], dict[str, Any]],
     config: Any,
@@ -299,11 +271,8 @@ def run_stage(
         assert complete is not None
         done.append(complete(path))
 
-    summary = run_batch(func, config, keys, load, table.path, table.columns,
-                        fingerprint=table.fingerprint, meta=table.meta, options=batch,
-                        desc=table.desc, finish=table.finish,
-                        before_publish=before_publish if complete else None,
-                        key_columns=table.key_columns)
+    summary = run_batch(func, config, keys, load, table, options=batch,
+                        before_publish=before_publish if complete else None)
     if complete is not None and not done:  # complete before this run: from the table
         done.append(complete(table.path))
     return summary, (done[0] if done else None)

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import click
 
-from holofit.batch.runner import BatchOptions
+from holofit.batch.options import BatchOptions
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
-from holofit.crop import CenterFinder, CropResult, run_crop
+from holofit.crop import CenterFinder, CropConfig, CropResult, run_crop
 from holofit.crop.centerfind import MIN_RADIUS_PX
-from holofit.crop.stage import CROP_MODES, MIN_CROP_SIZE, TRACKS
+from holofit.crop.settings import CROP_MODES, DEFAULT_CROP_SIZE, MIN_CROP_SIZE, TRACKS
 from holofit.crop.tracks import LinkOptions, TrackError
 from holofit.status import CROP_ERROR
 
@@ -65,7 +65,7 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 @click.option(
     "--size",
     type=click.IntRange(min=MIN_CROP_SIZE),
-    default=140,
+    default=DEFAULT_CROP_SIZE,
     show_default=True,
     help="Crop side N, pixels.",
 )
@@ -205,12 +205,11 @@ def crop(
         raise click.UsageError(str(exc)) from None
     if follow != TRACKS and particle is not None:
         raise click.UsageError("--particle needs --follow tracks (the default)")
-    result = run_crop(
-        movie, list(backgrounds) or None, inst, out, normalized=normalized,
-        dark=list(darks) or dark_count, size=size, follow=follow, start=start_xy,
-        max_jump_px=max_jump, finder=finder, mask_saturated=mask_saturated, plot=plot,
-        link=link, particle=particle, batch=BatchOptions(workers=workers, progress=progress),
-    )
+    config = CropConfig(size=size, follow=follow, start=start_xy, max_jump_px=max_jump,
+                        finder=finder, link=link, particle=particle, normalized=normalized,
+                        dark=list(darks) or dark_count, mask_saturated=mask_saturated, plot=plot)
+    result = run_crop(movie, list(backgrounds) or None, inst, out, config,
+                      batch=BatchOptions(workers=workers, progress=progress))
     _report(result)
 
 

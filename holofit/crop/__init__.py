@@ -4,9 +4,10 @@ Hough-type (orientation-alignment) transform refined to sub-pixel precision by p
 
 Library entry points:
 
-- :func:`run_crop`: the whole stage on a movie (frames searched through the batch runner,
-  in parallel and resumably, then cropped in frame order; writes ``crops.tif``,
-  ``crops.csv`` + sidecar, ``candidates.csv``, ``crops.png``: :mod:`holofit.tables.crop`);
+- :func:`run_crop`: the whole stage on a movie, its settings a :class:`CropConfig` (frames
+  searched through the stage skeleton, in parallel and resumably, then cropped in frame
+  order; writes ``crops.tif``, ``crops.csv`` + sidecar, ``candidates.csv``, ``crops.png``:
+  :mod:`holofit.tables.crop`);
 - :func:`find_centers`: ranked centres of one normalised image;
 - :func:`normalize`: one raw frame -> normalised image and mask.
 """
@@ -14,6 +15,7 @@ Library entry points:
 from holofit.crop.centerfind import CenterFinder, find_centers
 from holofit.crop.errors import CropError, FrameError
 from holofit.crop.normalize import Normalizer, normalize
+from holofit.crop.settings import CropConfig
 from holofit.crop.stage import CropResult, run_crop
 from holofit.tables.crop import CROP_COLUMNS, CROP_UNITS
 
@@ -21,6 +23,7 @@ __all__ = [
     "CROP_COLUMNS",
     "CROP_UNITS",
     "CenterFinder",
+    "CropConfig",
     "CropError",
     "CropResult",
     "FrameError",

@@ -26,7 +26,7 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from holofit.crop.peel import Peak, peel
+from holofit.crop.peel import MainSearch, Peak, peel
 from holofit.crop.radial import refine_center_radial
 from holofit.crop.symmetry import quadratic_peak, refine_center
 from holofit.crop.transform import (
@@ -217,11 +217,9 @@ def _find(image: NDArray, mask: NDArray | None, s: CenterFinder) -> pd.DataFrame
         if len(found) >= s.max_centers:
             break
     if s.peel and s.refine and found:
-        peaks = peel(img, [Peak(*f) for f in found], radius_px=s.radius_px, factor=factor,
-                     noise=noise, min_score=s.min_score, min_alignment=s.min_alignment,
-                     min_symmetry=s.min_symmetry, separation=separation,
-                     half_width=half_width, search_px=search, max_centers=s.max_centers,
-                     small=small)
+        main = MainSearch(s.radius_px, factor, noise, s.min_score, s.min_alignment,
+                          s.min_symmetry, separation, half_width, search, s.max_centers)
+        peaks = peel(img, [Peak(*f) for f in found], main, small=small)
         found = [(p.x, p.y, p.score, p.alignment, p.symmetry, p.refinement) for p in peaks]
     return pd.DataFrame(found, columns=list(CENTER_COLUMNS))
 

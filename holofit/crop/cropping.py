@@ -1,13 +1,17 @@
-"""Placing an N x N crop around a centre, inside the frame."""
+"""Placing an N x N crop around a centre, inside the frame, and the crop-table row it fills."""
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
-__all__ = ["crop_corner", "extract_crop"]
+from holofit.status import CROP_EDGE, CROP_ERROR, CROP_OK
+
+__all__ = ["blank_row", "crop_chosen", "crop_corner", "extract_crop"]
 
 
 def crop_corner(
@@ -51,3 +55,55 @@ def extract_crop(image: NDArray, corner: tuple[int, int], size: int) -> NDArray[
     if block.shape != (size, size):
         raise ValueError(f"crop at {corner} of size {size} leaves the {image.shape} frame")
     return np.array(block, dtype=np.float32)
+
+
+def blank_row(k: int) -> dict[str, Any]:
+    """Frame ``k``'s row before anything is known of it (status ``error``)."""
+    return {
+        "particle": 0,
+        "frame": k,
+        "status": CROP_ERROR,
+        "message": "",
+        "x_px": math.nan,
+        "y_px": math.nan,
+        "x_um": math.nan,
+        "y_um": math.nan,
+        "corner_row": pd.NA,
+        "corner_col": pd.NA,
+        "score": math.nan,
+        "alignment": math.nan,
+        "symmetry": math.nan,
+        "refinement": "",
+        "n_candidates": 0,
+        "n_masked": 0,
+        "neighbour": -1,
+        "neighbour_px": math.inf,
+        "overlap": False,
+    }
+
+
+def crop_chosen(row: dict[str, Any], best: pd.Series, image: NDArray, mask: NDArray,
+                 size: int, pixel_size_um: float) -> NDArray:
+    """Crop around the chosen candidate ``best``: fill in ``row``; the crop."""
+    x, y = float(best["x_px"]), float(best["y_px"])
+    corner_row, corner_col, shifted = crop_corner(x, y, size, image.shape)
+    row.update(
+        status=CROP_EDGE if shifted else CROP_OK,
+        message="particle near the frame edge: crop shifted inside the frame"
+        if shifted
+        else "",
+        x_px=x,
+        y_px=y,
+        x_um=x * pixel_size_um,
+        y_um=y * pixel_size_um,
+        corner_row=corner_row,
+        corner_col=corner_col,
+        score=float(best["score"]),
+        alignment=float(best["alignment"]),
+        symmetry=float(best["symmetry"]),
+        refinement=str(best["refinement"]),
+        n_masked=int(
+            mask[corner_row : corner_row + size, corner_col : corner_col + size].sum()
+        ),
+    )
+    return extract_crop(image, (corner_row, corner_col), size)

@@ -8,7 +8,8 @@ in parallel, and resumably: the candidates of every frame done are kept in
 movie and settings searches only the frames not done yet.
 
 A worker opens the movie and prepares the normaliser once (from :class:`DetectConfig`: file
-names and settings, not arrays) and keeps them for all its frames.
+names and settings, not arrays) and keeps them for all its frames, as the skeleton's per-worker
+resource (:func:`holofit.batch.worker.worker_resource`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from holofit.batch.worker import release_worker_resources, worker_resource
 from holofit.crop.centerfind import CENTER_COLUMNS, CenterFinder
 from holofit.crop.errors import FrameError
 from holofit.crop.normalize import Normalizer
@@ -68,32 +70,33 @@ class DetectConfig:
     key: str = ""
 
 
-#: per process: the movie and normaliser of the last configuration
-_STATE: dict[str, tuple[Movie, Normalizer]] = {}
+#: the per-worker resource of a detection config: its open movie and its normaliser
+DETECT_RESOURCE = "crop detection"
+
+
+def _open_state(config: DetectConfig) -> tuple[Movie, Normalizer]:
+    """The movie, opened, and the normaliser prepared from the reference files."""
+    movie = open_movie(config.movie)
+    if config.backgrounds:
+        background = read_reference_frame([Path(p) for p in config.backgrounds], "background")
+        dark = config.dark if not isinstance(config.dark, tuple) else list(config.dark)
+        normalizer = Normalizer(background, read_dark(dark), min_background=config.min_background,
+                                saturation=config.saturation)
+    else:
+        normalizer = Normalizer(np.ones(movie.frame_shape), saturation=config.saturation)
+    return movie, normalizer
 
 
 def _state(config: DetectConfig) -> tuple[Movie, Normalizer]:
-    if config.key not in _STATE:
-        release()
-        movie = open_movie(config.movie)
-        if config.backgrounds:
-            background = read_reference_frame([Path(p) for p in config.backgrounds],
-                                              "background")
-            dark = config.dark if not isinstance(config.dark, tuple) else list(config.dark)
-            normalizer = Normalizer(background, read_dark(dark),
-                                    min_background=config.min_background,
-                                    saturation=config.saturation)
-        else:
-            normalizer = Normalizer(np.ones(movie.frame_shape), saturation=config.saturation)
-        _STATE[config.key] = (movie, normalizer)
-    return _STATE[config.key]
+    """This worker's movie and normaliser of ``config`` (one at a time: a worker searches one
+    movie; :func:`holofit.batch.worker.worker_resource`)."""
+    return worker_resource(DETECT_RESOURCE, config.key, lambda: _open_state(config), size=1,
+                           close=lambda state: state[0].close())
 
 
 def release() -> None:
     """Close the movie this process keeps open (if any)."""
-    for movie, _ in _STATE.values():
-        movie.close()
-    _STATE.clear()
+    release_worker_resources(DETECT_RESOURCE)
 
 
 def detect(

@@ -32,7 +32,7 @@ from holofit.crop.radial import radial_variance, refine_center_radial
 from holofit.crop.symmetry import quadratic_peak, refine_center
 from holofit.crop.transform import block_mean, orientation_alignment
 
-__all__ = ["PEEL_REACH", "PROFILE_REACH", "Peak", "peel", "ring_model"]
+__all__ = ["PEEL_REACH", "PROFILE_REACH", "MainSearch", "Peak", "peel", "ring_model"]
 
 #: new holograms are sought within this many vote radii of a found one (farther ones are not
 #: swamped by it: the main search finds them)
@@ -193,22 +193,44 @@ def _rings_at(small: NDArray, factor: int, x0: float, y0: float, radius_px: floa
     return x * factor + shift, y * factor + shift
 
 
-def peel(
-    image: NDArray,
-    peaks: list[Peak],
-    *,
-    radius_px: float,
-    factor: int,
-    noise: float,
-    min_score: float,
-    min_alignment: float,
-    min_symmetry: float,
-    separation: float,
-    half_width: int,
-    search_px: float,
-    max_centers: int,
-    small: NDArray | None = None,
-) -> list[Peak]:
+@dataclass(frozen=True)
+class MainSearch:
+    """The main search's settings, which the residual search repeats (full-frame pixels).
+
+    Attributes
+    ----------
+    radius_px : float
+        Vote radius.
+    factor : int
+        Block size of the coarse vote.
+    noise : float
+        Noise transform strength of the block-averaged frame.
+    min_score, min_alignment, min_symmetry : float
+        Thresholds of a candidate (:class:`holofit.crop.centerfind.CenterFinder`).
+    separation : float
+        Minimum separation of two centres.
+    half_width : int
+        Half-size of the point-symmetry refinement window.
+    search_px : float
+        How far one refinement window may move a centre.
+    max_centers : int
+        Most centres returned.
+    """
+
+    radius_px: float
+    factor: int
+    noise: float
+    min_score: float
+    min_alignment: float
+    min_symmetry: float
+    separation: float
+    half_width: int
+    search_px: float
+    max_centers: int
+
+
+def peel(image: NDArray, peaks: list[Peak], main: MainSearch,
+         small: NDArray | None = None) -> list[Peak]:
     """Add the holograms hidden by the rings of the found ones, and refine close pairs.
 
     Parameters
@@ -217,33 +239,32 @@ def peel(
         Normalised frame (masked pixels filled).
     peaks : list of Peak
         The main search's centres, strongest first.
-    radius_px, factor, noise, min_score, min_alignment, min_symmetry, separation,
-    half_width, search_px, max_centers
-        The main search's vote radius (full-frame pixels), block size, noise transform
-        strength (of the block-averaged frame), thresholds, minimum separation and refinement
-        window (:class:`holofit.crop.centerfind.CenterFinder`).
+    main : MainSearch
+        The main search's vote radius, block size, noise, thresholds, minimum separation and
+        refinement window: the residual is searched as the frame was, so a peeled hologram
+        is one the main search would have found alone.
     small : ndarray, optional
-        ``image`` block-averaged by ``factor``, if the caller has it.
+        ``image`` block-averaged by ``main.factor``, if the caller has it.
 
     Returns
     -------
     list of Peak
         ``peaks`` (close ones refined again) and the new ones after them, at most
-        ``max_centers``.
+        ``main.max_centers``.
     """
     img = np.asarray(image, dtype=np.float32)
+    radius_px, factor = main.radius_px, main.factor
     reach = PROFILE_REACH * radius_px
     if small is None:
         small = block_mean(img, factor) if factor > 1 else img
-    search = _Search(img, small, reach, PEEL_REACH * radius_px, factor,
+    search = _Search(img, small, reach, PEEL_REACH * radius_px,
                      max(2, round(radius_px / factor)),
-                     max(1, round(separation / factor)), noise, min_score, min_alignment,
-                     min_symmetry, separation, half_width, search_px)
+                     max(1, round(main.separation / factor)), main)
     peaks = list(peaks)
     original = [replace(q) for q in peaks]
     new = False
     k = 0
-    while k < len(peaks) and len(peaks) < max_centers:
+    while k < len(peaks) and len(peaks) < main.max_centers:
         centre = peaks[k]
         k += 1
         found = search.next_to(centre, peaks)
@@ -260,7 +281,7 @@ def peel(
                 # circular rings within the minimum separation, keep it if that finds the
                 # neighbour
                 x, y = _rings_at(search.small, factor, centre.x, centre.y, radius_px,
-                                 separation)
+                                 main.separation)
                 if np.hypot(x - centre.x, y - centre.y) > MOVE:
                     moved = replace(centre, x=x, y=y, ring_xy=(x, y))
                     peaks[k - 1] = moved
@@ -273,10 +294,10 @@ def peel(
             k -= 1  # peel this centre again with the new one subtracted too
     if not new:
         return peaks
-    refined = _refine_pairs(img, peaks, reach, half_width)
+    refined = _refine_pairs(img, peaks, reach, main.half_width)
     # a new hologram is judged once both are refined with the other's rings subtracted:
     # what a biased first subtraction left behind is not point-symmetric then
-    strict = 0.5 * (1.0 + min_symmetry)
+    strict = 0.5 * (1.0 + main.min_symmetry)
     junk = [q.refinement == "peeled" and not q.symmetry >= strict for q in refined]
     if not any(junk):
         return refined
@@ -285,33 +306,26 @@ def peel(
         return [q for q, bad in zip(original, junk[:len(original)], strict=True)]
     return _refine_pairs(img, [original[i] if i < len(original) else q
                                for i, (q, bad) in enumerate(zip(refined, junk, strict=True))
-                               if not bad], reach, half_width)
+                               if not bad], reach, main.half_width)
 
 
 @dataclass
 class _Search:
-    """The residual search of :func:`peel` (its settings, pixels of the frame or of the
-    block-averaged frame, ``*_ds``)."""
+    """The residual search of :func:`peel` (pixels of the frame, or of the block-averaged
+    frame: ``*_ds``)."""
 
     img: NDArray
     small: NDArray
     reach: float
     peel_reach: float
-    factor: int
     radius_ds: int
     sep_ds: int
-    noise: float
-    min_score: float
-    min_alignment: float
-    min_symmetry: float
-    separation: float
-    half_width: int
-    search_px: float
+    main: MainSearch
 
     def next_to(self, centre: Peak, peaks: list[Peak]) -> Peak | None:
         """The strongest accepted new hologram near ``centre`` with every found one's rings
         subtracted, or None."""
-        img, f, small = self.img, self.factor, self.small
+        img, f, small, main = self.img, self.main.factor, self.small, self.main
         # the search runs on the block-averaged frame, as the main one does (ring models
         # there cost 1/factor^2 of full-resolution ones); only the refinement needs these
         shift = (f - 1) / 2.0
@@ -323,13 +337,13 @@ class _Search:
         strength, alignment = orientation_alignment(window, self.radius_ds)
         local_max = ndimage.maximum_filter(strength, size=2 * self.sep_ds + 1, mode="nearest")
         hits = (strength == local_max) & (
-            strength >= PEEL_SCORE * self.min_score * self.noise) & (
-            alignment >= self.min_alignment)
+            strength >= PEEL_SCORE * main.min_score * main.noise) & (
+            alignment >= main.min_alignment)
         rows, cols = np.nonzero(hits)
         order = np.argsort(-strength[rows, cols], kind="stable")
         # the refinement of a peak near the vote window's rim needs its own margin
         wide = _box(img.shape, centre.x, centre.y,
-                    self.peel_reach + self.half_width + 2 * self.search_px + 2)
+                    self.peel_reach + main.half_width + 2 * main.search_px + 2)
         residual = None
         for i, j in zip(rows[order], cols[order], strict=True):
             di, dj = quadratic_peak(strength, int(i), int(j))
@@ -337,19 +351,19 @@ class _Search:
             y0 = box[0].start + (i + di) * f + (f - 1) / 2.0
             if np.hypot(x0 - centre.x, y0 - centre.y) > self.peel_reach:
                 continue
-            if any(np.hypot(x0 - p.x, y0 - p.y) < self.separation for p in peaks):
+            if any(np.hypot(x0 - p.x, y0 - p.y) < main.separation for p in peaks):
                 continue
             if residual is None:
                 residual = _without(img, peaks, None, self.reach, wide)
             x, y, symmetry, converged, pairs = _refine_in(residual, wide, x0, y0,
-                                                          self.half_width, self.search_px)
+                                                          main.half_width, main.search_px)
             # stricter than the main search (and judged again once refined, :func:`peel`):
             # the residual holds what subtraction left
-            if not (converged and pairs >= EDGE_PAIRS and symmetry >= self.min_symmetry):
+            if not (converged and pairs >= EDGE_PAIRS and symmetry >= main.min_symmetry):
                 continue
-            if any(np.hypot(x - p.x, y - p.y) < self.separation for p in peaks):
+            if any(np.hypot(x - p.x, y - p.y) < main.separation for p in peaks):
                 continue
-            return Peak(x, y, float(strength[i, j]) / self.noise, float(alignment[i, j]),
+            return Peak(x, y, float(strength[i, j]) / main.noise, float(alignment[i, j]),
                         symmetry, "peeled")
         return None
 

@@ -5,7 +5,8 @@ The per-frame search (:mod:`holofit.crop.detect`) keeps every accepted candidate
 frame. :func:`link_detections` links them across frames into tracks
 (:func:`holofit.crop.tracks.link_tracks`: trackpy, ``particle`` ids by first appearance) and marks
 each (particle, frame) with its nearest other track (:func:`holofit.crop.tracks.mark_neighbours`).
-:func:`track_rows` then says which (particle, frame) rows the crop table holds:
+:func:`track_rows` then says which (particle, frame) rows the crop table holds, and
+:func:`crop_tracks` crops them in frame order (each frame read once):
 
 - each kept track has rows from its first to its last detected frame (a track that leaves the
   frame ends, one that enters starts); frames within that span where it was not detected (within
@@ -27,18 +28,25 @@ Two holograms whose centres are closer than half a crop's side overlap in the cr
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 
-from holofit.crop.detect import DETECTED, found_from_json
+from holofit.crop.cropping import blank_row, crop_chosen
+from holofit.crop.detect import DETECTED, found_from_json, read_normalised
 from holofit.crop.errors import CropError
+from holofit.crop.normalize import Normalizer
 from holofit.crop.tracks import LinkOptions, TrackError, link_tracks, mark_neighbours
+from holofit.io.movie import Movie
+from holofit.io.tiffstack import TiffStackWriter
+from holofit.status import CROP_ERROR, CROP_NO_PARTICLE
 
-__all__ = ["GHOST_SCORE_RATIO", "TrackPlan", "drop_ghosts", "effective_link_options",
-           "link_detections", "one_per_frame", "track_rows"]
+__all__ = ["GHOST_SCORE_RATIO", "TrackPlan", "crop_tracks", "drop_ghosts",
+           "effective_link_options", "link_detections", "one_per_frame", "track_rows"]
 
 
 def one_per_frame(detections: dict[int, dict[str, Any]]) -> bool:
@@ -243,3 +251,64 @@ def track_rows(plan: TrackPlan, frame: int, size: int) -> list[tuple[int, dict[s
             det["overlap"] = bool(float(det["neighbour_px"]) < size / 2.0)
         out.append((p, det))
     return out
+
+
+def crop_tracks(
+    movie: Movie,
+    normalizer: Normalizer,
+    detections: dict[int, dict[str, Any]],
+    plan: TrackPlan,
+    size: int,
+    pixel_size_um: float,
+    writer: TiffStackWriter,
+    progress: Callable[[int], Any] | None,
+) -> tuple[list[dict[str, Any]], list[tuple[Any, ...]], dict[str, Any] | None]:
+    """The tracks mode's sequential step, in frame order: each frame read once, one crop per
+    track with a row in it (:func:`holofit.crop.track_crops.track_rows`), pages in the table's
+    order (frame, then particle)."""
+    blank = np.full((size, size), np.nan, dtype=np.float32)
+    rows: list[dict[str, Any]] = []
+    candidates: list[tuple[Any, ...]] = []
+    preview: dict[str, Any] | None = None
+    for k in range(len(movie)):
+        det = detections.get(k, {"status": CROP_ERROR, "message": "not searched"})
+        found = (found_from_json(det["candidates"]) if det["status"] == DETECTED
+                 else pd.DataFrame())
+        here = track_rows(plan, k, size)
+        chosen = {int(d["rank"]): p for p, d in here if d is not None}
+        for rank, cand in enumerate(found.itertuples(index=False)):
+            candidates.append((k, rank, cand.x_px, cand.y_px, cand.score, cand.alignment,
+                               cand.symmetry, cand.refinement, rank in chosen,
+                               chosen.get(rank, -1)))
+        image = mask = None
+        for p, linked in here:
+            row = blank_row(k)
+            row["particle"] = p
+            page: NDArray = blank
+            row["n_candidates"] = len(found)
+            if det["status"] != DETECTED:
+                row["message"] = str(det.get("message") or "")
+            elif linked is None:
+                row["status"] = CROP_NO_PARTICLE
+                row["message"] = (f"track {p}: no hologram found in this frame"
+                                  if len(plan.spans) > 1 or len(plan.linked)
+                                  else "no hologram found")
+            else:
+                if image is None:
+                    image, mask = read_normalised(movie, k, normalizer)
+                page = crop_chosen(row, found.iloc[int(linked["rank"])], image, mask, size,
+                                    pixel_size_um)
+                row.update(neighbour=int(linked["neighbour"]),
+                           neighbour_px=float(linked["neighbour_px"]),
+                           overlap=bool(linked["overlap"]))
+                if row["overlap"]:
+                    row["message"] = (f"overlaps track {row['neighbour']} "
+                                      f"({row['neighbour_px']:.0f} px away)")
+                if preview is None:
+                    preview = {"frame": k, "image": image,
+                               "corner": (row["corner_row"], row["corner_col"])}
+            writer.write(page)
+            rows.append(row)
+        if progress is not None:
+            progress(1)
+    return rows, candidates, preview

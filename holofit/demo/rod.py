@@ -32,7 +32,7 @@ from holofit.config import (
     load_particle,
     resolve_config,
 )
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.demo.sphere import run_sphere_demo
 from holofit.fit.stage import FitConfig, run_fit
 from holofit.library.stage import run_library
@@ -134,7 +134,8 @@ def _simulate_and_crop(demo: _Demo, inst: Instrument, truth_config: ParticleConf
     demo.timed("simulate", t0)
 
     t0 = time.perf_counter()
-    crop = run_crop(sim.movie.movie, sim.movie.background, inst, demo.out / "crop", size=140)
+    crop = run_crop(sim.movie.movie, sim.movie.background, inst, demo.out / "crop",
+                    CropConfig(size=140))
     table = pd.read_csv(crop.table).set_index("frame")
     found = table["status"].isin(FITTABLE_CROP_STATUSES)
     err = np.hypot(table["x_um"] - truth["x_um"], table["y_um"] - truth["y_um"])[found]

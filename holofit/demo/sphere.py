@@ -20,7 +20,7 @@ from holofit.analysis import AnalysisConfig, format_report, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion
 from holofit.batch import BatchOptions
 from holofit.config import load_instrument, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.particles import Sphere
 from holofit.prefit import run_prefit
 from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
@@ -65,7 +65,7 @@ def run_sphere_demo(out: Path, echo: Callable[[str], None] = print, workers: int
     echo(f"1. simulate: {sim.movie} with 8-bit camera noise ({time.perf_counter() - t0:.1f} s)")
 
     t0 = time.perf_counter()
-    crop = run_crop(sim.movie, sim.background, inst, out / "crop", size=140, plot=True)
+    crop = run_crop(sim.movie, sim.background, inst, out / "crop", CropConfig(size=140, plot=True))
     table = pd.read_csv(crop.table)
     found = table["status"].isin(FITTABLE_CROP_STATUSES)
     err_px = np.hypot(table["x_px"] - pos[:, 0] / inst.pixel_size_um,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import shlex
 
 from holofit.crop.errors import CropError
-from holofit.crop.stage import DEFAULT_CROP_SIZE, TRACKS, check_crop_settings
+from holofit.crop.settings import DEFAULT_CROP_SIZE, TRACKS, check_crop_settings
 from holofit.fit.defaults import INITIAL_MAX, INITIAL_MIN, INITIAL_SHARE, default_initial_frames
 from holofit.particles import ParticleModel
 from holofit.runfolder.errors import RunFolderError
