@@ -190,7 +190,8 @@ def realdata(engine: str) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         crops = root / "crops"
-        run_crop(ROOT / "tests" / "data" / "holopy" / "dimer2011.tif", None, inst, crops, CropConfig(normalized=True, size=100, plot=False))
+        run_crop(ROOT / "tests" / "data" / "holopy" / "dimer2011.tif", None, inst, crops,
+                 CropConfig(normalized=True, size=100, plot=False))
         run_prefit(crops, root / "prefit", batch=serial, plot=False)
         t0 = time.perf_counter()
         run_library(

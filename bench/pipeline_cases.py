@@ -76,7 +76,8 @@ def run(n_rods: int, frames: int, out_dir: Path | None = None,
         out: dict[str, float] = {}
         t_all = time.perf_counter()
         t0 = time.perf_counter()
-        run_crop(sim.movie, sim.background, scene.instrument, root / "crop", CropConfig(size=140, plot=False))
+        run_crop(sim.movie, sim.background, scene.instrument, root / "crop",
+                 CropConfig(size=140, plot=False))
         out[f"pipeline_{tag}_crop_s"] = time.perf_counter() - t0
         _log(f"crop done: {time.perf_counter() - t0:.0f} s")
         t0 = time.perf_counter()

@@ -207,7 +207,9 @@ def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None
         sim = _first_frames(sim, first, work / f"sim_first_{first}")
     t_sim = time.perf_counter() - t0
     t0 = time.perf_counter()
-    crop = run_crop(sim.movie, sim.background, inst, work / "crop", CropConfig(size=SIZE, plot=False, link=LinkOptions(memory=MEMORY)), batch=BatchOptions(workers=workers, progress=False))
+    crop = run_crop(sim.movie, sim.background, inst, work / "crop",
+                    CropConfig(size=SIZE, plot=False, link=LinkOptions(memory=MEMORY)),
+                    batch=BatchOptions(workers=workers, progress=False))
     t_crop = time.perf_counter() - t0
     _say(f"crop {t_crop:.0f} s: {crop.counts}, tracks {sorted(crop.frames['particle'].unique())}")
     t0 = time.perf_counter()

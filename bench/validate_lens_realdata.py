@@ -148,7 +148,10 @@ ALPHA_CONFIGS: list[tuple[str, Any, bool]] = [("ideal, alpha free", None, False)
 def _crop(case: Case, out: Path) -> Path:
     crops = out / "crops"
     if not (crops / "crops.csv").exists():
-        run_crop(case.movie, None if case.normalized else list(case.background), case.instrument, crops, CropConfig(normalized=case.normalized, dark=case.dark, size=case.size, follow="nearest" if case.start else "strongest", start=case.start, plot=False))
+        run_crop(case.movie, None if case.normalized else list(case.background), case.instrument,
+                 crops, CropConfig(normalized=case.normalized, dark=case.dark, size=case.size,
+                                   follow="nearest" if case.start else "strongest",
+                                   start=case.start, plot=False))
     return crops
 
 
@@ -336,7 +339,8 @@ def run_dimer(out_root: Path, configs: list[str] | None = None) -> dict[str, Any
     particle = load_particle(resolve_config("dimer_holopy2011", "particles"))
     crops = out / "crops"
     if not (crops / "crops.csv").exists():
-        run_crop(HOLOPY / "dimer2011.tif", None, inst, crops, CropConfig(normalized=True, size=100, plot=False))
+        run_crop(HOLOPY / "dimer2011.tif", None, inst, crops,
+                 CropConfig(normalized=True, size=100, plot=False))
     prefit = out / "prefit"
     if not (prefit / "prefit.csv").exists():
         run_prefit(crops, prefit, batch=SERIAL, plot=False)

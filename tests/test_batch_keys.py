@@ -6,10 +6,9 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions, run_batch
+from holofit.batch import BatchOptions, journal_path, run_batch
 from holofit.batch.journal import read_journal
 from holofit.batch.keys import FRAME_KEY, key_of_row, key_row, normal_key
-from holofit.batch.runner import journal_path
 from tests.batch_helpers import PAIR_COLUMNS, ToyConfig, pair_item, toy_table
 
 KEYS = [(p, f) for p in (0, 1, 2) for f in range(4)]

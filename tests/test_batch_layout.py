@@ -19,7 +19,7 @@ from holofit.batch import (
     published_fingerprint,
     run_batch,
 )
-from tests.batch_helpers import COLUMNS, ToyConfig, toy_frame, toy_payload, toy_table
+from tests.batch_helpers import ToyConfig, toy_frame, toy_payload, toy_table
 
 
 def test_publish_table_stages_then_renames_the_table_last(tmp_path):
@@ -88,13 +88,3 @@ def test_replace_stale_discards_results_of_other_settings_instead_of_refusing(tm
     summary = run_batch(toy_frame, ToyConfig(), range(3), toy_payload,
                         toy_table(out, fingerprint="b", replace_stale=True), options=opts)
     assert summary.n_run == 3 and published_fingerprint(out) == "b"
-
-
-def test_the_old_form_still_runs_and_warns(tmp_path):
-    out = tmp_path / "table.csv"
-    with pytest.warns(DeprecationWarning, match="StageTable"):
-        summary = run_batch(toy_frame, ToyConfig(), range(3), toy_payload, out, COLUMNS,
-                            fingerprint="toy", options=BatchOptions(workers=0, progress=False))
-    assert summary.n_run == 3 and published_fingerprint(out) == "toy"
-    with pytest.raises(TypeError):
-        run_batch(toy_frame, ToyConfig(), range(3), toy_payload, toy_table(out), COLUMNS)

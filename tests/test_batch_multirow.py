@@ -9,10 +9,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions, StageTable, run_batch
+from holofit.batch import BatchOptions, StageTable, journal_path, run_batch
 from holofit.batch.journal import read_journal
 from holofit.batch.keys import item_rows
-from holofit.batch.runner import journal_path
 
 COLUMNS = ("chunk", "frame", "value", "status", "message")
 KEYS = ("chunk", "frame")

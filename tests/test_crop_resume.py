@@ -102,15 +102,3 @@ def test_the_crop_table_is_published_with_its_fingerprint(simulated, tmp_path): 
     other = _run(folder, background, tmp_path / "c", plot=False, max_jump_px=7.0)
     assert published_fingerprint(other.table) not in (None, key)
     assert not (tmp_path / "a" / "crops.partial.csv").exists()
-
-
-def test_settings_as_keywords_still_work_and_warn(simulated, tmp_path):  # noqa: F811
-    folder, background, _, _ = simulated
-    given = _run(folder, background, tmp_path / "config", plot=False)
-    with pytest.warns(DeprecationWarning, match="CropConfig"):
-        old = run_crop(folder / "movie.tif", background, INSTRUMENT, tmp_path / "keywords",
-                       size=100, plot=False)
-    pd.testing.assert_frame_equal(given.frames, old.frames)
-    with pytest.raises(TypeError, match="no_such_setting"):
-        run_crop(folder / "movie.tif", background, INSTRUMENT, tmp_path / "bad",
-                 no_such_setting=1)

@@ -133,7 +133,8 @@ def test_the_fit_refits_overlapping_frames_with_the_neighbour(tmp_path):
         out_dir=tmp_path / "sim",
         seed=5,
     )
-    crop = run_crop(sim.movie, sim.background, inst, tmp_path / "crop", CropConfig(size=128, plot=False))
+    crop = run_crop(sim.movie, sim.background, inst, tmp_path / "crop",
+                    CropConfig(size=128, plot=False))
     assert crop.frames["overlap"].astype(str).str.lower().eq("true").all()
     run_prefit(crop.out_dir, tmp_path / "prefit", plot=False)
     cfg = load_particle(resolve_config("sphere_ps_1um", "particles"))  # the spheres' truth

@@ -52,7 +52,7 @@ def test_library_tilts_solved_once_for_the_workers_give_the_same_candidates(movi
     """On two worker processes the driver has the tilts solved once (``tilts.npz``, their
     expansions) and the workers score the frames with them: the same candidates as the serial
     library, which solves the tilts itself."""
-    from holofit.batch.runner import BatchOptions
+    from holofit.batch import BatchOptions
 
     root, particle, _ = movie
     run_library(root / "crop", root / "prefit", particle, tmp_path / "lib",

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from holofit.batch.runner import Precomputed
+from holofit.batch import Precomputed
 from holofit.batch.stage import FrameLoader, FrameStart, check_frames, crop_skip, fingerprint
 from holofit.prefit.sphere import SPHERE_COLUMNS, START_COLUMNS
 from holofit.tables.cropset import CropSetError

@@ -27,6 +27,7 @@ from holofit.batch.layout import (
     publish_table,
     published_fingerprint,
 )
+from holofit.batch.loop import run_frame
 from holofit.batch.options import (
     FAILED_STATUSES,
     BatchOptions,
@@ -34,7 +35,7 @@ from holofit.batch.options import (
     Precomputed,
     make_backend,
 )
-from holofit.batch.runner import run_batch, run_frame
+from holofit.batch.runner import run_batch
 from holofit.batch.worker import release_worker_resources, worker_resource
 
 __all__ = [

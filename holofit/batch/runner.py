@@ -48,52 +48,31 @@ from __future__ import annotations
 
 import collections
 import time
-import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from holofit.batch.backends import Backend
-from holofit.batch.errors import BatchError
-from holofit.batch.keys import FRAME_KEY, Key, check_key_columns, normal_key
+from holofit.batch.keys import Key, check_key_columns, normal_key
 from holofit.batch.layout import (
     OutputFiles,
     StageTable,
     earlier_fingerprint,
     earlier_rows,
-    journal_path,
-    partial_path,
 )
-from holofit.batch.loop import BatchRun, run_frame
+from holofit.batch.loop import BatchRun
 from holofit.batch.mainguard import refuse_while_worker_starts
 from holofit.batch.options import (
     BatchOptions,
     BatchSummary,
-    Precomputed,
-    available_cpus,
     backend_for,
-    make_backend,
 )
 from holofit.io.lock import output_lock
 from holofit.progress import progress_bar
 from holofit.status import ERROR, FAILED_STATUSES
 
-__all__ = [
-    "FAILED_STATUSES",
-    "BatchError",
-    "BatchOptions",
-    "BatchSummary",
-    "Precomputed",
-    "StageTable",
-    "available_cpus",
-    "earlier_fingerprint",
-    "journal_path",
-    "make_backend",
-    "partial_path",
-    "run_batch",
-    "run_frame",
-]
+__all__ = ["run_batch"]
 
 
 def _checked_frames(frames: Iterable[Any], columns: Sequence[str],
@@ -164,41 +143,16 @@ class _Batch:
             run.run(todo, self.load)
 
 
-#: the keywords of the old form of :func:`run_batch` (the table's fields spelled out)
-_LEGACY_TABLE = ("columns", "fingerprint", "meta", "desc", "finish", "key_columns")
-
-
-def _legacy_table(output: str | Path, columns: tuple[Any, ...],
-                  given: dict[str, Any]) -> StageTable:
-    """The :class:`StageTable` of a call in the old form ``run_batch(func, config, frames,
-    load, output, columns, *, fingerprint, meta, desc, finish, key_columns, ...)``."""
-    unknown = sorted(set(given) - set(_LEGACY_TABLE))
-    if unknown:
-        raise TypeError(f"run_batch() got unexpected keyword argument(s) {unknown}")
-    if len(columns) > 1 or (columns and "columns" in given) or not (columns or "columns" in given):
-        raise TypeError("run_batch() takes its table as one StageTable")
-    if "fingerprint" not in given:
-        raise TypeError("run_batch() needs a StageTable (or, in the old form, fingerprint=)")
-    warnings.warn("run_batch(func, config, frames, load, output, columns, fingerprint=...) is "
-                  "deprecated: give the table as a StageTable", DeprecationWarning,
-                  stacklevel=3)
-    cols = columns[0] if columns else given["columns"]
-    return StageTable(Path(output), tuple(cols), dict(given.get("meta") or {}),
-                      given["fingerprint"], given.get("desc", "batch"), given.get("finish"),
-                      tuple(given.get("key_columns", FRAME_KEY)))
-
-
 def run_batch(
     func: Callable[[Any, Any, Any], dict[str, Any]],
     config: Any,
     items: Sequence[Any],
     load: Callable[[Any], Any],
     table: StageTable,
-    *legacy: Any,
+    *,
     options: BatchOptions | None = None,
     backend: Backend | None = None,
     before_publish: Callable[[Path], Any] | None = None,
-    **legacy_table: Any,
 ) -> BatchSummary:
     """Run ``func`` on every item, in parallel, resumably, writing a table keyed by item.
 
@@ -231,9 +185,6 @@ def run_batch(
         partial table's name, after the backend has closed and before it is renamed to
         its own name (the file ``make`` waits for, so the last one written): a stage draws
         its pictures there. An interruption keeps the journal; a rerun calls it again.
-    *legacy, **legacy_table
-        Deprecated: the old form, ``table`` a path followed by ``columns`` and the keywords
-        ``fingerprint``, ``meta``, ``desc``, ``finish``, ``key_columns``.
 
     Returns
     -------
@@ -250,11 +201,6 @@ def run_batch(
     SystemExit
         In a spawned worker re-running a script without the main guard (:mod:`.mainguard`).
     """
-    if not isinstance(table, StageTable):
-        table = _legacy_table(table, legacy, legacy_table)
-    elif legacy or legacy_table:
-        raise TypeError("run_batch() takes its table as one StageTable: no columns or "
-                        f"table keywords beside it (got {sorted(legacy_table)})")
     refuse_while_worker_starts(f"the {table.desc} stage")
     table = replace(table, key_columns=check_key_columns(table.key_columns))
     items = _checked_frames(items, table.columns, table.key_columns)

@@ -9,8 +9,8 @@ from typing import Any, TypeVar
 
 import click
 
+from holofit.batch import BatchOptions
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice, parse_numerical_aperture
-from holofit.batch.runner import BatchOptions
 
 __all__ = [
     "aperture_choice",

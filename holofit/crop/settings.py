@@ -8,7 +8,7 @@ with a message naming the option to change.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -97,21 +97,6 @@ class CropConfig:
     min_background: float = DEFAULT_MIN_BACKGROUND
     mask_saturated: bool = True
     plot: bool = True
-
-    @classmethod
-    def of(cls, config: CropConfig | None, settings: dict[str, Any]) -> CropConfig:
-        """``config`` (default: all defaults) with the fields in ``settings`` replaced.
-
-        Raises
-        ------
-        TypeError
-            A name in ``settings`` that is no field.
-        """
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(settings) - names)
-        if unknown:
-            raise TypeError(f"run_crop() got unexpected keyword argument(s) {unknown}")
-        return replace(config or cls(), **settings)
 
     def finder_for_size(self) -> CenterFinder:
         """The centre finder: the one given, else the default with vote radius ``size / 2``."""

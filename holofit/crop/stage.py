@@ -29,7 +29,6 @@ leaves no output behind.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -74,7 +73,6 @@ def run_crop(
     *,
     batch: BatchOptions | None = None,
     progress: Callable[[int], Any] | None = None,
-    **settings: Any,
 ) -> CropResult:
     """Normalise a raw movie, find the hologram centre of every frame and crop around it.
 
@@ -99,9 +97,6 @@ def run_crop(
         Where frames are searched (:mod:`holofit.crop.detect`; default: in this process).
     progress : callable, optional
         Called with 1 after each frame is cropped.
-    **settings
-        Deprecated: fields of :class:`CropConfig` as keywords (``size=100``), which replace
-        those of ``config``.
 
     Returns
     -------
@@ -112,10 +107,7 @@ def run_crop(
     CropError
         Unusable input (the message names the file, and the frame where one is at fault).
     """
-    cfg = CropConfig.of(config, settings)
-    if settings:
-        warnings.warn("run_crop(..., size=..., ...) is deprecated: give the settings as a "
-                      "CropConfig", DeprecationWarning, stacklevel=2)
+    cfg = config or CropConfig()
     refuse_while_worker_starts("run_crop")
     inst = resolve_instrument(instrument)
     cfg = replace(cfg, size=int(cfg.size))

@@ -25,7 +25,7 @@ from typing import Any
 
 import pandas as pd
 
-from holofit.batch.runner import Precomputed
+from holofit.batch import Precomputed
 from holofit.batch.stage import FrameLoader, fingerprint
 from holofit.fit.chunks import INITIAL_MIN_CHUNK, MAX_CHUNK, MIN_CHUNK, MIN_CHUNKS, OVERLAP
 from holofit.fit.follow import follow_chunk

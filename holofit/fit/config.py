@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from holofit.batch import BatchSummary
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
-from holofit.batch.runner import BatchSummary
 from holofit.config import Instrument, ParticleConfig
 from holofit.fit.continuity import ContinuityReport, ContinuitySettings
 from holofit.fit.settings import FollowSettings, FrameFitSettings

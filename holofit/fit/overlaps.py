@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from holofit.batch.runner import BatchOptions, BatchSummary, earlier_fingerprint
+from holofit.batch.options import BatchOptions, BatchSummary
 from holofit.batch.stage import StageTable, fingerprint, run_stage
 from holofit.fit.problem import FrameProblem, state_of
 from holofit.fit.task import PassConfig, fit_columns, worker_theory
@@ -191,15 +191,11 @@ def refit_overlaps(table: pd.DataFrame, crops: CropSet, config: PassConfig, outp
                                  for k, v in sorted(items.items())}})
     meta = sidecar(kind=f"overlapping rows of the {config.pass_name} pass refitted with the "
                         "neighbour's field", config=config.as_dict(), inputs=[crops.table_path])
-    options = batch or BatchOptions()
-    earlier = earlier_fingerprint(output)
-    if earlier is not None and earlier != key:
-        # refits of other first fits (a track refitted since, say): derived rows, redone
-        options = replace(options, overwrite=True)
+    # refits of other first fits (a track refitted since, say) are derived rows: redone
     stage_table = StageTable(output, columns, meta, key, f"fit ({config.pass_name}, overlaps)",
-                             key_columns=PARTICLE_KEY)
+                             key_columns=PARTICLE_KEY, replace_stale=True)
     summary, _ = run_stage(refit_overlap_task, config, sorted(items), load, stage_table,
-                           batch=options)
+                           batch=batch)
     out, n_refit, n_ok = _merged(table, rows, read_table(output), items)
     return out, n_refit, n_ok, summary
 

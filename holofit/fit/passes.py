@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import partial
@@ -29,7 +28,8 @@ from typing import Any
 
 import pandas as pd
 
-from holofit.batch.runner import BatchOptions, Precomputed, available_cpus, partial_path
+from holofit.batch.layout import publish_table, published_fingerprint
+from holofit.batch.options import BatchOptions, Precomputed, available_cpus
 from holofit.batch.stage import FrameLoader, StageInputs, StageTable, fingerprint, run_stage
 from holofit.config import ParticleConfig
 from holofit.fit.chunk_task import (
@@ -176,30 +176,6 @@ def table_digest(table: pd.DataFrame) -> str:
                           .tobytes()).hexdigest()[:16]
 
 
-def _published_key(path: Path) -> str | None:
-    """The fingerprint in a published table's sidecar (None: none, or not complete)."""
-    side = sidecar_path(path)
-    if not path.exists() or not side.exists():
-        return None
-    try:
-        batch = json.loads(side.read_text()).get("batch", {})
-    except (OSError, ValueError):
-        return None
-    return batch.get("fingerprint") if batch.get("complete") else None
-
-
-def _publish(path: Path, table: pd.DataFrame, meta: dict[str, Any], key: str) -> Path:
-    """Write a pass's table and sidecar atomically under its own name (sidecar first, the
-    table last: the file ``make`` waits for)."""
-    meta = {**meta, "batch": {"fingerprint": key, "complete": True,
-                              "frames_total": len(table)}}
-    staged = partial_path(path)
-    write_table(staged, table, meta)
-    os.replace(sidecar_path(staged), sidecar_path(path))
-    os.replace(staged, path)
-    return path
-
-
 @dataclass
 class FitPasses:
     """The passes of one :func:`holofit.fit.stage.run_fit`: their shared inputs and settings.
@@ -307,7 +283,7 @@ class FitPasses:
         key = fingerprint({"batch": key, "rows": table_digest(table),
                            "sigmas": c.continuity.chi2_sigmas,
                            "overlaps": not overlap_rows(crops).empty})
-        if _published_key(path) != key:
+        if published_fingerprint(path) != key:
             level = flag_initial(table, c.continuity.chi2_sigmas)
             meta = self.meta(cfg)
             if level is not None:
@@ -317,7 +293,7 @@ class FitPasses:
                     "track's best quarter of frames (poor_fit in initial.csv): left out of the "
                     "static parameters and of the final pass's chi^2 bar")
             table = self._refit_overlaps(table, self.overlap_config("initial"), "initial")
-            _publish(path, table, {**meta, **extra}, key)
+            publish_table(path, table, {**meta, **extra}, key)
         self.run.initial = path
         self._pictures(path, cfg, "initial", "initial")
         return write_static(self.out / "static.json", path, read_table(path), self.particle.model,
@@ -388,7 +364,7 @@ class FitPasses:
         key = fingerprint({"batch": key, "rows": table_digest(table),
                            "continuity": c.continuity.__dict__,
                            "overlaps": not overlap_rows(self.given.crops).empty})
-        if _published_key(path) != key:
+        if published_fingerprint(path) != key:
             meta = {**self.meta(cfg, static), **extra}
             if c.continuity.enabled and model.anisotropic:
                 run = SweepRun(cfg, partial(load_payload, self.loader), self.batch,
@@ -403,7 +379,7 @@ class FitPasses:
                     meta["continuity"].update(next(iter(reports.values())).as_dict())
             table = self._refit_overlaps(table, self.overlap_config("final", setups), "final")
             table = mark_overlap(table, overlap_rows(self.given.crops))
-            _publish(path, table, meta, key)
+            publish_table(path, table, meta, key)
         else:  # complete before this run: what the sweeps did, from its sidecar
             self._continuity_from(path)
         self.run.final = path

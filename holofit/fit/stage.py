@@ -26,7 +26,7 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
-from holofit.batch.runner import BatchOptions
+from holofit.batch import BatchOptions
 from holofit.batch.stage import FrameLoader, stage_inputs
 from holofit.config import ParticleConfig
 from holofit.fit.config import PASSES, FitConfig, FitRun

@@ -17,7 +17,7 @@ from typing import Any
 
 import pandas as pd
 
-from holofit.batch.runner import BatchOptions, Precomputed, run_frame
+from holofit.batch import BatchOptions, Precomputed, run_frame
 from holofit.batch.stage import StageTable, fingerprint, run_stage
 from holofit.fit.continuity import (
     ContinuityReport,

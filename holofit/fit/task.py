@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.batch.stage import fingerprint
-from holofit.cache import LRUCache
+from holofit.batch.worker import worker_resource
 from holofit.config import Instrument, ParticleConfig
 from holofit.fit.frame import RUNNER_UP_COLUMNS, fit_frame
 from holofit.fit.problem import FrameProblem
@@ -188,10 +188,6 @@ class FitPayload:
     candidates: tuple[Candidate, ...]
 
 
-#: per worker process: one engine per particle configuration, with its caches
-_THEORIES: LRUCache[str, ScatteringTheory] = LRUCache(4)
-
-
 def worker_theory(config: PassConfig) -> ScatteringTheory:
     """The engine this worker keeps for ``config``'s particle (and T-matrix), with its
     caches: made on first use, then reused by every frame (or chunk) of the pass."""
@@ -205,7 +201,7 @@ def worker_theory(config: PassConfig) -> ScatteringTheory:
             theory.tmatrix(config.particle.model, inst.optics, path=config.tmatrix)
         return theory
 
-    return _THEORIES.get_or_create(key + str(config.tmatrix), make_theory)
+    return worker_resource("fit engine", key + str(config.tmatrix), make_theory, size=4)
 
 
 def frame_problem(config: PassConfig, payload: FitPayload, frame: int,

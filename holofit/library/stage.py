@@ -25,9 +25,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed, available_cpus
+from holofit.batch import BatchOptions, BatchSummary, Precomputed
+from holofit.batch.options import available_cpus
 from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage, stage_inputs
-from holofit.cache import LRUCache
+from holofit.batch.worker import worker_resource
 from holofit.config import ConfigError, Instrument, ParticleConfig
 from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
@@ -113,10 +114,6 @@ class LibraryPayload:
 #: the precision of the library's DDA solves (:func:`new_library`)
 LIBRARY_PRECISION = "single"
 
-#: per worker process: the solved library of each configuration
-_LIBRARIES: LRUCache[str, OrientationLibrary] = LRUCache(2)
-
-
 def new_library(config: LibraryConfig) -> OrientationLibrary:
     """The configuration's library, nothing solved yet.
 
@@ -144,7 +141,7 @@ def _library(config: LibraryConfig) -> OrientationLibrary:
             load_tilts(lib, Path(config.tilts), config.key())
         return lib
 
-    return _LIBRARIES.get_or_create(config.key(), make)
+    return worker_resource("library", config.key(), make, size=2)
 
 
 def library_frame(config: LibraryConfig, frame: int, payload: LibraryPayload) -> dict[str, Any]:

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.batch import BatchOptions, BatchSummary, Precomputed
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
-from holofit.batch.runner import BatchOptions, BatchSummary, Precomputed
 from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage, stage_inputs
 from holofit.config import ConfigError, Instrument
 from holofit.holomodel.pictures import write_frame_pictures
