@@ -41,6 +41,7 @@ Conventions
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -54,6 +55,7 @@ __all__ = [
     "NO_ABERRATION",
     "SPHERICAL_NAMES",
     "Aberration",
+    "layer_aberration",
     "pupil_coordinate",
     "spherical_basis",
     "spherical_phase",
@@ -96,6 +98,13 @@ def spherical_phase(theta: ArrayLike, coefficients: Sequence[float]) -> NDArray[
     if c.size == 0:
         return np.zeros_like(x)
     return -(x * x) * legendre.legval(x, c)
+
+
+@functools.lru_cache(maxsize=64)
+def _variation(key: tuple[float, ...], theta_max: float, samples: int) -> float:
+    """:meth:`Aberration.variation` (cached: a fit asks for it at every hologram)."""
+    phase = spherical_phase(np.linspace(0.0, theta_max, samples + 1), key)
+    return float(np.abs(np.diff(phase)).sum())
 
 
 @dataclass(frozen=True)
@@ -152,8 +161,7 @@ class Aberration:
         quadrature rule adds nodes for (0 for the ideal objective)."""
         if self.is_zero:
             return 0.0
-        phase = self.phase(np.linspace(0.0, float(theta_max), int(samples) + 1))
-        return float(np.abs(np.diff(phase)).sum())
+        return _variation(self.key, float(theta_max), int(samples))
 
     def padded(self, n_terms: int) -> Aberration:
         """The same pupil with at least ``n_terms`` coefficients (zeros appended)."""
@@ -179,3 +187,68 @@ class Aberration:
 
 #: the ideal objective (the optics' default)
 NO_ABERRATION = Aberration()
+
+
+def layer_aberration(wavelength_um: float, n_medium: float, numerical_aperture: float,
+                     n_layer: float, thickness_um: float, n_terms: int = 2,
+                     samples: int = 400) -> tuple[Aberration, float]:
+    """The spherical aberration of a plane layer the objective's design does not expect, in
+    this module's coefficients: a start value, or a realistic size, for a calibration.
+
+    A plane wave leaving the particle at ``th`` in the medium crosses a layer of index
+    ``n_layer`` and signed thickness ``t`` (``t > 0``: a layer the design lacks, e.g. a
+    coverslip thicker than designed, replacing medium; ``t < 0``: design medium of index
+    ``n_layer`` that the sample replaces, e.g. an oil objective focused ``|t|`` into water)
+    and gains ``k_0 t (n_layer cos th_l - n_medium cos th)``, ``n_layer sin th_l =
+    n_medium sin th`` (Gibson & Lanni, J. Opt. Soc. Am. A 8, 1601 (1991); Torok et al., J.
+    Opt. Soc. Am. A 12, 325 (1995)). Its piston and its defocus (constant and linear in
+    ``x = cos th - 1``: a shift of the fitted ``z``) are left out by a least-squares fit over
+    the pupil, weighted by ``sin th`` (equal solid angles), together with the first
+    ``n_terms`` basis functions ``-x^2 P_k(x)``.
+
+    Parameters
+    ----------
+    wavelength_um : float
+        Vacuum wavelength, um.
+    n_medium : float
+        Index of the medium around the particle.
+    numerical_aperture : float
+        The objective's NA (the pupil fitted over: ``sin th <= NA / n_medium``).
+    n_layer : float
+        Index of the layer.
+    thickness_um : float
+        Signed thickness of the layer, um (see above).
+    n_terms : int
+        Coefficients returned (at most :data:`MAX_SPHERICAL_TERMS`).
+    samples : int
+        Points of the fit over the pupil.
+
+    Returns
+    -------
+    aberration : Aberration
+        The fitted coefficients, rad.
+    residual_rad : float
+        Root-mean-square (``sin th``-weighted) of what they leave of the layer's phase, rad.
+
+    Raises
+    ------
+    ValueError
+        If the layer's index cannot carry every ray of the pupil (``n_layer`` below
+        ``NA``: total internal reflection).
+    """
+    theta_max = float(np.arcsin(min(numerical_aperture / n_medium, 1.0)))
+    if n_layer <= n_medium * np.sin(theta_max):
+        raise ValueError(f"a layer of index {n_layer} reflects the rays beyond NA {n_layer}: "
+                         f"it cannot carry the pupil of NA {numerical_aperture}")
+    k0 = 2.0 * np.pi / wavelength_um
+    theta = np.linspace(0.0, theta_max, int(samples))
+    sin_t, cos_t = np.sin(theta), np.cos(theta)
+    cos_l = np.sqrt(1.0 - (n_medium * sin_t / n_layer) ** 2)
+    phase = k0 * thickness_um * (n_layer * cos_l - n_medium * cos_t)
+    x = pupil_coordinate(theta)
+    design = np.vstack([np.ones_like(x), x, spherical_basis(theta, n_terms)]).T
+    w = np.sqrt(np.maximum(sin_t, 1e-300))
+    coef, *_ = np.linalg.lstsq(design * w[:, None], phase * w, rcond=None)
+    left = phase - design @ coef
+    residual = float(np.sqrt(np.sum(sin_t * left**2) / np.sum(sin_t)))
+    return Aberration(tuple(float(c) for c in coef[2:])), residual
