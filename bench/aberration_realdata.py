@@ -123,6 +123,8 @@ def pylorenzmie(fraction: float) -> dict:
                      "before": before[j], "after": _after(fit, j)})
     return {"instrument": "pylorenzmie", "start": {"numerical_aperture": 0.86},
             "values": fit.values, "errors": fit.errors, "chi2_red": fit.chi2_red,
+            "edge_phase_rad": fit.edge_phase_rad,
+            "edge_phase_error_rad": fit.edge_phase_error_rad,
             "status": fit.status, "time_s": fit.time_s, "before_time_s": t_before,
             "trials": fit.trials, "spheres": rows}
 
@@ -157,7 +159,8 @@ def _holopy_case(name: str, frame: SphereFrame, inst, reference: dict, source: s
     fit = fit_instrument([frame], optics, px, JointFitSettings(fit_na=False))
     return {"sphere": name, "reference": reference, "source": source, "before": before,
             "after": _after(fit, 0), "values": fit.values, "errors": fit.errors,
-            "time_s": fit.time_s}
+            "edge_phase_rad": fit.edge_phase_rad,
+            "edge_phase_error_rad": fit.edge_phase_error_rad, "time_s": fit.time_s}
 
 
 def _line(label: str, d: dict) -> str:
@@ -176,6 +179,7 @@ def main() -> None:
     p = results["pylorenzmie"]
     print("pylorenzmie joint fit:", {k: f"{v:.4g} +- {p['errors'][k]:.2g}"
                                      for k, v in p["values"].items()},
+          f"edge phase {p['edge_phase_rad']:.3g} +- {p['edge_phase_error_rad']:.2g} rad, "
           f"chi2_red {p['chi2_red']:.3f}, {p['time_s']:.0f} s")
     for row in p["spheres"] + results["holopy"]:
         print(row["sphere"], f"({row['source']})")
@@ -184,7 +188,9 @@ def main() -> None:
         print(_line("after", row["after"]))
         if "values" in row:
             print("  instrument:", {k: f"{v:.4g} +- {row['errors'][k]:.2g}"
-                                    for k, v in row["values"].items()})
+                                    for k, v in row["values"].items()},
+                  f"edge phase {row['edge_phase_rad']:.3g} +- "
+                  f"{row['edge_phase_error_rad']:.2g} rad")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=float) + "\n")
 

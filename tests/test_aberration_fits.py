@@ -102,6 +102,10 @@ def test_joint_fit_recovers_the_instrument_from_spheres_at_several_heights():
     for name, value in (("numerical_aperture", 1.15), ("sa4_rad", -3.63), ("sa6_rad", 11.89)):
         assert abs(fit.values[name] - value) < 2 * fit.errors[name], (name, fit.values[name])
     assert fit.optics.aberration == Aberration((fit.values["sa4_rad"], fit.values["sa6_rad"]))
+    # the pupil phase at the aperture's edge, the well-fixed combination of the coefficients
+    edge = ab.phase(np.array([np.arcsin(1.15 / 1.33)]))[0]
+    assert abs(fit.edge_phase_rad - edge) < 2 * fit.edge_phase_error_rad
+    assert fit.edge_phase_error_rad < 0.5 * min(fit.errors["sa4_rad"], fit.errors["sa6_rad"])
     assert 0.8 < fit.chi2_red < 1.2
     for result, truth in zip(fit.frames, truths, strict=True):
         for k, v in truth.items():

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.aberration import SPHERICAL_NAMES, Aberration
+from holofit.aberration import SPHERICAL_NAMES, Aberration, spherical_basis
 from holofit.cache import LRUCache
 from holofit.holomodel.aperture import SCAN_LOWEST, SCAN_STEP, aperture_minima, aperture_start
 from holofit.holomodel.forward import HologramModel, InvalidParameters
@@ -204,6 +204,12 @@ class InstrumentFit:
         Wall time.
     trials : list of dict
         Each step-2 start and step-3 NA tried, with its weighted misfit (diagnostics).
+    edge_phase_rad, edge_phase_error_rad : float
+        The fitted pupil phase at the aperture's edge, ``Phi(th_max)``, and its 1-sigma error
+        (the coefficients' and the NA's covariance propagated): over a small pupil the
+        coefficients are strongly anticorrelated (``x^2`` and ``x^3`` look alike when ``x``
+        stays small) while the phase they make is well fixed, so this is the number to
+        compare between calibrations.
     """
 
     values: dict[str, float]
@@ -219,6 +225,8 @@ class InstrumentFit:
     message: str
     time_s: float = 0.0
     trials: list[dict] = field(default_factory=list)
+    edge_phase_rad: float = math.nan
+    edge_phase_error_rad: float = math.nan
 
 
 @dataclass
@@ -556,6 +564,7 @@ def _result(jm: _JointModel, sol: Solution, frames: list[_Frame], optics: Optics
         optics, numerical_aperture=float(shared[APERTURE.name]),
         polarization_rad=float(shared.get(POLARIZATION, optics.polarization_rad)),
         aberration=Aberration.from_values(shared, optics.aberration))
+    edge, edge_error = _edge_phase(fitted_optics, jm.free_shared, cov)
     status = OK if sol.converged else NOT_CONVERGED
     results = []
     models = jm._models_for(jm._beta(sol.vector))
@@ -580,7 +589,34 @@ def _result(jm: _JointModel, sol: Solution, frames: list[_Frame], optics: Optics
     return InstrumentFit(values=values, errors=errors, optics=fitted_optics, frames=results,
                          names=jm.space.names, covariance=cov, chi2_red=float(chi2_red),
                          n_pixels=n, n_eval=n_eval, status=status, message=sol.message,
-                         time_s=time_s, trials=trials)
+                         time_s=time_s, trials=trials, edge_phase_rad=edge,
+                         edge_phase_error_rad=edge_error)
+
+
+def _edge_phase(optics: Optics, free_shared: Sequence[str], cov: NDArray[np.float64]
+                ) -> tuple[float, float]:
+    """``Phi(th_max)`` of the fitted pupil and its error from the shared covariance."""
+    na = float(optics.numerical_aperture)
+    n_medium = optics.n_medium
+
+    def edge(na_: float, ab: Aberration) -> float:
+        theta = float(np.arcsin(min(na_ / n_medium, 1.0)))
+        return float(ab.phase(np.array([theta]))[0])
+
+    ab = optics.aberration
+    value = edge(na, ab)
+    grad = np.zeros(len(free_shared))
+    theta = float(np.arcsin(min(na / n_medium, 1.0)))
+    basis = spherical_basis(np.array([theta]), max(len(ab.spherical), 1))[:, 0]
+    for i, name in enumerate(free_shared):
+        if name in SPHERICAL_NAMES:
+            grad[i] = basis[SPHERICAL_NAMES.index(name)]
+        elif name == APERTURE.name and na < n_medium:
+            h = 1e-6
+            grad[i] = (edge(na + h, ab) - edge(na - h, ab)) / (2 * h)
+    k = len(free_shared)
+    var = float(grad @ cov[:k, :k] @ grad) if np.all(np.isfinite(cov[:k, :k])) else math.nan
+    return value, (math.sqrt(var) if var >= 0 else math.nan)
 
 
 def _scan_fraction(frames: list[_Frame]) -> float:
