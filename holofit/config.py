@@ -158,7 +158,8 @@ class Instrument:
         return dataclasses.replace(self, extra=extra)
 
     def with_numerical_aperture(self, numerical_aperture: float | None) -> Instrument:
-        """This instrument with another objective NA (None: the ideal model, no lens).
+        """This instrument with another objective NA (None: the ideal model, no lens, and so
+        no pupil to aberrate: its spherical aberration is dropped too).
 
         Raises
         ------
@@ -170,9 +171,8 @@ class Instrument:
             Optics(self.wavelength_um, self.medium_index, self.polarization_rad,
                    float(numerical_aperture))  # checks the value
             extra["numerical_aperture"] = float(numerical_aperture)
-        elif not self.aberration.is_zero:
-            raise ValueError("this instrument's aberrated pupil needs an objective: remove "
-                             "the aberration (with_aberration(Aberration())) first")
+        else:
+            extra.pop("spherical_aberration_rad", None)
         return dataclasses.replace(self, extra=extra)
 
     def as_dict(self) -> dict[str, Any]:

@@ -224,6 +224,8 @@ bit_depth = 8
     again = instrument_from_dict(inst.as_dict())
     assert again.optics.aberration == inst.optics.aberration
     assert inst.with_aberration(Aberration()).optics.aberration.is_zero
+    # no objective, no pupil: the ideal model drops the aberration with the NA
+    assert inst.with_numerical_aperture(None).optics == Optics(0.66, 1.33)
     assert load_instrument(tmp_path / "i.toml").optics == inst.optics
     path.write_text(text + "spherical_aberration_rad = [-2.5]\n")
     with pytest.raises(ConfigError, match="needs an objective"):
@@ -237,3 +239,17 @@ bit_depth = 8
     with pytest.raises(ValueError, match="needs an objective"):
         Optics(0.66, 1.33, 0.0, None, Aberration((1.0,)))
     assert load_instrument("paper_60x_water").optics.aberration.is_zero
+
+
+def test_model_pictures_use_a_fitted_aberration():
+    from holofit.conventions import DetectorGrid
+    from holofit.hologram import calc_hologram
+    from holofit.holomodel.pictures import model_image
+
+    optics = Optics(0.66, 1.33, 0.0, 1.2)
+    row = {"x_um": 3.0, "y_um": 3.0, "z_um": 9.0, "radius_um": 0.5, "n": 1.59, "alpha": 0.8,
+           "sa4_rad": -2.5, "sa6_rad": 0.6}
+    got = model_image(row, Sphere(0.5, 1.59), LorenzMie(), optics, (40, 40), (0, 0), 0.15)
+    wave = MieWave(Sphere(0.5, 1.59), Optics(0.66, 1.33, 0.0, 1.2, Aberration((-2.5, 0.6))))
+    ref = calc_hologram(wave, (3.0, 3.0, 9.0), DetectorGrid((40, 40), 0.15), 0.8)
+    assert np.abs(got - ref).max() < 1e-12
