@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.aberration import Aberration, layer_aberration
-from holofit.calibrate import JointFitSettings, SphereFrame, fit_instrument
+from holofit.calibrate import JointFitSettings, SphereFrame, calibrate_instrument
 from holofit.camera import Camera
 from holofit.config import load_instrument
 from holofit.conventions import DetectorGrid, axis_from_angles, euler_zyz
@@ -139,7 +139,7 @@ def sphere_fits(inst: Instrument, z_um: float, seeds: int) -> dict[str, list[dic
         for model in MODELS:
             t0 = time.perf_counter()
             if model == "fitted":
-                joint = fit_instrument([SphereFrame(data, CORNER, centre, noise)],
+                joint = calibrate_instrument([SphereFrame(data, CORNER, centre, noise)],
                                        _model_optics(optics, model), px,
                                        JointFitSettings(fit_na=False, aberration=COEFFICIENTS))
                 res = joint.frames[0]

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import tifffile
 
-from holofit.calibrate import JointFitSettings, SphereFrame, fit_instrument
+from holofit.calibrate import JointFitSettings, SphereFrame, calibrate_instrument
 from holofit.config import load_instrument
 from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 
@@ -116,7 +116,7 @@ def pylorenzmie(fraction: float) -> dict:
     t0 = time.perf_counter()
     before = [_before(f, optics, px) for f in frames]
     t_before = time.perf_counter() - t0
-    fit = fit_instrument(frames, optics, px, JointFitSettings(pixel_fraction=fraction))
+    fit = calibrate_instrument(frames, optics, px, JointFitSettings(pixel_fraction=fraction))
     rows = []
     for j, s in enumerate(PYLM_SPHERES):
         rows.append({"sphere": s.name, "reference": s.reference, "source": s.source,
@@ -156,7 +156,7 @@ def holopy() -> list[dict]:
 def _holopy_case(name: str, frame: SphereFrame, inst, reference: dict, source: str) -> dict:
     optics, px = inst.optics, inst.pixel_size_um
     before = _before(frame, optics, px)
-    fit = fit_instrument([frame], optics, px, JointFitSettings(fit_na=False))
+    fit = calibrate_instrument([frame], optics, px, JointFitSettings(fit_na=False))
     return {"sphere": name, "reference": reference, "source": source, "before": before,
             "after": _after(fit, 0), "values": fit.values, "errors": fit.errors,
             "edge_phase_rad": fit.edge_phase_rad,

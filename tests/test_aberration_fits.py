@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from holofit.aberration import Aberration, layer_aberration
-from holofit.calibrate import JointFitSettings, SphereFrame, fit_instrument
+from holofit.calibrate import JointFitSettings, SphereFrame, calibrate_instrument
 from holofit.camera import Camera
 from holofit.conventions import DetectorGrid
 from holofit.hologram import calc_hologram
@@ -97,7 +97,7 @@ def test_joint_fit_recovers_the_instrument_from_spheres_at_several_heights():
         data = camera.expose(holo, np.random.default_rng(j + 1)) / camera.background_counts
         frames.append(SphereFrame(data, (100 * j, 50), centre))
         truths.append(truth)
-    fit = fit_instrument(frames, Optics(0.66, 1.33, 0.0, 1.2), PIXEL_UM)
+    fit = calibrate_instrument(frames, Optics(0.66, 1.33, 0.0, 1.2), PIXEL_UM)
     assert fit.status == "ok"
     for name, value in (("numerical_aperture", 1.15), ("sa4_rad", -3.63), ("sa6_rad", 11.89)):
         assert abs(fit.values[name] - value) < 2 * fit.errors[name], (name, fit.values[name])
@@ -119,13 +119,13 @@ def test_joint_fit_is_exact_on_noise_free_frames_with_the_polarisation():
     for j, (z, a, n) in enumerate(((5.0, 0.5, 1.59), (12.0, 0.45, 1.45))):
         holo, _, centre = _frame(truth_optics, Sphere(a, n), z, corner=(100 * j, 50), n=70)
         frames.append(SphereFrame(holo, (100 * j, 50), centre, noise_sd=NOISE))
-    fit = fit_instrument(frames, Optics(0.66, 1.33, 0.0, 1.2), PIXEL_UM,
+    fit = calibrate_instrument(frames, Optics(0.66, 1.33, 0.0, 1.2), PIXEL_UM,
                          JointFitSettings(fit_polarization=True, aberration_starts=()))
     assert fit.values["numerical_aperture"] == pytest.approx(1.15, abs=1e-6)
     assert fit.values["polarization_rad"] == pytest.approx(0.05, abs=1e-6)
     assert fit.values["sa4_rad"] == pytest.approx(-3.63, abs=1e-4)
     assert fit.values["sa6_rad"] == pytest.approx(11.89, abs=1e-4)
     with pytest.raises(ValueError, match="numerical_aperture"):
-        fit_instrument(frames, Optics(0.66, 1.33), PIXEL_UM)
+        calibrate_instrument(frames, Optics(0.66, 1.33), PIXEL_UM)
     with pytest.raises(ValueError, match="shared parameter"):
         JointFitSettings(fit_na=False, aberration=())

@@ -6,7 +6,7 @@ from holofit.calibrate.joint import (
     InstrumentFit,
     JointFitSettings,
     SphereFrame,
-    fit_instrument,
+    calibrate_instrument,
 )
 
-__all__ = ["InstrumentFit", "JointFitSettings", "SphereFrame", "fit_instrument"]
+__all__ = ["InstrumentFit", "JointFitSettings", "SphereFrame", "calibrate_instrument"]

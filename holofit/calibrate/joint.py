@@ -64,7 +64,7 @@ __all__ = [
     "InstrumentFit",
     "JointFitSettings",
     "SphereFrame",
-    "fit_instrument",
+    "calibrate_instrument",
 ]
 
 #: names of the shared parameters in the joint vector start with this (and a frame's with
@@ -390,7 +390,7 @@ def _prefit_start(frame: SphereFrame, optics: Optics, pixel_size_um: float,
     return {c: float(fit.values[c]) for c in SPHERE_COLUMNS}
 
 
-def fit_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_size_um: float,
+def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_size_um: float,
                    settings: JointFitSettings | None = None) -> InstrumentFit:
     """Fit the instrument shared by several sphere holograms (the module docstring).
 

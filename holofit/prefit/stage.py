@@ -189,7 +189,7 @@ def run_prefit(
     fit = fit or SphereFitSettings()
     if fit.fit_aberration:
         raise ConfigError("prefit.csv has no columns for fitted aberration coefficients: fit "
-                          "them with holofit.calibrate.fit_instrument (several heights), or "
+                          "them with holofit.calibrate.calibrate_instrument (several heights), or "
                           "set spherical_aberration_rad in the instrument")
     with stage_inputs(crop_dir, frames, instrument, override_instrument, numerical_aperture,
                       fit.fit_na) as given:
