@@ -11,21 +11,30 @@ positions), and the ratio is reported:
   update (new x, y, z each call, as ``dda_rod_position_update_s``) against the lens hologram at
   the same positions (``dda_rod_lens_140px_s``); the very first lens hologram (new Bessel
   tables); and the first hologram of each new solve, ideal and lens (``..._new_wave_...``);
-* Mie on a full 1024 x 1280 frame.
+* Mie on a full 1024 x 1280 frame;
+* the aberrated objective (:mod:`holofit.aberration`, spherical aberration (-2.5, 0.6) rad) against
+  the ideal one, same run, calls alternated: the Mie and DDA rod lens holograms with a new height
+  at every call (``lens_aberration_mie_140px_s`` against ``lens_ideal_pupil_mie_140px_s``, their
+  ratio ``lens_aberration_cost_ratio``; ``..._dda_rod_...`` likewise), and the exact derivatives
+  with respect to both coefficients in one pass against one hologram
+  (``lens_aberration_derivatives_over_hologram_ratio``, Mie).
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 from timing import median_time
 
+from holofit.aberration import Aberration
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
 from holofit.optics import Optics
 from holofit.particles import Sphere, Spherocylinder
+from holofit.scattering.lens import lens_image
 from holofit.scattering.mie import LorenzMie
 from holofit.scattering.theory import Orientation
 
@@ -125,4 +134,45 @@ def bench_lens_dda() -> dict[str, float]:
     return out
 
 
-BENCHMARKS = {"lens_mie": bench_lens_mie, "lens_dda": bench_lens_dda}
+ABERRATION = Aberration((-2.5, 0.6))
+
+
+def bench_lens_aberration() -> dict[str, float]:
+    out: dict[str, float] = {}
+    sphere = Sphere(0.5, 1.59)
+    ideal = LorenzMie().solve(sphere, LENS)
+    aberrated = LorenzMie().solve(sphere, replace(LENS, aberration=ABERRATION))
+    pos_a = _positions((7.0, 7.0, 10.0), (0.0, 0.0, 1e-4))
+    pos_b = _positions((7.0, 7.0, 10.0), (0.0, 0.0, 1e-4))
+    t_ideal, t_ab = _paired(lambda: calc_hologram(ideal, pos_a(), GRID, 0.8),
+                            lambda: calc_hologram(aberrated, pos_b(), GRID, 0.8), repeat=200)
+    out["lens_ideal_pupil_mie_140px_s"] = t_ideal
+    out["lens_aberration_mie_140px_s"] = t_ab
+    out["lens_aberration_cost_ratio"] = t_ab / t_ideal
+    x, y = GRID.coordinates()
+    image = lens_image(aberrated)
+    pos_c = _positions((7.0, 7.0, 10.0), (0.0, 0.0, 1e-4))
+    pos_d = _positions((7.0, 7.0, 10.0), (0.0, 0.0, 1e-4))
+    t_holo, t_deriv = _paired(
+        lambda: calc_hologram(aberrated, pos_c(), GRID, 0.8),
+        lambda: image.field_derivatives(pos_d(), x, y, ("sa4_rad", "sa6_rad")), repeat=100)
+    out["lens_aberration_derivatives_mie_140px_s"] = t_deriv
+    out["lens_aberration_derivatives_over_hologram_ratio"] = t_deriv / t_holo
+    model = Spherocylinder(0.5, 1.0, 1.495)
+    orientation = Orientation(np.radians(80), np.radians(20))
+    engine = BuiltinDDA(dipole_size_um=0.0433341407)
+    rod = engine.solve(model, LENS, orientation)
+    rod_ab = engine.solve(model, replace(LENS, aberration=ABERRATION), orientation)
+    step = (0.013, 0.007, 0.011)
+    pos_e = _positions((7.0, 6.9, 12.0), step)
+    pos_f = _positions((7.0, 6.9, 12.0), step)
+    t_ideal, t_ab = _paired(lambda: calc_hologram(rod, pos_e(), GRID),
+                            lambda: calc_hologram(rod_ab, pos_f(), GRID), repeat=40)
+    out["lens_ideal_pupil_dda_rod_140px_s"] = t_ideal
+    out["lens_aberration_dda_rod_140px_s"] = t_ab
+    out["lens_aberration_dda_rod_cost_ratio"] = t_ab / t_ideal
+    return out
+
+
+BENCHMARKS = {"lens_mie": bench_lens_mie, "lens_dda": bench_lens_dda,
+              "lens_aberration": bench_lens_aberration}

@@ -13,6 +13,14 @@ Instrument file (``configs/instruments/*.toml``)::
     pixel_size_um = 0.1767       # in the sample plane
     polarization_deg = 0.0       # from lab x (image columns)
     bit_depth = 8
+    numerical_aperture = 1.2     # optional: the objective (holofit.scattering.lens)
+    spherical_aberration_rad = [-1.5, 0.4]   # optional: its pupil phase, rad (holofit.aberration)
+
+``spherical_aberration_rad`` holds the coefficients ``c_0, c_1, ...`` of the objective's
+spherical aberration in radians of pupil phase: ``c_0`` the 4th, ``c_1`` the 6th order in the
+pupil radius, in the coordinate ``cos th - 1`` and with the sign and normalisation of HoloPy's
+``spherical_aberration`` (Martin, Leahy & Manoharan 2022; :mod:`holofit.aberration`); it needs a
+``numerical_aperture``. Absent or all zero: the ideal objective.
 
 Particle-model file (``configs/particles/*.toml``)::
 
@@ -30,6 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from holofit.aberration import MAX_SPHERICAL_TERMS, Aberration
 from holofit.config_schema import (
     INDEX_RANGE,
     SIZE_RANGE_UM,
@@ -71,6 +80,9 @@ INSTRUMENT_SPECS: dict[str, Spec] = {
     "bit_depth": Spec("int", "the camera bit depth", 1, 32),
     "frame_rate_hz": Spec("float", "frames per second", 1e-6, 1e7, required=False),
     "numerical_aperture": Spec("float", "the objective NA", 0.01, 1.7, required=False),
+    "spherical_aberration_rad": Spec(
+        "floats", "the objective's spherical-aberration coefficients in rad of pupil phase "
+        f"(at most {MAX_SPHERICAL_TERMS}; holofit.aberration)", -1000.0, 1000.0, required=False),
     "magnification": Spec("float", "the total magnification", 1.0, 1000.0, required=False),
     "camera_pixel_um": Spec(
         "float", "the physical camera pixel pitch in um", 0.5, 100.0, required=False
@@ -119,13 +131,35 @@ class Instrument:
     path: str = ""
 
     @property
+    def aberration(self) -> Aberration:
+        """The objective's pupil phase (``spherical_aberration_rad``; none if not set)."""
+        return Aberration(tuple(self.extra.get("spherical_aberration_rad", ())))
+
+    @property
     def optics(self) -> Optics:
-        """The illumination as the scattering engines see it (with the objective's NA, if set)."""
+        """The illumination as the scattering engines see it (with the objective's NA and
+        aberration, if set)."""
         return Optics(self.wavelength_um, self.medium_index, self.polarization_rad,
-                      self.extra.get("numerical_aperture"))
+                      self.extra.get("numerical_aperture"), self.aberration)
+
+    def with_aberration(self, aberration: Aberration) -> Instrument:
+        """This instrument with another pupil phase (``Aberration()``: the ideal objective).
+
+        Raises
+        ------
+        ValueError
+            If the aberration is not zero and the instrument has no numerical aperture.
+        """
+        extra = {k: v for k, v in self.extra.items() if k != "spherical_aberration_rad"}
+        if not aberration.is_zero:
+            Optics(self.wavelength_um, self.medium_index, self.polarization_rad,
+                   self.extra.get("numerical_aperture"), aberration)  # checks it
+            extra["spherical_aberration_rad"] = list(aberration.spherical)
+        return dataclasses.replace(self, extra=extra)
 
     def with_numerical_aperture(self, numerical_aperture: float | None) -> Instrument:
-        """This instrument with another objective NA (None: the ideal model, no lens).
+        """This instrument with another objective NA (None: the ideal model, no lens, and so
+        no pupil to aberrate: its spherical aberration is dropped too).
 
         Raises
         ------
@@ -137,6 +171,8 @@ class Instrument:
             Optics(self.wavelength_um, self.medium_index, self.polarization_rad,
                    float(numerical_aperture))  # checks the value
             extra["numerical_aperture"] = float(numerical_aperture)
+        else:
+            extra.pop("spherical_aberration_rad", None)
         return dataclasses.replace(self, extra=extra)
 
     def as_dict(self) -> dict[str, Any]:
@@ -156,13 +192,32 @@ class Instrument:
 
 
 def _instrument(v: dict[str, Any], path: str) -> Instrument:
-    """An Instrument from validated instrument-table values."""
+    """An Instrument from validated instrument-table values.
+
+    Raises
+    ------
+    ConfigError
+        If the spherical aberration has too many coefficients or no numerical aperture to
+        belong to.
+    """
     extra = {
         k: v[k]
         for k in ("description", "numerical_aperture", "magnification", "camera_pixel_um",
                   "camera", "source")
         if v.get(k) not in (None, "")
     }
+    spherical = v.get("spherical_aberration_rad")
+    if spherical is not None:
+        try:
+            ab = Aberration(tuple(spherical))
+        except ValueError as exc:
+            raise ConfigError(f"{path}: [instrument] key 'spherical_aberration_rad': {exc}"
+                              ) from None
+        if not ab.is_zero and v.get("numerical_aperture") is None:
+            raise ConfigError(f"{path}: [instrument] key 'spherical_aberration_rad': an "
+                              "aberrated pupil needs an objective: set numerical_aperture")
+        if not ab.is_zero:
+            extra["spherical_aberration_rad"] = list(ab.spherical)
     return Instrument(
         name=v["name"],
         wavelength_um=v["wavelength_um"],

@@ -43,7 +43,9 @@ class ConfigError(ValueError):
 class Spec:
     """What one configuration key must hold."""
 
-    kind: str  # "float", "int", "str", "bool", "index", "indices", "vector3", "lengths", "vectors"
+    # "float", "int", "str", "bool", "index", "indices", "vector3", "lengths", "vectors",
+    # "floats" (a list of numbers, each within low..high)
+    kind: str
     expected: str  # human description, with unit
     low: float | None = None
     high: float | None = None
@@ -95,6 +97,14 @@ def _check_value(path: Path, where: str, key: str, value: Any, spec: Spec) -> An
             raise ConfigError(f"{loc}: expected {spec.expected} as a list, got {value!r}")
         sub = Spec("index", "an absolute refractive index", *INDEX_RANGE)
         return tuple(_check_index(f"{loc}[{i}]", v, sub) for i, v in enumerate(value))
+    if spec.kind == "floats":
+        if (not isinstance(value, list)
+                or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)):
+            raise ConfigError(f"{loc}: expected {spec.expected} as a list of numbers, got "
+                              f"{value!r}")
+        sub = Spec("float", spec.expected, spec.low, spec.high, hint=spec.hint)
+        return tuple(float(_check_value(path, where, f"{key}[{i}]", v, sub))
+                     for i, v in enumerate(value))
     if spec.kind == "lengths":
         if (not isinstance(value, list) or not value
                 or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)):

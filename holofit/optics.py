@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.aberration import NO_ABERRATION, Aberration
 from holofit.conventions import medium_wavenumber, polarization_vector
 
 __all__ = ["Optics"]
@@ -29,17 +30,27 @@ class Optics:
         model, in which the camera records the field in the focal plane itself. A number: the
         hologram is the image through an ideal objective of that NA
         (:mod:`holofit.scattering.lens`).
+    aberration : Aberration, optional
+        The objective's pupil phase beyond the ideal lens (:mod:`holofit.aberration`: spherical
+        aberration, coefficients in rad); default none, the ideal objective. It needs a
+        numerical aperture: without an objective in the model there is no pupil to aberrate.
     """
 
     wavelength_um: float
     n_medium: float
     polarization_rad: float = 0.0
     numerical_aperture: float | None = None
+    aberration: Aberration = NO_ABERRATION
 
     def __post_init__(self) -> None:
         na = self.numerical_aperture
         if na is not None and not (np.isfinite(na) and na > 0):
             raise ValueError(f"numerical_aperture must be a positive number or None, got {na}")
+        if not isinstance(self.aberration, Aberration):
+            raise TypeError(f"aberration must be an Aberration, got {self.aberration!r}")
+        if na is None and not self.aberration.is_zero:
+            raise ValueError("an aberrated pupil needs an objective: give the optics a "
+                             "numerical_aperture")
 
     @property
     def k(self) -> float:

@@ -1,5 +1,6 @@
-"""Independent references for the lens tests: a brute-force 2-D pupil integral of any far field,
-and the evanescent part of a sphere's field (written apart from holofit.scattering.lens)."""
+"""Independent references for the lens tests: a brute-force 2-D pupil integral of any far field
+(through an ideal or an aberrated pupil), and the evanescent part of a sphere's field (written
+apart from holofit.scattering.lens and holofit.aberration)."""
 
 from __future__ import annotations
 
@@ -8,12 +9,15 @@ from scipy import special
 
 
 def pupil_integral(far_field, k, position, xs, ys, theta_max, apodization="aplanatic",
-                   n_v=300, n_phi=160, chunk=64):
-    """``-exp(-ikz)/(2 pi) Int sin th dth dph T exp(ik(...))`` by a tensor-product rule.
+                   n_v=300, n_phi=160, chunk=64, pupil_factor=None):
+    """``-exp(-ikz)/(2 pi) Int sin th dth dph P T exp(ik(...))`` by a tensor-product rule.
 
     The polar variable is ``v`` with ``cos th = v^2`` (Gauss-Legendre in v, which makes
     ``sqrt(cos th)`` analytic at grazing incidence); the azimuth uses the trapezoid rule.
     ``far_field(directions (N, 3)) -> F (N, 3)`` with ``E_s = exp(ikr)/(-ikr) F``.
+    ``pupil_factor(cos_theta, phi) -> P`` (arrays of the rule's (n_v, n_phi) grid; default 1)
+    multiplies each plane wave: an aberrated objective's ``exp(i Phi)``, or a derivative's
+    ``i dPhi/dc exp(i Phi)``.
     """
     xp, yp, zp = position
     v0 = np.sqrt(np.cos(theta_max))
@@ -38,6 +42,8 @@ def pupil_integral(far_field, k, position, xs, ys, theta_max, apodization="aplan
     else:
         tx, ty = f[..., 0], f[..., 1]
     weight = (wv[:, None] * (2 * np.pi / n_phi)) * np.exp(1j * k * zp * ct)
+    if pupil_factor is not None:
+        weight = weight * pupil_factor(ct, phi[None, :] + 0 * ct)
     kx = (k * st * cp).ravel()
     ky = (k * st * sp).ravel()
     tx = (tx * weight).ravel()
@@ -116,3 +122,38 @@ def mie_evanescent(wave, position, xs, ys, n_kappa=400):
     i2 = j2 @ (weight * b)
     pre = 1j / k * np.exp(-1j * k * zp)
     return pre * (i0 - i2 * c2), pre * (-i2 * s2p)
+
+
+def spherical_pupil_phase(coefficients):
+    """The pupil phase of spherical aberration written out by hand, ``cos th`` -> rad.
+
+    HoloPy's form (Martin, Leahy & Manoharan 2022): in its conjugate time convention the phase
+    ``x^2 sum_k c_k P_k(x)``, ``x = cos th - 1``, joins its defocus ``k z (1 - cos th)``; in
+    holofit's ``exp(-i omega t)`` the same pupil is the conjugate, ``-x^2 sum_k c_k P_k(x)``.
+    ``P_0..P_3`` are written out (no recurrence, no numpy.polynomial).
+    """
+    c = list(coefficients) + [0.0] * (4 - len(coefficients))
+
+    def phase(cos_theta):
+        x = np.asarray(cos_theta) - 1.0
+        legendre = (c[0] + c[1] * x + c[2] * (3 * x**2 - 1) / 2
+                    + c[3] * (5 * x**3 - 3 * x) / 2)
+        return -(x**2) * legendre
+
+    return phase
+
+
+def aberrated_factor(coefficients, derivative=None):
+    """``pupil_factor`` for :func:`pupil_integral`: ``exp(i Phi)``, or with ``derivative = j``
+    its derivative with respect to coefficient ``j``, ``i dPhi/dc_j exp(i Phi)``."""
+    phase = spherical_pupil_phase(coefficients)
+
+    def factor(cos_theta, phi):
+        f = np.exp(1j * phase(cos_theta))
+        if derivative is None:
+            return f
+        unit = [0.0] * 4
+        unit[derivative] = 1.0
+        return 1j * spherical_pupil_phase(unit)(cos_theta) * f
+
+    return factor

@@ -4,8 +4,9 @@ the public API of ``holofit/__init__`` resolvable, and the README's layout compl
 
 The layers, lowest first (a module may import from its own layer and the layers below it):
 
-0. foundation - conventions, statuses and the quality rules, particle models, optics, file I/O,
-   the configuration-file schema, the camera model, provenance, progress, the cache;
+0. foundation - conventions, statuses and the quality rules, particle models, optics and the
+   objective's aberration, file I/O, the configuration-file schema, the camera model,
+   provenance, progress, the cache;
 1. ``scattering`` - the scattering theories that need no dipoles: Mie, coated sphere, sphere
    clusters, multipole expansions, T-matrices, the lens;
 2. ``dda`` - the discrete dipole approximation (and ADDA), built on ``scattering``;
@@ -13,7 +14,7 @@ The layers, lowest first (a module may import from its own layer and the layers 
    hologram with the engine chosen (``hologram``), and the config files that name them;
 4. ``holomodel`` - the hologram model kit: parameters, forward model, least squares, results;
 5. stage infrastructure - the tables and their schemas, the batch runner and the stage skeleton;
-6. stages - crop, prefit, library, fit, analysis, simulate;
+6. stages - crop, prefit, calibrate, library, fit, analysis, simulate;
 7. applications - run folders, demos, studies;
 8. ``cli``, and the package's own ``__init__`` (the public API, lazy: it may name everything).
 
@@ -118,13 +119,13 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"conventions", "status", "quality", "cache", "progress", "provenance", "camera",
-               "io", "config_schema", "optics", "particles"}),
+               "io", "config_schema", "optics", "aberration", "particles"}),
     frozenset({"scattering"}),
     frozenset({"dda"}),
     frozenset({"engines", "config", "hologram"}),
     frozenset({"holomodel"}),
     frozenset({"tables", "batch"}),
-    frozenset({"crop", "prefit", "library", "fit", "analysis", "simulate"}),
+    frozenset({"crop", "prefit", "calibrate", "library", "fit", "analysis", "simulate"}),
     frozenset({"runfolder", "demo", "studies"}),
     frozenset({"cli"}),
 )

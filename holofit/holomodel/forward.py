@@ -11,6 +11,9 @@ what a solve depends on (the static parameters and the orientation), so that
 - the numerical-aperture column (an optics parameter) is a one-sided finite difference that
   re-images the same solved wave through the new aperture (no new solve), stepping toward
   smaller apertures where a larger one would collect nothing more (``NA >= n_medium``);
+- the spherical-aberration columns (optics parameters too) are exact: the image's derivative
+  with respect to a pupil-phase coefficient is one more transform of the same solved wave, all
+  of them in one pass (:meth:`holofit.scattering.lens.LensImage.field_derivatives`);
 - orientation and static columns are one-sided finite differences on the smooth
   discretisation, each one new solve, warm-started by the engine from its previous solutions
   (the built-in DDA keeps them per lattice); a wave that can differentiate itself with respect
@@ -43,11 +46,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from holofit.aberration import Aberration
 from holofit.cache import LRUCache
 from holofit.conventions import hologram_intensity
 from holofit.holomodel.parameters import ParameterSpace, State
 from holofit.optics import Optics
-from holofit.scattering.lens import lens_fields_on_pixels
+from holofit.scattering.lens import lens_fields_on_pixels, lens_image
 from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
 
@@ -160,12 +164,20 @@ class HologramModel:
         na = state.numerical_aperture
         return self.optics.numerical_aperture if na is None else na
 
+    def aberration(self, state: State) -> Aberration:
+        """The objective's pupil phase for ``state``: its own (a fitted one), else the
+        optics'."""
+        return self.optics.aberration if state.aberration is None else state.aberration
+
     def fields(self, state: State) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
         """Transverse scattered field at the pixels."""
         z = state.position[2]
         na = self.aperture(state)
         if na is not None and not (na > 0 and np.isfinite(na)):
             raise InvalidParameters(f"numerical aperture {na:.4g} is not positive")
+        if na is None and not self.aberration(state).is_zero:
+            raise InvalidParameters("an aberrated pupil needs an objective (a numerical "
+                                    "aperture)")
         if na is None and not abs(z) > 1.0001 * self._radius_for(state):
             raise InvalidParameters(
                 f"|z| = {abs(z):.4g} um: the detector plane cuts the particle "
@@ -173,7 +185,7 @@ class HologramModel:
         wave = self.wave(state)
         try:
             ex, ey = recorded_field(wave, state.position, self.xs, self.ys, self.far_field,
-                                    state.numerical_aperture)
+                                    state.numerical_aperture, state.aberration)
         except ValueError as exc:  # e.g. pixels too close to grazing for the plane grid
             raise InvalidParameters(str(exc)) from None
         self.n_holograms += 1
@@ -243,7 +255,11 @@ class HologramModel:
         cp, sp = self._pol
         a = base.state.alpha
         analytic = self._rotation_columns(base)
+        pupil = self._aberration_columns(base)
         for i, p in enumerate(params):
+            if p.kind == "aberration":
+                cols[:, i] = pupil[p.name]
+                continue
             if p.kind == "scale":
                 ex, ey = base.ex, base.ey
                 if self.extra_field is not None:
@@ -275,6 +291,34 @@ class HologramModel:
                 continue
         return np.zeros(self.n_pixels)
 
+    def _intensity_derivative(self, base: Evaluation, dx: NDArray, dy: NDArray
+                              ) -> NDArray[np.float64]:
+        """``dI`` along a derivative ``(dx, dy)`` of the particle's field (before alpha)."""
+        a = base.state.alpha
+        ex, ey = base.ex, base.ey
+        if self.extra_field is not None:
+            return a * self._interference(*self._reference(), a, ex, ey, dx, dy)
+        cp, sp = self._pol
+        return 2.0 * a * (((cp + a * ex.real) * dx.real + a * ex.imag * dx.imag)
+                          + ((sp + a * ey.real) * dy.real + a * ey.imag * dy.imag))
+
+    def _aberration_columns(self, base: Evaluation) -> dict[str, NDArray]:
+        """The exact columns of the fitted spherical-aberration coefficients (one pass of the
+        lens over the solved wave for all of them)."""
+        names = [p.name for p in self.space.parameters if p.kind == "aberration"]
+        if not names:
+            return {}
+        state = base.state
+        na = self.aperture(state)
+        if na is None:
+            raise InvalidParameters("fitting an aberration needs an objective (a numerical "
+                                    "aperture)")
+        fields = lens_image(self.wave(state)).field_derivatives(
+            state.position, self.xs, self.ys, names, na, self.aberration(state))
+        self.n_holograms += 1
+        return {n: self._intensity_derivative(base, dx, dy)
+                for n, (dx, dy) in zip(names, fields, strict=True)}
+
     def _rotation_columns(self, base: Evaluation) -> dict[str, NDArray] | None:
         """Analytic orientation columns, if the solved wave can differentiate itself (through
         the lens, with the exact height column ``z_um`` from the same pass, also when no
@@ -302,12 +346,13 @@ class HologramModel:
             # one pass over the Bessel table
             fields = lens_fields_on_pixels(
                 [derivative(axis) for axis in axes] + [wave] * height, base.state.position,
-                self.xs, self.ys, na, height_derivative=[False] * len(axes) + [True] * height)
+                self.xs, self.ys, na, height_derivative=[False] * len(axes) + [True] * height,
+                aberration=base.state.aberration)
             if height:
                 names = [*names, "z_um"]
         else:
             fields = [recorded_field(derivative(axis), base.state.position, self.xs, self.ys,
-                                     self.far_field, na) for axis in axes]
+                                     self.far_field, na, base.state.aberration) for axis in axes]
         ex, ey = base.ex, base.ey
         out = {}
         for name, (dx, dy) in zip(names, fields, strict=True):

@@ -8,6 +8,10 @@ A fit varies some of
 - the scattered-field scaling ``alpha``,
 - the objective's numerical aperture ``numerical_aperture`` (an optics parameter: it changes the
   lens image of the solved particle, not the solve; :mod:`holofit.scattering.lens`),
+- the objective's spherical-aberration coefficients ``sa4_rad, sa6_rad, ...``
+  (:mod:`holofit.aberration`; kind ``aberration``: like the NA they change the lens image, not
+  the solve, and their Jacobian columns are exact, :meth:`LensImage.field_derivatives
+  <holofit.scattering.lens.LensImage.field_derivatives>`),
 - the particle model's own ("static") parameters: its sizes (``a_um``, ``radius_um``, ...) and
   the real parts of its refractive indices, named ``n`` (one index), ``n_core``/``n_cap``
   (``index_core``/``index_cap``), ``n1``/``n2`` (``index1``/``index2``, or a voxel file's
@@ -31,6 +35,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.aberration import SPHERICAL_NAMES, Aberration
 from holofit.config_schema import INDEX_RANGE
 from holofit.conventions import (
     axis_from_angles,
@@ -41,6 +46,7 @@ from holofit.conventions import (
 from holofit.particles import Cluster, ParticleModel, VoxelShape
 
 __all__ = [
+    "ABERRATION",
     "APERTURE",
     "ORIENTATION_COLUMNS",
     "POSITION",
@@ -74,10 +80,10 @@ class Parameter:
     ----------
     name : str
         Its name in the fit tables (``z_um``, ``a_um``, ``n_cap``, ``alpha``, ``rot_a``).
-    kind : {"position", "orientation", "scale", "static", "optics"}
+    kind : {"position", "orientation", "scale", "static", "optics", "aberration"}
         What it changes: position moves the solved field, orientation and static parameters
-        need a new solve, scale is ``alpha``, optics (the numerical aperture) changes the lens
-        image of the solved field.
+        need a new solve, scale is ``alpha``, optics (the numerical aperture) and aberration
+        (a spherical-aberration coefficient) change the lens image of the solved field.
     unit : str
         ``um``, ``rad`` or ``1``.
     step : float
@@ -109,6 +115,11 @@ ALPHA = Parameter("alpha", "scale", "1", ALPHA_STEP, 0.05, 5.0)
 #: the objective's NA: larger than 0; above the medium's index the lens collects every
 #: propagating wave and the hologram no longer changes with it
 APERTURE = Parameter("numerical_aperture", "optics", "1", APERTURE_STEP, 0.05, math.inf)
+#: the spherical-aberration coefficients (rad; :mod:`holofit.aberration`): the image moves
+#: smoothly with them and their columns are exact, so the step only serves a held copy
+ABERRATION_STEP = 1e-3
+ABERRATION: tuple[Parameter, ...] = tuple(
+    Parameter(name, "aberration", "rad", ABERRATION_STEP) for name in SPHERICAL_NAMES)
 ROTATIONS: tuple[Parameter, ...] = (
     Parameter("rot_a", "orientation", "rad", ROTATION_STEP_RAD),
     Parameter("rot_b", "orientation", "rad", ROTATION_STEP_RAD),
@@ -168,6 +179,9 @@ class State:
     numerical_aperture : float, optional
         The objective's NA the hologram is imaged with; None: the optics' own (a lens or
         the ideal model, as the instrument says).
+    aberration : Aberration, optional
+        The objective's pupil phase the hologram is imaged with (:mod:`holofit.aberration`);
+        None: the optics' own.
     """
 
     position: tuple[float, float, float]
@@ -175,6 +189,7 @@ class State:
     alpha: float
     statics: tuple[tuple[str, float], ...] = ()
     numerical_aperture: float | None = None
+    aberration: Aberration | None = None
 
     def angles(self) -> tuple[float, float, float]:
         """``(psi, theta, phi)`` of the rotation, rad (zeros for an isotropic particle)."""
@@ -194,9 +209,11 @@ class ParameterSpace:
         The particle (static parameters start from its values).
     free : iterable of str
         Names of the varied parameters: position and static names, ``alpha``,
-        ``"numerical_aperture"`` (the start state must then hold one), and ``"orientation"``
-        for the rotation (two or three components, see the module docstring). Everything else
-        stays at its start value.
+        ``"numerical_aperture"`` (the start state must then hold one), the spherical-aberration
+        coefficients ``"sa4_rad"``, ``"sa6_rad"``, ... (the start state must then hold an
+        :class:`~holofit.aberration.Aberration`; missing coefficients start at 0), and
+        ``"orientation"`` for the rotation (two or three components, see the module
+        docstring). Everything else stays at its start value.
     start : State
         Start values of every parameter.
     fit_spin : bool, optional
@@ -219,7 +236,8 @@ class ParameterSpace:
     def __post_init__(self) -> None:
         free = set(self.free)
         statics = static_parameters(self.model)
-        known = {p.name for p in (*POSITION, ALPHA, APERTURE, *statics)} | {"orientation"}
+        known = ({p.name for p in (*POSITION, ALPHA, APERTURE, *ABERRATION, *statics)}
+                 | {"orientation"})
         unknown = sorted(free - known)
         if unknown:
             raise ValueError(
@@ -242,6 +260,15 @@ class ParameterSpace:
                     "fitting the numerical aperture needs a start value: the instrument's "
                     "numerical_aperture, or one given for the fit")
             params.append(APERTURE)
+        fitted_aberration = [p for p in ABERRATION if p.name in free]
+        if fitted_aberration:
+            if self.start.aberration is None:
+                raise ValueError(
+                    "fitting the spherical aberration needs a start value: the instrument's "
+                    "aberration (Aberration() for none) in the start state")
+            n_terms = SPHERICAL_NAMES.index(fitted_aberration[-1].name) + 1
+            self.start = replace(self.start, aberration=self.start.aberration.padded(n_terms))
+            params += fitted_aberration
         if self.step_overrides:
             params = [replace(p, step=self.step_overrides.get(p.name, p.step)) for p in params]
         self.parameters = tuple(params)
@@ -282,6 +309,8 @@ class ParameterSpace:
         out.update(state.statics)
         if state.numerical_aperture is not None:
             out[APERTURE.name] = state.numerical_aperture
+        if state.aberration is not None:
+            out.update(state.aberration.values())
         return out
 
     def state(self, vector: Sequence[float]) -> State:
@@ -308,6 +337,8 @@ class ParameterSpace:
             alpha=values["alpha"],
             statics=tuple((p.name, values[p.name]) for p in self._all_statics),
             numerical_aperture=values.get(APERTURE.name),
+            aberration=(None if self.start.aberration is None
+                        else Aberration.from_values(values, self.start.aberration)),
         )
 
     def holding(self, name: str, vector: Sequence[float]) -> tuple[ParameterSpace, list[int]]:
@@ -341,14 +372,16 @@ class ParameterSpace:
         """Values and 1-sigma errors of every reported quantity at ``vector``.
 
         Position, alpha and static parameters are reported as they are (the numerical
-        aperture only when it is fitted: a fixed one is the instrument's); the orientation as
+        aperture and the aberration coefficients only when fitted: fixed ones are the
+        instrument's); the orientation as
         ``theta_rad, psi_rad`` (``phi_rad`` with spin) and the axis ``ux, uy, uz``, with errors
         propagated from the rotation-vector covariance (NaN for quantities held fixed).
         """
         state = self.state(vector)
         values: dict[str, float] = self._flat(state)
-        if APERTURE.name not in self.names:
-            values.pop(APERTURE.name, None)
+        for name in (APERTURE.name, *SPHERICAL_NAMES):
+            if name not in self.names:
+                values.pop(name, None)
         errors: dict[str, float] = {k: math.nan for k in values}
         var = np.full(len(self.parameters), np.nan) if covariance is None else np.diag(
             covariance)

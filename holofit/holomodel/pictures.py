@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from holofit.aberration import SPHERICAL_NAMES, Aberration
 from holofit.conventions import DetectorGrid
 from holofit.hologram import hologram
 from holofit.holomodel.crops import CropSource
@@ -58,11 +59,17 @@ def model_image(
 
     Static parameters missing from the row keep ``model``'s values; orientation comes from
     ``psi_rad, theta_rad[, phi_rad]`` when the row has them; a fitted ``numerical_aperture``
-    replaces the optics' (the model is then imaged through that objective).
+    and fitted spherical-aberration coefficients (``sa4_rad``, ...) replace the optics' (the
+    model is then imaged through that objective).
     """
     na = float(row.get(APERTURE.name, math.nan))
     if math.isfinite(na):
         optics = dataclasses.replace(optics, numerical_aperture=na)
+    fitted = {n: float(row[n]) for n in SPHERICAL_NAMES
+              if n in row and math.isfinite(float(row[n]))}
+    if fitted:
+        optics = dataclasses.replace(
+            optics, aberration=Aberration.from_values(fitted, optics.aberration))
     statics = {p.name: float(row[p.name]) for p in static_parameters(model)
                if p.name in row and math.isfinite(float(row[p.name]))}
     particle = particle_with(model, statics)

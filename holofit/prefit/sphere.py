@@ -9,7 +9,8 @@ With an objective lens in the optics (a numerical aperture), the model, the star
 profiles and the fit all use the lens image (:mod:`holofit.scattering.lens`), which is defined
 at every height, below the focal plane too; the NA can also be fitted (``fit_na``: an optics
 parameter, :mod:`holofit.holomodel.parameters`), starting from the optics' NA (at most the
-medium's index).
+medium's index), and so can the objective's spherical-aberration coefficients
+(``fit_aberration``, :mod:`holofit.aberration`), starting from the optics' aberration.
 
 The fit is holofit's one least-squares fit (:func:`holofit.holomodel.leastsq.solve_least_squares`)
 of the forward model (:class:`holofit.holomodel.forward.HologramModel` with the exact Lorenz-Mie
@@ -29,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from holofit.aberration import SPHERICAL_NAMES
 from holofit.holomodel.aperture import aperture_start
 from holofit.holomodel.forward import HologramModel, InvalidParameters
 from holofit.holomodel.leastsq import Solution, solve_least_squares
@@ -91,6 +93,9 @@ class SphereFitSettings:
         also end inside the search space (with 5 % margin).
     fit_na : bool
         Fit the objective's numerical aperture too (the optics must have one: the start).
+    fit_aberration : tuple of str
+        Fit these spherical-aberration coefficients too (``"sa4_rad"``, ``"sa6_rad"``, ...;
+        :mod:`holofit.aberration`), from the optics' aberration (the optics must have an NA).
     seed_only : bool
         Seed x, y, z and alpha only (a non-spherical particle, whose sizes the DDA fit's
         initial pass finds): radius and index stay at the radial-profile table's entry (its
@@ -118,6 +123,7 @@ class SphereFitSettings:
     xtol: float = 1e-8
     quality: QualityLimits = field(default_factory=QualityLimits)
     fit_na: bool = False
+    fit_aberration: tuple[str, ...] = ()
     seed_only: bool = False
     seed_nfev: int = 8
     seed_ftol: float = 1e-3
@@ -137,6 +143,13 @@ class SphereFitSettings:
             raise ValueError("seed_nfev must be >= 1 and seed_ftol > 0")
         if self.seed_only and self.fit_na:
             raise ValueError("seed_only fits no numerical aperture (fit_na)")
+        object.__setattr__(self, "fit_aberration", tuple(self.fit_aberration))
+        unknown = [n for n in self.fit_aberration if n not in SPHERICAL_NAMES]
+        if unknown:
+            raise ValueError(f"unknown aberration coefficient(s) {', '.join(unknown)}; known: "
+                             f"{', '.join(SPHERICAL_NAMES)}")
+        if self.seed_only and self.fit_aberration:
+            raise ValueError("seed_only fits no aberration (fit_aberration)")
 
 
 def _limits(opts: SphereFitSettings, n_medium: float) -> QualityLimits:
@@ -208,8 +221,8 @@ def fit_sphere_crop(
     Returns
     -------
     FitResult
-        Values ``x_um, y_um, z_um, radius_um, n, alpha`` (and ``numerical_aperture`` if
-        fitted) with errors; ``extra`` holds the
+        Values ``x_um, y_um, z_um, radius_um, n, alpha`` (and ``numerical_aperture``,
+        ``sa4_rad``, ... if fitted) with errors; ``extra`` holds the
         automatic start (``n_starts, start_z_um, start_radius_um, start_n, start_alpha``),
         ``n_masked`` and the one-time set-up this fit paid (``setup_time_s``).
 
@@ -258,8 +271,12 @@ class _CropFit:
                  opts: SphereFitSettings, rng: np.random.Generator) -> None:
         self.optics, self.opts, self.rng = optics, opts, rng
         self.na_start = aperture_start(optics) if opts.fit_na else None
+        if opts.fit_aberration and optics.numerical_aperture is None:
+            raise ValueError("fitting the aberration needs an objective: the optics have no "
+                             "numerical_aperture")
+        self.aberration_start = optics.aberration if opts.fit_aberration else None
         self.data = np.asarray(crop, dtype=float)
-        n_free = 6 - (opts.fix_alpha is not None) + opts.fit_na
+        n_free = 6 - (opts.fix_alpha is not None) + opts.fit_na + len(opts.fit_aberration)
         self.pix = select_pixels(self.data, corner_rc, pixel_size_um,
                                  saturation=opts.saturation, fraction=opts.pixel_fraction,
                                  rng=rng, min_pixels=max(100, 10 * n_free))
@@ -296,7 +313,8 @@ class _CropFit:
         alpha = s.alpha if opts.fix_alpha is None else opts.fix_alpha
         sphere = Sphere(s.radius_um, complex(s.index, opts.index_imag))
         state = State((self.xc, self.yc, s.z_um), None, alpha,
-                      (("radius_um", s.radius_um), ("n", s.index)), self.na_start)
+                      (("radius_um", s.radius_um), ("n", s.index)), self.na_start,
+                      self.aberration_start)
         return ParameterSpace(sphere, names, state, step_overrides=EXACT_STEPS)
 
     def _subset(self) -> NDArray[np.intp]:
@@ -329,8 +347,11 @@ class _CropFit:
                 n_eval += sol.n_eval
                 if np.isfinite(sol.rss) and sol.rss < best_cost:
                     best_cost, chosen, space, vector = sol.rss, s, cand, sol.vector
-        if opts.fit_na:  # the screened state, the aperture free (holofit.holomodel.leastsq)
-            free = (*self.screen_free, "numerical_aperture")
+        if opts.fit_na or opts.fit_aberration:
+            # the screened state, the aperture (holofit.holomodel.leastsq) and the aberration
+            # free
+            free = (*self.screen_free, *(("numerical_aperture",) if opts.fit_na else ()),
+                    *opts.fit_aberration)
             space = ParameterSpace(space.model, free, space.state(vector),
                                    step_overrides=EXACT_STEPS)
             vector = space.initial_vector()

@@ -179,13 +179,18 @@ def run_prefit(
         If the crop folder is incomplete, no instrument is known, or ``instrument``
         contradicts the crops' own without ``override_instrument``.
     ConfigError
-        If the NA is to be fitted with none to start from, or the search's z range is one the
-        model cannot describe (below the focal plane or into the sphere without a lens).
+        If the NA is to be fitted with none to start from, the search's z range is one the
+        model cannot describe (below the focal plane or into the sphere without a lens), or
+        aberration coefficients are to be fitted (the table has no columns for them).
     holofit.batch.runner.BatchError
         If earlier results in ``out_dir`` came from other settings (see ``overwrite``).
     """
     out = Path(out_dir)
     fit = fit or SphereFitSettings()
+    if fit.fit_aberration:
+        raise ConfigError("prefit.csv has no columns for fitted aberration coefficients: fit "
+                          "them with holofit.calibrate.calibrate_instrument (several heights), or "
+                          "set spherical_aberration_rad in the instrument")
     with stage_inputs(crop_dir, frames, instrument, override_instrument, numerical_aperture,
                       fit.fit_na) as given:
         try:

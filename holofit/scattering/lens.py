@@ -28,6 +28,14 @@ Only the far-field amplitude enters: the image is exact for an engine that knows
 field (ADDA), and it is defined at every height, the focal plane and below it included (for
 ``z_p < 0`` the lens images the converging-then-diverging wave the particle sends downstream).
 
+An aberrated objective (:class:`~holofit.aberration.Aberration`, carried by the optics or given
+per call as the NA is) multiplies ``T`` by ``exp(i Phi(th))``, a phase that depends on ``th``
+only (spherical aberration): it joins the nodes' factor ``exp(i k z_p cos th)`` and changes no
+mode, so it costs one complex factor per pupil node. Its exact derivative with respect to a
+coefficient ``c_k`` is the same transform with ``i dPhi/dc_k`` in the factor
+(:meth:`LensImage.field_derivatives`, with the height's ``i k (cos th - 1)`` alike), all in one
+pass over the Bessel table. Zero coefficients leave every number as it was.
+
 What can be re-used is: the pupil field of a wave per aperture, the radial tables per height
 (a lateral move costs only the pixel interpolation), and the Bessel tables across waves,
 heights and particles.
@@ -44,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from holofit.aberration import SPHERICAL_NAMES, Aberration, spherical_basis
 from holofit.conventions import DetectorGrid, incident_phase_at
 from holofit.scattering.lens_kernels import polar_coordinates, polar_pixels, sphere_pixels
 from holofit.scattering.lens_pupil import aperture_angle, check_apodization, pupil_nodes
@@ -54,12 +63,17 @@ from holofit.scattering.lens_transform import (
     node_count,
     polar_grid,
     polar_grids,
+    sphere_table_columns,
     sphere_tables,
 )
 from holofit.scattering.theory import ScatteredWave
 
-__all__ = ["LensImage", "lens_field_on_detector", "lens_field_on_pixels", "lens_fields_on_pixels",
-           "lens_image"]
+__all__ = ["DERIVATIVE_NAMES", "LensImage", "lens_field_on_detector", "lens_field_on_pixels",
+           "lens_fields_on_pixels", "lens_image"]
+
+#: parameters :meth:`LensImage.field_derivatives` differentiates the image by exactly: the
+#: height and the spherical-aberration coefficients
+DERIVATIVE_NAMES = ("z_um", *SPHERICAL_NAMES)
 
 #: aplanatic lenses with cos(th_max) below this integrate in the sqrt-regularised variable
 SQRT_SWITCH = 0.5
@@ -146,12 +160,18 @@ class LensImage:
                     self._pupils.popitem(last=False)
         return pupil
 
-    def _tables_for(self, z: float, rho_max: float, theta_max: float) -> _Tables:
+    def aberration_for(self, aberration: Aberration | None = None) -> Aberration:
+        """The pupil's aberration: ``aberration`` if given, else the optics'."""
+        return self.optics.aberration if aberration is None else aberration
+
+    def _tables_for(self, z: float, rho_max: float, theta_max: float,
+                    aberration: Aberration) -> _Tables:
         k = self.optics.k
-        n_nodes = node_count(k, z, rho_max, theta_max, self.source.order)
+        n_nodes = node_count(k, z, rho_max, theta_max, self.source.order,
+                             aberration.variation(theta_max))
         step = STEP / (k * np.sin(theta_max))
         n_rho = int(np.ceil(rho_max / step)) + STENCIL // 2 + 2
-        key = (z, theta_max, n_nodes)
+        key = (z, theta_max, n_nodes, aberration.key)
         with self._lock:
             tables = self._tables.get(key)
             if tables is not None and tables.n_rho >= n_rho:
@@ -161,10 +181,7 @@ class LensImage:
             n_rho = max(n_rho, int(1.3 * tables.n_rho))
         pupil = self._pupil(theta_max, n_nodes)
         x_step = k * step * np.sin(pupil.theta)
-        # quadrature weight, sin th, the phase of each plane wave at the focal plane and the
-        # incident phase at the particle
-        base = (pupil.weights * np.sin(pupil.theta)
-                * np.exp(1j * k * z * np.cos(pupil.theta)) * complex(incident_phase_at(z, k)))
+        base = _node_factor(pupil, k, z, aberration)
         bkey = (round(k * step, 12), *pupil.key)
         if isinstance(self.source, SpherePupil):
             a, b = sphere_tables(*pupil.modes, base, x_step, n_rho, bkey)
@@ -180,7 +197,7 @@ class LensImage:
 
     def field_on_pixels(
         self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
-        numerical_aperture: float | None = None,
+        numerical_aperture: float | None = None, aberration: Aberration | None = None,
     ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
         """Imaged transverse field ``(E_x, E_y)`` at pixel centres, incident phase included.
 
@@ -193,6 +210,8 @@ class LensImage:
             a masked list, a random subset, a grid).
         numerical_aperture : float, optional
             The objective's NA; default the optics' ``numerical_aperture``.
+        aberration : Aberration, optional
+            The objective's pupil phase (:mod:`holofit.aberration`); default the optics'.
 
         Returns
         -------
@@ -208,33 +227,135 @@ class LensImage:
         dx = xs.ravel() - xp
         dy = ys.ravel() - yp
         r2 = dx * dx + dy * dy
-        tables = self._tables_for(zp, float(np.sqrt(r2.max())), theta_max)
+        tables = self._tables_for(zp, float(np.sqrt(r2.max())), theta_max,
+                                  self.aberration_for(aberration))
         if isinstance(self.source, SpherePupil):
-            t = np.sqrt(r2) * (1.0 / tables.step) + STENCIL
-            # E_x = cos b A + cos(2 ph - b) B, E_y = sin b A + sin(2 ph - b) B, b the
-            # polarisation angle; A, B the tables
-            beta = self.optics.polarization_rad
-            cb, sb = np.cos(beta), np.sin(beta)
-            inv = np.divide(1.0, r2, out=np.zeros_like(r2), where=r2 > 0)
-            c2 = (dx * dx - dy * dy) * inv
-            c2[r2 == 0] = 1.0
-            s2 = 2.0 * dx * dy * inv
-            sphere_pixels(t, c2 * cb + s2 * sb, s2 * cb - c2 * sb, cb, sb, tables.a, tables.b,
-                          STENCIL, ex, ey)
+            self._sphere_pixels(tables.a, tables.b, tables.step, dx, dy, r2, ex, ey)
         else:
-            n_phi = tables.a.shape[1] - 2 * STENCIL
-            t = np.empty(dx.size)
-            u = np.arctan2(dy, dx)
-            polar_coordinates(dx, dy, 1.0 / tables.step, n_phi, STENCIL, t, u)
-            polar_pixels(t, u, tables.a, ex, ey)
+            _polar_field(tables.a, tables.step, dx, dy, ex, ey)
         return ex.reshape(shape), ey.reshape(shape)
 
+    def _sphere_pixels(self, a: NDArray, b: NDArray, step: float, dx: NDArray, dy: NDArray,
+                       r2: NDArray, ex: NDArray, ey: NDArray) -> None:
+        """A sphere's image at the pixels ``(dx, dy)`` from its radial tables ``a, b``."""
+        t = np.sqrt(r2) * (1.0 / step) + STENCIL
+        # E_x = cos b A + cos(2 ph - b) B, E_y = sin b A + sin(2 ph - b) B, b the
+        # polarisation angle; A, B the tables
+        beta = self.optics.polarization_rad
+        cb, sb = np.cos(beta), np.sin(beta)
+        inv = np.divide(1.0, r2, out=np.zeros_like(r2), where=r2 > 0)
+        c2 = (dx * dx - dy * dy) * inv
+        c2[r2 == 0] = 1.0
+        s2 = 2.0 * dx * dy * inv
+        sphere_pixels(t, c2 * cb + s2 * sb, s2 * cb - c2 * sb, cb, sb, a, b, STENCIL, ex, ey)
+
+    def field_derivatives(
+        self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
+        names: Sequence[str], numerical_aperture: float | None = None,
+        aberration: Aberration | None = None,
+    ) -> list[tuple[NDArray[np.complex128], NDArray[np.complex128]]]:
+        """Exact derivatives of :meth:`field_on_pixels` with respect to the height and the
+        pupil's spherical-aberration coefficients, in one pass.
+
+        Both enter the image only through the phase of each pupil node, ``k z_p (cos th - 1)``
+        and ``Phi(th) = sum_k c_k dPhi/dc_k`` (:mod:`holofit.aberration`), so each derivative is
+        the image with the nodes' factor times ``i k (cos th - 1)`` or ``i dPhi/dc_k``; the
+        transforms share one read of the Bessel table (nothing is cached: a fit's Jacobian is
+        computed once per point).
+
+        Parameters
+        ----------
+        position_um, xs_um, ys_um, numerical_aperture, aberration
+            As :meth:`field_on_pixels`.
+        names : sequence of str
+            Parameters from :data:`DERIVATIVE_NAMES`: ``z_um`` (per um) and ``sa4_rad``,
+            ``sa6_rad``, ... (per rad).
+
+        Returns
+        -------
+        list of (e_x, e_y)
+            Per name, arrays of the shape of ``xs_um``.
+
+        Raises
+        ------
+        ValueError
+            For a name that is not in :data:`DERIVATIVE_NAMES`.
+        """
+        unknown = [n for n in names if n not in DERIVATIVE_NAMES]
+        if unknown:
+            raise ValueError(f"no exact lens derivative for {', '.join(unknown)}; known: "
+                             f"{', '.join(DERIVATIVE_NAMES)}")
+        (xp, yp, zp), xs, ys = _pixel_arrays(position_um, xs_um, ys_um)
+        shape = xs.shape
+        if xs.size == 0 or not names:
+            return [(np.empty(shape, dtype=complex), np.empty(shape, dtype=complex))
+                    for _ in names]
+        ab = self.aberration_for(aberration)
+        theta_max = self.aperture_angle(numerical_aperture)
+        k = self.optics.k
+        dx = xs.ravel() - xp
+        dy = ys.ravel() - yp
+        r2 = dx * dx + dy * dy
+        rho_max = float(np.sqrt(r2.max()))
+        n_nodes = node_count(k, zp, rho_max, theta_max, self.source.order,
+                             ab.variation(theta_max))
+        step = STEP / (k * np.sin(theta_max))
+        n_rho = int(np.ceil(rho_max / step)) + STENCIL // 2 + 2
+        pupil = self._pupil(theta_max, n_nodes)
+        base = _node_factor(pupil, k, zp, ab)
+        n_terms = max([SPHERICAL_NAMES.index(n) + 1 for n in names if n != "z_um"], default=0)
+        basis = spherical_basis(pupil.theta, n_terms) if n_terms else None
+        factors = [base * (1j * k * (np.cos(pupil.theta) - 1.0)) if n == "z_um"
+                   else base * (1j * basis[SPHERICAL_NAMES.index(n)]) for n in names]
+        x_step = k * step * np.sin(pupil.theta)
+        bkey = (round(k * step, 12), *pupil.key)
+        out = []
+        if isinstance(self.source, SpherePupil):
+            for a, b in sphere_table_columns(*pupil.modes, factors, x_step, n_rho, bkey):
+                ex = np.empty(dx.size, dtype=complex)
+                ey = np.empty(dx.size, dtype=complex)
+                self._sphere_pixels(a, b, step, dx, dy, r2, ex, ey)
+                out.append((ex.reshape(shape), ey.reshape(shape)))
+            return out
+        grids = polar_grids([(*pupil.modes, f) for f in factors], x_step, n_rho, bkey,
+                            self.source.order + 1)
+        for grid in grids:
+            ex = np.empty(dx.size, dtype=complex)
+            ey = np.empty(dx.size, dtype=complex)
+            _polar_field(grid, step, dx, dy, ex, ey)
+            out.append((ex.reshape(shape), ey.reshape(shape)))
+        return out
+
     def field_on_detector(
-        self, position_um: ArrayLike, grid: DetectorGrid, numerical_aperture: float | None = None
+        self, position_um: ArrayLike, grid: DetectorGrid, numerical_aperture: float | None = None,
+        aberration: Aberration | None = None,
     ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
         """:meth:`field_on_pixels` at every pixel of ``grid`` (arrays of ``grid.shape``)."""
         x, y = grid.coordinates()
-        return self.field_on_pixels(position_um, x, y, numerical_aperture)
+        return self.field_on_pixels(position_um, x, y, numerical_aperture, aberration)
+
+
+def _node_factor(pupil: _Pupil, k: float, z: float, aberration: Aberration
+                 ) -> NDArray[np.complex128]:
+    """What multiplies the pupil field at each node: the quadrature weight, ``sin th``, the
+    phase of each plane wave at the focal plane, the incident phase at the particle and, for
+    an aberrated objective, ``exp(i Phi(th))`` (left out for the ideal one: no operation, so
+    its numbers are the unaberrated ones bit for bit)."""
+    base = (pupil.weights * np.sin(pupil.theta)
+            * np.exp(1j * k * z * np.cos(pupil.theta)) * complex(incident_phase_at(z, k)))
+    if not aberration.is_zero:
+        base = base * np.exp(1j * aberration.phase(pupil.theta))
+    return base
+
+
+def _polar_field(grid: NDArray, step: float, dx: NDArray, dy: NDArray, ex: NDArray,
+                 ey: NDArray) -> None:
+    """An image at the pixels ``(dx, dy)`` from its polar grid (interleaved planes)."""
+    n_phi = grid.shape[1] - 2 * STENCIL
+    t = np.empty(dx.size)
+    u = np.arctan2(dy, dx)
+    polar_coordinates(dx, dy, 1.0 / step, n_phi, STENCIL, t, u)
+    polar_pixels(t, u, grid, ex, ey)
 
 
 def _trim_modes(t_plus: NDArray, t_minus: NDArray) -> tuple[NDArray, NDArray]:
@@ -272,6 +393,7 @@ def lens_image(wave: ScatteredWave, apodization: str = "aplanatic") -> LensImage
 def lens_field_on_pixels(
     wave: ScatteredWave, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
     numerical_aperture: float | None = None, apodization: str = "aplanatic",
+    aberration: Aberration | None = None,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
     """Transverse field of ``wave`` at pixel centres, imaged through the objective.
 
@@ -291,28 +413,31 @@ def lens_field_on_pixels(
         NA of the objective; default ``wave.optics.numerical_aperture``.
     apodization : {"aplanatic", "none"}
         The lens model (:mod:`holofit.scattering.lens_pupil`).
+    aberration : Aberration, optional
+        The objective's pupil phase (:mod:`holofit.aberration`); default the wave's optics'.
 
     Returns
     -------
     e_x, e_y : ndarray of complex, the shape of ``xs_um``
     """
     return lens_image(wave, apodization).field_on_pixels(position_um, xs_um, ys_um,
-                                                         numerical_aperture)
+                                                         numerical_aperture, aberration)
 
 
 def lens_field_on_detector(
     wave: ScatteredWave, position_um: ArrayLike, grid: DetectorGrid,
     numerical_aperture: float | None = None, apodization: str = "aplanatic",
+    aberration: Aberration | None = None,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
     """:func:`lens_field_on_pixels` on every pixel of ``grid`` (arrays of ``grid.shape``)."""
     return lens_image(wave, apodization).field_on_detector(position_um, grid,
-                                                           numerical_aperture)
+                                                           numerical_aperture, aberration)
 
 
 def lens_fields_on_pixels(
     waves: list[ScatteredWave], position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
     numerical_aperture: float | None = None, apodization: str = "aplanatic",
-    height_derivative: Sequence[bool] = (),
+    height_derivative: Sequence[bool] = (), aberration: Aberration | None = None,
 ) -> list[tuple[NDArray[np.complex128], NDArray[np.complex128]]]:
     """:func:`lens_field_on_pixels` of several waves at one position, in one pass.
 
@@ -327,7 +452,8 @@ def lens_fields_on_pixels(
     wave ``i``'s image with respect to the particle's height ``z_p`` (per um): the height
     enters the image only through ``exp(i k z_p (cos th - 1))`` at each pupil node
     (:mod:`holofit.scattering.lens`'s formula), so its derivative is the image with the nodes'
-    factor times ``i k (cos th - 1)``.
+    factor times ``i k (cos th - 1)``. ``aberration`` (default: the first wave's optics') is
+    the objective's pupil phase, the same for every wave.
 
     Returns
     -------
@@ -341,9 +467,10 @@ def lens_fields_on_pixels(
         if any(dz):
             raise ValueError("height derivatives of the lens image need waves of one optics "
                              "given by multipole expansions")
-        return [im.field_on_pixels(position_um, xs_um, ys_um, numerical_aperture)
+        return [im.field_on_pixels(position_um, xs_um, ys_um, numerical_aperture, aberration)
                 for im in images]
     first = images[0]
+    ab = first.aberration_for(aberration)
     (xp, yp, zp), xs, ys = _pixel_arrays(position_um, xs_um, ys_um)
     shape = xs.shape
     if xs.size == 0:
@@ -356,14 +483,13 @@ def lens_fields_on_pixels(
     r2 = dx * dx + dy * dy
     rho_max = float(np.sqrt(r2.max()))
     order = max(im.source.order for im in images)
-    n_nodes = node_count(k, zp, rho_max, theta_max, order)
+    n_nodes = node_count(k, zp, rho_max, theta_max, order, ab.variation(theta_max))
     step = STEP / (k * np.sin(theta_max))
     n_rho = int(np.ceil(rho_max / step)) + STENCIL // 2 + 2
     pupils = [im._pupil(theta_max, n_nodes) for im in images]
     pupil = pupils[0]
     x_step = k * step * np.sin(pupil.theta)
-    base = (pupil.weights * np.sin(pupil.theta)
-            * np.exp(1j * k * zp * np.cos(pupil.theta)) * complex(incident_phase_at(zp, k)))
+    base = _node_factor(pupil, k, zp, ab)
     bkey = (round(k * step, 12), *pupil.key)
     base_dz = base * (1j * k * (np.cos(pupil.theta) - 1.0))
     grids = polar_grids([(*p.modes, base_dz if d else base) for p, d in zip(pupils, dz,

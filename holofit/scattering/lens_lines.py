@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import special
 
+from holofit.aberration import Aberration
 from holofit.optics import Optics
 from holofit.scattering.lens import SQRT_SWITCH
 from holofit.scattering.lens_pupil import aperture_angle, pupil_nodes, sphere_pupil
@@ -66,11 +67,14 @@ class SphereLensLines:
         The objective's NA (default: the optics').
     apodization : {"aplanatic", "none"}
         The lens model (:mod:`holofit.scattering.lens_pupil`).
+    aberration : Aberration, optional
+        The objective's pupil phase (:mod:`holofit.aberration`; default: the optics'), a
+        factor ``exp(i Phi(th))`` in every node's phase.
     """
 
     def __init__(self, optics: Optics, z_um: ArrayLike, rho_um: ArrayLike, order: int,
-                 numerical_aperture: float | None = None, apodization: str = "aplanatic"
-                 ) -> None:
+                 numerical_aperture: float | None = None, apodization: str = "aplanatic",
+                 aberration: Aberration | None = None) -> None:
         na = optics.numerical_aperture if numerical_aperture is None else numerical_aperture
         if na is None:
             raise ValueError("no numerical aperture for the lens model: give one, or set "
@@ -84,7 +88,10 @@ class SphereLensLines:
         theta_max = aperture_angle(na, optics.n_medium)
         sqrt_end = bool(apodization == "aplanatic" and np.cos(theta_max) < SQRT_SWITCH)
         rho_max = float(np.abs(self.rho).max()) if self.rho.size else 0.0
-        counts = np.array([node_count(k, float(z), rho_max, theta_max, self.order)
+        ab = optics.aberration if aberration is None else aberration
+        self.aberration = ab
+        variation = ab.variation(theta_max)
+        counts = np.array([node_count(k, float(z), rho_max, theta_max, self.order, variation)
                            for z in self.z], dtype=float)
         rounded = NODES_ROUND * np.ceil(2.0 ** np.ceil(np.log2(counts)) / NODES_ROUND)
         self._groups: list[_Group] = []
@@ -97,6 +104,8 @@ class SphereLensLines:
             with np.errstate(divide="ignore", invalid="ignore"):
                 j2 = np.where(x > 0, 2.0 * special.j1(x) / x - j0, 0.0)
             phase = np.exp(1j * k * np.outer(cos_t - 1.0, self.z[rows])) * (w * sin_t)[:, None]
+            if not ab.is_zero:
+                phase *= np.exp(1j * ab.phase(theta))[:, None]
             # the sphere's S1, S2 are forward-scattering amplitudes at th from the axis
             pi, tau = angular_pi_tau(np.ascontiguousarray(cos_t), self.order)
             self._groups.append(_Group(rows, cos_t, j0, j2, np.ascontiguousarray(phase), pi,

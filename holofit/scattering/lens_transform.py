@@ -52,7 +52,7 @@ from scipy import special
 from holofit.scattering.lens_kernels import POLAR_STENCIL, bessel_planes, polar_spectrum
 
 __all__ = ["MAX_NODES", "STENCIL", "STEP", "node_count", "polar_grid", "polar_grids",
-           "radial_transform", "sphere_tables"]
+           "radial_transform", "sphere_table_columns", "sphere_tables"]
 
 #: Lagrange stencil (points per axis; the compiled kernels' constant) and radial step times the
 #: band limit k sin(th_max)
@@ -81,14 +81,19 @@ BLOCK_TABLE_BYTES = 2**19
 MAX_NODES = 8192
 
 
-def node_count(k: float, z_um: float, rho_max_um: float, theta_max: float, order: int) -> int:
+def node_count(k: float, z_um: float, rho_max_um: float, theta_max: float, order: int,
+               pupil_phase_rad: float = 0.0) -> int:
     """Gauss-Legendre nodes over the pupil for a height, a pixel reach and a far-field order.
 
     The integrand's phase varies by ``k |z| (1 - cos th_max) + k rho_max sin th_max`` over the
-    pupil, and a far field of multipole order L by about ``L th_max``.
+    pupil, a far field of multipole order L by about ``L th_max``, and an aberrated pupil by
+    its phase's total variation ``pupil_phase_rad`` (:mod:`holofit.aberration`; 0 for the
+    ideal objective, which leaves the rule as it was).
     """
     variation = (k * abs(z_um) * (1.0 - np.cos(theta_max)) + k * rho_max_um * np.sin(theta_max)
                  + order * theta_max)
+    if pupil_phase_rad:
+        variation += abs(float(pupil_phase_rad))
     n = NODES_PER_RAD * variation + NODES_EXTRA
     if not n <= MAX_NODES:  # also NaN
         raise ValueError(
@@ -258,6 +263,18 @@ def sphere_tables(a: NDArray, b: NDArray, base: NDArray, x_step: NDArray, n_rho:
     h = np.stack([base * a, base * b])[:, :, None]
     g = radial_transform(x_step, h, n_rho, None, key)[:, :, 0]
     return _reflect_rows(-g[0]), _reflect_rows(g[1])
+
+
+def sphere_table_columns(a: NDArray, b: NDArray, bases: list[NDArray], x_step: NDArray,
+                         n_rho: int, key: tuple
+                         ) -> list[tuple[NDArray[np.complex128], NDArray[np.complex128]]]:
+    """:func:`sphere_tables` for several nodes' factors over the same nodes (e.g. the exact
+    derivatives of the image with respect to the height or an aberration coefficient, whose
+    factors are ``base`` times ``d(phase)/d(parameter)``), in one pass over the Bessel table:
+    the product reads the table once, whatever its number of columns."""
+    h = np.stack([np.stack([f * a, f * b]) for f in bases], axis=-1)  # (2, nodes, columns)
+    g = radial_transform(x_step, h, n_rho, None, key)
+    return [(_reflect_rows(-g[0, :, c]), _reflect_rows(g[1, :, c])) for c in range(len(bases))]
 
 
 def polar_grid(t_plus: NDArray, t_minus: NDArray, base: NDArray, x_step: NDArray, n_rho: int,

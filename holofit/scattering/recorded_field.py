@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from holofit.aberration import Aberration
 from holofit.conventions import DetectorGrid
 from holofit.scattering.lens import lens_field_on_pixels
 from holofit.scattering.theory import ScatteredWave
@@ -27,6 +28,7 @@ def has_lens(wave: ScatteredWave) -> bool:
 def recorded_field(
     wave: ScatteredWave, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
     far_field: bool = False, numerical_aperture: float | None = None,
+    aberration: Aberration | None = None,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
     """Transverse field at pixel centres as the camera records it, incident phase included.
 
@@ -44,9 +46,20 @@ def recorded_field(
     numerical_aperture : float, optional
         Image through an objective of this NA, whatever the wave's optics say (a fit that
         varies the NA); default: the optics' own (a lens if they have an NA).
+    aberration : Aberration, optional
+        The objective's pupil phase (:mod:`holofit.aberration`), whatever the wave's optics
+        say (a fit that varies it); default: the optics' own. It needs a lens.
+
+    Raises
+    ------
+    ValueError
+        If an aberration is given for the ideal model (no objective).
     """
     if numerical_aperture is not None or has_lens(wave):
-        return lens_field_on_pixels(wave, position_um, xs_um, ys_um, numerical_aperture)
+        return lens_field_on_pixels(wave, position_um, xs_um, ys_um, numerical_aperture,
+                                    aberration=aberration)
+    if aberration is not None and not aberration.is_zero:
+        raise ValueError("an aberrated pupil needs an objective: give a numerical aperture")
     return wave.field_on_pixels(position_um, xs_um, ys_um, far_field)
 
 
