@@ -137,7 +137,7 @@ def fit(
     numerical_aperture: str | None,
     fit_na: bool,
     max_chi2_red: float,
-    min_r2: float,
+    min_r2: float | None,
     outlier_factor: float,
     plot: bool,
     plot_frames: str | None,
@@ -161,10 +161,13 @@ def fit(
     """
     cfg = load_particle_arg(particle)
     inst = load_instrument_arg(instrument) if instrument else None
+    if min_r2 is not None:
+        click.echo("note: --min-r2 is deprecated and has no effect: a fit is judged by its "
+                   "chi^2 against the pixel noise, not by its R^2", err=True)
     opts = FrameFitSettings(n_starts=n_starts, mirror=not no_mirror,
                            ambiguity_chi2=ambiguity_chi2, pixel_fraction=pixel_fraction,
                            saturation=saturation, noise_sd=noise_sd, far_field=far_field,
-                           quality=QualityLimits(max_chi2_red, min_r2))
+                           quality=QualityLimits(max_chi2_red))
     batch = make_batch_options(workers, scheduler, dask_local, retry_failed, overwrite, progress)
     names = tuple(n.strip() for n in fixed.split(",") if n.strip())
     try:

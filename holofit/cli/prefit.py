@@ -83,7 +83,7 @@ def prefit(
     numerical_aperture: str | None,
     fit_na: bool,
     max_chi2_red: float,
-    min_r2: float,
+    min_r2: float | None,
     outlier_factor: float,
     plot: bool,
     plot_frames: str | None,
@@ -122,10 +122,13 @@ def prefit(
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--z-range / --radius-range / "
                                  "--index-range") from None
+    if min_r2 is not None:
+        click.echo("note: --min-r2 is deprecated and has no effect: a fit is judged by its "
+                   "chi^2 against the pixel noise, not by its R^2", err=True)
     try:
         fit = SphereFitSettings(fix_alpha=fix_alpha, index_imag=index_imag, saturation=saturation,
                          pixel_fraction=pixel_fraction, noise_sd=noise_sd, search=search,
-                         quality=QualityLimits(max_chi2_red, min_r2), fit_na=fit_na,
+                         quality=QualityLimits(max_chi2_red), fit_na=fit_na,
                          seed_only=seed_only)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--fix-alpha / --seed-only") from None

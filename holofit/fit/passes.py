@@ -242,12 +242,24 @@ class FitPasses:
             inputs=self.inputs, status_unit=describe(FIT_STATUS_MEANINGS),
             frame_interval_s=1.0 / inst.frame_rate_hz if inst.frame_rate_hz else None,
             extra={"crops": self.given.crops.fingerprint(), "particle_model": model.kind,
-                   "quality": outlier_sidecar(self.config.outlier_factor),
+                   "quality": outlier_sidecar(self.config.outlier_factor,
+                                              self.probability(cfg)),
                    **({"static": static} if static else {})})
+
+    def probability(self, cfg: PassConfig) -> float | None:
+        """The improbable-chi^2 rule's probability for a pass's table: the final pass's
+        (:func:`holofit.quality.flag_improbable`); the initial pass's rows fit their own
+        statics and are judged by their level instead."""
+        return self.config.continuity.flag_probability if cfg.pass_name == "final" else None
+
+    def finish_rule(self, cfg: PassConfig) -> Any:
+        """The rules a pass's complete table is finished with (:mod:`holofit.quality`)."""
+        return outlier_rule(self.config.outlier_factor, self.probability(cfg))
 
     def batch_key(self, cfg: PassConfig, **extra: Any) -> str:
         return fingerprint({"config": cfg.as_dict(), "crops": self.given.crops.fingerprint(),
-                            "outlier_factor": self.config.outlier_factor, **extra})
+                            "outlier_factor": self.config.outlier_factor,
+                            "flag_probability": self.probability(cfg), **extra})
 
     # -- the initial pass -----------------------------------------------------------------
     def initial(self) -> Path:
@@ -406,7 +418,7 @@ class FitPasses:
         table = StageTable(self.out / f"{stem}_frames.csv", fit_columns(cfg.particle.model,
                                                                            cfg.free),
                            self.meta(cfg), key, f"fit ({cfg.pass_name})",
-                           finish=outlier_rule(self.config.outlier_factor),
+                           finish=self.finish_rule(cfg),
                            key_columns=PARTICLE_KEY)
         self.run.summaries[cfg.pass_name], _ = run_stage(
             fit_frame_task, cfg, keys, partial(load_payload, self.loader), table,
@@ -447,7 +459,8 @@ class FitPasses:
         columns = (*fit_columns(cfg.particle.model, cfg.free), *FOLLOW_COLUMNS)
         key_doc: dict[str, Any] = {
             "chunked": ccfg.as_dict(), "crops": self.given.crops.fingerprint(),
-            "outlier_factor": c.outlier_factor, "keys": [list(k) for k in keys]}
+            "outlier_factor": c.outlier_factor, "flag_probability": self.probability(cfg),
+            "keys": [list(k) for k in keys]}
         if name == "final":
             key_doc["initial_poses"] = sorted((list(k), v) for k, v in poses.items())
         key = fingerprint(key_doc)
@@ -471,7 +484,7 @@ class FitPasses:
         if len(overlaps):
             self.run.notes.append(f"{name} pass: {len(overlaps)} overlap frame(s) of the "
                                   f"chunks disagree ({stem}_overlaps.csv)")
-        outlier_rule(c.outlier_factor)(table)
+        self.finish_rule(cfg)(table)
         follow_doc = dict(meta["follow"])
         notes = {str(p): n for p, (_, n) in bars.items()}
         follow_doc["chi2_bar_note"] = (next(iter(notes.values())) if len(notes) == 1
