@@ -12,6 +12,7 @@ from holofit.cli.common import (
     load_particle_arg,
     out_dir_option,
     particle_option,
+    track_options,
 )
 from holofit.cli.stage_options import (
     aperture_choice,
@@ -22,6 +23,7 @@ from holofit.cli.stage_options import (
     parse_int_list,
     quality_options,
 )
+from holofit.config import ParticleConfig
 from holofit.engines.select import ENGINE_CHOICES
 from holofit.fit.config import PASSES, FitConfig, FitRun
 from holofit.fit.continuity import ContinuitySettings
@@ -42,7 +44,8 @@ from holofit.quality import QualityLimits
               type=click.Path(exists=True, path_type=Path),
               help="Output of `holofit library` for these crops and particle (start "
                    "orientations; not needed for spheres).")
-@particle_option()
+@particle_option(multiple=True)
+@track_options
 @out_dir_option()
 @instrument_option(required=False)
 @click.option("--pass", "pass_name", type=click.Choice(PASSES), default="both",
@@ -77,6 +80,9 @@ from holofit.quality import QualityLimits
               help="Library candidates used as starts (plus the mirrored best).")
 @click.option("--no-mirror", is_flag=True,
               help="Do not also start from the best candidate mirrored through the x-y plane.")
+@click.option("--no-model-test", is_flag=True,
+              help="A non-spherical model's run does not test each track against a sphere of "
+                   "the prefit's size (by default a sphere in a rod run is fitted as a sphere).")
 @click.option("--no-continuity", is_flag=True,
               help="Skip the continuity sweeps (final-pass frames that look like a wrong "
                    "minimum refitted from their neighbours' orientations).")
@@ -113,7 +119,9 @@ def fit(
     crop_dir: Path,
     prefit_dir: Path,
     library_dir: Path | None,
-    particle: str,
+    particle: tuple[str, ...],
+    particles: tuple[int, ...],
+    exclude_particles: tuple[int, ...],
     out: Path,
     instrument: str | None,
     pass_name: str,
@@ -125,6 +133,7 @@ def fit(
     tmatrix: str,
     n_starts: int,
     no_mirror: bool,
+    no_model_test: bool,
     no_continuity: bool,
     independent: bool,
     no_tracking: bool,
@@ -159,7 +168,7 @@ def fit(
     runner-up's delta_chi2 and an `ambiguous` flag, evaluations, time, status), their sidecars,
     plots, and data/model/residual pictures of a few frames. Parallel and resumable.
     """
-    cfg = load_particle_arg(particle)
+    cfg, alternatives = _population([load_particle_arg(p) for p in particle])
     inst = load_instrument_arg(instrument) if instrument else None
     if min_r2 is not None:
         click.echo("note: --min-r2 is deprecated and has no effect: a fit is judged by its "
@@ -177,7 +186,9 @@ def fit(
     if no_tracking:
         click.echo("note: --no-tracking is deprecated; use --independent-frames", err=True)
     config = FitConfig(
-        cfg, passes=pass_name, initial_frames=initial_frames, static=static_file,
+        cfg, alternatives=alternatives, model_test=not no_model_test,
+        particles=particles or None, exclude_particles=exclude_particles, passes=pass_name,
+        initial_frames=initial_frames, static=static_file,
         static_mode=static_mode, frame=opts, engine=engine, fixed=names, tmatrix=tmatrix,
         follow=FollowSettings(warm=not (independent or no_tracking)),
         continuity=ContinuitySettings(enabled=not no_continuity,
@@ -189,6 +200,21 @@ def fit(
         plot_frames=_tuple(parse_int_list(plot_frames, "--plot-frames")))
     run = run_fit(crop_dir, prefit_dir, library_dir, out, config, batch=batch)
     _report(run)
+
+
+def _population(configs: list[ParticleConfig]) -> tuple[ParticleConfig, tuple[ParticleConfig,
+                                                                            ...]]:
+    """The primary model (the first non-spherical one, else the first) and the others."""
+    if not configs:
+        raise click.UsageError("give the particle model with -p/--particle-model")
+    anisotropic = [c for c in configs if c.model.anisotropic]
+    if len(anisotropic) > 1:
+        raise click.BadParameter(
+            f"{', '.join(c.model.kind for c in anisotropic)}: a run's population holds one "
+            "non-spherical model (the library ranks its orientations); fit the others in a run "
+            "of their own", param_hint="-p/--particle-model")
+    primary = anisotropic[0] if anisotropic else configs[0]
+    return primary, tuple(c for c in configs if c is not primary)
 
 
 def _report(run: FitRun) -> None:
@@ -207,6 +233,10 @@ def _report(run: FitRun) -> None:
         c = run.continuity
         click.echo(f"continuity: {c.sweeps} sweep(s), {c.refitted} refit(s), {c.replaced} "
                    f"row(s) improved, {c.flagged} flagged poor_fit")
+    for p, why in sorted(run.left_out.items()):
+        click.echo(f"particle {p} left out: {why}")
+    if run.tracks is not None:
+        click.echo(f"tracks (model, statics, status) -> {run.tracks}")
     if run.final is not None:
         click.echo(f"final fit table -> {run.final}")
 

@@ -281,5 +281,5 @@ def follow_chunk_task(config: ChunkConfig, key: Any, payload: ChunkPayload
     table = follow_chunk(frames, fitter, config.bar(p))
     rows = [*table.to_dict("records"), *(dict(r) for r in payload.skipped)]
     for row in rows:
-        row["particle"], row["chunk"] = p, chunk
+        row["particle"], row["chunk"], row["model"] = p, chunk, fit.particle.model.kind
     return rows

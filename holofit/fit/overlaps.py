@@ -28,7 +28,7 @@ import pandas as pd
 from holofit.batch.options import BatchOptions, BatchSummary
 from holofit.batch.stage import StageTable, fingerprint, run_stage
 from holofit.fit.problem import FrameProblem, state_of
-from holofit.fit.task import PassConfig, fit_columns, worker_theory
+from holofit.fit.task import PassConfig, pass_columns, worker_theory
 from holofit.fit.warm import fit_frame_warm
 from holofit.holomodel.forward import HologramModel
 from holofit.holomodel.parameters import APERTURE, ParameterSpace
@@ -115,7 +115,7 @@ def refit_overlap_task(config: PassConfig, key: tuple[int, int],
                            worker_theory(mine), model, inst.optics, mine.free, mine.options,
                            seed=f, extra_field=extra)
     res = fit_frame_warm(problem, state_of(payload.own, model)).result
-    row = {"particle": p, **result_row(f, payload.time_s, res)}
+    row = {"particle": p, **result_row(f, payload.time_s, res), "model": model.kind}
     row["message"] = (f"refitted with track {q}'s field"
                       + (f": {row['message']}" if row.get("message") else ""))
     return row
@@ -178,7 +178,7 @@ def refit_overlaps(table: pd.DataFrame, crops: CropSet, config: PassConfig, outp
             items[(p, f)] = (q, own, them)
     if not items:
         return table, 0, 0, None
-    columns = fit_columns(config.particle.model, config.free)
+    columns = pass_columns(config)
 
     def load(key: tuple[int, int]) -> OverlapPayload:
         q, own, them = items[key]

@@ -33,8 +33,8 @@ RESERVED_OPTIONS: dict[str, tuple[str, ...]] = {
     "crop": ("-b", "--background", "--dark", "--dark-count", "--normalized", "-i",
              "--instrument", "-o", "--out"),
     "prefit": _BATCH,
-    "library": (*_BATCH, "-p", "--particle", "--prefit", "--engine"),
-    "fit": (*_BATCH, "-p", "--particle", "--prefit", "--library", "--pass", "--engine"),
+    "library": (*_BATCH, "-p", "--particle-model", "--prefit", "--engine"),
+    "fit": (*_BATCH, "-p", "--particle-model", "--prefit", "--library", "--pass", "--engine"),
     "analyze": ("-m", "--model", "--temperature-c", "-o", "--out"),
 }
 
