@@ -77,6 +77,8 @@ def test_the_makefile_chains_the_stages_with_the_run_folder_inputs(tmp_path, inp
     for stage, o in ran:
         if stage.split()[0] in ("prefit", "library", "fit"):
             assert "-j 3 --scheduler tcp://10.0.0.5:8786" in o, (stage, o)
+        elif stage == "crop":  # JOBS reaches every stage that runs frames in parallel
+            assert o.split()[-2:] == ["-j", "3"] and "--scheduler" not in o, (stage, o)
         else:
             assert "-j" not in o.split() and "--scheduler" not in o, (stage, o)
 
@@ -103,13 +105,17 @@ def test_a_sphere_has_no_library_stage_and_options_reach_their_stage(tmp_path, i
 def test_settings_records_change_only_when_the_settings_do(tmp_path, inputs):
     assert _init(tmp_path, inputs).exit_code == 0
     run = tmp_path / "run01"
-    run_make(run, "-n")
+    run_make(run, "-n")  # a dry run changes nothing
+    assert not (run / "settings").exists()
+    run_make(run, "settings")
     records = sorted((run / "settings").iterdir())
     assert [p.name for p in records] == ["analyze", "crop", "fit", "library", "prefit"]
     before = {p.name: p.stat().st_mtime_ns for p in records}
-    run_make(run, "-n", "JOBS=4")  # how, not what: nothing recorded
+    run_make(run, "settings", "JOBS=4")  # how, not what: nothing recorded
     assert {p.name: p.stat().st_mtime_ns for p in records} == before
-    run_make(run, "-n", "CROP_OPTS=--size 24 --start '3,4'")
+    run_make(run, "-n", "CROP_OPTS=--size 24 --start '3,4'")  # dry: still nothing
+    assert {p.name: p.stat().st_mtime_ns for p in records} == before
+    run_make(run, "settings", "CROP_OPTS=--size 24 --start '3,4'")
     after = {p.name: p.stat().st_mtime_ns for p in records}
     assert [k for k in after if after[k] != before[k]] == ["crop"]
     assert (run / "settings" / "crop").read_text().endswith("options --size 24 --start '3,4'\n")

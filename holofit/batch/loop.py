@@ -170,7 +170,8 @@ class BatchRun:
         if full["status"] in FAILED_STATUSES:
             self.n_failed += 1
             self.progress.set_postfix(failed=self.n_failed, refresh=False)
-        self.progress.update(1)
+        # a multi-row item (a chunk of frames) advances the bar by its frames
+        self.progress.update(len(row) if isinstance(row, list) else 1)
 
     def submit(self, task: _Task) -> None:
         fut = self.backend.submit(self.run_item, self.func, self.config, task.frame,

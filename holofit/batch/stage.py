@@ -31,7 +31,7 @@ import contextlib
 import hashlib
 import json
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -241,6 +241,7 @@ def run_stage(
     *,
     batch: BatchOptions | None = None,
     complete: Callable[[Path], Any] | None = None,
+    sizes: Mapping[Any, int] | None = None,
 ) -> tuple[BatchSummary, Any]:
     """Run one batch of a stage and finish its table.
 
@@ -253,6 +254,8 @@ def run_stage(
         The table written.
     batch : BatchOptions, optional
         Backend and resumption.
+    sizes : mapping, optional
+        Item -> the rows it writes (a chunk's frames), for the progress bar.
     complete : callable, optional
         ``complete(path)``: what is done with the complete table (pictures, sweeps that
         rewrite it), before it is published under its own name (the file ``make`` waits for is
@@ -272,7 +275,8 @@ def run_stage(
         done.append(complete(path))
 
     summary = run_batch(func, config, keys, load, table, options=batch,
-                        before_publish=before_publish if complete else None)
+                        before_publish=before_publish if complete else None,
+                        sizes=sizes)
     if complete is not None and not done:  # complete before this run: from the table
         done.append(complete(table.path))
     return summary, (done[0] if done else None)

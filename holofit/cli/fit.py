@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+import pandas as pd
 
 from holofit.cli.common import (
     instrument_option,
@@ -218,13 +219,22 @@ def _population(configs: list[ParticleConfig]) -> tuple[ParticleConfig, tuple[Pa
 
 
 def _report(run: FitRun) -> None:
-    """What the fit wrote: each pass's counts, the notes, the sweeps, the tables."""
+    """What the fit wrote: each pass's frames by status (its table's), the batches' items run
+    now and before, the notes, the sweeps, the tracks left out, the tables."""
+    tables = {"initial": run.initial, "final": run.final}
     for name, s in run.summaries.items():
         for note in s.notes:
             click.echo(f"note: {note}", err=True)
-        counts = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
-        click.echo(f"fit ({name}): {s.n_frames} frame(s) [{counts}]; {s.n_run} fitted now, "
-                   f"{s.n_done_before} done before; {s.elapsed_s:.1f} s")
+        table = tables.get(name)
+        if table is not None and Path(table).exists():
+            frame_counts = pd.read_csv(table)["status"].value_counts().to_dict()
+            n_frames = sum(frame_counts.values())
+        else:
+            frame_counts, n_frames = s.statuses, s.n_frames
+        counts = ", ".join(f"{k} {v}" for k, v in sorted(frame_counts.items()))
+        items = "" if n_frames == s.n_frames else f" in {s.n_frames} chunk(s)"
+        click.echo(f"fit ({name}): {n_frames} frame(s) [{counts}]{items}; {s.n_run} fitted "
+                   f"now, {s.n_done_before} done before; {s.elapsed_s:.1f} s")
     for note in run.notes:
         click.echo(f"note: {note}", err=True)
     if run.static is not None:

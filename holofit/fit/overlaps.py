@@ -28,7 +28,7 @@ import pandas as pd
 from holofit.batch.options import BatchOptions, BatchSummary
 from holofit.batch.stage import StageTable, fingerprint, run_stage
 from holofit.fit.problem import FrameProblem, state_of
-from holofit.fit.task import PassConfig, pass_columns, worker_theory
+from holofit.fit.task import PassConfig, item_theory, pass_columns
 from holofit.fit.warm import fit_frame_warm
 from holofit.holomodel.forward import HologramModel
 from holofit.holomodel.parameters import APERTURE, ParameterSpace
@@ -107,12 +107,12 @@ def refit_overlap_task(config: PassConfig, key: tuple[int, int],
     q = payload.neighbour
     inst = config.instrument
     mine, theirs = _direct(config, p), _direct(config, q)
-    extra = neighbour_field(worker_theory(theirs), theirs.particle.model, inst.optics,
+    extra = neighbour_field(item_theory(theirs), theirs.particle.model, inst.optics,
                             payload.neighbour_values, payload.crop.shape, payload.corner,
                             inst.pixel_size_um, config.options.far_field)
     model = mine.particle.model
     problem = FrameProblem(payload.crop, payload.corner, inst.pixel_size_um,
-                           worker_theory(mine), model, inst.optics, mine.free, mine.options,
+                           item_theory(mine), model, inst.optics, mine.free, mine.options,
                            seed=f, extra_field=extra)
     res = fit_frame_warm(problem, state_of(payload.own, model)).result
     row = {"particle": p, **result_row(f, payload.time_s, res), "model": model.kind}

@@ -230,7 +230,9 @@ class FitPasses:
         self.run.summaries[name], _ = run_stage(
             follow_chunk_task, ccfg, items,
             chunk_loader(self.loader, chunks, self.given.instrument.frame_rate_hz, poses),
-            chunk_table, batch=self.batch)
+            chunk_table, batch=self.batch,
+            sizes={(p, i, ch[0]): len(ch) for p, cs in chunks.items()
+                   for i, ch in enumerate(cs)})
         longest = max((len(ch) for cs in chunks.values() for ch in cs), default=0)
         self.run.notes.append(f"{name} pass along the track: {len(items)} chunk(s) of up to "
                               f"{longest} frames (the batch's items), overlapping by "

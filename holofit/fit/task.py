@@ -42,6 +42,7 @@ __all__ = [
     "fit_frame_task",
     "fixable_names",
     "free_parameters",
+    "item_theory",
     "pass_columns",
     "worker_theory",
 ]
@@ -231,6 +232,15 @@ def worker_theory(config: PassConfig) -> ScatteringTheory:
     return worker_resource("fit engine", key + str(config.tmatrix), make_theory, size=4)
 
 
+def item_theory(config: PassConfig) -> ScatteringTheory:
+    """:func:`worker_theory` with its solver history forgotten
+    (:meth:`~holofit.scattering.theory.ScatteringTheory.forget_history`): what a batch item
+    starts from, so that its rows do not depend on the items its worker ran before."""
+    theory = worker_theory(config)
+    theory.forget_history()
+    return theory
+
+
 def frame_problem(config: PassConfig, payload: FitPayload, frame: int,
                   theory: ScatteringTheory | None = None) -> FrameProblem:
     """The fitting problem of one frame of a pass (``config`` as its track sees it)."""
@@ -249,7 +259,7 @@ def fit_frame_task(config: PassConfig, key: tuple[int, int], payload: FitPayload
     inst = config.instrument
     start = payload.start
     position = (start["x_um"], start["y_um"], start["z_um"])
-    problem = frame_problem(config, payload, frame)
+    problem = frame_problem(config, payload, frame, item_theory(config))
     if config.seed_tmatrix is not None:
         seeding = replace(config, particle=seed_particle(config.particle),
                           tmatrix=config.seed_tmatrix, seed_tmatrix=None)

@@ -113,7 +113,7 @@ ANALYZE_OPTS  = {analyze}
 # ---- how the stages run: changing these reruns nothing -------------------------------------
 # the holofit command (the one that wrote this folder)
 HOLOFIT    ?= {holofit}
-# worker processes per stage (empty: every CPU; 0: in the stage's own process)
+# worker processes of every stage (empty: every CPU; 0: in the stage's own process)
 JOBS       =
 # Dask scheduler: address (tcp://host:8786) or scheduler file
 SCHEDULER  =
@@ -127,7 +127,7 @@ OVERWRITE  =
 _MACHINERY = """\
 # ---------------------------------------------------------------------------------------------
 .SUFFIXES:
-.PHONY: all crop prefit library fit-initial fit analyze clean
+.PHONY: all crop prefit library fit-initial fit analyze settings clean
 .PRECIOUS: {targets}
 
 all: analyze
@@ -137,6 +137,8 @@ prefit: prefit/prefit.csv
 fit-initial: fit/static.json
 fit: fit/fit.csv
 analyze: analysis/summary.csv
+# record the settings (settings/STAGE), run nothing
+settings: ;
 
 LIGHT = $(if $(NORMALIZED),--normalized) $(addprefix -b ,$(BACKGROUND)) \\
   $(addprefix --dark ,$(DARK)) $(if $(DARK_COUNT),--dark-count $(DARK_COUNT))
@@ -144,10 +146,13 @@ ENGINE_OPT = $(if $(ENGINE),--engine $(ENGINE))
 BATCH = $(if $(JOBS),-j $(JOBS)) $(if $(SCHEDULER),--scheduler $(SCHEDULER)) $(BATCH_OPTS)
 
 # $(call record,STAGE,VARIABLE): settings/STAGE holds the value of VARIABLE, rewritten (so newer
-# than the stage's table) only when it changes; run as the Makefile is read
-record = $(shell mkdir -p settings && t='$(subst ','\\'',$(strip $($(2))))' && \\
-  if [ "$$(cat settings/$(1) 2>/dev/null)" != "$$t" ]; then \\
-  printf '%s\\n' "$$t" > settings/$(1); fi)
+# than the stage's table) only when it changes; run as the Makefile is read, except by a dry
+# run (make -n), which changes nothing
+# (it names the records that would change, so that it shows the stages they rerun)
+DRY_RUN = $(findstring n,$(firstword -$(MAKEFLAGS)))
+changed = t='$(subst ','\\'',$(strip $($(2))))' && [ "$$(cat settings/$(1) 2>/dev/null)" != "$$t" ]
+record = $(if $(DRY_RUN),$(eval CHANGED_SETTINGS += $(shell $(changed) && echo settings/$(1))),\\
+  $(shell mkdir -p settings && $(changed) && printf '%s\\n' "$$t" > settings/$(1)))
 CROP_SETTINGS    = movie $(MOVIE) background $(BACKGROUND) dark $(DARK) dark-count $(DARK_COUNT) \\
   normalized $(NORMALIZED) options $(CROP_OPTS)
 PREFIT_SETTINGS  = options $(PREFIT_OPTS)
@@ -159,6 +164,9 @@ $(call record,prefit,PREFIT_SETTINGS)
 $(call record,library,LIBRARY_SETTINGS)
 $(call record,fit,FIT_SETTINGS)
 $(call record,analyze,ANALYZE_SETTINGS)
+# a dry run: the records that would change count as changed; a record not written yet too
+.PHONY: $(CHANGED_SETTINGS)
+settings/%: ;
 
 # $(call overwrite,FILES): --overwrite when one of FILES (the stage's earlier results: table,
 # journal) exists and a prerequisite is newer than it; nothing otherwise (a resume, or a
@@ -167,7 +175,8 @@ overwrite = $(if $(OVERWRITE),--overwrite,$(shell for f in $(1); do [ -e "$$f" ]
   for p in $^; do if [ "$$p" -nt "$$f" ]; then echo --overwrite; exit 0; fi; done; done))
 
 crop/crops.csv: $(MOVIE) $(BACKGROUND) $(DARK) instrument.toml settings/crop
-\t$(HOLOFIT) crop $(MOVIE) $(strip $(LIGHT)) -i instrument.toml -o crop $(CROP_OPTS)
+\t$(HOLOFIT) crop $(MOVIE) $(strip $(LIGHT)) -i instrument.toml -o crop $(strip $(CROP_OPTS) \\
+\t  $(if $(JOBS),-j $(JOBS)))
 
 prefit/prefit.csv: crop/crops.csv settings/prefit
 \t$(HOLOFIT) prefit crop -o prefit $(strip $(PREFIT_OPTS) $(BATCH) $(call overwrite,$@ $@.journal))
