@@ -376,3 +376,21 @@ def test_init_says_what_the_fit_initial_pass_will_take(tmp_path, inputs):
     assert res.exit_code == 0 and "initial pass" not in res.stderr
     sphere = _init(tmp_path, inputs, run="run03", particle="sphere_ps_1um")
     assert sphere.exit_code == 0 and "initial pass" in sphere.stderr
+
+
+@needs_make
+def test_a_population_names_every_model_and_the_rod_is_the_primary(tmp_path, inputs):
+    """``-p sphere_ps_1um -p rod_paper``: the non-spherical model is the run's primary
+    (particle.toml: the library ranks its orientations), the sphere its alternative
+    (particle_sphere.toml), and the fit is given both; a second non-spherical model is
+    refused."""
+    res = _init(tmp_path, inputs, "-p", "rod_paper", particle="sphere_ps_1um")
+    assert res.exit_code == 0, res.output
+    run = tmp_path / "run01"
+    assert 'model = "spherocylinder"' in (run / "particle.toml").read_text()
+    assert 'model = "sphere"' in (run / "particle_sphere.toml").read_text()
+    ran = dict(stages_run(run_make(run, "-n").stdout, run))
+    assert "library" in ran
+    assert "-p particle.toml -p particle_sphere.toml" in ran["fit initial"]
+    twice = _init(tmp_path / "b", inputs, "-p", "janus_paper", particle="rod_paper")
+    assert twice.exit_code == 1 and "second non-spherical model" in twice.output

@@ -181,13 +181,13 @@ crop/crops.csv: $(MOVIE) $(BACKGROUND) $(DARK) instrument.toml settings/crop
 prefit/prefit.csv: crop/crops.csv settings/prefit
 \t$(HOLOFIT) prefit crop -o prefit $(strip $(PREFIT_OPTS) $(BATCH) $(call overwrite,$@ $@.journal))
 {library_rule}
-FIT = $(HOLOFIT) fit crop --prefit prefit {library_option}-p particle.toml -o fit
+FIT = $(HOLOFIT) fit crop --prefit prefit {library_option}-p particle.toml {population}-o fit
 
-fit/static.json: {fit_prerequisites} particle.toml settings/fit
+fit/static.json: {fit_prerequisites} particle.toml {population_files}settings/fit
 \t$(FIT) --pass initial $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) \\
 \t  $(call overwrite,$@ fit/initial.csv fit/initial.csv.journal))
 
-fit/fit.csv: fit/static.json {fit_prerequisites} particle.toml settings/fit
+fit/fit.csv: fit/static.json {fit_prerequisites} particle.toml {population_files}settings/fit
 \t$(FIT) --pass final $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) $(call overwrite,$@ $@.journal))
 
 analysis/summary.csv: fit/fit.csv settings/analyze
@@ -248,6 +248,8 @@ def render_run_makefile(spec: RunSpec) -> str:
         targets=" ".join(done.values()), library_alias=library_alias.rstrip("\n"),
         library_rule=library_rule, library_option=library_option,
         fit_prerequisites=fit_prerequisites,
+        population="".join(f"-p {a} " for a in spec.alternatives),
+        population_files="".join(f"{a} " for a in spec.alternatives),
     )
     text = "\n".join([_header(spec), guide, variables, machinery])
     return "".join(line.rstrip() + "\n" for line in text.splitlines())
