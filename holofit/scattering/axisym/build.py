@@ -16,8 +16,10 @@ Method by particle (the measured reasons are in ``docs/validation/exact_tmatrix.
 The order starts at :func:`holofit.scattering.axisym.order.start_order` and grows until the far
 field changes by less than ``tolerance`` between orders ``L - 4`` and ``L``
 (:func:`~holofit.scattering.axisym.order.far_field_change`), or a cap is reached (the EBCM's
-conditioning, :data:`MAX_ORDER_EXTRA` orders past the start, or ``max_seconds``); the imbedding's
-steps double until Richardson's estimate of their error is below a tenth of ``tolerance``.
+conditioning: the last order whose ``Q`` is within :data:`EBCM_MAX_CONDITION` is kept;
+:data:`MAX_ORDER_EXTRA` orders past the start; or the time budget ``max_seconds``); the
+imbedding's steps double until Richardson's estimate of their error is below a tenth of
+``tolerance`` (at most twice).
 """
 
 from __future__ import annotations
@@ -59,8 +61,9 @@ DEFAULT_TOLERANCE = 1e-5
 EBCM_MAX_CONDITION = 1e9
 #: orders past the start beyond which the order is not raised
 MAX_ORDER_EXTRA = 16
-#: default wall-clock budget of the order search, s
-DEFAULT_MAX_SECONDS = 20.0
+#: default wall-clock budget of the order search, s: no higher order is tried that would end
+#: past it (predicted from the last build's time and its ~L^4 growth)
+DEFAULT_MAX_SECONDS = 2.0
 #: the file format :func:`holofit.dda.tmatrix_io.load_tmatrix` reads
 FILE_FORMAT = "holofit-tmatrix/1"
 
@@ -87,13 +90,14 @@ def _ebcm_nodes(order: int) -> int:
 
 def _iitm_steps(profile: Profile, k: float, n_medium: float, order: int) -> list[int]:
     """Starting Runge-Kutta steps per segment: the optical thickness of the segment in the
-    densest material plus the growth ``2L / r`` of the highest order, four steps per unit."""
+    densest material plus the growth ``2L / r`` of the highest order, twelve steps per unit
+    (measured on a 47 nm TiO2 cap: Richardson's change below 1e-6 at order 20)."""
     br = profile.breaks()
     n_max = max(abs(complex(v)) for v in _indices(profile)) / n_medium
     out = []
     for a, b in zip(br[:-1], br[1:], strict=True):
         rate = k * n_max + 2.0 * order / a
-        out.append(max(8, int(np.ceil(4.0 * rate * (b - a)))))
+        out.append(max(8, int(np.ceil(12.0 * rate * (b - a)))))
     return out
 
 
@@ -108,10 +112,10 @@ def _indices(profile: Profile) -> list[complex]:
 def _iitm_build(profile: Profile, order: int, k: float, n_medium: float, step_tolerance: float,
                 steps: list[int] | None = None) -> tuple[NDArray, dict[str, Any]]:
     """IITM blocks at ``order``; steps doubled until Richardson's change is below
-    ``step_tolerance`` (at most four doublings)."""
+    ``step_tolerance`` (at most twice)."""
     polar = "inverse" if isinstance(profile, CapProfile) and not profile.tapered else "laurent"
     counts = steps or _iitm_steps(profile, k, n_medium, order)
-    for _ in range(5):
+    for _ in range(3):
         res = integrate_profile(profile, order, k, n_medium, counts, richardson=True,
                                 polar_rule=polar)
         if res.richardson_change <= step_tolerance or steps is not None:
@@ -150,6 +154,7 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
         return tmatrix_from_blocks(blocks, L, k, radius), info
 
     history: list[tuple[int, float]] = []
+    stop = "order given"
     if order is not None:
         tm, info = build(int(order))
         lower, _ = build(max(1, int(order) - ORDER_STEP))
@@ -157,25 +162,41 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
         history.append((int(order), estimate))
     else:
         L0 = start_order(k, radius)
-        prev, _ = build(max(1, L0 - ORDER_STEP))
+        prev, prev_info = build(max(1, L0 - ORDER_STEP))
+        tm, info, estimate = prev, prev_info, float("inf")
         L = L0
         while True:
-            tm, info = build(L)
-            estimate = far_field_change(prev, tm)
+            t_build = time.perf_counter()
+            cand, cand_info = build(L)
+            t_build = time.perf_counter() - t_build
+            if (method == "ebcm" and cand_info["q_condition_max"] > EBCM_MAX_CONDITION
+                    and history):
+                stop = "EBCM conditioning"
+                break
+            estimate = far_field_change(prev, cand)
+            tm, info = cand, cand_info
             history.append((L, estimate))
             if estimate <= tolerance or method == "mie":
+                stop = "tolerance met"
                 break
-            if method == "ebcm" and info["q_condition_max"] > EBCM_MAX_CONDITION:
+            if method == "ebcm" and cand_info["q_condition_max"] > EBCM_MAX_CONDITION:
+                stop = "EBCM conditioning"
                 break
-            if L >= L0 + MAX_ORDER_EXTRA or time.perf_counter() - t0 > max_seconds:
+            predicted = t_build * ((L + ORDER_STEP) / L) ** 4
+            if L >= L0 + MAX_ORDER_EXTRA:
+                stop = "order cap"
                 break
-            prev = tm
+            if time.perf_counter() - t0 + predicted > max_seconds:
+                stop = "time budget"
+                break
+            prev = cand
             L += ORDER_STEP
     seconds = time.perf_counter() - t0
     tm.provenance.update({
         "format": FILE_FORMAT, "engine": "exact", "method": method, "order": tm.order,
         "truncation_estimate": float(estimate), "tolerance": float(tolerance),
         "tolerance_met": bool(estimate <= tolerance), "order_history": history,
+        "order_search_stop": stop,
         "k_per_um": float(k), "n_medium": float(n_medium), "radius_um": radius,
         "storage": "modulus 2L+1: one block per m", "build_seconds": seconds,
         "holofit_version": holofit.__version__, **info,

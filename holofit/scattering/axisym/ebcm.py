@@ -45,26 +45,24 @@ def surface_quadrature(profile: Profile, nodes: int) -> tuple[NDArray, NDArray]:
     return np.concatenate(ts), np.concatenate(ws)
 
 
-def _riccati_complex(n: NDArray, z: NDArray, outgoing: bool) -> tuple[NDArray, NDArray]:
-    """``z_n(x)`` and ``(x z_n(x))'/x`` for ``j_n`` (or ``h_n`` if ``outgoing``) at ``x``;
-    arrays ``[node, n]``."""
-    x = z[:, None]
-    j = spherical_jn(n[None, :], x)
-    dj = spherical_jn(n[None, :], x, derivative=True)
+def _radial_tables(order: int, x: NDArray, outgoing: bool) -> tuple[NDArray, NDArray]:
+    """``z_n(x)`` and ``(x z_n(x))'/x`` for ``n = 0..L`` (``j_n``, or ``h_n`` if ``outgoing``)
+    at the nodes ``x`` (real or complex); arrays ``[node, n]``, computed once for every ``m``."""
+    n = np.arange(order + 1)[None, :]
+    xx = x[:, None]
+    j = spherical_jn(n, xx)
+    dj = spherical_jn(n, xx, derivative=True)
     if outgoing:
-        y = spherical_yn(n[None, :], x)
-        dy = spherical_yn(n[None, :], x, derivative=True)
-        f, df = j + 1j * y, dj + 1j * dy
-    else:
-        f, df = j, dj
-    return f, f / x + df
+        j = j + 1j * spherical_yn(n, xx)
+        dj = dj + 1j * spherical_yn(n, xx, derivative=True)
+    return j, j / xx + dj
 
 
-def _waves(n: NDArray, m: int, kr: NDArray, pb: NDArray, dp: NDArray, mp: NDArray,
-           outgoing: bool, conj: bool) -> tuple[NDArray, NDArray]:
+def _waves(n: NDArray, kr: NDArray, radial: tuple[NDArray, NDArray], pb: NDArray,
+           dp: NDArray, mp: NDArray, conj: bool) -> tuple[NDArray, NDArray]:
     """``(r, theta, phi)`` components ``[3, node, n]`` of ``M_nm`` and ``N_nm`` at ``phi = 0``
-    (angular part conjugated if ``conj``)."""
-    z, dz = _riccati_complex(n, kr, outgoing)
+    (angular part conjugated if ``conj``) from the radial tables of :func:`_radial_tables`."""
+    z, dz = radial[0][:, n], radial[1][:, n]
     s = -1.0 if conj else 1.0
     nu2 = (n * (n + 1.0))[None, :]
     zero = np.zeros_like(z)
@@ -97,6 +95,10 @@ def ebcm_blocks(profile: Profile, order: int, k: float, n_medium: float, nodes: 
     nr = weight * r
     nt = -weight * dr
     pb, dp, mp = legendre_tables(np.cos(theta), L)
+    kr, k1r = k * r, m_rel * k * r
+    rad_rg = _radial_tables(L, kr, outgoing=False)
+    rad_out = _radial_tables(L, kr, outgoing=True)
+    rad_in = _radial_tables(L, k1r, outgoing=False)
     out = np.zeros((L + 1, 2 * L, 2 * L), dtype=complex)
     conds = np.zeros(L + 1)
     for m in range(L + 1):
@@ -104,9 +106,9 @@ def ebcm_blocks(profile: Profile, order: int, k: float, n_medium: float, nodes: 
         n = np.arange(n0, L + 1)
         cnt = n.size
         tabs = (pb[:, n0:, m], dp[:, n0:, m], mp[:, n0:, m])
-        rg_m, rg_n = _waves(n, m, k * r, *tabs, outgoing=False, conj=True)
-        ou_m, ou_n = _waves(n, m, k * r, *tabs, outgoing=True, conj=True)
-        in_m, in_n = _waves(n, m, m_rel * k * r, *tabs, outgoing=False, conj=False)
+        rg_m, rg_n = _waves(n, kr, rad_rg, *tabs, conj=True)
+        ou_m, ou_n = _waves(n, kr, rad_out, *tabs, conj=True)
+        in_m, in_n = _waves(n, k1r, rad_in, *tabs, conj=False)
         pref = (1j * k * k / (n * (n + 1.0)))[:, None]
 
         def q_matrix(bm: NDArray, bn: NDArray, pref: NDArray = pref,
