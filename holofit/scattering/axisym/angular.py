@@ -147,7 +147,7 @@ def angular_matrices(intervals: list[tuple[float, float, complex]], order: int,
     part = full_partition(intervals)
     xf, wf = interval_nodes([(lo, hi, 2.0 + 0j) for lo, hi, _ in part], L + 1)  # weights w
     ef = np.concatenate([np.full(_count(lo, hi, L + 1), complex(e)) for lo, hi, e in part])
-    fp, fd, fm = _block_tables(xf, L)
+    _, fd, fm = _block_tables(xf, L)
     a_dd = np.zeros_like(dd)
     a_dm = np.zeros_like(dd)
     a_mm = np.zeros_like(dd)

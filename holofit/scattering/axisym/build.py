@@ -24,6 +24,7 @@ imbedding's steps double until Richardson's estimate of their error is below a t
 
 from __future__ import annotations
 
+import itertools
 import time
 from typing import Any
 
@@ -95,7 +96,7 @@ def _iitm_steps(profile: Profile, k: float, n_medium: float, order: int) -> list
     br = profile.breaks()
     n_max = max(abs(complex(v)) for v in _indices(profile)) / n_medium
     out = []
-    for a, b in zip(br[:-1], br[1:], strict=True):
+    for a, b in itertools.pairwise(br):
         rate = k * n_max + 2.0 * order / a
         out.append(max(8, int(np.ceil(12.0 * rate * (b - a)))))
     return out

@@ -22,6 +22,8 @@ rod at order 42); :func:`ebcm_blocks` reports ``Q``'s condition number per ``m``
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import spherical_jn, spherical_yn
@@ -38,7 +40,7 @@ def surface_quadrature(profile: Profile, nodes: int) -> tuple[NDArray, NDArray]:
     cuts = [0.0, *sorted(profile.surface_kinks()), np.pi]
     gx, gw = np.polynomial.legendre.leggauss(nodes)
     ts, ws = [], []
-    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+    for a, b in itertools.pairwise(cuts):
         half = 0.5 * (b - a)
         ts.append(0.5 * (a + b) + half * gx)
         ws.append(half * gw)
@@ -81,6 +83,19 @@ def _cross_integral(x_bar: NDArray, y: NDArray, nr: NDArray, nt: NDArray) -> NDA
     return out
 
 
+def _q_matrix(bm: NDArray, bn: NDArray, in_m: NDArray, in_n: NDArray, nr: NDArray,
+              nt: NDArray, m_rel: complex, pref: NDArray) -> NDArray[np.complex128]:
+    """``Q`` (outgoing ``bm, bn``) or ``RgQ`` (regular) of one ``m``: rows ``p``/``a`` then
+    ``q``/``b``, columns ``c`` then ``d`` (module docstring)."""
+    cnt = pref.shape[0]
+    q = np.empty((2 * cnt, 2 * cnt), dtype=complex)
+    q[:cnt, :cnt] = m_rel * _cross_integral(bn, in_m, nr, nt) + _cross_integral(bm, in_n, nr, nt)
+    q[:cnt, cnt:] = m_rel * _cross_integral(bn, in_n, nr, nt) + _cross_integral(bm, in_m, nr, nt)
+    q[cnt:, :cnt] = m_rel * _cross_integral(bm, in_m, nr, nt) + _cross_integral(bn, in_n, nr, nt)
+    q[cnt:, cnt:] = m_rel * _cross_integral(bm, in_n, nr, nt) + _cross_integral(bn, in_m, nr, nt)
+    return q * np.concatenate([pref, pref])
+
+
 def ebcm_blocks(profile: Profile, order: int, k: float, n_medium: float, nodes: int
                 ) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
     """Padded T-matrix blocks ``(L + 1, 2L, 2L)`` of ``m = 0..L`` (layout of
@@ -111,22 +126,8 @@ def ebcm_blocks(profile: Profile, order: int, k: float, n_medium: float, nodes: 
         in_m, in_n = _waves(n, k1r, rad_in, *tabs, conj=False)
         pref = (1j * k * k / (n * (n + 1.0)))[:, None]
 
-        def q_matrix(bm: NDArray, bn: NDArray, pref: NDArray = pref,
-                     in_m: NDArray = in_m, in_n: NDArray = in_n) -> NDArray:
-            q = np.empty((2 * cnt, 2 * cnt), dtype=complex)
-            q[:cnt, :cnt] = m_rel * _cross_integral(bn, in_m, nr, nt) + _cross_integral(
-                bm, in_n, nr, nt)
-            q[:cnt, cnt:] = m_rel * _cross_integral(bn, in_n, nr, nt) + _cross_integral(
-                bm, in_m, nr, nt)
-            q[cnt:, :cnt] = m_rel * _cross_integral(bm, in_m, nr, nt) + _cross_integral(
-                bn, in_n, nr, nt)
-            q[cnt:, cnt:] = m_rel * _cross_integral(bm, in_n, nr, nt) + _cross_integral(
-                bn, in_m, nr, nt)
-            pp = np.concatenate([pref, pref])
-            return q * pp
-
-        rgq = q_matrix(rg_m, rg_n)
-        q = q_matrix(ou_m, ou_n)
+        rgq = _q_matrix(rg_m, rg_n, in_m, in_n, nr, nt, m_rel, pref)
+        q = _q_matrix(ou_m, ou_n, in_m, in_n, nr, nt, m_rel, pref)
         conds[m] = float(np.linalg.cond(q))
         t = -np.linalg.solve(q.T, rgq.T).T
         sel = np.concatenate([np.arange(cnt), L + np.arange(cnt)])

@@ -33,6 +33,7 @@ stable at any order, unlike the transfer matrix of the fields themselves.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -228,7 +229,7 @@ class _Rhs:
         self.evaluations += 1
         k = self.k
         d1n, d2n, d5m, d3nm, d4mn = mats
-        psi_n, dpsi_n, xi_n, dxi_n, psi_m, dpsi_m, xi_m, dxi_m = rad
+        psi_n, dpsi_n, xi_n, dxi_n, psi_m, _dpsi_m, xi_m, _dxi_m = rad
         p = psi_n.shape[1]
         tn, tm = t[:, :p, :], t[:, p:, :]
         zu = dxi_n[:, :, None] * tn
@@ -257,32 +258,68 @@ def _smooth_map(s: float) -> tuple[float, float]:
     return s * s * (3.0 - 2.0 * s), 6.0 * s * (1.0 - s)
 
 
+def _scaling(rhs: _Rhs, rad: tuple[NDArray, ...], r: float) -> tuple[NDArray, NDArray]:
+    """``S = 1/|xi_n(kr)|`` on the group slots and ``D = dS/dr / S`` (1 and 0 on padding).
+
+    A T-matrix entry of orders ``n, n'`` grows like ``psi_n psi_n'`` with ``r``, about
+    ``(1/|xi_n|)(1/|xi_n'|)`` for ``n > kr``: integrating ``tau = S^-1 T S^-1`` instead takes
+    that fast but trivial growth (``2n/r``) out of the equation, so the steps need only follow
+    the scattering itself.
+    """
+    k = rhs.k
+    g = rhs.groups
+    psi, dpsi, xi, dxi = riccati_bessel(rhs.L, k * r)
+    chi, dchi = xi.imag, dxi.imag
+    mod2 = psi * psi + chi * chi
+    s_all = 1.0 / np.sqrt(mod2)
+    d_all = -k * (psi * dpsi + chi * dchi) / mod2
+    s = np.concatenate([np.where(g.ok_n, s_all[g.n_n], 1.0),
+                        np.where(g.ok_m, s_all[g.n_m], 1.0)], axis=1)
+    d = np.concatenate([np.where(g.ok_n, d_all[g.n_n], 0.0),
+                        np.where(g.ok_m, d_all[g.n_m], 0.0)], axis=1)
+    del rad
+    return s, d
+
+
 def _rk4_segment(rhs: _Rhs, t: NDArray, r0: float, r1: float, steps: int,
                  cache: dict[float, tuple]) -> NDArray:
-    """Classical Runge-Kutta over one segment in the smoothing variable ``s``."""
+    """Classical Runge-Kutta over one segment in the smoothing variable ``s``, for the scaled
+    ``tau = S^-1 T S^-1`` (:func:`_scaling`)."""
     width = r1 - r0
     h = 1.0 / steps
 
-    def f(s: float, tt: NDArray) -> NDArray:
-        g, dg = _smooth_map(s)
-        if dg == 0.0:
-            return np.zeros_like(tt)
-        r = r0 + width * g
+    def at(s: float) -> tuple:
         key = round(s, 14)
         got = cache.get(key)
         if got is None:
-            got = (rhs.matrices(r), rhs.radial(r))
+            g, _ = _smooth_map(s)
+            r = r0 + width * g
+            rad = rhs.radial(r)
+            got = (r, rhs.matrices(r), rad, *_scaling(rhs, rad, r))
             cache[key] = got
-        return rhs(r, tt, *got) * (width * dg)
+        return got
 
+    def f(s: float, tau: NDArray) -> NDArray:
+        _, dg = _smooth_map(s)
+        if dg == 0.0:
+            return np.zeros_like(tau)
+        r, mats, rad, sc, dl = at(s)
+        tt = sc[:, :, None] * tau * sc[:, None, :]
+        dt = rhs(r, tt, mats, rad) / (sc[:, :, None] * sc[:, None, :])
+        dt -= dl[:, :, None] * tau + tau * dl[:, None, :]
+        return dt * (width * dg)
+
+    sc0 = at(0.0)[3]
+    tau = t / (sc0[:, :, None] * sc0[:, None, :])
     for i in range(steps):
         s = i * h
-        k1 = f(s, t)
-        k2 = f(s + h / 2, t + (h / 2) * k1)
-        k3 = f(s + h / 2, t + (h / 2) * k2)
-        k4 = f(s + h, t + h * k3)
-        t = t + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
-    return t
+        k1 = f(s, tau)
+        k2 = f(s + h / 2, tau + (h / 2) * k1)
+        k3 = f(s + h / 2, tau + (h / 2) * k2)
+        k4 = f(s + h, tau + h * k3)
+        tau = tau + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    sc1 = at(1.0)[3]
+    return tau * (sc1[:, :, None] * sc1[:, None, :])
 
 
 @dataclass
@@ -328,7 +365,7 @@ def integrate_profile(profile: Profile, order: int, k: float, n_medium: float,
     start = mie_start(L, k, profile.r_start, complex(profile.index_start) / n_medium)
     t0 = to_groups(start, groups)
     br = profile.breaks()
-    segs = list(zip(br[:-1], br[1:], strict=True))
+    segs = list(itertools.pairwise(br))
     counts = ([int(steps(a, b)) for a, b in segs] if callable(steps)
               else [int(v) for v in steps])
     if richardson:
