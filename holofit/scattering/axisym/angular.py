@@ -10,7 +10,9 @@ and the intervals ``[x_lo, x_hi]`` of relative permittivity ``eps_i`` (the mediu
 
 (``dPbar = dPbar/dtheta``): the deviations from the medium of ``<Y_n, eps Y_l>``,
 ``<Psi_n, eps Psi_l>`` (equal to ``<Phi_n, eps Phi_l>``) and ``-i <Psi_n, eps Phi_l>`` for the
-vector spherical harmonics of :mod:`holofit.scattering.vsw`. Every integrand is a polynomial in
+vector spherical harmonics of :mod:`holofit.scattering.vsw` (:class:`AngularMatrices` keeps
+``Y``, the two diagonal blocks and the two couplings; with the inverse rule for the polar
+field the diagonal blocks differ, see :func:`angular_matrices`). Every integrand is a polynomial in
 ``x`` of degree ``n + l <= 2 L``, so ``L + 1`` Gauss-Legendre nodes on each interval integrate it
 exactly: the discontinuities of ``eps`` cost no accuracy because the intervals end at them.
 """

@@ -19,7 +19,7 @@ field changes by less than ``tolerance`` between orders ``L - 4`` and ``L``
 conditioning: the last order whose ``Q`` is within :data:`EBCM_MAX_CONDITION` is kept;
 :data:`MAX_ORDER_EXTRA` orders past the start; or the time budget ``max_seconds``); the
 imbedding's steps double until Richardson's estimate of their error is below a tenth of
-``tolerance`` (at most twice).
+``tolerance`` (at most three times).
 """
 
 from __future__ import annotations
@@ -90,9 +90,10 @@ def _ebcm_nodes(order: int) -> int:
 
 
 def _iitm_steps(profile: Profile, k: float, n_medium: float, order: int) -> list[int]:
-    """Starting Runge-Kutta steps per segment: the optical thickness of the segment in the
-    densest material plus the growth ``2L / r`` of the highest order, twelve steps per unit
-    (measured on a 47 nm TiO2 cap: Richardson's change below 1e-6 at order 20)."""
+    """Starting Runge-Kutta steps per segment: twelve per unit of the segment's optical
+    thickness in the densest material plus the growth ``2L / r`` of the highest order, at least
+    eight (measured on the 47 nm TiO2 cap: Richardson's change ~1e-6 at order 16-20; the
+    check in :func:`_iitm_build` doubles them where a resonance needs more)."""
     br = profile.breaks()
     n_max = max(abs(complex(v)) for v in _indices(profile)) / n_medium
     out = []
@@ -113,10 +114,10 @@ def _indices(profile: Profile) -> list[complex]:
 def _iitm_build(profile: Profile, order: int, k: float, n_medium: float, step_tolerance: float,
                 steps: list[int] | None = None) -> tuple[NDArray, dict[str, Any]]:
     """IITM blocks at ``order``; steps doubled until Richardson's change is below
-    ``step_tolerance`` (at most twice)."""
+    ``step_tolerance`` (at most three times)."""
     polar = "inverse" if isinstance(profile, CapProfile) and not profile.tapered else "laurent"
     counts = steps or _iitm_steps(profile, k, n_medium, order)
-    for _ in range(3):
+    for _ in range(4):
         res = integrate_profile(profile, order, k, n_medium, counts, richardson=True,
                                 polar_rule=polar)
         if res.richardson_change <= step_tolerance or steps is not None:

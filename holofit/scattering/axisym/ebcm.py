@@ -128,8 +128,24 @@ def ebcm_blocks(profile: Profile, order: int, k: float, n_medium: float, nodes: 
 
         rgq = _q_matrix(rg_m, rg_n, in_m, in_n, nr, nt, m_rel, pref)
         q = _q_matrix(ou_m, ou_n, in_m, in_n, nr, nt, m_rel, pref)
-        conds[m] = float(np.linalg.cond(q))
-        t = -np.linalg.solve(q.T, rgq.T).T
+        if profile.mirror_symmetric:
+            # the parity classes under z -> -z decouple: N_n with n + m even goes with M_n of
+            # odd n + m; solved apart, the analytically zero couplings (numerical noise of the
+            # large entries) do not enter the solve
+            t = np.zeros_like(q)
+            parity = np.concatenate([(n + m) % 2, (n + m + 1) % 2])
+            cond = 0.0
+            for cls in (0, 1):
+                sel = np.nonzero(parity == cls)[0]
+                if sel.size == 0:
+                    continue
+                qq, rr = q[np.ix_(sel, sel)], rgq[np.ix_(sel, sel)]
+                cond = max(cond, float(np.linalg.cond(qq)))
+                t[np.ix_(sel, sel)] = -np.linalg.solve(qq.T, rr.T).T
+            conds[m] = cond
+        else:
+            conds[m] = float(np.linalg.cond(q))
+            t = -np.linalg.solve(q.T, rgq.T).T
         sel = np.concatenate([np.arange(cnt), L + np.arange(cnt)])
         out[m][np.ix_(sel, sel)] = t
     return out, conds

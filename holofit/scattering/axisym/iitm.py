@@ -9,13 +9,14 @@ Yang, Kattawar & Mishchenko 2013, JQSRT 116, 169). Derived here in the basis of
 ``K_0`` is the medium's and
 
     du' = -(i / k r^2) (Y_r - I) nu^2 s,
-    ds' =  i k nu^-2 P u + k nu^-2 C v,
-    dw' =  k nu^-2 C u - i k nu^-2 P v,
+    ds' =  i k nu^-2 (<Psi eps Psi> - nu^2) u + i k nu^-2 <Psi eps Phi> v,
+    dw' = -i k nu^-2 <Phi eps Psi> u - i k nu^-2 (<Phi eps Phi> - nu^2) v,
 
-with ``nu^2 = n (n + 1)`` and the angular matrices ``P``, ``C`` of
-:mod:`holofit.scattering.axisym.angular`; ``Y_r - I = (I + Y)^-1 - I`` eliminates the radial
-field (``D_r = eps E_r``; Laurent's rule for the product of ``eps`` and the continuous ``E_r`` at
-a polar-angle boundary). In the medium the regular and outgoing waves of order ``n`` give
+with ``nu^2 = n (n + 1)`` and the angular matrices of
+:mod:`holofit.scattering.axisym.angular` (Laurent's direct product, or the inverse rule for the
+polar field at conical interfaces); ``Y_r - I = (I + Y)^-1 - I`` eliminates the radial field
+(``D_r = eps E_r``; Laurent's rule for the product of ``eps`` and the continuous ``E_r`` at a
+polar-angle boundary). In the medium the regular and outgoing waves of order ``n`` give
 ``X = (psi'/k, 0, i psi/k, 0)`` for ``N`` and ``(0, -psi/k, 0, -i psi'/k)`` for ``M``
 (``psi = kr j_n``, or ``xi = kr h_n`` for outgoing waves), so ``F = [W_rg, W_out]`` is inverted
 per order through the Wronskian ``psi xi' - psi' xi = i``. Writing the field inside ``r`` as
@@ -27,8 +28,10 @@ started from the Lorenz-Mie T-matrix of the largest homogeneous sphere about the
 (``T = diag(-a_n, -b_n)``) and integrated outward with the classical Runge-Kutta method in a
 variable that makes the square-root ends of the boundary angle ``theta_b(r)`` smooth
 (``r = r_0 + (r_1 - r_0)(3 s^2 - 2 s^3)`` per segment), and Richardson's extrapolation of two
-step sizes (order 5 and better). ``T`` stays bounded (``|I + 2T| <= 1``), so the integration is
-stable at any order, unlike the transfer matrix of the fields themselves.
+step sizes (order 5 and better). (Integrating ``T / (psi_n psi_n')``-like scaled variables
+instead makes the decaying components stiff: RK4 then diverges at the step sizes that suffice
+for ``T``.) ``T`` stays bounded (``|I + 2T| <= 1`` in the flux-normalised basis), so the
+integration is stable at any order, unlike the transfer matrix of the fields themselves.
 """
 
 from __future__ import annotations
@@ -258,68 +261,32 @@ def _smooth_map(s: float) -> tuple[float, float]:
     return s * s * (3.0 - 2.0 * s), 6.0 * s * (1.0 - s)
 
 
-def _scaling(rhs: _Rhs, rad: tuple[NDArray, ...], r: float) -> tuple[NDArray, NDArray]:
-    """``S = 1/|xi_n(kr)|`` on the group slots and ``D = dS/dr / S`` (1 and 0 on padding).
-
-    A T-matrix entry of orders ``n, n'`` grows like ``psi_n psi_n'`` with ``r``, about
-    ``(1/|xi_n|)(1/|xi_n'|)`` for ``n > kr``: integrating ``tau = S^-1 T S^-1`` instead takes
-    that fast but trivial growth (``2n/r``) out of the equation, so the steps need only follow
-    the scattering itself.
-    """
-    k = rhs.k
-    g = rhs.groups
-    psi, dpsi, xi, dxi = riccati_bessel(rhs.L, k * r)
-    chi, dchi = xi.imag, dxi.imag
-    mod2 = psi * psi + chi * chi
-    s_all = 1.0 / np.sqrt(mod2)
-    d_all = -k * (psi * dpsi + chi * dchi) / mod2
-    s = np.concatenate([np.where(g.ok_n, s_all[g.n_n], 1.0),
-                        np.where(g.ok_m, s_all[g.n_m], 1.0)], axis=1)
-    d = np.concatenate([np.where(g.ok_n, d_all[g.n_n], 0.0),
-                        np.where(g.ok_m, d_all[g.n_m], 0.0)], axis=1)
-    del rad
-    return s, d
-
-
 def _rk4_segment(rhs: _Rhs, t: NDArray, r0: float, r1: float, steps: int,
                  cache: dict[float, tuple]) -> NDArray:
-    """Classical Runge-Kutta over one segment in the smoothing variable ``s``, for the scaled
-    ``tau = S^-1 T S^-1`` (:func:`_scaling`)."""
+    """Classical Runge-Kutta over one segment in the smoothing variable ``s``."""
     width = r1 - r0
     h = 1.0 / steps
 
-    def at(s: float) -> tuple:
+    def f(s: float, tt: NDArray) -> NDArray:
+        g, dg = _smooth_map(s)
+        if dg == 0.0:
+            return np.zeros_like(tt)
+        r = r0 + width * g
         key = round(s, 14)
         got = cache.get(key)
         if got is None:
-            g, _ = _smooth_map(s)
-            r = r0 + width * g
-            rad = rhs.radial(r)
-            got = (r, rhs.matrices(r), rad, *_scaling(rhs, rad, r))
+            got = (rhs.matrices(r), rhs.radial(r))
             cache[key] = got
-        return got
+        return rhs(r, tt, *got) * (width * dg)
 
-    def f(s: float, tau: NDArray) -> NDArray:
-        _, dg = _smooth_map(s)
-        if dg == 0.0:
-            return np.zeros_like(tau)
-        r, mats, rad, sc, dl = at(s)
-        tt = sc[:, :, None] * tau * sc[:, None, :]
-        dt = rhs(r, tt, mats, rad) / (sc[:, :, None] * sc[:, None, :])
-        dt -= dl[:, :, None] * tau + tau * dl[:, None, :]
-        return dt * (width * dg)
-
-    sc0 = at(0.0)[3]
-    tau = t / (sc0[:, :, None] * sc0[:, None, :])
     for i in range(steps):
         s = i * h
-        k1 = f(s, tau)
-        k2 = f(s + h / 2, tau + (h / 2) * k1)
-        k3 = f(s + h / 2, tau + (h / 2) * k2)
-        k4 = f(s + h, tau + h * k3)
-        tau = tau + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
-    sc1 = at(1.0)[3]
-    return tau * (sc1[:, :, None] * sc1[:, None, :])
+        k1 = f(s, t)
+        k2 = f(s + h / 2, t + (h / 2) * k1)
+        k3 = f(s + h / 2, t + (h / 2) * k2)
+        k4 = f(s + h, t + h * k3)
+        t = t + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return t
 
 
 @dataclass
