@@ -105,3 +105,31 @@ def test_tapered_cap_is_thinner_than_the_uniform_cap() -> None:
 
     f0, f1, f2 = abs(forward(core)), abs(forward(taper)), abs(forward(cap))
     assert min(f0, f2) < f1 < max(f0, f2)
+
+
+def test_rotation_derivatives_of_the_exact_wave_match_finite_differences() -> None:
+    """Downstream reuse: the exact T-matrix's orientation derivatives (Wigner) are those of the
+    field itself."""
+    from holofit.conventions import euler_zyz, euler_zyz_from_matrix
+
+    engine = AxisymmetricTMatrix()
+    o = Orientation(0.4, 0.9, 0.0)
+    wave = engine.solve(ROD, OPTICS, o)
+    xs = np.linspace(-2.0, 2.0, 5)
+    ys = np.linspace(-1.5, 1.5, 5)
+    pos = (0.2, 0.1, 6.0)
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    (ex, _), derivs = wave.field_and_rotation_derivatives(pos, xs, ys, [axis])
+    h = 1e-5
+    kx = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
+                   [-axis[1], axis[0], 0.0]])
+    fields = []
+    for sign in (1.0, -1.0):
+        rot = np.eye(3) + np.sin(sign * h) * kx + (1 - np.cos(sign * h)) * kx @ kx
+        angles = euler_zyz_from_matrix(rot @ euler_zyz(*o.as_tuple()))
+        fields.append(engine.solve(ROD, OPTICS, Orientation(*angles)).field_on_pixels(
+            pos, xs, ys)[0])
+    fd = (fields[0] - fields[1]) / (2 * h)
+    assert np.abs(derivs[0][0] - fd).max() < 1e-5 * np.abs(fd).max()
+    assert np.abs(fd).max() > 1e-3 * np.abs(ex).max()
+    assert engine.builds == 1

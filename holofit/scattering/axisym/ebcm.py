@@ -96,6 +96,18 @@ def _q_matrix(bm: NDArray, bn: NDArray, in_m: NDArray, in_n: NDArray, nr: NDArra
     return q * np.concatenate([pref, pref])
 
 
+def _solve_right(q: NDArray, rgq: NDArray) -> NDArray[np.complex128]:
+    """``-RgQ Q^-1`` with ``Q`` equilibrated: columns scaled to unit maximum (``T`` does not
+    change), then rows (``T = -RgQ (D Q)^-1 D``), so that partial pivoting sees entries of
+    comparable size although they span ``h_n(k r_min) / j_n(k r_max)``."""
+    dc = 1.0 / np.abs(q).max(axis=0)
+    qs = q * dc[None, :]
+    dr = 1.0 / np.abs(qs).max(axis=1)
+    qs = qs * dr[:, None]
+    x = np.linalg.solve(qs.T, (rgq * dc[None, :]).T).T  # (RgQ Dc) (Dr Q Dc)^-1
+    return -x * dr[None, :]
+
+
 def ebcm_blocks(profile: Profile, order: int, k: float, n_medium: float, nodes: int
                 ) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
     """Padded T-matrix blocks ``(L + 1, 2L, 2L)`` of ``m = 0..L`` (layout of
@@ -141,11 +153,11 @@ def ebcm_blocks(profile: Profile, order: int, k: float, n_medium: float, nodes: 
                     continue
                 qq, rr = q[np.ix_(sel, sel)], rgq[np.ix_(sel, sel)]
                 cond = max(cond, float(np.linalg.cond(qq)))
-                t[np.ix_(sel, sel)] = -np.linalg.solve(qq.T, rr.T).T
+                t[np.ix_(sel, sel)] = _solve_right(qq, rr)
             conds[m] = cond
         else:
             conds[m] = float(np.linalg.cond(q))
-            t = -np.linalg.solve(q.T, rgq.T).T
+            t = _solve_right(q, rgq)
         sel = np.concatenate([np.arange(cnt), L + np.arange(cnt)])
         out[m][np.ix_(sel, sel)] = t
     return out, conds
