@@ -1,0 +1,108 @@
+"""The library and fit stages with the exact engine (``auto``'s choice for a rod) on a small rod
+movie made by an independent engine's truth (the rod's own exact T-matrix at a higher order than
+the fit's), and the model-error entries of the fit tables: the exact build's stated accuracy,
+and the DDA's refits."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from holofit.config import load_instrument, load_particle, resolve_config
+from holofit.fit.config import FitConfig
+from holofit.fit.model_error import ModelErrorSettings
+from holofit.fit.stage import run_fit
+from holofit.scattering.axisym import AxisymmetricTMatrix
+from holofit.simulate.holograms import simulate_movie
+from tests.stage_helpers import ROD_TOML, SERIAL, crop_prefit_library
+
+#: the small rod of the stage tests with ``auto``'s engine: its exact T-matrix
+EXACT_TOML = ROD_TOML.replace('engine = "builtin"\n', "")
+ANGLES = np.radians([[30, 50, 0], [34, 53, 0], [38, 49, 0]])
+POSITIONS = np.array([[8.0, 8.0, 9.0], [8.1, 7.9, 9.2], [7.9, 8.05, 9.1]])
+
+
+@pytest.fixture(scope="module")
+def exact_movie(tmp_path_factory):
+    """Three frames of the small rod from its exact T-matrix at a fixed order four above the
+    fit's, cropped, prefitted and through the library (``auto``: the exact engine)."""
+    root = tmp_path_factory.mktemp("exactrod")
+    (root / "rod.toml").write_text(EXACT_TOML)
+    particle = load_particle(root / "rod.toml")
+    inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
+    fit_order = particle.theory(fixed_lattice_for=inst.optics).discretisation.order
+    truth = AxisymmetricTMatrix()
+    truth.tmatrix(particle.model, inst.optics, order=fit_order + 4)
+    sim = simulate_movie(particle.model, inst, POSITIONS, (90, 90), orientations=ANGLES,
+                         alpha=0.9, theory=truth, seed=2, out_dir=root / "sim")
+    crop_prefit_library(sim, inst, particle, root)
+    return root, particle
+
+
+def test_auto_fits_a_rod_with_its_exact_tmatrix_and_states_its_accuracy(exact_movie, tmp_path):
+    root, particle = exact_movie
+    lib = pd.read_csv(root / "lib" / "library.csv")
+    assert (lib["status"] == "ok").all()
+    assert not (root / "lib" / "tilts.npz").exists()
+    run = run_fit(root / "crop", root / "prefit", root / "lib", tmp_path / "fit",
+                  FitConfig(particle, initial_frames=2, plot=False), batch=SERIAL)
+    static = json.loads(run.static.read_text())
+    assert static["values"]["a_um"] == pytest.approx(0.3, abs=0.005)
+    assert static["values"]["b_um"] == pytest.approx(0.7, abs=0.005)
+    assert static["values"]["n"] == pytest.approx(1.5, abs=0.005)
+    table = pd.read_csv(run.final)
+    assert (table["status"] == "ok").all(), table["message"].tolist()
+    np.testing.assert_allclose(table[["x_um", "y_um", "z_um"]], POSITIONS, atol=0.01)
+    # the initial pass was seeded from the exact T-matrix (written by the driver), and the
+    # final pass served from the settled statics' one
+    assert (tmp_path / "fit" / "tmatrix_start.npz").exists()
+    assert (tmp_path / "fit" / "tmatrix.npz").exists()
+    assert any("exact engine's T-matrix" in n for n in run.notes), run.notes
+    meta = json.loads((tmp_path / "fit" / "fit.csv.json").read_text())
+    entry = meta["model_error"]
+    assert entry["method"] == "ebcm" and entry["kind"].startswith("exact")
+    provenance = json.loads((tmp_path / "fit" / "tmatrix.npz.json").read_text())
+    assert entry["truncation_estimate"] == provenance["truncation_estimate"] > 0
+    assert entry["order"] == provenance["order"]
+    assert run.model_error == entry and any("model error: exact" in n for n in run.notes)
+    # the DDA stays selectable on the same run: --engine builtin, with its model error off
+    dda = run_fit(root / "crop", root / "prefit", root / "lib", tmp_path / "dda",
+                  FitConfig(particle, engine="builtin", passes="final", static=run.static,
+                            model_error=ModelErrorSettings(enabled=False), plot=False),
+                  batch=SERIAL)
+    assert "model_error" not in json.loads((tmp_path / "dda" / "fit.csv.json").read_text())
+    assert (pd.read_csv(dda.final)["status"] == "ok").all()
+
+
+def test_the_dda_fit_table_carries_its_refits(exact_movie, tmp_path):
+    """A DDA run (the config names the built-in engine): fit.csv's sidecar has the refits'
+    estimate for every fitted parameter, from the initial pass's frames, and a rerun reads it
+    back without refitting."""
+    root, _ = exact_movie
+    (tmp_path / "dda.toml").write_text(ROD_TOML)
+    dda = load_particle(tmp_path / "dda.toml")
+    config = FitConfig(dda, initial_frames=2, plot=False,
+                       model_error=ModelErrorSettings(frames=2))
+    run = run_fit(root / "crop", root / "prefit", root / "lib", tmp_path / "fit", config,
+                  batch=SERIAL)
+    entry = json.loads((tmp_path / "fit" / "fit.csv.json").read_text())["model_error"]
+    assert entry["kind"] == "DDA rule change" and entry["refine"] == 1.25
+    assert entry["dipole_size_um"] == pytest.approx(0.1)
+    initial = pd.read_csv(tmp_path / "fit" / "initial.csv")
+    assert sorted(map(tuple, entry["frames"])) == sorted(
+        zip(initial["particle"], initial["frame"], strict=True))
+    params = entry["parameters"]
+    assert {"z_um", "a_um", "b_um", "n", "alpha"} <= set(params)
+    refits = pd.read_csv(tmp_path / "fit" / "model_error.csv")
+    for name, v in params.items():
+        assert len(v["changes"]) == 2 and np.isfinite(v["estimate"])
+        # the changes are the refits' own (default rule - finer rule), scaled by 1 / (1 - 0.8)
+        np.testing.assert_allclose(v["changes"], refits[name] - refits[f"{name}_fine"])
+        assert v["estimate"] == pytest.approx(np.mean(v["changes"]) / 0.2)
+    assert any(n.startswith("model error of the DDA") for n in run.notes)
+    again = run_fit(root / "crop", root / "prefit", root / "lib", tmp_path / "fit", config,
+                    batch=SERIAL)
+    assert again.summaries["final"].n_run == 0 and again.model_error == entry
