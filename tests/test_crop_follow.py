@@ -14,7 +14,7 @@ from holofit.cli import main
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import CropConfig, run_crop
 from holofit.crop.follow import off_track
-from holofit.simulate.holograms import simulate_movie
+from holofit.simulate.holograms import Exposure, simulate_movie
 
 #: frames in which the second, stronger hologram is in view
 B_FRAMES = range(10, 15)
@@ -50,7 +50,7 @@ def two_particles(tmp_path_factory):
     walk = 0.02 * np.cumsum(rng.normal(size=(n, 2)), axis=0)
     pa = np.column_stack([3.5 + walk, np.full(n, 12.0)])
     pb = np.tile([9.0, 9.0, 8.0], (n, 1))
-    kw = {"noise": False, "keep_frames": True, "n_background": 1}
+    kw = {"exposure": Exposure(noise=False, n_background=1), "keep_frames": True}
     sa = simulate_movie(sphere.model, inst, pa, (128, 128), theory=sphere.theory(),
                         out_dir=out / "a", **kw)
     sb = simulate_movie(sphere.model, inst, pb, (128, 128), theory=sphere.theory(), **kw)
