@@ -1,12 +1,12 @@
 """The item key of a batch: which row of a stage table an item is.
 
 A batch runs one *item function* on many items; each item is named by a key, and the table
-holds one row per key, with the key in its *key columns*. Today every stage runs per frame:
-the key columns are ``("frame",)`` and a key is the frame number. A stage keyed by several
-columns (e.g. ``("particle", "frame")`` for a movie with several particles) gives the key as
-a tuple of the same length; the batch runner, its journal and the stage skeleton
-(:mod:`holofit.batch.stage`) treat a key only through the functions here, so they need no
-change for such a stage.
+holds one row per key, with the key in its *key columns*. The crop stage's search runs per
+frame (:data:`FRAME_KEY`: a key is the frame number); every stage after it is keyed by
+``("particle", "frame")`` (:data:`holofit.tables.cropset.PARTICLE_KEY`: a key is a tuple of
+the same length as the key columns). The batch runner, its journal and the stage skeleton
+(:mod:`holofit.batch.stage`) treat a key only through the functions here, so one runner
+serves every key.
 
 A *multi-row item* (a chunk of a track: several frames fitted in one go) returns several rows,
 each with its own key; one of them has the item's key (:func:`item_rows` checks it and puts it

@@ -87,8 +87,11 @@ def lattice_symmetries(lattice: Lattice, values: NDArray | None = None, per_axis
     tol : float
         Largest difference of matched values.
 
-    Returns the identity alone if the dipole positions are not on a lattice symmetric under
-    any operation about the centre.
+    Returns
+    -------
+    list of ndarray
+        The operations, the identity first; the identity alone if the dipole positions are
+        not on a lattice symmetric under any operation about the centre.
     """
     half = 2.0 * lattice.positions / lattice.d  # integers where the centre is a (half) node
     rounded = np.rint(half)

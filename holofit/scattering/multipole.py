@@ -325,8 +325,8 @@ def expansion_from_far_field(
 # -- fast evaluation on a camera plane -------------------------------------------------------
 
 #: Lagrange stencil (points per axis) and grid step as a fraction of the shortest period of the
-#: band-limited U (degree 2L+2 in theta, L+1 in phi). Measured against exact Lorenz-Mie fields
-#: (tests/test_dda_fields.py): 8 points at 0.7 leave ~3e-11 of the field, 6 at 0.7 ~7e-9. The
+#: band-limited U (degree 2L+2 in theta, L+1 in phi): 8 points at 0.7 keep the interpolation
+#: far below the solvers' tolerance (docs: validation, "the DDA"). The
 #: interpolation kernel (:func:`holofit.scattering.lens_kernels.polar_interpolate`, shared with
 #: the lens image) is compiled for 8 (a constant trip count is what makes it fast).
 STENCIL = POLAR_STENCIL
