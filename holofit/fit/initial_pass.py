@@ -32,6 +32,7 @@ from holofit.fit.errors import FitStageError
 from holofit.fit.models import ModelFits, choose_model, parameter_count, prefit_sphere
 from holofit.fit.overlaps import overlap_rows
 from holofit.fit.passes import FitPasses, table_digest
+from holofit.fit.pictures import picture_prefix
 from holofit.fit.seeded import SEED_BUILD, seed_particle
 from holofit.fit.static import static_average, write_static
 from holofit.fit.task import PassConfig, TrackSetup
@@ -217,7 +218,7 @@ def _statics(fp: FitPasses, fits: list[ModelFits], inputs: list[Path]) -> Path:
         rows = rows[rows["particle"] == p]
         model = models[choice.label]
         if not (rows["status"] == OK).any():
-            picture = f"frames_initial/p{p}_frame_*.png" if p else "frames_initial/frame_*.png"
+            picture = f"frames_initial/{picture_prefix(p, len(fp.tracks))}frame_*.png"
             outcome = left_out(rows, p, choice.label, picture if c.plot else None)
             if len(fits) > 1:
                 outcome = TrackOutcome(p, choice.label, "unmodelled",
