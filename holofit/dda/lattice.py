@@ -80,7 +80,7 @@ class Lattice:
         medium's, and a voxel's polarisability goes to zero continuously with its filling.
         It is more accurate than linear permittivity mixing (docs: validation, "the DDA").
         """
-        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices])
+        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices], dtype=np.complex128)
         s = self.fractions @ ((m2 - 1.0) / (m2 + 2.0))
         return (1.0 + 2.0 * s) / (1.0 - s)
 
@@ -111,7 +111,7 @@ class Lattice:
         isotropic = np.repeat(self.relative_permittivity(n_medium)[:, None], 3, axis=1)
         if self.normals is None:
             return isotropic
-        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices])
+        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices], dtype=np.complex128)
         f_medium = 1.0 - self.fractions.sum(axis=1)
         eps_par = f_medium + self.fractions @ m2
         with np.errstate(divide="ignore", invalid="ignore"):

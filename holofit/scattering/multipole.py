@@ -33,7 +33,7 @@ from functools import lru_cache
 
 import numba
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from holofit.scattering.legendre import legendre_tables
 from holofit.scattering.lens_kernels import POLAR_STENCIL, polar_interpolate
@@ -229,7 +229,7 @@ class MultipoleExpansion:
             axis=1,
         )
 
-    def far_amplitude(self, directions: NDArray) -> NDArray[np.complex128]:
+    def far_amplitude(self, directions: ArrayLike) -> NDArray[np.complex128]:
         """Far-field pattern ``A(n) = lim kr exp(-ikr) E(r n)`` (N, 3) at unit directions."""
         d = np.atleast_2d(np.asarray(directions, dtype=float))
         r = 1.0 / self.k  # kr = 1: the far form then carries exp(i)/1
@@ -389,9 +389,9 @@ def _legendre_coefficients(lmax: int) -> tuple[NDArray, ...]:
                               / ((n * n - m * m) * (2.0 * n - 3.0)))
         for n in range(m, L + 1):
             c[n, m] = np.sqrt((n * n - m * m) * (2.0 * n + 1.0) / (2.0 * n - 1.0))
-    m = np.arange(L + 1)
+    ms = np.arange(L + 1)
     sect = np.zeros(L + 1)
-    sect[1:] = -np.sqrt((2.0 * m[1:] + 1.0) / (2.0 * m[1:]))
+    sect[1:] = -np.sqrt((2.0 * ms[1:] + 1.0) / (2.0 * ms[1:]))
     return a, b, c, sect
 
 
