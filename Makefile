@@ -32,8 +32,10 @@ bench: install
 replicate: install
 	$(BIN)/python bench/replicate.py --out replicate --dask-check 200
 
+# ruff on the code, mypy on the package (its configuration in pyproject.toml)
 lint: install
 	$(BIN)/ruff check holofit tests bench
+	$(BIN)/mypy
 
 # the documentation site (docs/, mkdocs.yml) into site/; --strict: any warning fails the build
 $(DOCS_STAMP): $(STAMP) pyproject.toml
