@@ -25,7 +25,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import pickle
+import resource
 import time
 from pathlib import Path
 
@@ -59,11 +61,21 @@ PAPER_JANUS = {"a (nm)": (443, 20), "t (nm)": (47, 8), "n_TiO2": (2.74, 0.23),
                "a_eff from D_r (nm)": (523, 6), "eps (nm)": (21.8, math.nan)}
 
 
+def _cpu_s() -> float:
+    """CPU time (user + system) of this process and of its finished children (the stages'
+    worker processes): on shared cores the wall time depends on the load, the CPU time much
+    less."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(
+        resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def _stage(times: dict[str, float], name: str, fn, *args, **kwargs):
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_s()
     result = fn(*args, **kwargs)
     times[name] = time.perf_counter() - t0
-    print(f"  {name}: {times[name]:.0f} s", flush=True)
+    print(f"  {name}: {times[name]:.0f} s wall, {_cpu_s() - c0:.0f} s CPU (load average "
+          f"{os.getloadavg()[0]:.1f})", flush=True)
     return result
 
 

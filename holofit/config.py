@@ -379,7 +379,8 @@ class ParticleConfig:
             d = base.dipole_size_for(self.model, fixed_lattice_for)
             if settings is not None or not isinstance(self.model, Sphere):
                 settings = base.replace(dipole_size_um=d)
-        if engine in (None, "auto") and "engine" in self.settings.get("dda", {}):
+        if (engine in (None, "auto") and settings is not None
+                and "engine" in self.settings.get("dda", {})):
             engine = settings.engine
         try:
             theory = select_theory(self.model, settings, engine)

@@ -52,6 +52,25 @@ def test_auto_picks_the_exact_engine_for_bodies_of_revolution() -> None:
     assert select_theory(Sphere(0.5, 1.59), DDASettings()).name == "builtin"
     assert select_theory(CoatedSphere(0.4, 0.05, 1.59, 2.7)).name == "coated_sphere"
     assert select_theory(Ellipsoid(0.3, 0.4, 0.5, 1.5)).name == "builtin"
+
+
+def test_auto_gives_a_voxel_shape_the_dda(tmp_path) -> None:
+    """A voxel file (an arbitrary shape: no exact engine handles it) gets the built-in DDA,
+    with or without a ``[dda]`` table; asking for the exact engine says why not."""
+    from holofit.config import load_particle
+    from holofit.particles import VoxelShape
+
+    geom = tmp_path / "l.geom"
+    geom.write_text("0 0 0\n1 0 0\n2 0 0\n0 1 0\n")  # an L of four dipoles
+    shape = VoxelShape(str(geom), 0.05, (1.5,))
+    assert select_theory(shape).name == "builtin"
+    assert select_theory(shape, DDASettings()).name == "builtin"
+    with pytest.raises(ValueError, match="exact engine handles"):
+        select_theory(shape, engine="exact")
+    (tmp_path / "l.toml").write_text(
+        f'[particle]\nmodel = "voxels"\npath = "{geom}"\ndipole_size_um = 0.05\n'
+        "indices = [1.5]\n")
+    assert load_particle(tmp_path / "l.toml").theory().name == "builtin"
     # the DDA settings' engine = "adda" still picks ADDA (here without a binary: it says so)
     with pytest.raises(Exception, match="ADDA"):
         select_theory(ROD, DDASettings(engine="adda"))

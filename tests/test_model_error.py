@@ -118,7 +118,7 @@ def test_the_refits_find_the_dda_bias_of_an_exact_coated_sphere_hologram() -> No
         est = got[n]["estimate"]
         # the estimate's sign is the bias's, and it does not understate it by more than 2x
         # (measured: it overstates the thin shell's index 36x, the others 1.3-6x: the shell's
-        # error is not monotone in d at two dipoles across; docs/engines_auto.md)
+        # error is not monotone in d at two dipoles across)
         assert est / bias > 0.5, (n, est, bias)
         assert abs(got[n]["estimate_over_sigma"]) > 5.0, n
         ratios.append(est / bias)

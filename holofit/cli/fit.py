@@ -68,7 +68,7 @@ from holofit.quality import QualityLimits
                    "OUT/static.json from the initial pass].")
 @click.option("--engine", type=click.Choice(ENGINE_CHOICES), default=None,
               help="Scattering engine [default: the particle config's: auto, the exact one where "
-                   "the particle has one (docs/engines_auto.md); builtin: the DDA].")
+                   "the particle has one (docs/engines/index.md); builtin: the DDA].")
 @click.option("--fix", "fixed", default="", metavar="NAME,NAME",
               help="Hold these parameters at the particle config's values: x_um, y_um, z_um, "
                    "orientation, alpha, or the model's own, "

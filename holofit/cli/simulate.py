@@ -214,7 +214,7 @@ def _orientations(orientation: tuple[str, ...], table: pd.DataFrame | None, n: i
     show_default=True,
     help="Scattering engine (auto: the exact one where the particle has one - Lorenz-Mie, "
     "coated sphere, cluster, the T-matrix of a body of revolution - else the config's "
-    "[dda]; docs/engines_auto.md).",
+    "[dda]; docs/engines/index.md).",
 )
 @click.option(
     "--position",

@@ -17,7 +17,7 @@ the engine the DDA settings name (the built-in DDA unless they say ``adda``):
 
 ``--engine builtin`` (or ``adda``) computes any of them by the DDA, for comparison; so does a
 particle config whose ``[dda]`` table names ``engine`` (:meth:`holofit.config.ParticleConfig.
-theory`). ``docs/engines_auto.md`` lists the choice by particle, with the DDA's model error.
+theory`). ``docs/engines/index.md`` ("What auto picks") lists the choice by particle, and why.
 """
 
 from __future__ import annotations

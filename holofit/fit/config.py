@@ -147,4 +147,4 @@ class FitRun:
 
     def as_dict(self) -> dict[str, Any]:
         return {"initial": self.initial, "static": self.static, "final": self.final,
-                "notes": self.notes}
+                "notes": self.notes, "model_error": self.model_error}

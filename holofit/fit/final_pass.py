@@ -54,7 +54,8 @@ def final_pass(fp: FitPasses, static_path: Path) -> None:
     primary = [k for k in fp.given.frames if k[0] in setups and setups[k[0]].particle is None]
     others = [k for k in fp.given.frames if k[0] in setups and setups[k[0]].particle is not None]
     followed = c.follow.warm and model.anisotropic
-    parts, keys, extra = [], [], {}
+    parts, keys = [], []
+    extra: dict[str, Any] = {}
     if followed and primary:
         table, key, extra = fp.followed_pass(cfg, primary)
         parts.append(table)

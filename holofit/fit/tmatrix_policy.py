@@ -12,6 +12,7 @@ one solve); ``never`` then leaves each worker to build its own.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,9 +24,10 @@ from holofit.fit.errors import FitStageError
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
 from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.tmatrix import TMatrix
 
 __all__ = ["TMATRIX_CHOICES", "TMATRIX_MIN_FRAMES", "FinalTMatrix", "check_policy",
-           "final_tmatrix", "no_tmatrix_reason", "serve_tmatrix_file"]
+           "final_tmatrix", "no_tmatrix_reason", "serve_tmatrix_file", "tmatrix_builder"]
 
 TMATRIX_CHOICES = ("auto", "always", "never")
 #: final passes at least this long are served from a T-matrix by default
@@ -86,11 +88,11 @@ def final_tmatrix(particle: ParticleConfig, inst: Instrument, engine: str | None
     reused = path.exists()
     build: dict[str, Any] = {**(build_options or {}), "workers": max(int(workers), 1)}
     try:
-        theory.tmatrix(model, inst.optics, path=str(path), **build)
+        tmatrix_builder(theory)(model, inst.optics, path=str(path), **build)
     except TMatrixMismatch:
         # made for other static parameters or settings (an earlier run): build anew
         path.unlink()
-        theory.tmatrix(model, inst.optics, path=str(path), **build)
+        tmatrix_builder(theory)(model, inst.optics, path=str(path), **build)
         reused = False
     seconds = time.perf_counter() - t0
     how = "loaded" if reused else f"built by {build['workers']} process(es)"
@@ -137,7 +139,17 @@ def serve_tmatrix_file(theory: ScatteringTheory, model: ParticleModel, optics: O
         except (TMatrixMismatch, FileNotFoundError):
             pass
         return
-    theory.tmatrix(model, optics, path=path)  # type: ignore[attr-defined]
+    tmatrix_builder(theory)(model, optics, path=path)
+
+
+def tmatrix_builder(theory: ScatteringTheory) -> Callable[..., TMatrix]:
+    """``theory``'s ``tmatrix(model, optics, **options)`` (the built-in DDA's and the exact
+    engine's: :func:`no_tmatrix_reason` says whether it has one); an engine without one is a
+    :class:`~holofit.fit.errors.FitStageError`."""
+    build = getattr(theory, "tmatrix", None)
+    if not callable(build):
+        raise FitStageError(f"the {theory.name} engine has no T-matrix (use --engine builtin)")
+    return build
 
 
 def no_tmatrix_reason(theory: ScatteringTheory) -> str:
