@@ -92,7 +92,8 @@ from holofit.quality import QualityLimits
                    "minimum refitted from their neighbours' orientations).")
 @click.option("--model-error/--no-model-error", "model_error", default=None,
               help="Estimate the final table's model error (sidecar and notes): a "
-                   "discrete-dipole engine refits a few frames on a coarser lattice; an exact "
+                   "discrete-dipole engine refits a few frames on a 1.25x finer lattice (a size, "
+                   "not a signed correction); an exact "
                    "engine records its T-matrix's stated accuracy [default: on].")
 @click.option("--model-error-frames", type=click.IntRange(min=1), default=MODEL_ERROR_FRAMES,
               show_default=True, help="Frames the DDA's model-error estimate refits.")
