@@ -43,7 +43,6 @@ import pandas as pd
 from holofit.analysis.hydrodynamics import sphere_diffusion
 from holofit.config import Instrument, load_instrument, load_particle, resolve_config
 from holofit.crop import CropConfig, run_crop
-from holofit.io.tables import read_json
 from holofit.simulate.brownian import BrownianParameters, simulate_trajectory
 from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
 from holofit.simulate.holograms import SimulatedMovie
@@ -179,8 +178,8 @@ def run(out_json: Path, work: Path, n: int, size_px: int) -> dict[str, Any]:
         crop = run_crop(sim.movie, sim.background, inst, work / name / "crop",
                         CropConfig(plot=False))
         t2 = time.time()
-        side = read_json(crop.table.with_name(crop.table.name + ".json"))
-        losses = side["extra"]["track_losses"]
+        side = json.loads(crop.table.with_name(crop.table.name + ".json").read_text())
+        losses = side["track_losses"]
         scores = score_scene(crop.frames, sim.truth, inst.pixel_size_um, losses)
         result.update({f"{name}_{k}": v for k, v in scores.items()})
         result[f"{name}_simulate_s"] = round(t1 - t0, 1)

@@ -10,13 +10,15 @@ size and the particle's height without a setting:
     ``cos(pi rho^2 / zeta^2 + phase)`` near the centre (paraxially), so the squared radii of
     successive zero crossings of the profile advance by ``zeta^2``. It is measured as the
     median of those steps over the first crossings (robust to one missed or spurious
-    crossing). The central bright or dark spot has a radius of ~``zeta / 2`` (the first
-    crossing: 0.45-0.51 ``zeta`` for spheres at 6-30 um on the paper's 60x instrument), and
+    crossing; 1-5 % high, the non-paraxial growth of the steps, at 6-30 um). The central
+    bright or dark spot has a radius of ~``zeta / 2`` (the first crossing: 0.45-0.51
+    ``zeta`` for spheres at 6-30 um on the paper's 60x instrument), and
     the fringe spacing at radius ``rho`` is ``~zeta^2 / rho``: ``zeta`` is the hologram's
     own length scale near its centre, where two holograms must be told apart.
 *reach*
-    The largest radius at which the profile's fringe envelope (the largest ``|profile|``
-    within one local fringe spacing) stands above the frame's pixel noise: beyond it a
+    The largest radius at which the rings' fringe power envelope (their clipped mean square
+    less the noise variance, the largest within one local fringe spacing) stands above the
+    frame's pixel noise variance (:func:`_reach`): beyond it a
     hologram's fringes are below the noise of every single pixel, within it they are not,
     which is what decides whether a neighbour's hologram enters a crop.
 
@@ -87,8 +89,9 @@ class FringeOptics:
         return cls(lam / pixel_size_um, min(sines))
 
     def height_px(self, zone_px: float) -> float:
-        """``|z|`` of a hologram of zone radius ``zone_px``, pixels (paraxial: ~5 % low at
-        ``rho ~ z / 2``, where the first crossings of a hologram at 10-30 um lie)."""
+        """``|z|`` of a hologram of zone radius ``zone_px``, pixels (paraxial: the first
+        crossings' steps grow with ``rho / z``, so this is 2-10 % high at 6-30 um on the
+        paper's 60x instrument)."""
         return zone_px * zone_px / self.wavelength_px
 
     def farthest_px(self, zone_px: float) -> float:
