@@ -37,12 +37,12 @@ from holofit.scattering.theory import Orientation
 from holofit.simulate.holograms import default_camera
 
 INSTRUMENTS = ("paper_60x_water", "paper_100x_oil", "pylorenzmie")
-SEPARATIONS_UM = (1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0)
+SEPARATIONS_UM = (1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0)
 HEIGHTS_UM = {"sphere": (12.0, 20.0), "rod": (12.0,)}
 #: a particle is detected within this distance of its centre, um
 TOLERANCE_UM = 0.5
-#: frames span this many um a side (the holograms' reach at 12-20 um)
-FRAME_UM = 45.0
+#: frames span this many um a side (most of the holograms' reach at 12-20 um)
+FRAME_UM = 32.0
 
 
 def _frame_shape(inst: Instrument) -> tuple[int, int]:

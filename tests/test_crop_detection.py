@@ -138,8 +138,9 @@ def test_a_passing_sphere_is_found_while_3_um_away_without_a_swap(passing, inst)
     close = ok[ok["particle"].isin(tracks_of[0] | tracks_of[1])]
     assert close["overlap"].all()
     zero = close[close["particle"].isin(tracks_of[0])]
-    near = zero[np.hypot(zero["x_um"] - pos[1].loc[zero["frame"], "x_um"].to_numpy(),
-                         zero["y_um"] - pos[1].loc[zero["frame"], "y_um"].to_numpy()) < 5.0]
+    near = zero[(np.hypot(zero["x_um"] - pos[1].loc[zero["frame"], "x_um"].to_numpy(),
+                          zero["y_um"] - pos[1].loc[zero["frame"], "y_um"].to_numpy()) < 5.0)
+                & zero["frame"].isin(sorted(found[1]))]
     assert len(near) and near["neighbour"].isin(tracks_of[1]).all()
     # reach and zone radius are in the table, in pixels
     assert (ok["zone_px"] > 5).all() and (ok["reach_px"] > ok["zone_px"]).all()

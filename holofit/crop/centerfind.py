@@ -29,7 +29,7 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from holofit.crop.peel import MainSearch, Peak, peel, remeasure, taken
+from holofit.crop.peel import MIDPOINT_CIRCULARITY, MainSearch, Peak, peel, remeasure, taken
 from holofit.crop.profile import FringeOptics, Scales
 from holofit.crop.radial import refine_center_radial
 from holofit.crop.symmetry import quadratic_peak, refine_center
@@ -47,6 +47,17 @@ CENTER_COLUMNS = ("x_px", "y_px", "score", "alignment", "symmetry", "refinement"
                   "reach_px")
 #: smallest vote radius, pixels
 MIN_RADIUS_PX = 4.0
+
+#: A local maximum of the vote within half a vote radius of a stronger one is a candidate if
+#: it is at least this share of it: two rods 6 um apart at 60x vote 2661 and 2451, the junk
+#: on their cones' slopes at most 760 (bench/detection_scenes.py, crossing rods)
+SECONDARY_SHARE = 0.5
+
+#: A refined candidate whose rings are not circular about it (circularity below
+#: :data:`holofit.crop.peel.MIDPOINT_CIRCULARITY`) is kept only this point-symmetric: the
+#: midpoint of two alike holograms (0.84-0.97 at 60x, 2-6 um apart), from which peeling finds
+#: the two; junk at a frame's edge scores 0.54-0.58 (HoloPy's image0001)
+MIDPOINT_SYMMETRY = 0.8
 
 #: Below this valid pair fraction (centre within ~10 px of an edge) the radial refinement
 #: takes over from the point-symmetry one.
@@ -211,15 +222,17 @@ def _find(image: NDArray, mask: NDArray | None, s: CenterFinder) -> pd.DataFrame
         return _empty()
     noise = noise_strength(estimate_noise(small), radius_ds)
     noise = max(noise, 1e-9 * peak_strength)  # noise-free (synthetic) images
-    # one local maximum per vote cone (a hologram's vote falls off over ~a vote radius: its
-    # slopes carry no maxima of their own within half of one); closer holograms are found
-    # by peeling, down to half a zone radius
+    # local maxima of the vote at its own resolution (a block) that are the largest within
+    # half a vote radius (a hologram's cone falls off over ~a vote radius), or at least
+    # SECONDARY_SHARE of that largest: a neighbour as strong as the hologram whose cone it
+    # sits in is found here (a weaker one by peeling, which subtracts the stronger one's
+    # rings), while junk on a cone's slope is a few tenths of its peak and not refined
     window = s.min_separation_px if s.min_separation_px is not None else s.radius_px / 2
     sep_ds = max(1, round(window / factor))
-    local_max = ndimage.maximum_filter(strength, size=2 * sep_ds + 1, mode="nearest")
-    peaks = (
-        (strength == local_max) & (strength >= s.min_score * noise) & (alignment >= s.min_alignment)
-    )
+    local_max = ndimage.maximum_filter(strength, size=3, mode="nearest")
+    cone_max = ndimage.maximum_filter(strength, size=2 * sep_ds + 1, mode="nearest")
+    peaks = ((strength == local_max) & (strength >= SECONDARY_SHARE * cone_max)
+             & (strength >= s.min_score * noise) & (alignment >= s.min_alignment))
     rows, cols = np.nonzero(peaks)
     if rows.size == 0:
         return _empty()
@@ -260,6 +273,9 @@ def _find(image: NDArray, mask: NDArray | None, s: CenterFinder) -> pd.DataFrame
         if not (0 <= x <= img.shape[1] - 1 and 0 <= y <= img.shape[0] - 1):
             continue  # refined out of the frame: an edge's fringes, not a centre to crop
         prof = scales.measure(img, x, y)
+        if (s.refine and not prof.circularity >= MIDPOINT_CIRCULARITY
+                and not symmetry >= MIDPOINT_SYMMETRY):
+            continue  # rings not circular about it, and not a pair's symmetric midpoint: junk
         if taken(x, y, prof.zone_px, found, scales):
             continue  # same hologram as a stronger candidate
         found.append(Peak(x, y, float(strength[i, j]) / noise, float(alignment[i, j]),

@@ -75,10 +75,13 @@ MOVE = 0.2
 #: 0.53-0.96, the midpoint of the two 0.04-0.24) is peeled again about its most circular
 #: rings' centre if the first peel finds nothing
 RING_CHECK = 0.9
-#: a centre at the midpoint of two others whose rings are less circular than this is their
-#: interference term, not a particle (:func:`taken`); a new centre found in the residual
-#: must be at least this circular there
-MIDPOINT_CIRCULARITY = 0.5
+#: a centre whose rings are less circular than this may be the midpoint of two alike
+#: holograms (their interference term: 0.04-0.24 measured), not a particle (:func:`peel`,
+#: :func:`_drop_midpoints`); a member of a pair 2.8 um apart scores 0.44-0.58
+MIDPOINT_CIRCULARITY = 0.35
+#: a new centre found in the residual must be at least this circular there (its neighbour
+#: subtracted; what subtraction leaves near a centre scores 0.18-0.2)
+PEELED_CIRCULARITY = 0.5
 #: largest radius of the rings whose circularity places a ring model, zone radii (the central
 #: spot and the first two fringes place it as well as all of them, at a fraction of the cost)
 RING_RADIUS = 1.5
@@ -299,16 +302,28 @@ def peel(image: NDArray, peaks: list[Peak], main: MainSearch,
     while k < len(peaks) and len(peaks) < main.max_centers:
         centre = peaks[k]
         k += 1
+        found = None
         if centre.ring_xy is None and not centre.circularity >= MIDPOINT_CIRCULARITY:
-            # rings not circular about it at all (lone holograms: >= 0.83): the midpoint of
-            # two alike holograms, whose interference term is point-symmetric about it; start
-            # from the most circular rings within a zone radius, one of the two
+            # the midpoint of a pair one of whose members is found: the other is its mirror
+            mirrored = _mirrored(img, peaks, k - 1, main)
+            if mirrored is not None:
+                peaks[k - 1] = centre = mirrored
+        if centre.ring_xy is None and not centre.circularity >= MIDPOINT_CIRCULARITY:
+            # rings not circular about it at all (lone holograms: >= 0.83): perhaps the
+            # midpoint of two alike holograms, whose interference term is point-symmetric
+            # about it; search from the most circular rings within a zone radius, one of the
+            # two, and keep that if it finds the other
             zone, move = main.zone(centre), main.move(centre)
             x, y = _rings_at(search.small, factor, centre.x, centre.y,
                              min(radius_px, RING_RADIUS * zone), move, MIDPOINT_SPAN * zone)
-            centre = replace(centre, x=x, y=y, ring_xy=(x, y))
-            peaks[k - 1] = centre
-        found = search.next_to(centre, peaks)
+            moved = replace(centre, x=x, y=y, ring_xy=(x, y))
+            peaks[k - 1] = moved
+            found = search.next_to(moved, peaks)
+            if found is None:
+                peaks[k - 1] = centre
+            else:
+                centre = moved
+        found = found or search.next_to(centre, peaks)
         alone = not any(q is not centre and np.hypot(q.x - centre.x, q.y - centre.y)
                         < search.peel_reach for q in peaks)
         if (found is None and alone and centre.ring_xy is None
@@ -336,7 +351,7 @@ def peel(image: NDArray, peaks: list[Peak], main: MainSearch,
             new = True
             k -= 1  # peel this centre again with the new one subtracted too
     if not new:
-        return _refine_pairs(img, peaks, main)
+        return _refine_pairs(img, _drop_midpoints(peaks, main.scales), main)
     refined = _refine_pairs(img, _drop_midpoints(peaks, main.scales), main)
     # a new hologram is judged once both are refined with the other's rings subtracted:
     # what a biased first subtraction left behind is not point-symmetric then (the main
@@ -404,7 +419,7 @@ class _Search:
             if not (converged and pairs >= EDGE_PAIRS and symmetry >= main.min_symmetry):
                 continue
             prof = scales.measure(residual, x - wide[1].start, y - wide[0].start)
-            if not prof.circularity >= MIDPOINT_CIRCULARITY:
+            if not prof.circularity >= PEELED_CIRCULARITY:
                 continue  # what subtraction left near a centre, or a pair's midpoint
             if taken(x, y, prof.zone_px, peaks, scales):
                 continue
@@ -428,6 +443,37 @@ def taken(x: float, y: float, zone: float, peaks: list[Peak], scales: Scales) ->
             if np.hypot(x - mx, y - my) < scales.separation(p.zone, q.zone, zone):
                 return True
     return False
+
+
+def _mirrored(img: NDArray, peaks: list[Peak], k: int, main: MainSearch) -> Peak | None:
+    """Peak ``k`` moved to its mirror image through a found neighbour within two zone radii,
+    ``2 c - q``, if that is a hologram centre there (point-symmetric and circular once the
+    others' rings are subtracted): ``k`` is then the midpoint of ``q`` and a hologram alike
+    to it, whose interference term is point-symmetric about the midpoint. None otherwise."""
+    centre = peaks[k]
+    zone = main.zone(centre)
+    scales = main.scales
+    for q in peaks:
+        if q is centre or np.hypot(q.x - centre.x, q.y - centre.y) > 2 * MIDPOINT_SPAN * zone:
+            continue
+        x0, y0 = 2 * centre.x - q.x, 2 * centre.y - q.y
+        search = scales.separation(zone)
+        box = _box(img.shape, x0, y0, main.half_width + 2 * search + 2)
+        if not (box[1].start <= x0 < box[1].stop and box[0].start <= y0 < box[0].stop):
+            continue
+        residual = _without(img, peaks, k, main.radius_px, box)
+        x, y, symmetry, converged, _ = _refine_in(residual, box, x0, y0, main.half_width,
+                                                  max(search, 1.0))
+        if not (converged and symmetry >= main.min_symmetry):
+            continue
+        prof = scales.measure(residual, x - box[1].start, y - box[0].start)
+        others = [p for p in peaks if p is not centre]
+        if prof.circularity >= PEELED_CIRCULARITY and not taken(x, y, prof.zone_px, others,
+                                                                  scales):
+            return replace(centre, x=x, y=y, symmetry=symmetry, ring_xy=(x, y),
+                           zone=prof.zone_px, reach=prof.reach_px,
+                           circularity=prof.circularity)
+    return None
 
 
 def _drop_midpoints(peaks: list[Peak], scales: Scales) -> list[Peak]:
