@@ -52,10 +52,10 @@ PEEL_REACH = 2.0
 #: a ring model covers at most this many vote radii about its centre
 PROFILE_REACH = 3.0
 #: a new hologram in the residual must score this many times the main search's smallest
-#: score, and its point symmetry must lie halfway from the main search's smallest to 1 (what
-#: subtraction leaves behind can pass the main search's thresholds by a hair: a fringe cut by
-#: the frame's edge scored 10.6 and 0.507 against 10 and 0.5 in HoloPy's image0001); peeled
-#: neighbours score 100-230 and 0.8-0.95 in tests/test_crop_pairs.py
+#: score, and its point symmetry must lie halfway from the main search's smallest to 1: what
+#: subtraction leaves behind (a fringe cut by the frame's edge) can pass the main search's
+#: thresholds by a hair, while real neighbours pass these by far (docs: validation, "field of
+#: view")
 PEEL_SCORE = 3.0
 #: ... and an alignment of at least this: with the found holograms subtracted a hidden one
 #: points its gradients at its centre as a lone one does (0.8-0.98), where junk left by the
@@ -67,20 +67,19 @@ EDGE_PAIRS = 0.5
 #: refinement rounds of neighbouring centres with each other's ring models subtracted
 ROUNDS = 3
 #: how far one round may move a centre, zone radii (a neighbour's bias is a fraction of the
-#: central spot, half a zone radius; 0.2 zeta is the 4 px that resolved pairs 2-4 um apart
-#: at 100x, zeta ~ 21 px, in tests/test_crop_pairs.py)
+#: central spot, half a zone radius)
 MOVE = 0.2
-#: a centre whose rings are less circular than this (:mod:`holofit.crop.profile`: lone
-#: spheres 0.97, lone rods 0.83-0.98 at 60x; a sphere with an alike neighbour 3-9 um away
-#: 0.53-0.96, the midpoint of the two 0.04-0.24) is peeled again about its most circular
-#: rings' centre if the first peel finds nothing
+#: a centre whose rings are less circular than this (:mod:`holofit.crop.profile`) is peeled
+#: again about its most circular rings' centre if the first peel finds nothing: a lone
+#: hologram scores above it, a close alike neighbour pulls a sphere's score below it
 RING_CHECK = 0.9
 #: a centre whose rings are less circular than this may be the midpoint of two alike
-#: holograms (their interference term: 0.04-0.24 measured), not a particle (:func:`peel`,
-#: :func:`_drop_midpoints`); a member of a pair 2.8 um apart scores 0.44-0.58
+#: holograms (their point-symmetric interference term), not a particle (:func:`peel`,
+#: :func:`_drop_midpoints`); a member of a close pair scores above it (docs: validation,
+#: "field of view")
 MIDPOINT_CIRCULARITY = 0.35
 #: a new centre found in the residual must be at least this circular there (its neighbour
-#: subtracted; what subtraction leaves near a centre scores 0.18-0.2)
+#: subtracted; what subtraction leaves near a centre scores well below it)
 PEELED_CIRCULARITY = 0.5
 #: largest radius of the rings whose circularity places a ring model, zone radii (the central
 #: spot and the first two fringes place it as well as all of them, at a fraction of the cost)
@@ -195,7 +194,7 @@ def _rings_at(small: NDArray, factor: int, x0: float, y0: float, ring_px: float,
     (full-frame pixels), on the block-averaged frame ``small`` (a quarter block is precise
     enough to place a ring model).
 
-    A neighbour pulls the point-symmetry centre off: by ~2.5 px at ~2.5 um, and onto the
+    A neighbour pulls the point-symmetry centre off, by pixels at a few um, and onto the
     midpoint when the two holograms are alike (a pair is nearly point-symmetric about its
     midpoint). The most circular rings' centre is sought first on a grid of trial centres
     ``span_px`` about the start (if ``span_px`` > 0; the radial variance,
