@@ -25,6 +25,7 @@ import json
 import math
 import sys
 import time
+import zlib
 from typing import Any
 
 import numpy as np
@@ -127,7 +128,7 @@ def run(draws: int, instruments: tuple[str, ...]) -> dict[str, Any]:
             t0 = time.time()
             pairs = _Pairs(inst, particle)
             for z in heights:
-                rng = np.random.default_rng(hash((name, particle, z)) % 2**32)
+                rng = np.random.default_rng(zlib.crc32(f"{name}/{particle}/{z:g}".encode()))
                 fractions = {}
                 for d in SEPARATIONS_UM:
                     ok = 0

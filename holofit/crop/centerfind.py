@@ -251,8 +251,8 @@ def _find(image: NDArray, mask: NDArray | None, s: CenterFinder) -> pd.DataFrame
         if tried >= 3 * s.max_centers or len(found) >= s.max_centers:
             break
         di, dj = quadratic_peak(strength, int(i), int(j))
-        x0 = (j + dj) * factor + (factor - 1) / 2.0
-        y0 = (i + di) * factor + (factor - 1) / 2.0
+        x0 = float((j + dj) * factor + (factor - 1) / 2.0)
+        y0 = float((i + di) * factor + (factor - 1) / 2.0)
         if taken(x0, y0, float("nan"), found, scales):
             continue  # a hologram found already, or the midpoint of two
         tried += 1

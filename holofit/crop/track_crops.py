@@ -160,7 +160,7 @@ def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_
                         f"as strong in most of their frames): " + "; ".join(ghosts[:5]))
     summary = tracks.summary
     dropped = (summary[~summary["kept"].astype(bool) & (summary["reason"] != GHOST_REASON)]
-               if len(summary) else [])
+               if len(summary) else summary)
     if len(dropped):
         shown = "; ".join(f"frames {int(r.first_frame)}-{int(r.last_frame)} at "
                           f"({r.x_px_start:.0f}, {r.y_px_start:.0f}) px: {r.reason}"
@@ -297,7 +297,8 @@ def crop_tracks(
             candidates.append((k, rank, cand.x_px, cand.y_px, cand.score, cand.alignment,
                                cand.symmetry, cand.refinement, cand.zone_px, cand.reach_px,
                                rank in chosen, chosen.get(rank, -1)))
-        image = mask = None
+        image: NDArray | None = None
+        mask: NDArray | None = None
         for p, linked in here:
             row = blank_row(k)
             row["particle"] = p
@@ -313,6 +314,7 @@ def crop_tracks(
             else:
                 if image is None:
                     image, mask = read_normalised(movie, k, normalizer)
+                assert mask is not None  # read together with the image
                 page = crop_chosen(row, found.iloc[int(linked["rank"])], image, mask, size,
                                     pixel_size_um)
                 row.update(neighbour=int(linked["neighbour"]),
