@@ -210,6 +210,11 @@ def _merged(table: pd.DataFrame, rows: dict[tuple[int, int], int], refits: pd.Da
             items: dict[tuple[int, int], Any]) -> tuple[pd.DataFrame, int, int]:
     """``table`` with the batch's refits in place of their rows."""
     out = table.copy()
+    for k in refits.columns:
+        # a text column read back empty is float (all NaN): the refits' text goes in as text
+        if (k in out.columns and not pd.api.types.is_numeric_dtype(refits[k])
+                and pd.api.types.is_numeric_dtype(out[k])):
+            out[k] = out[k].astype(object)
     n_refit = n_ok = 0
     for _, new in refits.iterrows():
         key = (int(new["particle"]), int(new["frame"]))
