@@ -46,9 +46,11 @@ def finder(inst):
     return CropConfig().finder_for_size(inst)
 
 
-def _frame(inst, tmp, positions, shape=(224, 224), seed=0, noise=True):
-    """One normalised camera frame of PS spheres at ``positions`` (um)."""
-    particles = [ParticleInView(PS, np.array([p])) for p in positions]
+def _frame(inst, tmp, positions, shape=(224, 224), seed=0, noise=True, spheres=None):
+    """One normalised camera frame of spheres (PS unless given) at ``positions`` (um)."""
+    spheres = spheres or [PS] * len(positions)
+    particles = [ParticleInView(sp, np.array([p])) for sp, p in zip(spheres, positions,
+                                                                     strict=True)]
     sim = simulate_field_of_view(particles, inst, shape, out_dir=tmp, seed=seed, noise=noise)
     frame = tifffile.imread(sim.movie).astype(float).reshape(shape)
     return frame / np.median(tifffile.imread(sim.background).astype(float), axis=0)
@@ -91,6 +93,25 @@ def test_two_spheres_a_few_um_apart_are_two_candidates(inst, finder, tmp_path, d
         xy_old = old.find(image)[["x_px", "y_px"]].to_numpy() * px
         assert (np.hypot(xy_old[:, 0] - c[0], xy_old[:, 1] - c[1])
                 < distance_um + 1.0).sum() == 1  # what the issue found
+
+
+def test_a_faint_neighbour_far_from_the_frames_corner_is_peeled(inst, finder, tmp_path):
+    """A faint sphere (0.4 um, n 1.45) 4.5 um from a bright one (1 um PS), far from the
+    frame's top-left corner: the bright one's votes hide it from the main search, the peel's
+    residual search (on the block-averaged frame, in a window about the bright centre) finds
+    it within 0.3 um. The window's corner was once taken in full-frame pixels, which placed
+    every residual candidate tens of pixels off when the window started inside the frame."""
+    px = inst.pixel_size_um
+    c = np.array([330.2 * px, 318.7 * px])
+    half = 0.5 * 4.5 * np.array([math.cos(0.7), math.sin(0.7)])
+    truth = [(*(c - half), 12.0), (*(c + half), 12.5)]
+    image = _frame(inst, tmp_path, truth, shape=(448, 448), seed=4,
+                   spheres=[PS, Sphere(0.4, 1.45)])
+    found = finder.find(image)
+    xy = found[["x_px", "y_px"]].to_numpy() * px
+    for x, y, _ in truth:
+        assert np.hypot(xy[:, 0] - x, xy[:, 1] - y).min() < 0.3, found
+    assert (np.hypot(xy[:, 0] - c[0], xy[:, 1] - c[1]) < 5.5).sum() == 2, found
 
 
 @pytest.fixture(scope="module")

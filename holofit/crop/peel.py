@@ -403,8 +403,9 @@ class _Search:
         residual = None
         for i, j in zip(rows[order], cols[order], strict=True):
             di, dj = quadratic_peak(strength, int(i), int(j))
-            x0 = box[1].start + (j + dj) * f + (f - 1) / 2.0
-            y0 = box[0].start + (i + di) * f + (f - 1) / 2.0
+            # the vote window's pixels are the block-averaged frame's, from the box's corner
+            x0 = (box[1].start + j + dj) * f + (f - 1) / 2.0
+            y0 = (box[0].start + i + di) * f + (f - 1) / 2.0
             if np.hypot(x0 - centre.x, y0 - centre.y) > self.peel_reach:
                 continue
             if taken(x0, y0, math.nan, peaks, scales):
