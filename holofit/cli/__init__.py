@@ -20,6 +20,7 @@ COMMANDS: dict[str, str] = {
     "init": "holofit.cli.init:init",
     "crop": "holofit.cli.crop:crop",
     "prefit": "holofit.cli.prefit:prefit",
+    "calibrate": "holofit.cli.calibrate:calibrate",
     "library": "holofit.cli.library:library",
     "fit": "holofit.cli.fit:fit",
     "analyze": "holofit.cli.analyze:analyze",
