@@ -1,7 +1,8 @@
 """``holofit calibrate`` on a simulated 100-frame sphere movie and on the measured pylorenzmie
-spheres (issue #38 item 2's must-shows; not part of ``make bench``).
+and HoloPy spheres (issue #38 item 2's must-shows; not part of ``make bench``).
 
-    python bench/calibrate_study.py [--json PATH] [--work DIR] [--only sim pulls pylorenzmie]
+    python bench/calibrate_study.py [--json PATH] [--work DIR]
+                                    [--only sim pulls pylorenzmie holopy]
                                     [--pulls K] [--max-frames N]
 
 ``sim``: 100 frames of a 1 um polystyrene sphere at heights 5-25 um (evenly spread, shuffled,
@@ -25,8 +26,13 @@ k), ``holofit prefit`` with the instrument file (NA 0.86) and ``holofit calibrat
 third of each crop's pixels): chi^2 per pixel before and after, and each sphere's z, radius and
 index before and after next to the published or re-fitted values of the data README.
 
-HoloPy's two sphere images are from two set-ups, one height each: no calibration (a single
-height cannot tell the pupil phase from the height; docs/validation/aberration.md section 6).
+``holopy``: HoloPy's two sphere images (two set-ups, one height each) through the same
+commands, each alone: ``holofit crop`` (image0001 ``--normalized``, 100 pixels; image01 divided
+by its three backgrounds, 200 pixels), ``holofit prefit`` and ``holofit calibrate
+--no-fit-na`` (the coefficients only, the NA held at the instrument files' assumed 1.4). A
+single height cannot tell the pupil phase from the height (docs/validation/aberration.md
+section 6): these are the stage's numbers on real single frames, not calibrations of those
+microscopes.
 
 Writes a flat JSON ``name -> number``.
 """
@@ -58,7 +64,7 @@ from holofit.tables.cropset import CropSet
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from aberration_realdata import PYLM, PYLM_SPHERES  # noqa: E402
+from aberration_realdata import HOLOPY, PYLM, PYLM_SPHERES  # noqa: E402
 
 SERIAL = BatchOptions(workers=0, progress=False)
 #: background frames of a simulated movie (their median divides every frame, as the crop
@@ -235,13 +241,54 @@ def pylorenzmie(work: Path) -> dict[str, float]:
     return out
 
 
+#: HoloPy's sphere images: instrument, image, backgrounds, crop size, centre (column, row; px),
+#: reference values (the data README's)
+HOLOPY_IMAGES = (
+    ("image0001", "holopy_image0001", [], 100, (50.232, 48.573),
+     dict(z_um=14.15, radius_um=0.6484, n=1.582), "HoloPy test_nmpfit values"),
+    ("image01", "holopy_image01", ["bg01", "bg02", "bg03"], 200, (257.0, 284.0),
+     dict(z_um=16.63, radius_um=0.557, n=1.58), "README independent re-fit (n held 1.58)"),
+)
+
+
+def holopy(work: Path) -> dict[str, float]:
+    """HoloPy's two sphere images, each alone through crop, prefit, calibrate (docstring)."""
+    out: dict[str, float] = {}
+    for name, inst_name, bgs, size, centre, ref, _source in HOLOPY_IMAGES:
+        inst = load_instrument(inst_name)
+        root = work / "holopy" / name
+        run_crop(HOLOPY / f"{name}.tif", [HOLOPY / f"{b}.tif" for b in bgs] or None, inst,
+                 root / "crop", CropConfig(normalized=not bgs, size=size, follow="nearest",
+                                           start=centre, plot=False))
+        run_prefit(root / "crop", root / "prefit", plot=False,
+                   batch=BatchOptions(workers=0, progress=False, overwrite=True))
+        run = run_calibrate(root / "crop", root / "prefit", root / "cal",
+                            CalibrateConfig(fit_na=False), batch=SERIAL)
+        key = f"calibrate_holopy_{name}"
+        out[f"{key}_chi2_per_px_before"] = run.chi2_before
+        out[f"{key}_chi2_per_px_after"] = run.chi2_after
+        out[f"{key}_chi2_red"] = run.fit.chi2_red
+        out[f"{key}_edge_phase_rad"] = run.fit.edge_phase_rad
+        out[f"{key}_ok"] = float(run.fit.status == "ok")
+        for k, v in run.fit.values.items():
+            out[f"{key}_{k}"] = v
+            out[f"{key}_{k}_error"] = run.fit.errors[k]
+        row = pd.read_csv(run.table).iloc[0]
+        for col in ("z_um", "radius_um", "n"):
+            out[f"{key}_{col}_published"] = ref[col]
+            out[f"{key}_{col}_before"] = float(row[f"{col}_before"])
+            out[f"{key}_{col}_after"] = float(row[f"{col}_after"])
+            out[f"{key}_{col}_after_error"] = float(row[f"d_{col}_after"])
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=None, help="write the results here")
     parser.add_argument("--work", type=Path, default=Path("/tmp/holofit_calibrate_study"),
                         help="scratch folder (movies, crops, prefits; reused when present)")
-    parser.add_argument("--only", nargs="*", default=["sim", "pulls", "pylorenzmie"],
-                        choices=["sim", "pulls", "pylorenzmie"])
+    parser.add_argument("--only", nargs="*", default=["sim", "pulls", "pylorenzmie", "holopy"],
+                        choices=["sim", "pulls", "pylorenzmie", "holopy"])
     parser.add_argument("--pulls", type=int, default=12, help="seeds of the pull study")
     parser.add_argument("--max-frames", type=int, default=20,
                         help="frames the 100-frame movie's calibration fits")
@@ -252,6 +299,7 @@ def main() -> None:
         print(f"[calibrate_study] {part} ...", flush=True)
         got = (simulated(args.work, args.max_frames) if part == "sim"
                else pulls(args.work, args.pulls) if part == "pulls"
+               else holopy(args.work) if part == "holopy"
                else pylorenzmie(args.work))
         for key, value in got.items():
             print(f"    {key} = {value:.6g}", flush=True)

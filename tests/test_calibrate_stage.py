@@ -183,3 +183,56 @@ def test_a_stated_index_is_held_and_the_frames_are_chosen_as_asked(movie, tmp_pa
     assert doc["calibration"]["material"] == {"index": 1.59, "index_sd": 0.0}
     assert run.instrument.aberration.spherical == ()
     assert Path(doc["calibration"]["prefit"]).name == "prefit.csv"
+
+
+def test_a_frame_that_fails_is_recorded_and_the_others_are_fitted(movie, tmp_path,
+                                                                  monkeypatch):
+    """One chosen frame's crop comes back with too few valid pixels (as a crop masked by
+    saturation would): it is a ``failed`` row with its reason, a note says so, and the joint
+    fit runs on the others."""
+    from holofit.tables.cropset import CropSet
+
+    root = movie["root"]
+    crop = CropSet.crop
+    bad_frame = 3
+
+    def masked(self, key):
+        out = np.array(crop(self, key), dtype=float)
+        if key[1] == bad_frame:
+            out[:] = np.nan
+            out[:5, :5] = 1.0
+        return out
+
+    monkeypatch.setattr(CropSet, "crop", masked)
+    run = run_calibrate(root / "crop", root / "prefit", tmp_path / "o",
+                        CalibrateConfig(max_frames=4, frames=(0, 1, 2, bad_frame),
+                                        aberration_terms=0, max_pixels=1500, plot=False),
+                        batch=SERIAL)
+    table = pd.read_csv(run.table)
+    assert len(table) == 4
+    bad = table[table["frame"] == bad_frame].iloc[0]
+    assert bad["status"] == "failed" and "25 valid pixel(s)" in bad["message"]
+    assert np.isnan(bad["z_um_after"])
+    assert (table[table["frame"] != bad_frame]["status"] == "ok").all()
+    assert len(run.keys) == 3 and list(run.failed) == [(0, bad_frame)]
+    assert any("1 of 4 chosen frame(s) failed" in n for n in run.notes)
+    doc = tomllib.loads(run.instrument_toml.read_text())
+    assert doc["calibration"]["failed_frames"] == [bad_frame]
+    assert doc["calibration"]["n_frames"] == 3
+
+
+def test_no_sphere_to_calibrate_on_is_one_clear_error(movie, tmp_path):
+    """A prefit that found no sphere in any frame (every row failed): one line, no output."""
+    root = movie["root"]
+    prefit = tmp_path / "prefit"
+    prefit.mkdir()
+    for name in ("prefit.csv", "prefit.csv.json"):
+        (prefit / name).write_bytes((root / "prefit" / name).read_bytes())
+    table = pd.read_csv(prefit / "prefit.csv")
+    table["status"] = "failed"
+    table.to_csv(prefit / "prefit.csv", index=False)
+    res = _invoke(["calibrate", root / "crop", "--prefit", prefit, "-o", tmp_path / "o"])
+    assert res.exit_code == 1
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1 and "no frame with a fittable crop and a converged prefit" in lines[0]
+    assert not (tmp_path / "o" / "instrument.toml").exists()

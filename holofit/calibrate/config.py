@@ -149,7 +149,11 @@ class CalibrateConfig:
 
 @dataclass
 class FrameRecord:
-    """One chosen frame: its key, crop, prefit row and chi^2 per pixel before and after."""
+    """One chosen frame: its key, crop, prefit row and chi^2 per pixel before and after.
+
+    ``message`` is empty for a frame of the joint fit; a frame that could not be used (too few
+    valid pixels, no noise estimate, no hologram for its prefit's values) keeps the reason
+    there, is left out of the fit and is written to ``calibration.csv`` as ``failed``."""
 
     key: tuple[int, int]
     frame: SphereFrame
@@ -157,6 +161,12 @@ class FrameRecord:
     chi2_before: float
     n_pixels: int
     chi2_after: float = math.nan
+    message: str = ""
+
+    @property
+    def ok(self) -> bool:
+        """The frame is in the joint fit."""
+        return not self.message
 
 
 @dataclass
@@ -176,7 +186,8 @@ class CalibrationRun:
     fit : InstrumentFit
         The joint fit.
     keys : list of tuple
-        The ``(particle, frame)`` of the frames fitted, by height.
+        The ``(particle, frame)`` of the frames fitted, by height (the chosen frames that
+        failed are in ``failed``).
     chi2_before, chi2_after : float
         Mean chi^2 per pixel (mean squared residual, normalised intensity^2) of those frames,
         each on all its unmasked pixels.
@@ -184,6 +195,9 @@ class CalibrationRun:
         What the user should know (frames left out, too few heights).
     time_s : float
         Wall time.
+    failed : dict
+        ``(particle, frame) -> reason`` of the chosen frames that could not be used (rows
+        ``failed`` in ``calibration.csv``); the others were fitted.
     """
 
     instrument_toml: Path
@@ -197,3 +211,4 @@ class CalibrationRun:
     chi2_after: float
     notes: list[str] = field(default_factory=list)
     time_s: float = 0.0
+    failed: dict[tuple[int, int], str] = field(default_factory=dict)

@@ -293,7 +293,7 @@ def _result(jm: JointModel, sol: NormalSolution, frames: list[Frame], optics: Op
     fitted_optics = replace(
         optics, numerical_aperture=float(shared[APERTURE.name]),
         polarization_rad=float(shared.get(POLARIZATION, optics.polarization_rad)),
-        aberration=Aberration.from_values(shared, optics.aberration))
+        aberration=Aberration.from_values(dict(shared), optics.aberration))
     edge, edge_error = _edge_phase(fitted_optics, jm.free_shared, cov)
     status = OK if sol.converged else NOT_CONVERGED
     results = []
@@ -326,6 +326,8 @@ def _result(jm: JointModel, sol: NormalSolution, frames: list[Frame], optics: Op
 def _edge_phase(optics: Optics, free_shared: Sequence[str], cov: NDArray[np.float64]
                 ) -> tuple[float, float]:
     """``Phi(th_max)`` of the fitted pupil and its error from the shared covariance."""
+    if optics.numerical_aperture is None:
+        return math.nan, math.nan
     na = float(optics.numerical_aperture)
     n_medium = optics.n_medium
 

@@ -88,7 +88,7 @@ class JointModel:
         st = self.settings
         alpha = sphere["alpha"] if st.fix_alpha is None else st.fix_alpha
         model = Sphere(sphere["radius_um"], complex(sphere["n"], st.index_imag))
-        aberration = Aberration.from_values(s, self.optics.aberration)
+        aberration = Aberration.from_values(dict(s), self.optics.aberration)
         state = State((sphere["x_um"], sphere["y_um"], sphere["z_um"]), None, alpha,
                       (("radius_um", sphere["radius_um"]), ("n", sphere["n"])),
                       s.get(APERTURE.name), aberration)

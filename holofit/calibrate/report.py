@@ -39,6 +39,7 @@ from holofit.io.atomic import atomic_path, atomic_write_text
 from holofit.io.tables import write_table
 from holofit.prefit.sphere import SPHERE_COLUMNS
 from holofit.provenance import command_line, sidecar
+from holofit.status import FAILED
 
 __all__ = ["CALIBRATION_UNITS", "calibration_table", "frame_rows", "plot_calibration",
            "write_outputs"]
@@ -59,7 +60,8 @@ CALIBRATION_UNITS: dict[str, str] = {
     "noise_sd": "normalised intensity (pixel noise)",
     "n_pixels": "count (unmasked pixels of the crop)",
     "n_pixels_fitted": "count (pixels of the joint fit)",
-    "status": "ok | not_converged (the joint fit's)",
+    "status": "ok | not_converged (the joint fit's) | failed (left out of the fit: message)",
+    "message": "why a failed frame was left out (empty for the fitted ones)",
 }
 
 
@@ -69,19 +71,32 @@ def calibration_table(run: CalibrationRun, records: Sequence[FrameRecord]) -> pd
 
 
 def frame_rows(records: Sequence[FrameRecord], fit: InstrumentFit) -> list[dict[str, Any]]:
-    """The rows of ``calibration.csv``: per frame its sphere before and after and their chi^2
-    per pixel (:data:`CALIBRATION_UNITS`)."""
+    """The rows of ``calibration.csv``: per chosen frame its sphere before and after and their
+    chi^2 per pixel (:data:`CALIBRATION_UNITS`), by height; a frame left out of the fit
+    (``rec.ok`` false) is a ``failed`` row with its reason and no "after"."""
     rows = []
-    for rec, res in zip(records, fit.frames, strict=True):
+    results = iter(fit.frames)
+    for rec in records:
         row: dict[str, Any] = {"particle": rec.key[0], "frame": rec.key[1]}
+        if not rec.ok:
+            for c in SPHERE_COLUMNS:
+                row[f"{c}_before"] = rec.before.get(c, math.nan)
+            row.update(chi2_per_px_before=rec.chi2_before, noise_sd=rec.frame.noise_sd,
+                       n_pixels=rec.n_pixels, n_pixels_fitted=0, status=FAILED,
+                       message=rec.message)
+            rows.append(row)
+            continue
+        res = next(results)
         for c in SPHERE_COLUMNS:
             row[f"{c}_before"] = rec.before[c]
             row[f"{c}_after"] = res.values[c]
             row[f"d_{c}_after"] = res.errors.get(c, math.nan)
         row.update(chi2_per_px_before=rec.chi2_before, chi2_per_px_after=rec.chi2_after,
                    chi2_red_after=res.chi2_red, noise_sd=res.noise_sd, n_pixels=rec.n_pixels,
-                   n_pixels_fitted=res.n_pixels, status=res.status)
+                   n_pixels_fitted=res.n_pixels, status=res.status, message="")
         rows.append(row)
+    if next(results, None) is not None:
+        raise ValueError("more joint-fit frames than fitted records")
     return rows
 
 
@@ -108,6 +123,8 @@ def _values(run: CalibrationRun) -> dict[str, float]:
 def _calibration_table(run: CalibrationRun, records: Sequence[FrameRecord],
                        config: CalibrateConfig, inputs: Sequence[Path]) -> dict[str, Any]:
     """The ``[calibration]`` table of ``instrument.toml`` (module docstring)."""
+    failed = [r for r in records if not r.ok]
+    records = [r for r in records if r.ok]
     fit = run.fit
     k = len(fit.values)
     names = list(_values(run))
@@ -137,6 +154,7 @@ def _calibration_table(run: CalibrationRun, records: Sequence[FrameRecord],
         "n_frames": len(records),
         "frames": [int(r.key[1]) for r in records],
         "particles": [int(r.key[0]) for r in records],
+        "failed_frames": [int(r.key[1]) for r in failed],
         "z_range_um": [float(min(zs)), float(max(zs))],
         "crops": str(Path(inputs[0]).parent.resolve()),
         "prefit": str(Path(inputs[-1]).resolve()),
@@ -202,7 +220,8 @@ def write_outputs(run: CalibrationRun, records: Sequence[FrameRecord],
     into the folder of ``run.instrument_toml``; ``run.instrument`` becomes the file's."""
     out = run.instrument_toml.parent
     inst = run.instrument
-    source = (f"holofit calibrate on {len(records)} sphere frame(s) of "
+    n_fitted = sum(r.ok for r in records)
+    source = (f"holofit calibrate on {n_fitted} sphere frame(s) of "
               f"{Path(inputs[0]).parent.resolve()} ([calibration])")
     extra = {**inst.extra, "source": source}
     inst = replace(inst, extra=extra, path=str(run.instrument_toml))
@@ -221,11 +240,12 @@ def write_outputs(run: CalibrationRun, records: Sequence[FrameRecord],
                           "edge_phase_error_rad": fit.edge_phase_error_rad,
                           "chi2_per_pixel_before": run.chi2_before,
                           "chi2_per_pixel_after": run.chi2_after, "trials": fit.trials,
-                          "n_eval": fit.n_eval, "time_s": run.time_s, "notes": run.notes})
+                          "n_eval": fit.n_eval, "time_s": run.time_s, "notes": run.notes,
+                          "failed": {f"{k[0]},{k[1]}": m for k, m in run.failed.items()}})
     write_table(run.table, table, meta)
     atomic_write_text(run.instrument_toml, text)
     run.instrument = load_instrument(run.instrument_toml)
     if config.plot:
-        title = (f"holofit calibrate: {len(records)} frame(s); chi^2/px "
+        title = (f"holofit calibrate: {n_fitted} frame(s); chi^2/px "
                  f"{run.chi2_before:.3g} -> {run.chi2_after:.3g} (calibration.csv)")
         run.plot = plot_calibration(table, out / "calibration.png", title)

@@ -22,6 +22,7 @@ precision but no leverage, so the choice spreads them over the heights first.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import replace
@@ -45,6 +46,7 @@ from holofit.calibrate.settings import InstrumentFit, JointFitSettings, SphereFr
 from holofit.config import Instrument, instrument_from_dict
 from holofit.conventions import DetectorGrid
 from holofit.hologram import calc_hologram
+from holofit.holomodel.statistics import estimate_noise_sd
 from holofit.io.lock import output_lock
 from holofit.optics import Optics
 from holofit.particles import Sphere
@@ -169,28 +171,60 @@ def _candidates(crops: CropSet, table: pd.DataFrame, config: CalibrateConfig,
     return out
 
 
+#: fewest valid pixels of a crop to calibrate on (the joint fit's per-frame minimum)
+MIN_PIXELS = 100
+
+
+def _frame_fault(frame: SphereFrame) -> str:
+    """Why a chosen frame cannot enter the joint fit ("" if it can): too few valid pixels,
+    or no pixel noise (given by the prefit, or estimated from the crop)."""
+    crop = np.asarray(frame.crop, dtype=float)
+    n_valid = int(np.isfinite(crop).sum())
+    if n_valid < MIN_PIXELS:
+        return f"{n_valid} valid pixel(s), fewer than {MIN_PIXELS}"
+    if frame.noise_sd is None and not estimate_noise_sd(crop, np.isfinite(crop)) > 0:
+        return "no pixel noise estimate (the prefit gave none and the crop gives none)"
+    return ""
+
+
+def _load_one(crops: CropSet, table: pd.DataFrame, key: tuple[int, int],
+              before_optics: Optics, px: float, index_imag: float) -> FrameRecord:
+    """One chosen frame, its prefit start and its chi^2 per pixel before; a frame that cannot
+    be used comes back with the reason in ``message`` (the batch goes on)."""
+    crow = crops.row(key)
+    prow = table.loc[key].to_dict()
+    start = {c: float(prow[c]) for c in SPHERE_COLUMNS}
+    noise = prow.get("noise_sd")
+    noise = float(noise) if noise is not None and float(noise) > 0 else None
+    frame = SphereFrame(crops.crop(key), (int(crow["corner_row"]), int(crow["corner_col"])),
+                        (float(crow["x_um"]), float(crow["y_um"])), noise, start)
+    fault = _frame_fault(frame)
+    if fault:
+        return FrameRecord(key, frame, start, math.nan, 0, message=fault)
+    optics = before_optics
+    na = prow.get("numerical_aperture")
+    if na is not None and np.isfinite(float(na)):
+        optics = replace(optics, numerical_aperture=float(na))
+    try:
+        chi2, n_px = chi2_per_pixel(frame, start, optics, px, index_imag)
+    except (ValueError, ArithmeticError) as exc:  # InvalidParameters is a ValueError
+        return FrameRecord(key, frame, start, math.nan, 0,
+                           message=f"no hologram for its prefit values: {exc}")
+    if not np.isfinite(chi2):
+        return FrameRecord(key, frame, start, chi2, n_px,
+                           message="its prefit values give a non-finite hologram")
+    return FrameRecord(key, frame, start, chi2, n_px)
+
+
 def _load(crops: CropSet, table: pd.DataFrame, keys: Sequence[tuple[int, int]],
           before_optics: Optics, px: float, index_imag: float, show: bool | None
           ) -> list[FrameRecord]:
-    """The chosen frames, their prefit starts and their chi^2 per pixel before."""
+    """The chosen frames (:func:`_load_one`), on a progress bar."""
     records = []
     with progress_bar(len(keys), "calibrate: frames", disable=None if show is None
                       else not show) as bar:
         for key in keys:
-            crow = crops.row(key)
-            prow = table.loc[key].to_dict()
-            start = {c: float(prow[c]) for c in SPHERE_COLUMNS}
-            noise = prow.get("noise_sd")
-            noise = float(noise) if noise is not None and float(noise) > 0 else None
-            frame = SphereFrame(crops.crop(key), (int(crow["corner_row"]),
-                                                  int(crow["corner_col"])),
-                                (float(crow["x_um"]), float(crow["y_um"])), noise, start)
-            optics = before_optics
-            na = prow.get("numerical_aperture")
-            if na is not None and np.isfinite(float(na)):
-                optics = replace(optics, numerical_aperture=float(na))
-            chi2, n_px = chi2_per_pixel(frame, start, optics, px, index_imag)
-            records.append(FrameRecord(key, frame, start, chi2, n_px))
+            records.append(_load_one(crops, table, key, before_optics, px, index_imag))
             bar.update(1)
     return records
 
@@ -271,8 +305,17 @@ def run_calibrate(crop_dir: str | Path, prefit_dir: str | Path, out_dir: str | P
                          "calibrate on spheres at several heights")
         n_px = int(np.prod(crops.crop_shape))
         settings = cfg.joint_settings(min(1.0, cfg.max_pixels / n_px), index_imag)
-        records = _load(crops, table, keys, before_inst.optics, start.pixel_size_um,
-                        index_imag, show)
+        loaded = _load(crops, table, keys, before_inst.optics, start.pixel_size_um,
+                       index_imag, show)
+        failed = {r.key: r.message for r in loaded if not r.ok}
+        records = [r for r in loaded if r.ok]
+        if failed:
+            notes.append(f"{len(failed)} of {len(loaded)} chosen frame(s) failed and were left "
+                         "out (calibration.csv, status failed): " + "; ".join(
+                             f"frame {k[1]} (particle {k[0]}): {m}" for k, m in failed.items()))
+        if not records:
+            raise CalibrateError(f"{crops.table_path}: every chosen frame failed: "
+                                 + "; ".join(f"frame {k[1]}: {m}" for k, m in failed.items()))
         prefit_path = (Path(prefit_dir) / "prefit.csv" if Path(prefit_dir).is_dir()
                        else Path(prefit_dir))
         inputs = [crops.table_path, crops.stack_path, prefit_path]
@@ -285,8 +328,9 @@ def run_calibrate(crop_dir: str | Path, prefit_dir: str | Path, out_dir: str | P
     chi2_before = float(np.mean([r.chi2_before for r in records]))
     chi2_after = float(np.mean([r.chi2_after for r in records]))
     run = CalibrationRun(out / "instrument.toml", out / "calibration.csv", None, inst, start,
-                         fit, keys, chi2_before, chi2_after, notes)
+                         fit, [r.key for r in records], chi2_before, chi2_after, notes,
+                         failed=failed)
     with output_lock(out, stage="calibrate"):
         run.time_s = time.perf_counter() - t0
-        write_outputs(run, records, cfg, before_inst, inputs)
+        write_outputs(run, loaded, cfg, before_inst, inputs)
     return run
