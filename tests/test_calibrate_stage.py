@@ -129,6 +129,10 @@ def test_the_instrument_file_loads_with_the_fitted_values_and_provenance(calibra
     assert meta["units"]["z_um_after"].startswith("um")
     assert meta["values"] == values
     assert (calibrated["out"] / "calibration.png").stat().st_size > 1000
+    # the instrument file's own sidecar
+    side = json.loads((calibrated["out"] / "instrument.toml.json").read_text())
+    assert side["kind"].startswith("instrument file") and side["values"] == values
+    assert side["units"]["numerical_aperture"] and side["command"]
 
 
 def test_holofit_init_accepts_the_calibrated_instrument(calibrated, movie, tmp_path):

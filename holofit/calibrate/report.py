@@ -1,7 +1,8 @@
 """What ``holofit calibrate`` writes (:func:`holofit.calibrate.stage.run_calibrate`): the
 calibrated instrument file, the per-frame table and its picture.
 
-``instrument.toml`` holds the start instrument's ``[instrument]`` table with the fitted
+``instrument.toml`` (and its sidecar ``instrument.toml.json``: units, configuration, inputs,
+versions, the command) holds the start instrument's ``[instrument]`` table with the fitted
 ``numerical_aperture``, ``spherical_aberration_rad`` and ``polarization_deg``, and a
 ``[calibration]`` table (which :func:`holofit.config.load_instrument` does not read) with
 
@@ -34,9 +35,9 @@ import pandas as pd
 import holofit
 from holofit.calibrate.config import CalibrateConfig, CalibrationRun, FrameRecord
 from holofit.calibrate.settings import InstrumentFit
-from holofit.config import Instrument, instrument_toml, load_instrument
+from holofit.config import INSTRUMENT_SPECS, Instrument, instrument_toml, load_instrument
 from holofit.io.atomic import atomic_path, atomic_write_text
-from holofit.io.tables import write_table
+from holofit.io.tables import sidecar_path, write_json, write_table
 from holofit.prefit.sphere import SPHERE_COLUMNS
 from holofit.provenance import command_line, sidecar
 from holofit.status import FAILED
@@ -243,6 +244,16 @@ def write_outputs(run: CalibrationRun, records: Sequence[FrameRecord],
                           "n_eval": fit.n_eval, "time_s": run.time_s, "notes": run.notes,
                           "failed": {f"{k[0]},{k[1]}": m for k, m in run.failed.items()}})
     write_table(run.table, table, meta)
+    # the instrument file's sidecar first (a complete file always has one), then the file
+    write_json(sidecar_path(run.instrument_toml), sidecar(
+        kind="instrument file (calibrated by holofit calibrate; its [calibration] table has "
+             "the fit's values, errors and provenance)",
+        units={k: spec.expected for k, spec in INSTRUMENT_SPECS.items()},
+        config=config.as_dict(), inputs=list(inputs),
+        extra={"instrument": inst.as_dict(), "start_instrument": run.start.as_dict(),
+               "values": fit.values, "errors": fit.errors, "status": fit.status,
+               "chi2_per_pixel_before": run.chi2_before,
+               "chi2_per_pixel_after": run.chi2_after, "table": str(run.table)}))
     atomic_write_text(run.instrument_toml, text)
     run.instrument = load_instrument(run.instrument_toml)
     if config.plot:
