@@ -81,7 +81,7 @@ def _edge(aberration, na: float, n_medium: float) -> float:
 
 
 def _movie(root: Path, truth: Instrument, start: Instrument, n: int, size: int,
-           frame: int, seed: int) -> None:
+           frame: int, seed: int, n_background: int = N_BACKGROUND) -> None:
     """A sphere movie over 5-25 um through ``truth``, cropped and prefitted with ``start``."""
     rng = np.random.default_rng(seed)
     z = np.linspace(5.0, 25.0, n)
@@ -89,7 +89,7 @@ def _movie(root: Path, truth: Instrument, start: Instrument, n: int, size: int,
     c = frame / 2 * truth.pixel_size_um
     pos = np.c_[c + rng.normal(0, 0.3, n), c + rng.normal(0, 0.3, n), z]
     sim = simulate_movie(Sphere(0.5, 1.59), truth, pos, (frame, frame), out_dir=root / "sim",
-                         exposure=Exposure(n_background=N_BACKGROUND), seed=seed)
+                         exposure=Exposure(n_background=n_background), seed=seed)
     run_crop(sim.movie, sim.background, start, root / "crop", CropConfig(size=size, plot=False))
     run_prefit(root / "crop", root / "prefit", batch=SERIAL, plot=False)
 
@@ -137,8 +137,10 @@ def simulated(work: Path, max_frames: int) -> dict[str, float]:
     return out
 
 
-def pulls(work: Path, seeds: int) -> dict[str, float]:
-    """The test's configuration over ``seeds`` noise draws (module docstring)."""
+def pulls(work: Path, seeds: int, n_background: int = N_BACKGROUND) -> dict[str, float]:
+    """The test's configuration over ``seeds`` noise draws (module docstring); with
+    ``n_background`` background frames (their median divides every frame: its noise is common
+    to all the frames, which the joint fit's errors do not model)."""
     na_true = 0.9
     ab, _ = layer_aberration(0.66, 1.33, na_true, 1.523, 10.0)
 
@@ -152,9 +154,11 @@ def pulls(work: Path, seeds: int) -> dict[str, float]:
     edge = _edge(ab, na_true, 1.33)
     rows = []
     for seed in range(seeds):
-        root = work / f"pulls{seed}"
+        root = work / (f"pulls{seed}" if n_background == N_BACKGROUND
+                       else f"pulls{seed}_bg{n_background}")
         if not (root / "prefit" / "prefit.csv").exists():
-            _movie(root, inst(na_true, ab), inst(0.95), 14, 64, 128, seed=100 + seed)
+            _movie(root, inst(na_true, ab), inst(0.95), 14, 64, 128, seed=100 + seed,
+                   n_background=n_background)
         run = run_calibrate(root / "crop", root / "prefit", root / "cal",
                             CalibrateConfig(max_frames=10, plot=False), batch=SERIAL)
         p = _pulls(run.fit.values, run.fit.errors, want)
@@ -163,12 +167,12 @@ def pulls(work: Path, seeds: int) -> dict[str, float]:
               + f" ({run.time_s:.0f} s)", flush=True)
         rows.append(p)
     table = pd.DataFrame(rows)
-    out = {"calibrate_pulls_seeds": float(seeds)}
+    key = "calibrate_pulls" + ("" if n_background == N_BACKGROUND else f"_bg{n_background}")
+    out = {f"{key}_seeds": float(seeds)}
     for col in table.columns:
-        out[f"calibrate_pulls_{col}_mean"] = float(table[col].mean())
-        out[f"calibrate_pulls_{col}_sd"] = float(table[col].std(ddof=1))
-        out[f"calibrate_pulls_{col}_within_2sigma_fraction"] = float(
-            (table[col].abs() < 2).mean())
+        out[f"{key}_{col}_mean"] = float(table[col].mean())
+        out[f"{key}_{col}_sd"] = float(table[col].std(ddof=1))
+        out[f"{key}_{col}_within_2sigma_fraction"] = float((table[col].abs() < 2).mean())
     return out
 
 
@@ -290,6 +294,8 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", default=["sim", "pulls", "pylorenzmie", "holopy"],
                         choices=["sim", "pulls", "pylorenzmie", "holopy"])
     parser.add_argument("--pulls", type=int, default=12, help="seeds of the pull study")
+    parser.add_argument("--pulls-background", type=int, default=N_BACKGROUND,
+                        help="background frames of the pull study's movies")
     parser.add_argument("--max-frames", type=int, default=20,
                         help="frames the 100-frame movie's calibration fits")
     args = parser.parse_args()
@@ -298,7 +304,7 @@ def main() -> None:
         t0 = time.perf_counter()
         print(f"[calibrate_study] {part} ...", flush=True)
         got = (simulated(args.work, args.max_frames) if part == "sim"
-               else pulls(args.work, args.pulls) if part == "pulls"
+               else pulls(args.work, args.pulls, args.pulls_background) if part == "pulls"
                else holopy(args.work) if part == "holopy"
                else pylorenzmie(args.work))
         for key, value in got.items():
