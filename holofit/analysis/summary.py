@@ -8,12 +8,14 @@ from typing import Any
 
 import pandas as pd
 
+from holofit.analysis.consistency import Consistency
 from holofit.analysis.recipes import Compared, recipe_for
 from holofit.analysis.results import AnalysisResult
 from holofit.io.tables import write_json, write_table
 from holofit.provenance import sidecar
 
-__all__ = ["SUMMARY_COLUMNS", "format_report", "summary_rows", "write_summary"]
+__all__ = ["SUMMARY_COLUMNS", "consistency_rows", "format_report", "summary_rows",
+           "write_summary"]
 
 SUMMARY_COLUMNS = (
     "quantity",
@@ -137,6 +139,29 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
                              src + " vs fitted radius"))
         else:
             rows.append(_row(label, "nm", m.value, m.error, source=src))
+    if result.consistency is not None:
+        rows += consistency_rows(result.consistency)
+    return rows
+
+
+def consistency_rows(c: Consistency) -> list[dict[str, Any]]:
+    """Rows of the physical-consistency check: each size test's size ratio, each test's
+    p-value (``expected``: the p-value below which it fails) and the verdict."""
+    rows: list[dict[str, Any]] = []
+    thr = c.threshold
+    for t in c.tests:
+        failed = " -- FAILED" if t.name in c.failed else ""
+        if t.name.startswith("size ") and "size_ratio" in t.values:
+            rows.append(_row(f"check: hydrodynamic/optical size from {t.name[5:]}", "1",
+                             t.values["size_ratio"], t.values["size_ratio_err"], 1.0,
+                             source=f"(D_predicted / D_measured)^(1/e); z = "
+                                    f"{t.statistic:+.2f}{failed}"))
+        rows.append(_row(f"check: {t.name}", "p", t.p_value, expected=thr,
+                         source=t.detail + failed))
+    verdict = c.message if c.flagged else (
+        f"consistent with the free Brownian motion of the fitted particle (every test "
+        f"p >= {thr:.2g}, the rule that flags {100 * c.alpha:g} % of such tracks at most)")
+    rows.append(_row("check: flagged", "1", float(c.flagged), source=verdict))
     return rows
 
 
