@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from holofit.fit.per_track import track_dir
 
 from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.tracks import analyze_tracks
@@ -141,24 +140,25 @@ def _fit_overlapping(work: Path, prefit: Path, frames: pd.DataFrame, workers: in
     cfg = load_particle(resolve_config("sphere_ps_1um", "particles"))
     flags = pre.merge(frames[["particle", "frame", "overlap"]], on=["particle", "frame"])
     clean = flags["overlap"].astype(str).str.lower().ne("true") & flags["status"].eq("ok")
-    statics = {}
+    statics: dict[str, dict] = {}
+    entries: dict[str, dict] = {}
     for p in pair:
         rows = flags[(flags["particle"] == p) & clean]
         source = "ok, not overlapping" if len(rows) else "all (none ok and apart)"
         rows = rows if len(rows) else flags[flags["particle"] == p]
         values = {"radius_um": float(rows["radius_um"].median()),
                   "n": float(rows["n"].median())}
-        folder = track_dir(work / "fit", p)
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / "static.json").write_text(json.dumps({"particle_model": "sphere",
-                                                        "values": values}))
+        entries[str(p)] = {"model": "sphere", "status": "fitted", "values": values}
         statics[str(p)] = {**values, "from_prefit_rows": source, "n_rows": len(rows)}
+    (work / "fit").mkdir(parents=True, exist_ok=True)
+    static = work / "fit" / "static_from_prefit.json"
+    static.write_text(json.dumps({"particle_model": "sphere", "tracks": entries}))
     run = run_fit(
         work / "crop",
         prefit,
         None,
         work / "fit",
-        FitConfig(cfg, plot=False, passes="final", tracks=pair),
+        FitConfig(cfg, plot=False, passes="final", particles=tuple(pair), static=static),
         batch=BatchOptions(workers=workers, progress=False),
     )
     fit = pd.read_csv(run.final)

@@ -8,19 +8,22 @@ by applying it again. The rules, in the order a fit meets them:
 =========================  ===============================================================
 rule                       a converged fit becomes ``poor_fit`` when
 =========================  ===============================================================
-:func:`judge_fit`          a parameter ends outside its physical or search range, its R^2
-                           is below ``min_r2``, or its reduced chi^2 is far above the noise
-                           with an R^2 below ``good_r2`` (:class:`QualityLimits`)
+:func:`judge_fit`          a parameter ends outside its physical or search range, the model
+                           explains no more than a flat background would (no particle), or
+                           its reduced chi^2 is far above the noise with an R^2 below
+                           ``good_r2`` (:class:`QualityLimits`)
 :func:`flag_small_crop`    (prefit) the crop is too small for the hologram it holds
 :func:`flag_outliers`      its reduced chi^2 is ``factor`` times the track's median
+:func:`flag_improbable`    its chi^2 is improbable for a frame in the track's right minimum
+                           (the pixel noise and the track's excess scatter)
 :func:`flag_off_level`     (initial pass) it fits clearly worse than the pass's best quarter
 :func:`flag_above_bar`     (following a track) it stays above the movie's bar after
                            re-acquisition
-:func:`flag_improbable`    (after the continuity sweeps) its chi^2 is improbable for a frame
-                           in the right minimum
 =========================  ===============================================================
 
-The bars: :func:`chi2_bar` (median plus a lower-half spread; which frames are suspects),
+A low R^2 alone never makes a fit poor: a faint particle fitted down to the camera noise has
+a low R^2 and an honest error. The bars: :func:`chi2_bar` (median plus a lower-half spread;
+which frames are suspects),
 :func:`small_sample_bar` (the same for a few rows, the spread at least the noise model's),
 :func:`initial_level` (the initial pass's best quarter) and :func:`flag_bars` (per-row bars
 from the chi^2 distribution and the movie's excess scatter). The numbers behind the defaults
@@ -43,7 +46,9 @@ from holofit.status import OK, POOR_FIT
 
 __all__ = [
     "EXCESS_FLOOR",
+    "FLAG_PROBABILITY",
     "FlagBars",
+    "Goodness",
     "QualityLimits",
     "chi2_bar",
     "flag_above_bar",
@@ -103,32 +108,56 @@ class QualityLimits:
     ----------
     max_chi2_red : float
         Largest reduced chi^2 (residual over the camera noise) of an ``ok`` fit whose R^2 is
-        below ``good_r2``.
-    min_r2 : float
-        Smallest R^2 of an ``ok`` fit.
+        below ``good_r2``: the gross bar of a fit on its own; whether a chi^2 is probable for
+        the frames of a track is :func:`flag_improbable`'s.
     good_r2 : float
         A fit that explains this much of the fringe variance is close to the data even when
         its reduced chi^2 is large: real holograms carry imperfections of the set-up far
         above a low camera noise.
+    detection_probability : float
+        A fit whose chi^2 gain over a flat background would be reached by the noise alone
+        with at least this probability (the chi^2 distribution with as many degrees of
+        freedom as fitted parameters) found no particle.
     ranges : dict
         Parameter name -> (low, high): an ``ok`` fit ends inside (besides each parameter's
         physical range).
     """
 
     max_chi2_red: float = 10.0
-    min_r2: float = 0.5
     good_r2: float = 0.8
+    detection_probability: float = 1e-4
     ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.max_chi2_red > 0:
             raise ValueError(f"max_chi2_red must be > 0, got {self.max_chi2_red}")
-        if not self.min_r2 < 1:
-            raise ValueError(f"min_r2 must be < 1, got {self.min_r2}")
+
+
+@dataclass(frozen=True)
+class Goodness:
+    """How close one fit is to its data.
+
+    Attributes
+    ----------
+    chi2_red : float
+        Residual sum of squares over ``noise_sd^2 (N - p)``.
+    r2 : float
+        Coefficient of determination.
+    signal_chi2 : float
+        The chi^2 the model explains beyond a flat level: ``(sum (d - mean d)^2 - rss) /
+        noise_sd^2``.
+    n_params : int
+        Fitted parameters.
+    """
+
+    chi2_red: float
+    r2: float
+    signal_chi2: float = math.inf
+    n_params: int = 0
 
 
 def judge_fit(out_of_range: list[str], values: dict[str, float], fitted: tuple[str, ...],
-              chi2_red: float, r2: float, limits: QualityLimits) -> tuple[str, str]:
+              goodness: Goodness, limits: QualityLimits) -> tuple[str, str]:
     """The status of a converged fit and why: ``("ok", "")`` or ``("poor_fit", reasons)``.
 
     Parameters
@@ -139,8 +168,8 @@ def judge_fit(out_of_range: list[str], values: dict[str, float], fitted: tuple[s
         The fitted values.
     fitted : tuple of str
         The parameters the optimiser varied (``limits.ranges`` applies to those).
-    chi2_red, r2 : float
-        Goodness of fit.
+    goodness : Goodness
+        How close the fit is to its data.
     limits : QualityLimits
         The limits.
     """
@@ -149,11 +178,16 @@ def judge_fit(out_of_range: list[str], values: dict[str, float], fitted: tuple[s
         v = values.get(name, math.nan)
         if name in fitted and not lo <= v <= hi:
             reasons.append(f"{name} = {v:.4g} outside [{lo:.4g}, {hi:.4g}]")
-    if math.isfinite(chi2_red) and chi2_red > limits.max_chi2_red and r2 < limits.good_r2:
+    chi2_red, r2 = goodness.chi2_red, goodness.r2
+    if goodness.n_params > 0 and math.isfinite(goodness.signal_chi2):
+        bar = float(stats.chi2.isf(limits.detection_probability, goodness.n_params))
+        if not goodness.signal_chi2 > bar:
+            reasons.append(f"no particle: the model explains chi^2 {goodness.signal_chi2:.3g} "
+                           f"beyond a flat background, what noise alone reaches with "
+                           f"probability {limits.detection_probability:g} (chi^2 {bar:.3g})")
+    if math.isfinite(chi2_red) and chi2_red > limits.max_chi2_red and not r2 >= limits.good_r2:
         reasons.append(f"reduced chi2 {chi2_red:.3g} > {limits.max_chi2_red:g} with R^2 "
                        f"{r2:.3g} < {limits.good_r2:g} (residual far above the pixel noise)")
-    if not r2 >= limits.min_r2:
-        reasons.append(f"R^2 {r2:.3g} < {limits.min_r2:g}")
     if reasons:
         return POOR_FIT, "; ".join(reasons)
     return OK, ""
@@ -233,22 +267,41 @@ def flag_outliers(table: pd.DataFrame, factor: float = 4.0, min_rows: int = 10) 
     return int(bad.sum())
 
 
-def outlier_rule(factor: float) -> Callable[[pd.DataFrame], int]:
-    """The table finisher that flags each track's outliers at ``factor`` times its median
-    (:func:`flag_outliers`): the batch runner applies it before the table is written, so a
-    table that looks complete is always flagged."""
+#: the default probability that a frame in the right minimum is flagged by its chi^2
+#: (:func:`flag_improbable`)
+FLAG_PROBABILITY = 1e-4
+
+
+def outlier_rule(factor: float, probability: float | None = FLAG_PROBABILITY
+                 ) -> Callable[[pd.DataFrame], int]:
+    """The table finisher of a pass of frames fitted with fixed statics: each track's
+    outliers at ``factor`` times its median (:func:`flag_outliers`), then its frames whose
+    chi^2 is improbable (:func:`flag_improbable` at ``probability``; None: not). The batch
+    runner applies it before the table is written, so a table that looks complete is always
+    flagged."""
 
     def finish(table: pd.DataFrame) -> int:
-        return flag_outliers(table, factor)
+        n = flag_outliers(table, factor)
+        if probability is not None:
+            n += flag_improbable(table, probability)[0]
+        return n
 
     return per_track(finish)
 
 
-def outlier_sidecar(factor: float) -> dict[str, Any]:
+def outlier_sidecar(factor: float, probability: float | None = FLAG_PROBABILITY
+                    ) -> dict[str, Any]:
     """How :func:`outlier_rule` is recorded in a fit table's sidecar."""
-    return {"outlier_factor": factor,
-            "rule": "ok rows whose chi2_red exceeds outlier_factor x the median chi2_red of the "
-                    "converged rows of their track become poor_fit"}
+    doc: dict[str, Any] = {
+        "outlier_factor": factor,
+        "rule": "ok rows whose chi2_red exceeds outlier_factor x the median chi2_red of the "
+                "converged rows of their track become poor_fit"}
+    if probability is not None:
+        doc["flag_probability"] = probability
+        doc["improbable"] = ("ok rows whose chi2_red a frame in the right minimum exceeds with "
+                             "at most flag_probability (the chi^2 distribution of its pixels "
+                             "and the track's excess scatter) become poor_fit")
+    return doc
 
 
 # -- bars ---------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from holofit.fit.chunk_task import FIXED_STATICS_FLOOR, REFIT_MIN_ROWS, bar_from_initial
-from holofit.fit.passes import flag_initial
+from holofit.fit.initial_pass import flag_initial
 from holofit.fit.static import static_average
 from holofit.io.tables import read_table, sidecar_path, write_table
 from holofit.particles import JanusSphere

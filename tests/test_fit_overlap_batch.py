@@ -14,7 +14,7 @@ from holofit.batch import BatchOptions
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.fit import overlaps as overlaps_module
 from holofit.fit.config import FitConfig
-from holofit.fit.passes import initial_choice
+from holofit.fit.initial_pass import initial_choice
 from holofit.fit.stage import run_fit
 from holofit.holomodel.parameters import static_values
 from holofit.particles import Sphere

@@ -14,7 +14,8 @@ from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
 from holofit.fit.frame import fit_frame
-from holofit.fit.passes import initial_choice, initial_particle, load_payload
+from holofit.fit.initial_pass import initial_choice, initial_particle
+from holofit.fit.passes import load_payload
 from holofit.fit.problem import FrameProblem
 from holofit.fit.seeded import SEED_BUILD, fit_frame_seeded
 from holofit.fit.settings import FrameFitSettings

@@ -507,3 +507,39 @@ def test_continuity_refits_a_wrong_frame_from_its_neighbours(movie, tmp_path):
         batch=SERIAL,
     )
     assert again.continuity.replaced == 1 and run.final.read_bytes() == before
+
+
+def test_an_interrupted_initial_pass_resumes_to_the_rows_of_an_uninterrupted_one(
+        movie, tmp_path, monkeypatch):
+    """The initial pass (sizes free, direct DDA solves, independent frames) killed after its
+    first frame and resumed: the resumed rows are those of an uninterrupted run, digit for
+    digit (each item starts from its own inputs only, not from the solver's history of the
+    frames its worker ran before)."""
+    root, particle, _ = movie
+    common = dict(passes="initial", initial_frames=3, plot=False, tmatrix="never",
+                  follow=FollowSettings(warm=False), model_test=False)
+    whole = run_fit(root / "crop", root / "prefit", root / "lib", tmp_path / "whole",
+                    FitConfig(particle, **common), batch=SERIAL)
+    real = task.fit_frame_task
+    calls = []
+
+    def stop_after_one(config, key, payload):
+        calls.append(key)
+        if len(calls) > 1:
+            raise KeyboardInterrupt  # killed, not a frame's error
+        return real(config, key, payload)
+
+    monkeypatch.setattr(task, "fit_frame_task", stop_after_one)
+    from holofit.fit import passes
+
+    monkeypatch.setattr(passes, "fit_frame_task", stop_after_one)
+    with pytest.raises(KeyboardInterrupt):
+        run_fit(root / "crop", root / "prefit", root / "lib", tmp_path / "cut",
+                FitConfig(particle, **common), batch=SERIAL)
+    monkeypatch.setattr(passes, "fit_frame_task", real)
+    again = run_fit(root / "crop", root / "prefit", root / "lib", tmp_path / "cut",
+                    FitConfig(particle, **common), batch=SERIAL)
+    assert again.summaries["initial"].n_done_before == 1
+    a = pd.read_csv(whole.initial).drop(columns="fit_time_s")
+    b = pd.read_csv(again.initial).drop(columns="fit_time_s")
+    pd.testing.assert_frame_equal(a, b, rtol=0, atol=0)

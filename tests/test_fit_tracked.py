@@ -37,7 +37,7 @@ def test_chunks_cover_every_frame_and_overlap():
 
 
 def test_the_initial_passs_frames_are_cut_into_their_runs():
-    from holofit.fit.passes import initial_choice
+    from holofit.fit.initial_pass import initial_choice
 
     assert consecutive_runs([]) == []
     assert consecutive_runs([5, 1, 2, 3, 9, 10]) == [[1, 2, 3], [5], [9, 10]]

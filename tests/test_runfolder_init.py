@@ -77,6 +77,8 @@ def test_the_makefile_chains_the_stages_with_the_run_folder_inputs(tmp_path, inp
     for stage, o in ran:
         if stage.split()[0] in ("prefit", "library", "fit"):
             assert "-j 3 --scheduler tcp://10.0.0.5:8786" in o, (stage, o)
+        elif stage == "crop":  # JOBS reaches every stage that runs frames in parallel
+            assert o.split()[-2:] == ["-j", "3"] and "--scheduler" not in o, (stage, o)
         else:
             assert "-j" not in o.split() and "--scheduler" not in o, (stage, o)
 
@@ -103,13 +105,17 @@ def test_a_sphere_has_no_library_stage_and_options_reach_their_stage(tmp_path, i
 def test_settings_records_change_only_when_the_settings_do(tmp_path, inputs):
     assert _init(tmp_path, inputs).exit_code == 0
     run = tmp_path / "run01"
-    run_make(run, "-n")
+    run_make(run, "-n")  # a dry run changes nothing
+    assert not (run / "settings").exists()
+    run_make(run, "settings")
     records = sorted((run / "settings").iterdir())
     assert [p.name for p in records] == ["analyze", "crop", "fit", "library", "prefit"]
     before = {p.name: p.stat().st_mtime_ns for p in records}
-    run_make(run, "-n", "JOBS=4")  # how, not what: nothing recorded
+    run_make(run, "settings", "JOBS=4")  # how, not what: nothing recorded
     assert {p.name: p.stat().st_mtime_ns for p in records} == before
-    run_make(run, "-n", "CROP_OPTS=--size 24 --start '3,4'")
+    run_make(run, "-n", "CROP_OPTS=--size 24 --start '3,4'")  # dry: still nothing
+    assert {p.name: p.stat().st_mtime_ns for p in records} == before
+    run_make(run, "settings", "CROP_OPTS=--size 24 --start '3,4'")
     after = {p.name: p.stat().st_mtime_ns for p in records}
     assert [k for k in after if after[k] != before[k]] == ["crop"]
     assert (run / "settings" / "crop").read_text().endswith("options --size 24 --start '3,4'\n")
@@ -370,3 +376,21 @@ def test_init_says_what_the_fit_initial_pass_will_take(tmp_path, inputs):
     assert res.exit_code == 0 and "initial pass" not in res.stderr
     sphere = _init(tmp_path, inputs, run="run03", particle="sphere_ps_1um")
     assert sphere.exit_code == 0 and "initial pass" in sphere.stderr
+
+
+@needs_make
+def test_a_population_names_every_model_and_the_rod_is_the_primary(tmp_path, inputs):
+    """``-p sphere_ps_1um -p rod_paper``: the non-spherical model is the run's primary
+    (particle.toml: the library ranks its orientations), the sphere its alternative
+    (particle_sphere.toml), and the fit is given both; a second non-spherical model is
+    refused."""
+    res = _init(tmp_path, inputs, "-p", "rod_paper", particle="sphere_ps_1um")
+    assert res.exit_code == 0, res.output
+    run = tmp_path / "run01"
+    assert 'model = "spherocylinder"' in (run / "particle.toml").read_text()
+    assert 'model = "sphere"' in (run / "particle_sphere.toml").read_text()
+    ran = dict(stages_run(run_make(run, "-n").stdout, run))
+    assert "library" in ran
+    assert "-p particle.toml -p particle_sphere.toml" in ran["fit initial"]
+    twice = _init(tmp_path / "b", inputs, "-p", "janus_paper", particle="rod_paper")
+    assert twice.exit_code == 1 and "second non-spherical model" in twice.output

@@ -10,7 +10,7 @@ from holofit.config import ParticleConfig, load_instrument, resolve_config
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
 from holofit.dda.settings import DDASettings
-from holofit.fit.passes import INITIAL_PRECISION, initial_particle
+from holofit.fit.initial_pass import INITIAL_PRECISION, initial_particle
 from holofit.hologram import calc_hologram
 from holofit.library.stage import LIBRARY_PRECISION, LibraryConfig, new_library
 from holofit.particles import JanusSphere, Sphere
@@ -62,8 +62,7 @@ def test_a_short_initial_pass_is_cut_in_two():
     """4 initial frames (``--initial-frames 4``): two chunks of 2 (one per worker of 2 cores,
     the initial pass's chunks never overlap), not one of 4; 8 frames and more in chunks of at
     least 4."""
-    from holofit.fit.chunks import INITIAL_OVERLAP, plan_chunks
-    from holofit.fit.passes import initial_min_chunk
+    from holofit.fit.chunks import INITIAL_OVERLAP, initial_min_chunk, plan_chunks
 
     def plan(n):
         return plan_chunks(list(range(n)), INITIAL_OVERLAP, min_chunk=initial_min_chunk(n))

@@ -23,7 +23,7 @@ from typing import Any
 from holofit.batch.backends import Backend
 from holofit.batch.errors import BatchError, WorkerLost
 from holofit.batch.journal import Journal
-from holofit.batch.keys import FRAME_KEY, Key, item_rows, key_of_row, key_row
+from holofit.batch.keys import FRAME_KEY, Key, item_rows, key_of_row, key_row, sorted_keys
 from holofit.batch.layout import OutputFiles
 from holofit.batch.mainguard import GUARD_ADVICE
 from holofit.batch.options import BatchOptions, BatchSummary, Precomputed
@@ -170,7 +170,8 @@ class BatchRun:
         if full["status"] in FAILED_STATUSES:
             self.n_failed += 1
             self.progress.set_postfix(failed=self.n_failed, refresh=False)
-        self.progress.update(1)
+        # a multi-row item (a chunk of frames) advances the bar by its frames
+        self.progress.update(len(row) if isinstance(row, list) else 1)
 
     def submit(self, task: _Task) -> None:
         fut = self.backend.submit(self.run_item, self.func, self.config, task.frame,
@@ -285,7 +286,7 @@ def open_journal(
         header["key_columns"] = list(files.key_columns)
     journal = Journal(files.journal, header)
     if fresh:
-        for f in sorted(rows):
+        for f in sorted_keys(rows):
             journal.append(rows[f])
     return journal
 

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import collections
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -98,6 +98,7 @@ class _Batch:
     files: OutputFiles
     options: BatchOptions
     backend: Backend | None
+    sizes: Mapping[Any, int] | None = None
 
     def run(self) -> BatchSummary:
         """Take the lock, reuse earlier rows, run the rest, write and publish the table."""
@@ -125,6 +126,12 @@ class _Batch:
         summary.elapsed_s = time.perf_counter() - t0
         return summary
 
+    def _n_rows(self, items: Sequence[Key]) -> int:
+        """The rows of ``items``: one each, or the sizes the stage gave (a chunk's frames)."""
+        if self.sizes is None:
+            return len(items)
+        return sum(int(self.sizes.get(k, 1)) for k in items)
+
     def _run_todo(self, todo: collections.deque[Key], rows: dict[Key, dict[str, Any]],
                   summary: BatchSummary, info: dict[str, Any]) -> None:
         opts = self.options
@@ -133,11 +140,11 @@ class _Batch:
         disable = None if opts.progress is None else not opts.progress
         with (
             backend_for(opts, self.backend) as be,
-            progress_bar(len(self.frames), self.table.desc, disable=disable) as bar,
+            progress_bar(self._n_rows(self.frames), self.table.desc, disable=disable) as bar,
         ):
             summary.backend = be.describe()
             info.update(summary.backend)
-            bar.update(summary.n_done_before)
+            bar.update(self._n_rows([f for f in self.frames if f in rows]))
             run = BatchRun(self.func, self.config, be, self.files, rows, bar, summary, info,
                             opts, n_failed)
             run.run(todo, self.load)
@@ -153,6 +160,7 @@ def run_batch(
     options: BatchOptions | None = None,
     backend: Backend | None = None,
     before_publish: Callable[[Path], Any] | None = None,
+    sizes: Mapping[Any, int] | None = None,
 ) -> BatchSummary:
     """Run ``func`` on every item, in parallel, resumably, writing a table keyed by item.
 
@@ -185,6 +193,8 @@ def run_batch(
         partial table's name, after the backend has closed and before it is renamed to
         its own name (the file ``make`` waits for, so the last one written): a stage draws
         its pictures there. An interruption keeps the journal; a rerun calls it again.
+    sizes : mapping, optional
+        Item key -> the rows it writes (a chunk of frames): the progress bar counts rows.
 
     Returns
     -------
@@ -205,4 +215,6 @@ def run_batch(
     table = replace(table, key_columns=check_key_columns(table.key_columns))
     items = _checked_frames(items, table.columns, table.key_columns)
     return _Batch(func, config, items, load, table, OutputFiles(table, before_publish),
-                  options or BatchOptions(), backend).run()
+                  options or BatchOptions(), backend,
+                  None if sizes is None else {normal_key(k, table.key_columns): n
+                                              for k, n in sizes.items()}).run()

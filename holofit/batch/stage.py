@@ -20,9 +20,9 @@ continuity sweeps) is
    it is published under its own name, or on the published table when it was complete before
    this run.
 
-The table is keyed by its key columns (:mod:`holofit.batch.keys`; ``("frame",)`` for the
-stages here): :func:`run_stage` passes them to the runner untouched, so a stage keyed by
-``("particle", "frame")`` uses the same skeleton with a loader that takes such keys.
+The table is keyed by its key columns (:mod:`holofit.batch.keys`; ``("particle", "frame")``
+for the stages here, the crop folder's :attr:`holofit.tables.cropset.CropSet.key_columns`):
+:func:`run_stage` passes them to the runner untouched, and the loader takes such keys.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import contextlib
 import hashlib
 import json
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -151,6 +151,10 @@ class FrameStart:
 class FrameLoader:
     """The shared frame loader and skip policy of the per-frame stages.
 
+    Calling the loader with a frame gives its :class:`FrameStart`, or a ``skipped``
+    :class:`~holofit.batch.runner.Precomputed` row saying why not (the crop stage's status, the
+    prefit's, the library's, in this order).
+
     Parameters
     ----------
     crops : CropSet
@@ -160,10 +164,6 @@ class FrameLoader:
         a frame without a usable start is skipped.
     library : pandas.DataFrame, optional
         The library table, indexed by frame: a frame without a candidate is skipped.
-
-    Calling the loader with a frame gives its :class:`FrameStart`, or a ``skipped``
-    :class:`~holofit.batch.runner.Precomputed` row saying why not (the crop stage's status, the
-    prefit's, the library's, in this order).
     """
 
     def __init__(self, crops: CropSet, prefit: pd.DataFrame | None = None,
@@ -241,6 +241,7 @@ def run_stage(
     *,
     batch: BatchOptions | None = None,
     complete: Callable[[Path], Any] | None = None,
+    sizes: Mapping[Any, int] | None = None,
 ) -> tuple[BatchSummary, Any]:
     """Run one batch of a stage and finish its table.
 
@@ -253,6 +254,8 @@ def run_stage(
         The table written.
     batch : BatchOptions, optional
         Backend and resumption.
+    sizes : mapping, optional
+        Item -> the rows it writes (a chunk's frames), for the progress bar.
     complete : callable, optional
         ``complete(path)``: what is done with the complete table (pictures, sweeps that
         rewrite it), before it is published under its own name (the file ``make`` waits for is
@@ -272,7 +275,8 @@ def run_stage(
         done.append(complete(path))
 
     summary = run_batch(func, config, keys, load, table, options=batch,
-                        before_publish=before_publish if complete else None)
+                        before_publish=before_publish if complete else None,
+                        sizes=sizes)
     if complete is not None and not done:  # complete before this run: from the table
         done.append(complete(table.path))
     return summary, (done[0] if done else None)

@@ -37,24 +37,30 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from holofit.aberration import SPHERICAL_NAMES, Aberration, spherical_basis
-from holofit.cache import LRUCache
+from holofit.calibrate.model import Frame, JointModel
+from holofit.calibrate.settings import (
+    DEFAULT_ABERRATION_STARTS,
+    INSTRUMENT_PREFIX,
+    POLARIZATION,
+    InstrumentFit,
+    JointFitSettings,
+    SphereFrame,
+)
 from holofit.holomodel.aperture import SCAN_LOWEST, SCAN_STEP, aperture_minima, aperture_start
-from holofit.holomodel.forward import HologramModel, InvalidParameters
+from holofit.holomodel.forward import InvalidParameters
 from holofit.holomodel.leastsq import Solution, solve_least_squares
-from holofit.holomodel.parameters import APERTURE, ParameterSpace, State
-from holofit.holomodel.pixels import PixelSelection, select_pixels
+from holofit.holomodel.parameters import APERTURE
+from holofit.holomodel.pixels import select_pixels
 from holofit.holomodel.result import APERTURE_CHI2, FitResult, aperture_spread
 from holofit.holomodel.statistics import covariance_from_jacobian, estimate_noise_sd
 from holofit.optics import Optics
-from holofit.particles import Sphere
-from holofit.prefit.sphere import EXACT_STEPS, SPHERE_COLUMNS, SphereFitSettings, fit_sphere_crop
-from holofit.scattering.mie import LorenzMie
+from holofit.prefit.sphere import SPHERE_COLUMNS, fit_sphere_crop
 from holofit.status import NOT_CONVERGED, OK
 
 __all__ = [
@@ -66,312 +72,6 @@ __all__ = [
     "SphereFrame",
     "calibrate_instrument",
 ]
-
-#: names of the shared parameters in the joint vector start with this (and a frame's with
-#: ``frame<j>.``), so that the one least-squares entry point treats the NA as any parameter
-#: (its own NA steps are this module's, over all frames)
-INSTRUMENT_PREFIX = "instrument."
-#: the polarisation angle from lab x, rad (a shared parameter)
-POLARIZATION = "polarization_rad"
-#: its finite-difference step, rad (a new solve of every frame's sphere per column)
-POLARIZATION_STEP = 1e-4
-#: start values of ``(sa4_rad, sa6_rad)`` tried besides the instrument's own, rad: the
-#: 4th-order term up to a few waves at the pupil's edge, the 6th-order term of either sign
-#: (the layer model of :func:`holofit.aberration.layer_aberration` for a coverslip 10 um off
-#: or an oil objective 10 um into water lies inside)
-DEFAULT_ABERRATION_STARTS: tuple[tuple[float, float], ...] = tuple(
-    (a, b) for a in (-10.0, 0.0, 10.0) for b in (-30.0, 0.0, 30.0))
-
-
-@dataclass(frozen=True)
-class SphereFrame:
-    """One normalised sphere hologram of a calibration.
-
-    Attributes
-    ----------
-    crop : ndarray, shape (rows, cols)
-        Background-normalised hologram; NaN marks pixels to leave out.
-    corner_rc : tuple of int
-        Full-frame ``(row, column)`` of the crop's pixel ``[0, 0]``.
-    centre_xy_um : tuple of float
-        Full-frame ``(x, y)`` of the hologram's centre from the crop stage, um (the prefit's
-        start).
-    noise_sd : float, optional
-        Pixel noise (normalised units); estimated from the crop if not given.
-    start : mapping, optional
-        The sphere's start (``x_um, y_um, z_um, radius_um, n, alpha``, e.g. a prefit table
-        row); None: the automatic prefit of step 1.
-    """
-
-    crop: NDArray
-    corner_rc: tuple[int, int]
-    centre_xy_um: tuple[float, float]
-    noise_sd: float | None = None
-    start: Mapping[str, float] | None = None
-
-
-@dataclass(frozen=True)
-class JointFitSettings:
-    """What a joint instrument fit varies and how hard it looks.
-
-    Attributes
-    ----------
-    fit_na : bool
-        Fit the objective's numerical aperture (the instrument's is the start).
-    aberration : tuple of str
-        Spherical-aberration coefficients fitted (``sa4_rad``, ``sa6_rad``, ...; the others
-        held at the instrument's); empty: none.
-    fit_polarization : bool
-        Fit the polarisation angle (the instrument's is the start).
-    aberration_starts : tuple of tuple of float, optional
-        Starts of the fitted coefficients tried in step 2 (each padded with the instrument's
-        values); default :data:`DEFAULT_ABERRATION_STARTS`, the instrument's own always first.
-    screen_pixels : int
-        Pixels per frame (a seeded random subset) in step 2.
-    pixel_fraction : float
-        Fit a seeded random subset with this fraction of each frame's unmasked pixels (1: all;
-        large crops of many frames are fitted faster, at a cost in precision only).
-    fix_alpha : float, optional
-        Hold every frame's alpha at this value; fitted by default.
-    index_imag : float
-        Imaginary part of the spheres' index, held (>= 0).
-    max_nfev : int
-        Most residual evaluations of each least-squares run.
-    ftol, xtol : float
-        Their convergence tolerances.
-    prefit : SphereFitSettings
-        Settings of step 1's per-frame prefits.
-    seed : int
-        Seed of the pixel subsets.
-    """
-
-    fit_na: bool = True
-    aberration: tuple[str, ...] = ("sa4_rad", "sa6_rad")
-    fit_polarization: bool = False
-    aberration_starts: tuple[tuple[float, ...], ...] | None = None
-    screen_pixels: int = 3000
-    pixel_fraction: float = 1.0
-    fix_alpha: float | None = None
-    index_imag: float = 0.0
-    max_nfev: int = 100
-    ftol: float = 1e-8
-    xtol: float = 1e-8
-    prefit: SphereFitSettings = field(default_factory=SphereFitSettings)
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "aberration", tuple(self.aberration))
-        unknown = [n for n in self.aberration if n not in SPHERICAL_NAMES]
-        if unknown:
-            raise ValueError(f"unknown aberration coefficient(s) {', '.join(unknown)}; known: "
-                             f"{', '.join(SPHERICAL_NAMES)}")
-        if not (self.fit_na or self.aberration or self.fit_polarization):
-            raise ValueError("a joint instrument fit needs a shared parameter: fit_na, "
-                             "aberration or fit_polarization")
-        if self.screen_pixels < 100 or self.max_nfev < 1:
-            raise ValueError("screen_pixels must be >= 100 and max_nfev >= 1")
-        if not 0 < self.pixel_fraction <= 1:
-            raise ValueError(f"pixel_fraction must be in (0, 1], got {self.pixel_fraction}")
-
-
-@dataclass
-class InstrumentFit:
-    """The instrument fitted to several sphere holograms.
-
-    Attributes
-    ----------
-    values, errors : dict
-        The fitted instrument quantities (``numerical_aperture``, ``sa4_rad``, ...,
-        ``polarization_rad``) and their 1-sigma errors.
-    optics : Optics
-        The start instrument's optics with the fitted values (what later fits use).
-    frames : list of FitResult
-        Per frame, its sphere (``x_um, y_um, z_um, radius_um, n, alpha``) with errors from the
-        joint covariance (the instrument's uncertainty included), and its own goodness of fit
-        (``chi2``: mean squared residual per pixel; ``chi2_red`` against its pixel noise).
-    names : tuple of str
-        The joint vector's components (``instrument.<name>``, ``frame<j>.<name>``).
-    covariance : ndarray
-        Their covariance.
-    chi2_red : float
-        Weighted residual sum of squares over its degrees of freedom (about 1 for a model that
-        explains every frame down to its noise).
-    n_pixels, n_eval : int
-        Pixels of all frames; holograms computed.
-    status, message : str
-        ``ok`` or ``not_converged``, and the optimiser's message.
-    time_s : float
-        Wall time.
-    trials : list of dict
-        Each step-2 start and step-3 NA tried, with its weighted misfit (diagnostics).
-    edge_phase_rad, edge_phase_error_rad : float
-        The fitted pupil phase at the aperture's edge, ``Phi(th_max)``, and its 1-sigma error
-        (the coefficients' and the NA's covariance propagated): over a small pupil the
-        coefficients are strongly anticorrelated (``x^2`` and ``x^3`` look alike when ``x``
-        stays small) while the phase they make is well fixed, so this is the number to
-        compare between calibrations.
-    """
-
-    values: dict[str, float]
-    errors: dict[str, float]
-    optics: Optics
-    frames: list[FitResult]
-    names: tuple[str, ...]
-    covariance: NDArray[np.float64]
-    chi2_red: float
-    n_pixels: int
-    n_eval: int
-    status: str
-    message: str
-    time_s: float = 0.0
-    trials: list[dict] = field(default_factory=list)
-    edge_phase_rad: float = math.nan
-    edge_phase_error_rad: float = math.nan
-
-
-@dataclass
-class _Frame:
-    """A frame's pixels, noise and current sphere."""
-
-    pix: PixelSelection
-    noise_sd: float
-    sphere: dict[str, float]
-    subset: NDArray[np.intp]
-
-
-class _Names:
-    """The ``space`` a least-squares run asks a model for: its vector's names."""
-
-    def __init__(self, names: tuple[str, ...]) -> None:
-        self.names = names
-
-
-class _JointModel:
-    """The frames' forward models stacked (module docstring), with the interface of
-    :class:`~holofit.holomodel.forward.HologramModel` that
-    :func:`~holofit.holomodel.leastsq.solve_least_squares` uses: ``space.names``,
-    ``hologram``, ``jacobian`` and ``n_holograms``."""
-
-    def __init__(self, frames: Sequence[_Frame], optics: Optics, shared: Mapping[str, float],
-                 free_shared: Sequence[str], frame_names: Sequence[str],
-                 settings: JointFitSettings, subset: bool = False) -> None:
-        self.frames = list(frames)
-        self.optics = optics
-        self.shared = dict(shared)
-        self.free_shared = tuple(free_shared)
-        self.frame_names = tuple(frame_names)
-        self.settings = settings
-        self.subset = subset
-        names = [INSTRUMENT_PREFIX + n for n in self.free_shared]
-        for j in range(len(self.frames)):
-            names += [f"frame{j}.{n}" for n in self.frame_names]
-        self.space = _Names(tuple(names))
-        self._models: dict[float, list[HologramModel]] = {}
-        self._extra = 0
-        rows = [f.subset.size if subset else f.pix.size for f in self.frames]
-        self._rows = np.cumsum([0, *rows])
-        self.weights = [1.0 / f.noise_sd for f in self.frames]
-        model_free = [n for n in self.free_shared if n != POLARIZATION] + list(self.frame_names)
-        self._frame_free = tuple(model_free)
-        index = {n: i for i, n in enumerate(self.space.names)}
-        self._index: list[NDArray[np.intp]] = []
-        for j in range(len(self.frames)):
-            space = self._space(j)
-            self._index.append(np.array(
-                [index[INSTRUMENT_PREFIX + n] if n in self.free_shared else index[f"frame{j}.{n}"]
-                 for n in space.names], dtype=np.intp))
-
-    # -- the frames' models ------------------------------------------------------------
-    def _space(self, j: int, shared: Mapping[str, float] | None = None) -> ParameterSpace:
-        s = self.shared if shared is None else shared
-        sphere = self.frames[j].sphere
-        st = self.settings
-        alpha = sphere["alpha"] if st.fix_alpha is None else st.fix_alpha
-        model = Sphere(sphere["radius_um"], complex(sphere["n"], st.index_imag))
-        aberration = Aberration.from_values(s, self.optics.aberration)
-        state = State((sphere["x_um"], sphere["y_um"], sphere["z_um"]), None, alpha,
-                      (("radius_um", sphere["radius_um"]), ("n", sphere["n"])),
-                      s.get(APERTURE.name), aberration)
-        return ParameterSpace(model, self._frame_free, state, step_overrides=EXACT_STEPS)
-
-    def _models_for(self, beta: float) -> list[HologramModel]:
-        models = self._models.get(beta)
-        if models is None:
-            optics = replace(self.optics, polarization_rad=beta)
-            models = []
-            for j, f in enumerate(self.frames):
-                xs, ys = ((f.pix.xs_um[f.subset], f.pix.ys_um[f.subset]) if self.subset
-                          else (f.pix.xs_um, f.pix.ys_um))
-                models.append(HologramModel(LorenzMie(), self._space(j), optics, xs, ys,
-                                            waves=LRUCache(4)))
-            while len(self._models) >= 3:
-                self._extra += sum(m.n_holograms for m in self._models.pop(next(iter(
-                    self._models))))
-            self._models[beta] = models
-        return models
-
-    def _beta(self, v: NDArray) -> float:
-        if POLARIZATION in self.free_shared:
-            return float(v[self.space.names.index(INSTRUMENT_PREFIX + POLARIZATION)])
-        return float(self.shared.get(POLARIZATION, self.optics.polarization_rad))
-
-    @property
-    def n_holograms(self) -> int:
-        return self._extra + sum(m.n_holograms for ms in self._models.values() for m in ms)
-
-    @n_holograms.setter
-    def n_holograms(self, value: int) -> None:
-        self._extra += int(value) - self.n_holograms
-
-    # -- data, holograms, Jacobian ------------------------------------------------------
-    def data(self) -> NDArray[np.float64]:
-        """Every frame's data, weighted, in the model's row order."""
-        return np.concatenate([
-            (f.pix.data[f.subset] if self.subset else f.pix.data) * w
-            for f, w in zip(self.frames, self.weights, strict=True)])
-
-    def hologram(self, vector: NDArray) -> NDArray[np.float64]:
-        v = np.asarray(vector, dtype=float)
-        models = self._models_for(self._beta(v))
-        return np.concatenate([m.hologram(v[idx]) * w for m, idx, w in
-                               zip(models, self._index, self.weights, strict=True)])
-
-    def jacobian(self, vector: NDArray) -> NDArray[np.float64]:
-        v = np.asarray(vector, dtype=float)
-        models = self._models_for(self._beta(v))
-        jac = np.zeros((int(self._rows[-1]), v.size))
-        for j, (m, idx, w) in enumerate(zip(models, self._index, self.weights, strict=True)):
-            jac[self._rows[j]:self._rows[j + 1], idx] = m.jacobian(v[idx]) * w
-        if POLARIZATION in self.free_shared:
-            i = self.space.names.index(INSTRUMENT_PREFIX + POLARIZATION)
-            q = v.copy()
-            q[i] += POLARIZATION_STEP
-            jac[:, i] = (self.hologram(q) - self.hologram(v)) / POLARIZATION_STEP
-        return jac
-
-    # -- vectors <-> values -------------------------------------------------------------
-    def vector(self) -> NDArray[np.float64]:
-        """The model's vector at its shared values and the frames' spheres."""
-        out = [self.shared[n] for n in self.free_shared]
-        for f in self.frames:
-            out += [f.sphere[n] for n in self.frame_names]
-        return np.array(out, dtype=float)
-
-    def values(self, vector: NDArray) -> tuple[dict[str, float], list[dict[str, float]]]:
-        """The shared values and the frames' spheres at ``vector``."""
-        v = np.asarray(vector, dtype=float)
-        shared = dict(self.shared)
-        for i, n in enumerate(self.free_shared):
-            shared[n] = float(v[i])
-        spheres = []
-        k = len(self.free_shared)
-        for f in self.frames:
-            s = dict(f.sphere)
-            for n in self.frame_names:
-                s[n] = float(v[k])
-                k += 1
-            spheres.append(s)
-        return shared, spheres
 
 
 def _prefit_start(frame: SphereFrame, optics: Optics, pixel_size_um: float,
@@ -429,7 +129,7 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
     frame_names = tuple(n for n in SPHERE_COLUMNS
                         if not (n == "alpha" and st.fix_alpha is not None))
     rng = np.random.default_rng(st.seed)
-    prepared: list[_Frame] = []
+    prepared: list[Frame] = []
     for j, fr in enumerate(frames):
         pix = select_pixels(np.asarray(fr.crop, dtype=float), fr.corner_rc, pixel_size_um,
                             fraction=st.pixel_fraction, rng=rng, min_pixels=100)
@@ -439,7 +139,7 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
             raise ValueError(f"frame {j}: no pixel noise estimate (give noise_sd)")
         m = min(st.screen_pixels, pix.size)
         subset = np.sort(rng.choice(pix.size, size=m, replace=False))
-        prepared.append(_Frame(pix, float(noise),
+        prepared.append(Frame(pix, float(noise),
                                _prefit_start(fr, base, pixel_size_um, st, j), subset))
     shared: dict[str, float] = {APERTURE.name: (aperture_start(optics) if st.fit_na
                                                 else float(optics.numerical_aperture)),
@@ -451,9 +151,9 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
     n_eval = 0
 
     def run(free: Sequence[str], subset: bool, values: Mapping[str, float],
-            max_nfev: int | None = None) -> tuple[_JointModel, Solution]:
+            max_nfev: int | None = None) -> tuple[JointModel, Solution]:
         nonlocal n_eval
-        jm = _JointModel(prepared, base, values, free, frame_names, st, subset)
+        jm = JointModel(prepared, base, values, free, frame_names, st, subset)
         sol = solve_least_squares(jm, jm.data(), jm.vector(),
                                   max_nfev=max_nfev or st.max_nfev,
                                   ftol=1e-6 if subset else st.ftol,
@@ -461,7 +161,7 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
         n_eval += sol.n_eval
         return jm, sol
 
-    def adopt(jm: _JointModel, sol: Solution) -> dict[str, float]:
+    def adopt(jm: JointModel, sol: Solution) -> dict[str, float]:
         values, spheres = jm.values(sol.vector)
         for f, s in zip(prepared, spheres, strict=True):
             f.sphere = s
@@ -505,7 +205,7 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
         scan = (grid, rss)
         na_starts = aperture_minima(grid, rss) or [shared[APERTURE.name]]
         spheres0 = [dict(f.sphere) for f in prepared]
-        best_run: tuple[_JointModel, Solution] | None = None
+        best_run: tuple[JointModel, Solution] | None = None
         for na in na_starts:
             for f, s in zip(prepared, spheres0, strict=True):
                 f.sphere = dict(s)
@@ -523,7 +223,7 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
                    time.perf_counter() - t0)
 
 
-def _scan_aperture(frames: list[_Frame], optics: Optics, shared: Mapping[str, float],
+def _scan_aperture(frames: list[Frame], optics: Optics, shared: Mapping[str, float],
                    frame_names: Sequence[str], settings: JointFitSettings
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The weighted misfit of all frames on a grid of NAs (every other parameter held; the
@@ -534,7 +234,7 @@ def _scan_aperture(frames: list[_Frame], optics: Optics, shared: Mapping[str, fl
                                      [top, min(na0, top)]]))
     rss = np.full(grid.size, np.inf)
     for i, na in enumerate(grid):
-        jm = _JointModel(frames, optics, {**shared, APERTURE.name: float(na)}, (), frame_names,
+        jm = JointModel(frames, optics, {**shared, APERTURE.name: float(na)}, (), frame_names,
                          settings, subset=True)
         try:
             r = jm.hologram(jm.vector()) - jm.data()
@@ -544,7 +244,7 @@ def _scan_aperture(frames: list[_Frame], optics: Optics, shared: Mapping[str, fl
     return grid, rss
 
 
-def _result(jm: _JointModel, sol: Solution, frames: list[_Frame], optics: Optics,
+def _result(jm: JointModel, sol: Solution, frames: list[Frame], optics: Optics,
             shared: Mapping[str, float], scan: tuple[NDArray, NDArray] | None,
             trials: list[dict], n_eval: int, time_s: float) -> InstrumentFit:
     n = int(sol.residuals.size)
@@ -619,7 +319,7 @@ def _edge_phase(optics: Optics, free_shared: Sequence[str], cov: NDArray[np.floa
     return value, (math.sqrt(var) if var >= 0 else math.nan)
 
 
-def _scan_fraction(frames: list[_Frame]) -> float:
+def _scan_fraction(frames: list[Frame]) -> float:
     """Pixels of the step-2 subsets over all pixels: the scan's misfit is on the subsets."""
     sub = sum(f.subset.size for f in frames)
     return sub / max(sum(f.pix.size for f in frames), 1)

@@ -29,14 +29,42 @@ def instrument_option(required: bool = True) -> Callable[[F], F]:
     )
 
 
-def particle_option(required: bool = True) -> Callable[[F], F]:
+def particle_option(required: bool = True, multiple: bool = False) -> Callable[[F], F]:
+    """``-p/--particle-model``: a particle-model file or the name of a shipped one; with
+    ``multiple``, a run's population (the first non-spherical one the primary model)."""
+    more = (" Give it again for the other models of the population (spheres, coated spheres):"
+            " each track is given the one that fits it best." if multiple else "")
     return click.option(
-        "--particle",
+        "--particle-model",
         "-p",
+        "particle",
         required=required,
+        multiple=multiple,
         help="Particle-model TOML file, or the name of a shipped one (e.g. rod_paper; "
-        "configs/particles).",
+        "configs/particles)." + more,
     )
+
+
+def track_options(f: F) -> F:
+    """``--particle N`` and ``--exclude-particle N`` (each repeatable): the tracks a stage
+    runs on (a track is a crop table's ``particle``)."""
+    def ids(ctx: click.Context, param: click.Parameter, values: tuple[str, ...]
+            ) -> tuple[int, ...]:
+        out = []
+        for v in values:
+            try:
+                out.append(int(v))
+            except ValueError:
+                raise click.BadParameter(
+                    f"{v!r}: a track id (an integer); the particle model is -p/"
+                    "--particle-model", param=param) from None
+        return tuple(out)
+
+    f = click.option("--exclude-particle", "exclude_particles", multiple=True,
+                     callback=ids, metavar="N",
+                     help="Leave out track N (repeatable).")(f)
+    return click.option("--particle", "particles", multiple=True, callback=ids, metavar="N",
+                        help="Only track N (repeatable) [default: every track].")(f)
 
 
 def load_instrument_arg(value: str) -> Instrument:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+import pandas as pd
 
 from holofit.cli.common import (
     instrument_option,
@@ -12,6 +13,7 @@ from holofit.cli.common import (
     load_particle_arg,
     out_dir_option,
     particle_option,
+    track_options,
 )
 from holofit.cli.stage_options import (
     aperture_choice,
@@ -22,6 +24,7 @@ from holofit.cli.stage_options import (
     parse_int_list,
     quality_options,
 )
+from holofit.config import ParticleConfig
 from holofit.engines.select import ENGINE_CHOICES
 from holofit.fit.config import PASSES, FitConfig, FitRun
 from holofit.fit.continuity import ContinuitySettings
@@ -42,7 +45,8 @@ from holofit.quality import QualityLimits
               type=click.Path(exists=True, path_type=Path),
               help="Output of `holofit library` for these crops and particle (start "
                    "orientations; not needed for spheres).")
-@particle_option()
+@particle_option(multiple=True)
+@track_options
 @out_dir_option()
 @instrument_option(required=False)
 @click.option("--pass", "pass_name", type=click.Choice(PASSES), default="both",
@@ -77,6 +81,9 @@ from holofit.quality import QualityLimits
               help="Library candidates used as starts (plus the mirrored best).")
 @click.option("--no-mirror", is_flag=True,
               help="Do not also start from the best candidate mirrored through the x-y plane.")
+@click.option("--no-model-test", is_flag=True,
+              help="A non-spherical model's run does not test each track against a sphere of "
+                   "the prefit's size (by default a sphere in a rod run is fitted as a sphere).")
 @click.option("--no-continuity", is_flag=True,
               help="Skip the continuity sweeps (final-pass frames that look like a wrong "
                    "minimum refitted from their neighbours' orientations).")
@@ -113,7 +120,9 @@ def fit(
     crop_dir: Path,
     prefit_dir: Path,
     library_dir: Path | None,
-    particle: str,
+    particle: tuple[str, ...],
+    particles: tuple[int, ...],
+    exclude_particles: tuple[int, ...],
     out: Path,
     instrument: str | None,
     pass_name: str,
@@ -125,6 +134,7 @@ def fit(
     tmatrix: str,
     n_starts: int,
     no_mirror: bool,
+    no_model_test: bool,
     no_continuity: bool,
     independent: bool,
     no_tracking: bool,
@@ -137,7 +147,7 @@ def fit(
     numerical_aperture: str | None,
     fit_na: bool,
     max_chi2_red: float,
-    min_r2: float,
+    min_r2: float | None,
     outlier_factor: float,
     plot: bool,
     plot_frames: str | None,
@@ -159,12 +169,15 @@ def fit(
     runner-up's delta_chi2 and an `ambiguous` flag, evaluations, time, status), their sidecars,
     plots, and data/model/residual pictures of a few frames. Parallel and resumable.
     """
-    cfg = load_particle_arg(particle)
+    cfg, alternatives = _population([load_particle_arg(p) for p in particle])
     inst = load_instrument_arg(instrument) if instrument else None
+    if min_r2 is not None:
+        click.echo("note: --min-r2 is deprecated and has no effect: a fit is judged by its "
+                   "chi^2 against the pixel noise, not by its R^2", err=True)
     opts = FrameFitSettings(n_starts=n_starts, mirror=not no_mirror,
                            ambiguity_chi2=ambiguity_chi2, pixel_fraction=pixel_fraction,
                            saturation=saturation, noise_sd=noise_sd, far_field=far_field,
-                           quality=QualityLimits(max_chi2_red, min_r2))
+                           quality=QualityLimits(max_chi2_red))
     batch = make_batch_options(workers, scheduler, dask_local, retry_failed, overwrite, progress)
     names = tuple(n.strip() for n in fixed.split(",") if n.strip())
     try:
@@ -174,7 +187,9 @@ def fit(
     if no_tracking:
         click.echo("note: --no-tracking is deprecated; use --independent-frames", err=True)
     config = FitConfig(
-        cfg, passes=pass_name, initial_frames=initial_frames, static=static_file,
+        cfg, alternatives=alternatives, model_test=not no_model_test,
+        particles=particles or None, exclude_particles=exclude_particles, passes=pass_name,
+        initial_frames=initial_frames, static=static_file,
         static_mode=static_mode, frame=opts, engine=engine, fixed=names, tmatrix=tmatrix,
         follow=FollowSettings(warm=not (independent or no_tracking)),
         continuity=ContinuitySettings(enabled=not no_continuity,
@@ -188,14 +203,38 @@ def fit(
     _report(run)
 
 
+def _population(configs: list[ParticleConfig]) -> tuple[ParticleConfig, tuple[ParticleConfig,
+                                                                            ...]]:
+    """The primary model (the first non-spherical one, else the first) and the others."""
+    if not configs:
+        raise click.UsageError("give the particle model with -p/--particle-model")
+    anisotropic = [c for c in configs if c.model.anisotropic]
+    if len(anisotropic) > 1:
+        raise click.BadParameter(
+            f"{', '.join(c.model.kind for c in anisotropic)}: a run's population holds one "
+            "non-spherical model (the library ranks its orientations); fit the others in a run "
+            "of their own", param_hint="-p/--particle-model")
+    primary = anisotropic[0] if anisotropic else configs[0]
+    return primary, tuple(c for c in configs if c is not primary)
+
+
 def _report(run: FitRun) -> None:
-    """What the fit wrote: each pass's counts, the notes, the sweeps, the tables."""
+    """What the fit wrote: each pass's frames by status (its table's), the batches' items run
+    now and before, the notes, the sweeps, the tracks left out, the tables."""
+    tables = {"initial": run.initial, "final": run.final}
     for name, s in run.summaries.items():
         for note in s.notes:
             click.echo(f"note: {note}", err=True)
-        counts = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
-        click.echo(f"fit ({name}): {s.n_frames} frame(s) [{counts}]; {s.n_run} fitted now, "
-                   f"{s.n_done_before} done before; {s.elapsed_s:.1f} s")
+        table = tables.get(name)
+        if table is not None and Path(table).exists():
+            frame_counts = pd.read_csv(table)["status"].value_counts().to_dict()
+            n_frames = sum(frame_counts.values())
+        else:
+            frame_counts, n_frames = s.statuses, s.n_frames
+        counts = ", ".join(f"{k} {v}" for k, v in sorted(frame_counts.items()))
+        items = "" if n_frames == s.n_frames else f" in {s.n_frames} chunk(s)"
+        click.echo(f"fit ({name}): {n_frames} frame(s) [{counts}]{items}; {s.n_run} fitted "
+                   f"now, {s.n_done_before} done before; {s.elapsed_s:.1f} s")
     for note in run.notes:
         click.echo(f"note: {note}", err=True)
     if run.static is not None:
@@ -204,6 +243,10 @@ def _report(run: FitRun) -> None:
         c = run.continuity
         click.echo(f"continuity: {c.sweeps} sweep(s), {c.refitted} refit(s), {c.replaced} "
                    f"row(s) improved, {c.flagged} flagged poor_fit")
+    for p, why in sorted(run.left_out.items()):
+        click.echo(f"particle {p} left out: {why}")
+    if run.tracks is not None:
+        click.echo(f"tracks (model, statics, status) -> {run.tracks}")
     if run.final is not None:
         click.echo(f"final fit table -> {run.final}")
 

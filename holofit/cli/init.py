@@ -72,7 +72,7 @@ def _stage_option(stage: str):  # type: ignore[no-untyped-def]
 @click.option("--normalized", is_flag=True,
               help="The movie is background-divided already (no --background).")
 @instrument_option()
-@particle_option()
+@particle_option(multiple=True)
 @click.option("--engine", type=click.Choice(ENGINE_CHOICES), default=None,
               help="Scattering engine of library and fit [default: the particle config's].")
 @click.option("--temperature-c", type=float, default=21.0, show_default=True,
@@ -102,7 +102,7 @@ def init(
     dark_count: float | None,
     normalized: bool,
     instrument: str,
-    particle: str,
+    particle: tuple[str, ...],
     engine: str | None,
     temperature_c: float,
     model: str | None,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -83,7 +84,7 @@ def prefit(
     numerical_aperture: str | None,
     fit_na: bool,
     max_chi2_red: float,
-    min_r2: float,
+    min_r2: float | None,
     outlier_factor: float,
     plot: bool,
     plot_frames: str | None,
@@ -108,7 +109,7 @@ def prefit(
     is run again.
     """
     inst = load_instrument_arg(instrument) if instrument else None
-    space_kw = {}
+    space_kw: dict[str, Any] = {}  # SearchSpace's keyword arguments by name
     for key, value, name in (
         ("z_range_um", z_range, "--z-range"),
         ("radius_range_um", radius_range, "--radius-range"),
@@ -122,10 +123,13 @@ def prefit(
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--z-range / --radius-range / "
                                  "--index-range") from None
+    if min_r2 is not None:
+        click.echo("note: --min-r2 is deprecated and has no effect: a fit is judged by its "
+                   "chi^2 against the pixel noise, not by its R^2", err=True)
     try:
         fit = SphereFitSettings(fix_alpha=fix_alpha, index_imag=index_imag, saturation=saturation,
                          pixel_fraction=pixel_fraction, noise_sd=noise_sd, search=search,
-                         quality=QualityLimits(max_chi2_red, min_r2), fit_na=fit_na,
+                         quality=QualityLimits(max_chi2_red), fit_na=fit_na,
                          seed_only=seed_only)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--fix-alpha / --seed-only") from None

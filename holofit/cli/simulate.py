@@ -87,7 +87,8 @@ def _positions(
 @simulate.command("sphere")
 @instrument_option(required=False)
 @click.option(
-    "--particle", "-p", default=None, help="Sphere model TOML (overrides --radius/--index)."
+    "--particle-model", "-p", "particle", default=None,
+    help="Sphere model TOML (overrides --radius/--index)."
 )
 @click.option("--radius", type=POSITIVE, default=0.5, show_default=True, help="Radius, um.")
 @click.option(
@@ -160,7 +161,8 @@ def simulate_sphere(
     if particle is not None:
         model = load_particle_arg(particle).model
         if not isinstance(model, Sphere):
-            raise click.BadParameter(f"{particle}: not a sphere model", param_hint="--particle")
+            raise click.BadParameter(f"{particle}: not a sphere model",
+                                     param_hint="--particle-model")
     else:
         try:
             model = Sphere(radius, complex(index_re, index_imag))
@@ -198,8 +200,9 @@ def _orientations(orientation: tuple[str, ...], table: pd.DataFrame | None, n: i
 
 @simulate.command("hologram")
 @click.option(
-    "--particle",
+    "--particle-model",
     "-p",
+    "particle",
     required=True,
     help="Particle-model TOML (any model: sphere, spherocylinder, janus, dimer, ...).",
 )

@@ -51,8 +51,10 @@ _QUALITY = [
                  show_default=True,
                  help="A converged fit with a larger reduced chi^2 and an R^2 below 0.8 is "
                       "poor_fit."),
-    click.option("--min-r2", type=click.FloatRange(max=1, max_open=True), default=0.5,
-                 show_default=True, help="A converged fit with a smaller R^2 is poor_fit."),
+    click.option("--min-r2", type=click.FloatRange(max=1, max_open=True), default=None,
+                 hidden=True,
+                 help="Deprecated, without effect: a low R^2 no longer makes a fit poor_fit "
+                      "(a fit is judged by its chi^2 against the pixel noise)."),
     click.option("--outlier-factor", type=click.FloatRange(min=1), default=4.0,
                  show_default=True,
                  help="An ok frame whose reduced chi^2 exceeds this times the movie's median "

@@ -242,6 +242,12 @@ class BuiltinDDA(ScatteringTheory):
         self._tmatrices: dict[tuple, TMatrix] = {}
         self.last_iterations = 0
 
+    def forget_history(self) -> None:
+        """Forget the earlier solutions the solves warm-start from (the lattices, systems and
+        T-matrices stay)."""
+        self._solutions.clear()
+        self._by_spacing.clear()
+
     def dipole_size(self, model: ParticleModel, optics: Optics) -> float:
         """The lattice spacing this engine uses for ``model``, um."""
         return self.settings.dipole_size_for(model, optics)

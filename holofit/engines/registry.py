@@ -37,6 +37,12 @@ def _coated_sphere() -> type[ScatteringTheory]:
     return CoatedMie
 
 
+def _exact() -> type[ScatteringTheory]:
+    from holofit.scattering.axisym.engine import AxisymmetricTMatrix
+
+    return AxisymmetricTMatrix
+
+
 def _dda(name: str) -> Callable[[], type[ScatteringTheory]]:
     def load() -> type[ScatteringTheory]:
         from holofit.dda.adda.engine import AddaEngine
@@ -57,7 +63,9 @@ _EXACT: dict[str, Callable[[], type[ScatteringTheory]]] = {
 #: exact ones: the order ``--engine`` lists them in)
 _CLASSES: dict[str, Callable[[], type[ScatteringTheory]]] = {
     "mie": _mie, **{name: _dda(name) for name in DDA_ENGINES},
-    **{name: load for name, load in _EXACT.items() if name != "mie"}}
+    **{name: load for name, load in _EXACT.items() if name != "mie"},
+    # exact T-matrices of bodies of revolution: by name only, not yet among auto's choices
+    "exact": _exact}
 EXACT_ENGINES: tuple[str, ...] = tuple(_EXACT)
 ENGINE_NAMES: tuple[str, ...] = tuple(_CLASSES)
 
@@ -90,7 +98,7 @@ ENGINES: dict[str, Callable[..., ScatteringTheory]] = {name: _factory(name)
 
 def get_theory(name: str, **options: Any) -> ScatteringTheory:
     """The scattering engine called ``name`` (one of :data:`ENGINE_NAMES`: ``mie``,
-    ``builtin``, ``adda``, ``cluster``, ``coated_sphere``).
+    ``builtin``, ``adda``, ``cluster``, ``coated_sphere``, ``exact``).
 
     Parameters
     ----------

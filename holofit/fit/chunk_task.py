@@ -33,7 +33,7 @@ from holofit.fit.follower import ChunkFitter, ChunkFrame
 from holofit.fit.problem import state_of
 from holofit.fit.rescue import INITIAL_POSE
 from holofit.fit.settings import FollowSettings
-from holofit.fit.task import FitPayload, PassConfig, frame_problem, worker_theory
+from holofit.fit.task import FitPayload, PassConfig, frame_problem, item_theory, worker_theory
 from holofit.fit.warm import fit_frame_warm
 from holofit.io.tables import read_table, write_json
 from holofit.library.search import Candidate
@@ -60,7 +60,8 @@ __all__ = [
 #: movie's spread
 REFIT_MIN_ROWS = 30
 #: ... with this least excess scatter of a right-minimum frame fitted with the movie's fixed
-#: statics (larger than :data:`holofit.quality.EXCESS_FLOOR`, measured with the true statics)
+#: statics: larger than :data:`holofit.quality.EXCESS_FLOOR`, since fixed statics are a little
+#: off each frame's own (docs: validation, "the final pass's chi^2 bar")
 FIXED_STATICS_FLOOR = 0.02
 #: where the final pass keeps its bars (beside ``initial.csv``)
 FINAL_BAR_FILE = "final_bar.json"
@@ -276,10 +277,10 @@ def follow_chunk_task(config: ChunkConfig, key: Any, payload: ChunkPayload
     frames = [ChunkFrame(f.frame, f.crop, f.corner, f.position_um, f.alpha,
                          tuple(Candidate(*c) for c in f.candidates), f.time_s, f.initial)
               for f in payload.frames]
-    fitter = ChunkFitter(worker_theory(fit), fit.particle.model, inst.optics,
+    fitter = ChunkFitter(item_theory(fit), fit.particle.model, inst.optics,
                          inst.pixel_size_um, fit.free, config.options)
     table = follow_chunk(frames, fitter, config.bar(p))
     rows = [*table.to_dict("records"), *(dict(r) for r in payload.skipped)]
     for row in rows:
-        row["particle"], row["chunk"] = p, chunk
+        row["particle"], row["chunk"], row["model"] = p, chunk, fit.particle.model.kind
     return rows

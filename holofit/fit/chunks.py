@@ -30,6 +30,7 @@ __all__ = [
     "MIN_CHUNKS",
     "OVERLAP",
     "consecutive_runs",
+    "initial_min_chunk",
     "plan_chunks",
     "stitch_chunks",
     "stitch_table",
@@ -63,6 +64,14 @@ def consecutive_runs(frames: Sequence[int]) -> list[list[int]]:
         else:
             runs.append([f])
     return runs
+
+
+def initial_min_chunk(n_frames: int) -> int:
+    """The initial pass's shortest chunk for ``n_frames`` frames: a short initial pass is
+    still cut in two, one chunk per worker of a 2-core machine."""
+    if n_frames >= 2 * INITIAL_MIN_CHUNK:
+        return INITIAL_MIN_CHUNK
+    return max(n_frames // 2, 2)
 
 
 def plan_chunks(frames: Sequence[int], overlap: int = OVERLAP,

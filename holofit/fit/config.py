@@ -27,7 +27,18 @@ class FitConfig:
     Attributes
     ----------
     particle : ParticleConfig
-        The particle model and its ``[dda]`` settings.
+        The particle model and its ``[dda]`` settings: the run's primary model (the one the
+        library ranks orientations of).
+    alternatives : tuple of ParticleConfig
+        The run's other models (spheres, coated spheres: no orientation); each track is
+        given the model that fits its initial frames best (:mod:`holofit.fit.models`).
+    model_test : bool
+        A non-spherical primary model is also tested against a sphere of the prefit's size
+        where no alternative is given (a sphere in a rod run is never reported as a rod).
+    particles : tuple of int, optional
+        Only these tracks (``--particle``).
+    exclude_particles : tuple of int
+        Not these tracks (``--exclude-particle``).
     passes : {"both", "initial", "final"}
         Which passes to run.
     initial_frames : int, optional
@@ -71,6 +82,10 @@ class FitConfig:
     """
 
     particle: ParticleConfig
+    alternatives: tuple[ParticleConfig, ...] = ()
+    model_test: bool = True
+    particles: tuple[int, ...] | None = None
+    exclude_particles: tuple[int, ...] = ()
     passes: str = "both"
     initial_frames: int | None = None
     static: Path | None = None
@@ -98,6 +113,11 @@ class FitConfig:
                              f"{self.tmatrix!r}")
         if self.initial_frames is not None and self.initial_frames < 1:
             raise ValueError(f"initial_frames must be >= 1, got {self.initial_frames}")
+        if any(a.model.anisotropic for a in self.alternatives):
+            odd = ", ".join(a.model.kind for a in self.alternatives if a.model.anisotropic)
+            raise ValueError(f"alternative model(s) {odd}: a run's population holds one "
+                             "non-spherical model, its first (the library ranks its "
+                             "orientations); fit the others in a run of their own")
         if self.static_mode not in STATIC_MODES:
             raise ValueError(f"static mode {self.static_mode!r}: expected one of "
                              f"{', '.join(STATIC_MODES)}")
@@ -116,6 +136,8 @@ class FitRun:
     notes: list[str] = field(default_factory=list)
     continuity: ContinuityReport | None = None
     continuity_by_track: dict[int, ContinuityReport] = field(default_factory=dict)
+    tracks: Path | None = None
+    left_out: dict[int, str] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {"initial": self.initial, "static": self.static, "final": self.final,

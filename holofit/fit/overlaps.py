@@ -9,10 +9,11 @@ position, orientation, alpha and static parameters, through the same engine) add
 model's field before the intensity (:mod:`holofit.holomodel.forward`, ``extra_field``).
 
 The refits are the items of one batch of the stage skeleton (:mod:`holofit.batch.stage`)
-keyed by ``(particle, frame)``, one table per pass (``overlaps_<pass>.csv`` beside the pass's
-table): parallel, journalled, resumable; its fingerprint holds both rows of every item, so new
-first fits start the batch afresh. The same round serves both passes: the final pass's rows
-(each track's settled statics) and the initial pass's (statics free, each row's own).
+keyed by ``(particle, frame)``, one table per pass (``overlaps/initial.csv`` and
+``overlaps/fit.csv`` in the fit's folder): parallel, journalled, resumable; its fingerprint
+holds both rows of every item, so new first fits start the batch afresh. The same round
+serves both passes: the final pass's rows (each track's settled statics) and the initial
+pass's (statics free, each row's own).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import pandas as pd
 from holofit.batch.options import BatchOptions, BatchSummary
 from holofit.batch.stage import StageTable, fingerprint, run_stage
 from holofit.fit.problem import FrameProblem, state_of
-from holofit.fit.task import PassConfig, fit_columns, worker_theory
+from holofit.fit.task import PassConfig, item_theory, pass_columns
 from holofit.fit.warm import fit_frame_warm
 from holofit.holomodel.forward import HologramModel
 from holofit.holomodel.parameters import APERTURE, ParameterSpace
@@ -107,15 +108,15 @@ def refit_overlap_task(config: PassConfig, key: tuple[int, int],
     q = payload.neighbour
     inst = config.instrument
     mine, theirs = _direct(config, p), _direct(config, q)
-    extra = neighbour_field(worker_theory(theirs), theirs.particle.model, inst.optics,
+    extra = neighbour_field(item_theory(theirs), theirs.particle.model, inst.optics,
                             payload.neighbour_values, payload.crop.shape, payload.corner,
                             inst.pixel_size_um, config.options.far_field)
     model = mine.particle.model
     problem = FrameProblem(payload.crop, payload.corner, inst.pixel_size_um,
-                           worker_theory(mine), model, inst.optics, mine.free, mine.options,
+                           item_theory(mine), model, inst.optics, mine.free, mine.options,
                            seed=f, extra_field=extra)
     res = fit_frame_warm(problem, state_of(payload.own, model)).result
-    row = {"particle": p, **result_row(f, payload.time_s, res)}
+    row = {"particle": p, **result_row(f, payload.time_s, res), "model": model.kind}
     row["message"] = (f"refitted with track {q}'s field"
                       + (f": {row['message']}" if row.get("message") else ""))
     return row
@@ -178,7 +179,7 @@ def refit_overlaps(table: pd.DataFrame, crops: CropSet, config: PassConfig, outp
             items[(p, f)] = (q, own, them)
     if not items:
         return table, 0, 0, None
-    columns = fit_columns(config.particle.model, config.free)
+    columns = pass_columns(config)
 
     def load(key: tuple[int, int]) -> OverlapPayload:
         q, own, them = items[key]

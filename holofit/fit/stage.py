@@ -21,16 +21,19 @@ parallel, resumable, failures recorded); the tables follow the fit-table schema
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from threadpoolctl import threadpool_limits
 
 from holofit.batch import BatchOptions
-from holofit.batch.stage import FrameLoader, stage_inputs
+from holofit.batch.stage import FrameLoader, StageInputs, stage_inputs
 from holofit.config import ParticleConfig
 from holofit.fit.config import PASSES, FitConfig, FitRun
 from holofit.fit.errors import FitStageError
+from holofit.fit.final_pass import final_pass
+from holofit.fit.initial_pass import initial_pass
 from holofit.fit.passes import FitPasses
 from holofit.fit.task import check_fixed
 from holofit.fit.tmatrix_policy import check_policy
@@ -75,16 +78,37 @@ def run_fit(crop_dir: str | Path, prefit: str | Path, library: str | Path | None
             crop_dir, None if config.frames is None else list(config.frames),
             config.instrument, config.override_instrument, config.numerical_aperture,
             config.fit_na) as given:
+        given = replace(given, frames=_chosen_tracks(given, config))
         passes = _open(given, config, Path(prefit), None if library is None else Path(library),
                        Path(out_dir), run, batch)
         static_path = (Path(config.static) if config.static is not None
                        else passes.out / "static.json")
         if config.passes in ("initial", "both"):
-            run.static = passes.initial()
+            run.static = initial_pass(passes)
             static_path = run.static if config.static is None else static_path
         if config.passes in ("final", "both"):
-            passes.final(static_path)
+            final_pass(passes, static_path)
     return run
+
+
+def _chosen_tracks(given: StageInputs, config: FitConfig) -> list[tuple[int, int]]:
+    """The keys of the tracks asked for (``particles``, less ``exclude_particles``).
+
+    Raises
+    ------
+    FitStageError
+        A track asked for that the crops do not have, or none left.
+    """
+    have = sorted({int(k[0]) for k in given.frames})
+    asked = set(have if config.particles is None else config.particles)
+    unknown = sorted((asked | set(config.exclude_particles)) - set(have))
+    if unknown:
+        raise FitStageError(f"{given.crops.table_path}: no track(s) {unknown} (tracks: "
+                            f"{', '.join(map(str, have))})")
+    keep = asked - set(config.exclude_particles)
+    if not keep:
+        raise FitStageError("--particle / --exclude-particle leave no track to fit")
+    return [k for k in given.frames if int(k[0]) in keep]
 
 
 def _open(given: Any, config: FitConfig, prefit: Path, library: Path | None, out: Path,

@@ -1,20 +1,26 @@
-"""``static.json``: each track's static parameters, averaged over its initial-pass rows.
+"""``static.json``: each track's model and static parameters, averaged over its initial rows.
 
-The robust average over a track's ``ok`` rows of ``initial.csv`` (median, with the spread as
-1.4826 times the median absolute deviation) fixes the static parameters (a rod's a, b, n; a
-Janus particle's core radius, cap and indices) for that track's final pass. Per track by
-default (tracks of different particles); ``pooled``, one average over every track's rows
-(one batch of identical particles).
+The robust average over a track's ``ok`` initial rows of the model it was given (median, with
+the spread as 1.4826 times the median absolute deviation) fixes the static parameters (a
+rod's a, b, n; a Janus particle's core radius, cap and indices; a sphere's radius and index)
+for that track's final pass. Per track by default (tracks of different particles);
+``pooled``: one average per model over every track given that model (one batch of identical
+particles).
 
-The file holds ``tracks`` (track id -> ``values``, ``spread``, ``mean``, ``std``,
-``n_frames``) and, for one track or pooled statics, the same at the top level, so that a
-``static.json`` of one run can fix the statics of another (``--static``).
+The file holds ``tracks`` (track id -> ``model``, ``status``, ``values``, ``spread``,
+``mean``, ``std``, ``n_frames`` and, for a model of the run's configs, ``start``: the config's
+values; a track left out: its ``status``, ``reason`` and ``remedy``), the primary model's
+config values as ``start`` and, for one fitted track or pooled statics of one model, the same
+values at the top level, so that a ``static.json`` of one run can fix the statics of another
+(``--static``).
 """
 
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,14 +35,13 @@ from holofit.particles import ParticleModel
 from holofit.provenance import sidecar
 from holofit.status import OK
 
-__all__ = ["MAD_TO_SIGMA", "STATIC_MODES", "read_static", "static_average", "static_doc",
-           "write_static"]
-
-#: how the static parameters of several tracks are found
-STATIC_MODES = ("per-track", "pooled")
+__all__ = ["MAD_TO_SIGMA", "STATIC_MODES", "TrackStatic", "read_static", "read_track_statics",
+           "static_average", "static_doc", "write_static"]
 
 #: spread of a normal sample from its median absolute deviation
 MAD_TO_SIGMA = 1.4826
+#: how the static parameters of several tracks are found
+STATIC_MODES = ("per-track", "pooled")
 
 
 def static_average(table: pd.DataFrame, model: ParticleModel) -> dict[str, Any]:
@@ -71,11 +76,38 @@ def static_average(table: pd.DataFrame, model: ParticleModel) -> dict[str, Any]:
     return out
 
 
+@dataclass(frozen=True)
+class TrackStatic:
+    """A track's entry of ``static.json``: its model's label, its status (``fitted`` or why
+    not), the static parameters (empty when left out) and the whole entry."""
+
+    model: str
+    status: str
+    values: dict[str, float]
+    doc: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def fitted(self) -> bool:
+        return self.status == "fitted"
+
+
+def _load(path: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: static-parameter file not found") from None
+    except ValueError as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{path}: not a static-parameter file")
+    return doc
+
+
 def read_static(path: str | Path, model: ParticleModel, particle: int | None = None
                 ) -> dict[str, float]:
-    """The static parameters of a ``static.json`` (checked against ``model``): track
-    ``particle``'s, or the file's top-level ones (one track, pooled, or a file from another
-    run) where it has no entry for that track.
+    """The static parameters of ``model`` in a ``static.json``: track ``particle``'s, or the
+    file's top-level ones (one track, pooled, or a file from another run) where it has no
+    fitted entry of that model for the track.
 
     Raises
     ------
@@ -83,17 +115,16 @@ def read_static(path: str | Path, model: ParticleModel, particle: int | None = N
         Missing file, not JSON, another particle model, or a missing parameter.
     """
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: static-parameter file not found") from None
-    except ValueError as exc:
-        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
-    if doc.get("particle_model") not in (None, model.kind):
-        raise ConfigError(f"{path}: static parameters of a {doc.get('particle_model')!r}, "
-                          f"not of this {model.kind!r}")
+    doc = _load(path)
     track = (doc.get("tracks") or {}).get(str(particle)) if particle is not None else None
-    values = (track or doc).get("values")
+    if isinstance(track, dict) and track.get("model", model.kind) == model.kind \
+            and isinstance(track.get("values"), dict):
+        values = track["values"]
+    else:
+        if doc.get("particle_model") not in (None, model.kind):
+            raise ConfigError(f"{path}: static parameters of a {doc.get('particle_model')!r}, "
+                              f"not of this {model.kind!r}")
+        values = doc.get("values")
     if not isinstance(values, dict):
         where = f"track {particle}" if particle is not None else "the file"
         raise ConfigError(f"{path}: no static parameters for {where}")
@@ -103,41 +134,57 @@ def read_static(path: str | Path, model: ParticleModel, particle: int | None = N
     return {k: float(values[k]) for k in (p.name for p in static_parameters(model))}
 
 
-def write_static(path: Path, initial: Path, table: pd.DataFrame, model: ParticleModel,
-                 mode: str = "per-track") -> Path:
-    """Write ``static.json`` from the initial pass's table (read from ``initial``): each
-    track's robust average, or (``pooled``) one over every track's rows; returns ``path``.
+def read_track_statics(path: str | Path, tracks: list[int], primary: ParticleModel
+                       ) -> dict[int, TrackStatic]:
+    """Each track's entry of a ``static.json``; a file without an entry for a track (one
+    from another run, ``--static``) gives the track its top-level values of ``primary``.
 
     Raises
     ------
-    FitStageError
-        A track (or, pooled, every track) without an ``ok`` row; the message names it.
+    ConfigError
+        As :func:`read_static`, for a track that has no usable entry.
     """
+    path = Path(path)
+    doc = _load(path)
+    entries = doc.get("tracks") or {}
+    out: dict[int, TrackStatic] = {}
+    for p in tracks:
+        entry = entries.get(str(p))
+        if isinstance(entry, dict) and entry.get("status", "fitted") != "fitted":
+            out[p] = TrackStatic(str(entry.get("model", primary.kind)), str(entry["status"]),
+                                 {}, entry)
+            continue
+        if isinstance(entry, dict) and entry.get("model", primary.kind) != primary.kind:
+            out[p] = TrackStatic(str(entry["model"]), "fitted",
+                                 {k: float(v) for k, v in entry["values"].items()}, entry)
+            continue
+        out[p] = TrackStatic(primary.kind, "fitted", read_static(path, primary, p),
+                             entry if isinstance(entry, dict) else {})
+    return out
+
+
+def write_static(path: Path, inputs: list[Path], tracks: Mapping[int, dict[str, Any]],
+                 primary: ParticleModel, mode: str = "per-track") -> Path:
+    """Write ``static.json``: each track's entry (``model``, ``status`` and its average, or
+    why it was left out; see the module docstring), with the top-level values of one fitted
+    track or of pooled statics of one model; returns ``path``."""
     if mode not in STATIC_MODES:
         raise FitStageError(f"static mode {mode!r}: expected one of {', '.join(STATIC_MODES)}")
-    tracks: dict[str, Any] = {}
+    fitted = {p: e for p, e in tracks.items() if e.get("status") == "fitted"}
     top: dict[str, Any] = {}
-    ids = sorted(int(p) for p in table["particle"].unique()) if len(table) else [0]
-    if mode == "pooled":
-        try:
-            top = static_average(table, model)
-        except FitStageError as exc:
-            raise FitStageError(f"pooled static parameters: {exc}") from None
-        tracks = {str(p): top for p in ids}
-    else:
-        for p in ids:
-            try:
-                tracks[str(p)] = static_average(table[table["particle"] == p], model)
-            except FitStageError as exc:
-                raise FitStageError(f"particle {p}: {exc}") from None
-        if len(ids) == 1:
-            top = tracks[str(ids[0])]
+    models = {e.get("model") for e in fitted.values()}
+    if (len(fitted) == 1 or mode == "pooled") and len(models) == 1 and fitted:
+        first = next(iter(fitted.values()))
+        top = {k: first[k] for k in ("values", "spread", "mean", "std", "n_frames")
+               if k in first}
+    kind = next(iter(models)) if len(models) == 1 else primary.kind
     write_json(path, {
         **sidecar(kind="static parameters (robust average of the initial pass)",
-                  units={p.name: p.unit for p in static_parameters(model)},
-                  inputs=[initial]),
-        "particle_model": model.kind, "static_mode": mode, **top, "tracks": tracks,
-        "start": dict(static_values(model)),
+                  units={p.name: p.unit for p in static_parameters(primary)},
+                  inputs=list(inputs)),
+        "particle_model": kind, "static_mode": mode,
+        "start": dict(static_values(primary)), **top,
+        "tracks": {str(p): e for p, e in sorted(tracks.items())},
     })
     return path
 
@@ -148,4 +195,4 @@ def static_doc(path: Path, particle: int | None = None) -> dict[str, Any]:
     doc = json.loads(Path(path).read_text())
     track = (doc.get("tracks") or {}).get(str(particle)) if particle is not None else None
     src = track or doc
-    return {k: src[k] for k in ("values", "spread", "n_frames") if k in src}
+    return {k: src[k] for k in ("model", "values", "spread", "n_frames") if k in src}

@@ -42,6 +42,8 @@ __all__ = [
     "fit_frame_task",
     "fixable_names",
     "free_parameters",
+    "item_theory",
+    "pass_columns",
     "worker_theory",
 ]
 
@@ -79,6 +81,19 @@ def check_fixed(model: ParticleModel, fixed: tuple[str, ...]) -> None:
                          f"{', '.join(sorted(known))}")
 
 
+def pass_columns(config: PassConfig) -> tuple[str, ...]:
+    """The columns of a pass's table: every track's model's (:func:`fit_columns`), in the
+    order they first appear, then ``model``."""
+    seen: dict[str, None] = {}
+    models = [config.particle.model, *config.track_models().values()]
+    for model in models:
+        free = free_parameters(model, config.pass_name, config.fixed, config.fit_na)
+        for c in fit_columns(model, free):
+            seen.setdefault(c, None)
+    cols = [c for c in seen if c not in ("status", "message")]
+    return (*cols, "model", "status", "message")
+
+
 def fit_columns(model: ParticleModel, free: tuple[str, ...]) -> tuple[str, ...]:
     """Columns of a DDA fit table for ``model`` with parameters ``free`` (``particle``
     first: every fit table is keyed by ``(particle, frame)``)."""
@@ -96,11 +111,15 @@ def fit_columns(model: ParticleModel, free: tuple[str, ...]) -> tuple[str, ...]:
 
 @dataclass(frozen=True)
 class TrackSetup:
-    """One track's part of a pass: the static parameters its final pass fixes and the
-    T-matrix file that serves it (None: direct solves)."""
+    """One track's part of a pass: the static parameters it starts from (initial pass) or
+    fixes (final pass), the T-matrix file that serves it (None: direct solves), and, for a
+    track given another model of the run's population than the pass's particle, that model's
+    config and engine (:mod:`holofit.fit.models`)."""
 
     statics: tuple[tuple[str, float], ...] = ()
     tmatrix: str | None = None
+    particle: ParticleConfig | None = None
+    engine: str | None = None
 
 
 @dataclass(frozen=True)
@@ -151,13 +170,20 @@ class PassConfig:
         return free_parameters(self.particle.model, self.pass_name, self.fixed, self.fit_na)
 
     def for_track(self, particle: int) -> PassConfig:
-        """The pass as track ``particle`` sees it: its settled particle and T-matrix."""
+        """The pass as track ``particle`` sees it: its model, settled statics and T-matrix."""
         setup = dict(self.tracks).get(int(particle))
         if setup is None:
             return replace(self, tracks=())
-        model = particle_with(self.particle.model, dict(setup.statics))
-        settled = ParticleConfig(model, self.particle.settings, self.particle.path)
-        return replace(self, particle=settled, tmatrix=setup.tmatrix, tracks=())
+        base = setup.particle or self.particle
+        model = particle_with(base.model, dict(setup.statics))
+        settled = ParticleConfig(model, base.settings, base.path)
+        engine = setup.engine if setup.particle is not None else self.engine
+        return replace(self, particle=settled, tmatrix=setup.tmatrix, engine=engine, tracks=(),
+                       seed_tmatrix=self.seed_tmatrix if setup.particle is None else None)
+
+    def track_models(self) -> dict[int, ParticleModel]:
+        """Each track's model (the pass's particle where its setup names none)."""
+        return {p: (s.particle or self.particle).model for p, s in self.tracks}
 
     def with_tracks(self, tracks: Mapping[int, TrackSetup]) -> PassConfig:
         """This pass with each track's setup (sorted by track)."""
@@ -170,7 +196,9 @@ class PassConfig:
                "tmatrix": self.tmatrix is not None,
                **({"seed_tmatrix": True} if self.seed_tmatrix is not None else {})}
         if self.tracks:
-            doc["tracks"] = {str(p): {"statics": dict(s.statics), "tmatrix": s.tmatrix is not None}
+            doc["tracks"] = {str(p): {"statics": dict(s.statics), "tmatrix": s.tmatrix is not None,
+                                      **({"particle": s.particle.as_dict(), "engine": s.engine}
+                                         if s.particle is not None else {})}
                              for p, s in self.tracks}
         return doc
 
@@ -204,6 +232,15 @@ def worker_theory(config: PassConfig) -> ScatteringTheory:
     return worker_resource("fit engine", key + str(config.tmatrix), make_theory, size=4)
 
 
+def item_theory(config: PassConfig) -> ScatteringTheory:
+    """:func:`worker_theory` with its solver history forgotten
+    (:meth:`~holofit.scattering.theory.ScatteringTheory.forget_history`): what a batch item
+    starts from, so that its rows do not depend on the items its worker ran before."""
+    theory = worker_theory(config)
+    theory.forget_history()
+    return theory
+
+
 def frame_problem(config: PassConfig, payload: FitPayload, frame: int,
                   theory: ScatteringTheory | None = None) -> FrameProblem:
     """The fitting problem of one frame of a pass (``config`` as its track sees it)."""
@@ -222,7 +259,7 @@ def fit_frame_task(config: PassConfig, key: tuple[int, int], payload: FitPayload
     inst = config.instrument
     start = payload.start
     position = (start["x_um"], start["y_um"], start["z_um"])
-    problem = frame_problem(config, payload, frame)
+    problem = frame_problem(config, payload, frame, item_theory(config))
     if config.seed_tmatrix is not None:
         seeding = replace(config, particle=seed_particle(config.particle),
                           tmatrix=config.seed_tmatrix, seed_tmatrix=None)
@@ -231,4 +268,5 @@ def fit_frame_task(config: PassConfig, key: tuple[int, int], payload: FitPayload
     else:
         result = fit_frame(problem, position, start["alpha"], payload.candidates)
     time_s = frame / inst.frame_rate_hz if inst.frame_rate_hz else math.nan
-    return {"particle": particle, **result_row(frame, time_s, result)}
+    return {"particle": particle, **result_row(frame, time_s, result),
+            "model": config.particle.model.kind}

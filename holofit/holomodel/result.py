@@ -29,7 +29,7 @@ from holofit.conventions import r_squared
 from holofit.holomodel.leastsq import Solution
 from holofit.holomodel.parameters import APERTURE, ParameterSpace
 from holofit.holomodel.statistics import covariance_from_jacobian
-from holofit.quality import QualityLimits, judge_fit
+from holofit.quality import Goodness, QualityLimits, judge_fit
 from holofit.status import FAILED, NOT_CONVERGED, OK
 
 __all__ = [
@@ -129,7 +129,10 @@ def fit_result(
     model = data + solution.residuals
     chi2_red = solution.rss / (noise_sd**2 * dof) if noise_sd > 0 else math.nan
     r2 = float(r_squared(data, model))
-    status, message = _assess(space, solution, values, chi2_red, r2, limits)
+    flat = float(np.sum((data - np.mean(data)) ** 2)) if n else 0.0
+    signal = (flat - solution.rss) / noise_sd**2 if noise_sd > 0 else math.nan
+    status, message = _assess(space, solution, values, Goodness(chi2_red, r2, signal, p),
+                              limits)
     return FitResult(
         values=values, errors=errors, free=space.names, rss=solution.rss,
         chi2=solution.rss / n, chi2_red=float(chi2_red), noise_sd=float(noise_sd), r2=r2,
@@ -162,13 +165,13 @@ def aperture_spread(grid: NDArray[np.float64], rss: NDArray[np.float64],
 
 
 def _assess(space: ParameterSpace, solution: Solution, values: dict[str, float],
-            chi2_red: float, r2: float, limits: QualityLimits) -> tuple[str, str]:
+            goodness: Goodness, limits: QualityLimits) -> tuple[str, str]:
     if not np.all(np.isfinite(solution.vector)) or not math.isfinite(solution.rss):
         return FAILED, "the fit diverged (non-finite parameters or residuals)"
     if not solution.converged:
         return NOT_CONVERGED, solution.message
     return judge_fit(space.out_of_range(space.state(solution.vector)), values, space.names,
-                     chi2_red, r2, limits)
+                     goodness, limits)
 
 
 def result_columns(value_columns: Iterable[str], error_columns: Iterable[str],

@@ -29,7 +29,7 @@ from holofit.io.tables import read_table
 from holofit.particles import Sphere
 from holofit.prefit.sphere import SphereFitSettings, fit_sphere_crop
 from holofit.provenance import sidecar
-from holofit.quality import outlier_rule, outlier_sidecar
+from holofit.quality import FLAG_PROBABILITY, outlier_rule, outlier_sidecar
 from holofit.scattering.mie import LorenzMie
 from holofit.tables.crop import CROP_UNITS, keyed_columns
 from holofit.tables.cropset import CropSet
@@ -215,6 +215,8 @@ def _prefit_table(config: PrefitConfig, crops: CropSet, out: Path,
     """``prefit.csv``: its columns (:mod:`holofit.tables.prefit`), sidecar and fingerprint."""
     inst = config.instrument
     inputs = crops.fingerprint()
+    # a seed (a non-spherical particle's start) is no sphere fit to judge by its chi^2
+    probability = None if config.fit.seed_only else FLAG_PROBABILITY
     columns = keyed_columns(prefit_columns(config.fit.fit_na), crops.key_columns)
     meta = sidecar(
         kind="prefit table (Lorenz-Mie fit per frame)",
@@ -222,13 +224,14 @@ def _prefit_table(config: PrefitConfig, crops: CropSet, out: Path,
         config=config.as_dict(),
         inputs=[crops.table_path, crops.stack_path],
         extra={"crop_shape": list(crops.crop_shape), "crops": inputs,
-               "quality": outlier_sidecar(outlier_factor),
+               "quality": outlier_sidecar(outlier_factor, probability),
                **({"frame_interval_s": 1.0 / inst.frame_rate_hz}
                   if inst.frame_rate_hz else {})},
     )
     return StageTable(out / "prefit.csv", columns, meta,
-                      fingerprint_of(config, {**inputs, "outlier_factor": outlier_factor}),
-                      "prefit", finish=outlier_rule(outlier_factor),
+                      fingerprint_of(config, {**inputs, "outlier_factor": outlier_factor,
+                                              "flag_probability": probability}),
+                      "prefit", finish=outlier_rule(outlier_factor, probability),
                       key_columns=crops.key_columns)
 
 

@@ -184,8 +184,8 @@ def write_batch_makefile(folder: str | Path) -> tuple[Path, str | None]:
         first = path.read_text(encoding="utf-8", errors="replace").split("\n", 1)[0]
         if not first.startswith(BATCH_MAKEFILE_MARK):
             return path, (f"{path} exists and was not written by holofit: left as it is (see "
-                          "README.md, 'Batch runs with make', for the lines that run every "
-                          "run folder)")
+                          "holofit's docs, 'Run folders and make', for the lines that run "
+                          "every run folder)")
     _write_if_changed(path, render_batch_makefile())
     return path, None
 
@@ -218,7 +218,7 @@ def init_run(
     inputs: RunInputs,
     *,
     instrument: str | Path,
-    particle: str | Path,
+    particle: str | Path | Sequence[str | Path],
     engine: str | None = None,
     temperature_c: float = 21.0,
     model: str | None = None,
@@ -239,8 +239,13 @@ def init_run(
         The run folder (created).
     inputs : RunInputs
         The movie, its background and dark files.
-    instrument, particle : str or Path
-        Config files or names (``paper_60x_water``, ``rod_paper``); copied into the folder.
+    instrument : str or Path
+        Config file or name (``paper_60x_water``); copied into the folder.
+    particle : str or Path, or a sequence of them
+        Particle config file(s) or name(s) (``rod_paper``); copied into the folder (the first
+        non-spherical one, or the first, as ``particle.toml``; the others as
+        ``particle_<kind>.toml``): a run's population, each track fitted with the model that
+        fits it best.
     engine : str, optional
         Scattering engine of library and fit (default: the particle config's).
     temperature_c : float
@@ -270,7 +275,15 @@ def init_run(
     run = _check_run_dir(Path(run_dir), force, batch_makefile)
     movie_abs, n_frames, frame_shape, bg_abs, dark_abs = _light_inputs(inputs)
     dark_count, normalized = inputs.dark_count, inputs.normalized
-    inst_source, part_source, cfg, shape = _configs(instrument, particle)
+    sources = [particle] if isinstance(particle, str | Path) else list(particle)
+    if not sources:
+        raise RunFolderError("no particle model: give one (-p)")
+    # the primary model: the first non-spherical one (the library ranks its orientations)
+    primary = next((p for p in sources
+                    if load_particle(resolve_config(p, "particles")).model.anisotropic),
+                   sources[0])
+    inst_source, part_source, cfg, shape = _configs(instrument, primary)
+    alternatives = _population(sources, part_source, cfg)
     analysis = _check_engine_and_analysis(cfg, engine, model, temperature_c)
     opts, notes = _check_options(options, cfg, frame_shape, n_frames)
     spec = RunSpec(
@@ -279,9 +292,14 @@ def init_run(
         analysis_model=analysis, temperature_c=float(temperature_c), engine=engine,
         options=opts, holofit=holofit_command or default_holofit_command(),
         instrument_source=str(inst_source.resolve()), particle_source=str(part_source.resolve()),
+        alternatives=tuple(sorted(alternatives)),
         header=_header(),
     )
-    return _write_folder(run, spec, inst_source, part_source, shape, notes, batch_makefile)
+    folder = _write_folder(run, spec, inst_source, part_source, shape, notes, batch_makefile)
+    for name, source in alternatives.items():
+        _write_if_changed(run / name, _config_copy(source))
+        load_particle(run / name)
+    return folder
 
 
 def _header() -> tuple[str, str]:
@@ -313,6 +331,31 @@ def _configs(instrument: str | Path, particle: str | Path
     _check_particle(cfg, part_source)
     return (inst_source, part_source, cfg,
             _shape_file(part_source) if cfg.model.kind == "voxels" else None)
+
+
+def _population(sources: Sequence[str | Path], primary: Path, cfg: ParticleConfig
+                ) -> dict[str, Path]:
+    """The population's other models beside ``primary``: copy name -> source. Every model is
+    checked; a population holds at most one non-spherical model (the library ranks its
+    orientations)."""
+    out: dict[str, Path] = {}
+    kinds = {cfg.model.kind}
+    for source in sources:
+        path = resolve_config(source, "particles")
+        if path.resolve() == primary.resolve():
+            continue
+        other = load_particle(path)
+        _check_particle(other, path)
+        if other.model.anisotropic and cfg.model.anisotropic:
+            raise RunFolderError(f"{path}: a second non-spherical model; a run's population "
+                                 "holds one (the library ranks its orientations): make a run "
+                                 "folder of its own for it")
+        if other.model.kind in kinds:
+            raise RunFolderError(f"{path}: a second {other.model.kind}; a population holds one "
+                                 "model of each kind")
+        kinds.add(other.model.kind)
+        out[f"particle_{other.model.kind}.toml"] = path
+    return out
 
 
 def _check_run_dir(run: Path, force: bool, batch_makefile: bool) -> Path:

@@ -58,7 +58,7 @@ _GUIDE = """\
 #   make -n                    show what would run; make -q: exit status 0 if nothing would
 #   make clean                 remove every stage's output (not the movie, not the configs)
 # (from elsewhere: make -C THIS_FOLDER ...). Stages run one after another, each using JOBS
-# workers; make -j adds nothing inside one folder (many folders: see README.md).
+# workers; make -j adds nothing inside one folder (many folders: holofit's docs, run folders).
 #
 # Targets, and what makes them out of date (a newer prerequisite reruns the stage and every
 # stage after it):
@@ -113,7 +113,7 @@ ANALYZE_OPTS  = {analyze}
 # ---- how the stages run: changing these reruns nothing -------------------------------------
 # the holofit command (the one that wrote this folder)
 HOLOFIT    ?= {holofit}
-# worker processes per stage (empty: every CPU; 0: in the stage's own process)
+# worker processes of every stage (empty: every CPU; 0: in the stage's own process)
 JOBS       =
 # Dask scheduler: address (tcp://host:8786) or scheduler file
 SCHEDULER  =
@@ -127,7 +127,7 @@ OVERWRITE  =
 _MACHINERY = """\
 # ---------------------------------------------------------------------------------------------
 .SUFFIXES:
-.PHONY: all crop prefit library fit-initial fit analyze clean
+.PHONY: all crop prefit library fit-initial fit analyze settings clean
 .PRECIOUS: {targets}
 
 all: analyze
@@ -137,6 +137,8 @@ prefit: prefit/prefit.csv
 fit-initial: fit/static.json
 fit: fit/fit.csv
 analyze: analysis/summary.csv
+# record the settings (settings/STAGE), run nothing
+settings: ;
 
 LIGHT = $(if $(NORMALIZED),--normalized) $(addprefix -b ,$(BACKGROUND)) \\
   $(addprefix --dark ,$(DARK)) $(if $(DARK_COUNT),--dark-count $(DARK_COUNT))
@@ -144,10 +146,13 @@ ENGINE_OPT = $(if $(ENGINE),--engine $(ENGINE))
 BATCH = $(if $(JOBS),-j $(JOBS)) $(if $(SCHEDULER),--scheduler $(SCHEDULER)) $(BATCH_OPTS)
 
 # $(call record,STAGE,VARIABLE): settings/STAGE holds the value of VARIABLE, rewritten (so newer
-# than the stage's table) only when it changes; run as the Makefile is read
-record = $(shell mkdir -p settings && t='$(subst ','\\'',$(strip $($(2))))' && \\
-  if [ "$$(cat settings/$(1) 2>/dev/null)" != "$$t" ]; then \\
-  printf '%s\\n' "$$t" > settings/$(1); fi)
+# than the stage's table) only when it changes; run as the Makefile is read, except by a dry
+# run (make -n), which changes nothing
+# (it names the records that would change, so that it shows the stages they rerun)
+DRY_RUN = $(findstring n,$(firstword -$(MAKEFLAGS)))
+changed = t='$(subst ','\\'',$(strip $($(2))))' && [ "$$(cat settings/$(1) 2>/dev/null)" != "$$t" ]
+record = $(if $(DRY_RUN),$(eval CHANGED_SETTINGS += $(shell $(changed) && echo settings/$(1))),\\
+  $(shell mkdir -p settings && $(changed) && printf '%s\\n' "$$t" > settings/$(1)))
 CROP_SETTINGS    = movie $(MOVIE) background $(BACKGROUND) dark $(DARK) dark-count $(DARK_COUNT) \\
   normalized $(NORMALIZED) options $(CROP_OPTS)
 PREFIT_SETTINGS  = options $(PREFIT_OPTS)
@@ -159,6 +164,9 @@ $(call record,prefit,PREFIT_SETTINGS)
 $(call record,library,LIBRARY_SETTINGS)
 $(call record,fit,FIT_SETTINGS)
 $(call record,analyze,ANALYZE_SETTINGS)
+# a dry run: the records that would change count as changed; a record not written yet too
+.PHONY: $(CHANGED_SETTINGS)
+settings/%: ;
 
 # $(call overwrite,FILES): --overwrite when one of FILES (the stage's earlier results: table,
 # journal) exists and a prerequisite is newer than it; nothing otherwise (a resume, or a
@@ -167,18 +175,19 @@ overwrite = $(if $(OVERWRITE),--overwrite,$(shell for f in $(1); do [ -e "$$f" ]
   for p in $^; do if [ "$$p" -nt "$$f" ]; then echo --overwrite; exit 0; fi; done; done))
 
 crop/crops.csv: $(MOVIE) $(BACKGROUND) $(DARK) instrument.toml settings/crop
-\t$(HOLOFIT) crop $(MOVIE) $(strip $(LIGHT)) -i instrument.toml -o crop $(CROP_OPTS)
+\t$(HOLOFIT) crop $(MOVIE) $(strip $(LIGHT)) -i instrument.toml -o crop $(strip $(CROP_OPTS) \\
+\t  $(if $(JOBS),-j $(JOBS)))
 
 prefit/prefit.csv: crop/crops.csv settings/prefit
 \t$(HOLOFIT) prefit crop -o prefit $(strip $(PREFIT_OPTS) $(BATCH) $(call overwrite,$@ $@.journal))
 {library_rule}
-FIT = $(HOLOFIT) fit crop --prefit prefit {library_option}-p particle.toml -o fit
+FIT = $(HOLOFIT) fit crop --prefit prefit {library_option}-p particle.toml {population}-o fit
 
-fit/static.json: {fit_prerequisites} particle.toml settings/fit
+fit/static.json: {fit_prerequisites} particle.toml {population_files}settings/fit
 \t$(FIT) --pass initial $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) \\
 \t  $(call overwrite,$@ fit/initial.csv fit/initial.csv.journal))
 
-fit/fit.csv: fit/static.json {fit_prerequisites} particle.toml settings/fit
+fit/fit.csv: fit/static.json {fit_prerequisites} particle.toml {population_files}settings/fit
 \t$(FIT) --pass final $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) $(call overwrite,$@ $@.journal))
 
 analysis/summary.csv: fit/fit.csv settings/analyze
@@ -239,6 +248,8 @@ def render_run_makefile(spec: RunSpec) -> str:
         targets=" ".join(done.values()), library_alias=library_alias.rstrip("\n"),
         library_rule=library_rule, library_option=library_option,
         fit_prerequisites=fit_prerequisites,
+        population="".join(f"-p {a} " for a in spec.alternatives),
+        population_files="".join(f"{a} " for a in spec.alternatives),
     )
     text = "\n".join([_header(spec), guide, variables, machinery])
     return "".join(line.rstrip() + "\n" for line in text.splitlines())

@@ -33,8 +33,8 @@ RESERVED_OPTIONS: dict[str, tuple[str, ...]] = {
     "crop": ("-b", "--background", "--dark", "--dark-count", "--normalized", "-i",
              "--instrument", "-o", "--out"),
     "prefit": _BATCH,
-    "library": (*_BATCH, "-p", "--particle", "--prefit", "--engine"),
-    "fit": (*_BATCH, "-p", "--particle", "--prefit", "--library", "--pass", "--engine"),
+    "library": (*_BATCH, "-p", "--particle-model", "--prefit", "--engine"),
+    "fit": (*_BATCH, "-p", "--particle-model", "--prefit", "--library", "--pass", "--engine"),
     "analyze": ("-m", "--model", "--temperature-c", "-o", "--out"),
 }
 
@@ -152,6 +152,9 @@ class RunSpec:
         The shell command that runs holofit.
     instrument_source, particle_source : str
         Where the config copies came from.
+    alternatives : tuple of str
+        The copies of the population's other models (``particle_<kind>.toml``): each track is
+        fitted with the model that fits it best (:mod:`holofit.fit.models`).
     header : tuple of str
         Lines about who wrote the folder and how (version, date, command).
     """
@@ -170,6 +173,7 @@ class RunSpec:
     holofit: str = "holofit"
     instrument_source: str = ""
     particle_source: str = ""
+    alternatives: tuple[str, ...] = ()
     header: tuple[str, ...] = ()
 
     def option(self, stage: str) -> str:

@@ -156,6 +156,14 @@ class ScatteringTheory(ABC):
             raise TypeError(f"the {self.name} engine handles {self.handles} only, not "
                             f"{model.kind!r}")
 
+    def forget_history(self) -> None:
+        """Forget what earlier solves leave behind to speed up later ones (an iterative
+        solver's warm starts), so that the next results depend on their own inputs only: a
+        batch item's rows are then the same whichever items its worker ran before (a
+        resumed run gives an uninterrupted run's rows). Engines without such state do
+        nothing."""
+        return None
+
     @abstractmethod
     def solve(
         self, model: ParticleModel, optics: Optics, orientation: Orientation | None = None

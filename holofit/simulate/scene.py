@@ -9,7 +9,7 @@
     seed = 1
 
     [[particle]]
-    config = "sphere_ps_1um"           # a particle config, by name or file
+    config = "sphere_ps_1um"           # a particle config: a name, or a file (beside the scene)
     start_um = [8.0, 9.0, 15.0]        # full-frame x, y, z at frame 0
     drift_um_s = [2.0, 0.0, 0.0]       # optional: a particle that crosses the field
     d_par_um2_s = 0.44                 # optional for spheres (Stokes-Einstein at temperature_c)
@@ -97,7 +97,8 @@ def _particle(entry: Any, index: int, scene: dict[str, Any], inst: Instrument, p
     if not isinstance(entry, dict):
         raise ConfigError(f"{path}: [[particle]] number {index} is not a table")
     p = validate_table(entry, PARTICLE_SPECS, path, where)
-    cfg = load_particle(resolve_config(p["config"], "particles"))
+    beside = path.parent / p["config"]  # a config file named beside the scene
+    cfg = load_particle(beside if beside.is_file() else resolve_config(p["config"], "particles"))
     d_par, d_perp, d_r = _diffusion(p, cfg.model, scene["temperature_c"], where, path)
     dt = 1.0 / inst.frame_rate_hz if inst.frame_rate_hz else 1.0
     params = BrownianParameters(

@@ -1,0 +1,354 @@
+"""The invariant imbedding T-matrix method for bodies of revolution (one block per ``m``).
+
+``T(r)``, the T-matrix of the part of the particle inside the sphere of radius ``r`` (the
+medium outside it), obeys a Riccati equation in ``r`` (Johnson 1988, Appl. Opt. 27, 4861; Bi,
+Yang, Kattawar & Mishchenko 2013, JQSRT 116, 169). Derived here in the basis of
+:mod:`holofit.scattering.vsw`: with ``E = sum A Y r^ + B Psi + C Phi`` and the same for
+``H' = Z H`` (``curl E = i k H'``, ``curl H' = -i k eps E``), the tangential unknowns
+``X = (u, v, s, w) = r (B, C, B_H, C_H)`` of one ``m`` obey ``X' = (K_0 + dK) X``, where
+``K_0`` is the medium's and
+
+    du' = -(i / k r^2) (Y_r - I) nu^2 s,
+    ds' =  i k nu^-2 (<Psi eps Psi> - nu^2) u + i k nu^-2 <Psi eps Phi> v,
+    dw' = -i k nu^-2 <Phi eps Psi> u - i k nu^-2 (<Phi eps Phi> - nu^2) v,
+
+with ``nu^2 = n (n + 1)`` and the angular matrices of
+:mod:`holofit.scattering.axisym.angular` (Laurent's direct product, or the inverse rule for the
+polar field at conical interfaces); ``Y_r - I = (I + Y)^-1 - I`` eliminates the radial field
+(``D_r = eps E_r``; Laurent's rule for the product of ``eps`` and the continuous ``E_r`` at a
+polar-angle boundary). In the medium the regular and outgoing waves of order ``n`` give
+``X = (psi'/k, 0, i psi/k, 0)`` for ``N`` and ``(0, -psi/k, 0, -i psi'/k)`` for ``M``
+(``psi = kr j_n``, or ``xi = kr h_n`` for outgoing waves), so ``F = [W_rg, W_out]`` is inverted
+per order through the Wronskian ``psi xi' - psi' xi = i``. Writing the field inside ``r`` as
+``Z = W_rg + W_out T`` and asking that it be carried by the full equation gives
+
+    T' = (G_out - T G_rg) dK (W_rg + W_out T),    [G_rg; G_out] = F^-1,
+
+started from the Lorenz-Mie T-matrix of the largest homogeneous sphere about the centre
+(``T = diag(-a_n, -b_n)``) and integrated outward with the classical Runge-Kutta method in a
+variable that makes the square-root ends of the boundary angle ``theta_b(r)`` smooth
+(``r = r_0 + (r_1 - r_0)(3 s^2 - 2 s^3)`` per segment), and Richardson's extrapolation of two
+step sizes (order 5 and better). (Integrating ``T / (psi_n psi_n')``-like scaled variables
+instead makes the decaying components stiff: RK4 then diverges at the step sizes that suffice
+for ``T``.) ``T`` stays bounded (``|I + 2T| <= 1`` in the flux-normalised basis), so the
+integration is stable at any order, unlike the transfer matrix of the fields themselves.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from holofit.scattering.axisym.angular import angular_matrices
+from holofit.scattering.axisym.bessel import riccati_bessel
+from holofit.scattering.axisym.profiles import Profile
+from holofit.scattering.mie_coefficients import mie_coefficients
+
+__all__ = ["Groups", "IITMResult", "block_orders", "integrate_profile", "make_groups",
+           "mie_start"]
+
+
+def block_orders(order: int) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Orders ``n[m, i] = max(1, m) + i`` of the padded blocks (``m = 0..L``, ``i < L``) and
+    which of them exist (``n <= L``)."""
+    L = order
+    m = np.arange(L + 1)[:, None]
+    n = np.maximum(1, m) + np.arange(L)[None, :]
+    return n, n <= L
+
+
+def mie_start(order: int, k: float, radius: float, index_rel: complex) -> NDArray:
+    """Padded blocks ``(L + 1, 2L, 2L)`` of a homogeneous sphere's T-matrix."""
+    L = order
+    n, valid = block_orders(L)
+    a, b = mie_coefficients(index_rel, k * radius, L)
+    t = np.zeros((L + 1, 2 * L, 2 * L), dtype=complex)
+    idx = np.arange(L)
+    nn = np.where(valid, n, 1)
+    t[:, idx, idx] = np.where(valid, -a[nn - 1], 0.0)
+    t[:, L + idx, L + idx] = np.where(valid, -b[nn - 1], 0.0)
+    return t
+
+
+@dataclass(frozen=True)
+class Groups:
+    """The coupled sets of unknowns the integration runs on.
+
+    Without symmetry a group is one ``m`` (all ``N`` and ``M`` orders). An up-down symmetric
+    body also keeps the parity under ``z -> -z``: ``N_n`` with ``n + m`` even couples only to
+    ``N`` of the same and ``M`` of the other parity, so each ``m`` splits into two groups of
+    half the size (a quarter of the work). Group ``g`` has ``P`` padded ``N`` slots (block
+    positions ``pos_n[g]``, orders ``n_n[g]``) and ``Q`` padded ``M`` slots.
+    """
+
+    m: NDArray[np.int64]
+    n_n: NDArray[np.int64]
+    n_m: NDArray[np.int64]
+    ok_n: NDArray[np.bool_]
+    ok_m: NDArray[np.bool_]
+    pos_n: NDArray[np.int64]
+    pos_m: NDArray[np.int64]
+
+    @property
+    def sizes(self) -> tuple[int, int]:
+        return self.n_n.shape[1], self.n_m.shape[1]
+
+
+def make_groups(order: int, parity: bool) -> Groups:
+    """The groups (:class:`Groups`) of order ``L``, split by parity or not."""
+    L = order
+    rows: list[tuple[int, list[int], list[int]]] = []
+    for m in range(L + 1):
+        orders = list(range(max(1, m), L + 1))
+        if not parity:
+            rows.append((m, orders, orders))
+            continue
+        even = [n for n in orders if (n + m) % 2 == 0]
+        odd = [n for n in orders if (n + m) % 2 == 1]
+        rows.append((m, even, odd))
+        rows.append((m, odd, even))
+    p = max(1, max(len(r[1]) for r in rows))
+    q = max(1, max(len(r[2]) for r in rows))
+    g = len(rows)
+    n_n = np.ones((g, p), dtype=np.int64)
+    n_m = np.ones((g, q), dtype=np.int64)
+    ok_n = np.zeros((g, p), dtype=bool)
+    ok_m = np.zeros((g, q), dtype=bool)
+    pos_n = np.zeros((g, p), dtype=np.int64)
+    pos_m = np.zeros((g, q), dtype=np.int64)
+    for i, (m, on, om) in enumerate(rows):
+        n0 = max(1, m)
+        n_n[i, : len(on)] = on
+        n_m[i, : len(om)] = om
+        ok_n[i, : len(on)] = True
+        ok_m[i, : len(om)] = True
+        pos_n[i, : len(on)] = np.asarray(on, dtype=np.int64) - n0
+        pos_m[i, : len(om)] = L + np.asarray(om, dtype=np.int64) - n0
+    return Groups(np.array([r[0] for r in rows]), n_n, n_m, ok_n, ok_m, pos_n, pos_m)
+
+
+def to_groups(padded: NDArray, groups: Groups) -> NDArray:
+    """Group matrices ``(G, P + Q, P + Q)`` from padded per-``m`` blocks."""
+    pos = np.concatenate([groups.pos_n, groups.pos_m], axis=1)
+    ok = np.concatenate([groups.ok_n, groups.ok_m], axis=1)
+    out = padded[groups.m[:, None, None], pos[:, :, None], pos[:, None, :]]
+    return out * (ok[:, :, None] & ok[:, None, :])
+
+
+def from_groups(tg: NDArray, groups: Groups, order: int) -> NDArray:
+    """Padded per-``m`` blocks ``(L + 1, 2L, 2L)`` from group matrices."""
+    L = order
+    out = np.zeros((L + 1, 2 * L, 2 * L), dtype=complex)
+    pos = np.concatenate([groups.pos_n, groups.pos_m], axis=1)
+    ok = np.concatenate([groups.ok_n, groups.ok_m], axis=1)
+    for g in range(tg.shape[0]):
+        sel = np.nonzero(ok[g])[0]
+        p = pos[g, sel]
+        out[groups.m[g]][np.ix_(p, p)] += tg[g][np.ix_(sel, sel)]
+    return out
+
+
+class _Rhs:
+    """The Riccati right-hand side of one profile and order (module docstring)."""
+
+    def __init__(self, profile: Profile, order: int, k: float, n_medium: float,
+                 groups: Groups, radial_rule: str = "laurent",
+                 polar_rule: str = "laurent") -> None:
+        self.profile = profile
+        self.L = order
+        self.k = k
+        self.n_medium = n_medium
+        self.rule = radial_rule
+        self.polar_rule = polar_rule
+        self._angular_cache: dict[tuple, tuple] = {}
+        self.groups = groups
+        n, valid = block_orders(order)
+        self.valid = valid
+        self.nu2 = np.where(valid, n * (n + 1.0), 1.0)
+        self.evaluations = 0
+        self.matrix_evaluations = 0
+        gm = groups.m
+        n0 = np.maximum(1, gm)[:, None]
+        self._in = np.where(groups.ok_n, groups.n_n - n0, 0)  # block index of N slots
+        self._im = np.where(groups.ok_m, groups.n_m - n0, 0)
+        self._mask_nn = groups.ok_n[:, :, None] & groups.ok_n[:, None, :]
+        self._mask_mm = groups.ok_m[:, :, None] & groups.ok_m[:, None, :]
+        self._mask_nm = groups.ok_n[:, :, None] & groups.ok_m[:, None, :]
+
+    def matrices(self, r: float) -> tuple[NDArray, ...]:
+        """Group matrices ``D1`` (N, N), ``D2`` (N, N), ``D5`` (M, M), ``D3`` (N, M) and
+        ``D4`` (M, N): ``D1 = -(i/k r^2)(Y_r - I) nu^2``, ``D2 = i k nu^-2 <Psi eps Psi>``,
+        ``D3 = i k nu^-2 <Psi eps Phi>``, ``D4 = -i k nu^-2 <Phi eps Psi>``,
+        ``D5 = -i k nu^-2 <Phi eps Phi>`` (deviations from the medium)."""
+        self.matrix_evaluations += 1
+        intervals = self.profile.intervals(r, self.n_medium)
+        L = self.L
+        key = tuple((round(lo, 15), round(hi, 15), e) for lo, hi, e in intervals)
+        ang = self._angular_cache.get(key)
+        if ang is None:
+            ang = angular_matrices(intervals, L, self.polar_rule)
+            if self.rule == "inverse":  # Y_r = [[1/eps]]
+                yr = angular_matrices([(lo, hi, 1.0 / e) for lo, hi, e in intervals], L).yy
+            else:
+                eye = np.eye(L)[None]
+                yr = np.linalg.inv(eye + ang.yy) - eye
+                yr = yr * self.valid[:, :, None] * self.valid[:, None, :]
+            ang = (ang, yr)
+            if len(self._angular_cache) < 64:
+                self._angular_cache[key] = ang
+        ang, yr = ang
+        k = self.k
+        nu2 = self.nu2
+        d1 = (-1j / (k * r * r)) * yr * nu2[:, None, :]
+        d2 = (1j * k) * ang.psipsi / nu2[:, :, None]
+        d3 = (1j * k) * ang.psiphi / nu2[:, :, None]
+        d4 = (-1j * k) * ang.phipsi / nu2[:, :, None]
+        d5 = (-1j * k) * ang.phiphi / nu2[:, :, None]
+        gm = self.groups.m[:, None, None]
+        i_n, i_m = self._in, self._im
+        d1n = d1[gm, i_n[:, :, None], i_n[:, None, :]] * self._mask_nn
+        d2n = d2[gm, i_n[:, :, None], i_n[:, None, :]] * self._mask_nn
+        d5m = d5[gm, i_m[:, :, None], i_m[:, None, :]] * self._mask_mm
+        d3nm = d3[gm, i_n[:, :, None], i_m[:, None, :]] * self._mask_nm
+        d4mn = d4[gm, i_m[:, :, None], i_n[:, None, :]] * self._mask_nm.transpose(0, 2, 1)
+        return d1n, d2n, d5m, d3nm, d4mn
+
+    def radial(self, r: float) -> tuple[NDArray, ...]:
+        """``psi, psi', xi, xi'`` at ``k r`` on the N slots and the M slots (zero on padding)."""
+        psi, dpsi, xi, dxi = riccati_bessel(self.L, self.k * r)
+        g = self.groups
+        on = [np.where(g.ok_n, f[g.n_n], 0.0) for f in (psi, dpsi, xi, dxi)]
+        om = [np.where(g.ok_m, f[g.n_m], 0.0) for f in (psi, dpsi, xi, dxi)]
+        return (*on, *om)
+
+    def __call__(self, r: float, t: NDArray, mats: tuple[NDArray, ...],
+                 rad: tuple[NDArray, ...]) -> NDArray:
+        """``dT/dr`` at ``r`` for group matrices ``t``, :meth:`matrices` ``mats`` and
+        :meth:`radial` ``rad``."""
+        self.evaluations += 1
+        k = self.k
+        d1n, d2n, d5m, d3nm, d4mn = mats
+        psi_n, dpsi_n, xi_n, dxi_n, psi_m, _dpsi_m, xi_m, _dxi_m = rad
+        p = psi_n.shape[1]
+        tn, tm = t[:, :p, :], t[:, p:, :]
+        zu = dxi_n[:, :, None] * tn
+        zs = xi_n[:, :, None] * tn
+        zv = xi_m[:, :, None] * tm
+        ip = np.arange(p)
+        iq = np.arange(psi_m.shape[1])
+        zu[:, ip, ip] += dpsi_n
+        zs[:, ip, ip] += psi_n
+        zv[:, iq, p + iq] += psi_m
+        # Z_u = zu / k, Z_s = i zs / k, Z_v = -zv / k
+        vu = (1j / k) * (d1n @ zs)
+        vs = (d2n @ zu - d3nm @ zv) / k
+        vw = (d4mn @ zu - d5m @ zv) / k
+        out = np.empty_like(t)
+        out[:, :p] = k * (-1j * psi_n[:, :, None] * vu + dpsi_n[:, :, None] * vs)
+        out[:, p:] = k * (psi_m[:, :, None] * vw)
+        g = np.empty_like(t)
+        g[:, :p] = k * (1j * xi_n[:, :, None] * vu - dxi_n[:, :, None] * vs)
+        g[:, p:] = k * (-xi_m[:, :, None] * vw)
+        return out - t @ g
+
+
+def _smooth_map(s: float) -> tuple[float, float]:
+    """``g(s) = 3 s^2 - 2 s^3`` and ``g'(s)``."""
+    return s * s * (3.0 - 2.0 * s), 6.0 * s * (1.0 - s)
+
+
+def _rk4_segment(rhs: _Rhs, t: NDArray, r0: float, r1: float, steps: int,
+                 cache: dict[float, tuple]) -> NDArray:
+    """Classical Runge-Kutta over one segment in the smoothing variable ``s``."""
+    width = r1 - r0
+    h = 1.0 / steps
+
+    def f(s: float, tt: NDArray) -> NDArray:
+        g, dg = _smooth_map(s)
+        if dg == 0.0:
+            return np.zeros_like(tt)
+        r = r0 + width * g
+        key = round(s, 14)
+        got = cache.get(key)
+        if got is None:
+            got = (rhs.matrices(r), rhs.radial(r))
+            cache[key] = got
+        return rhs(r, tt, *got) * (width * dg)
+
+    for i in range(steps):
+        s = i * h
+        k1 = f(s, t)
+        k2 = f(s + h / 2, t + (h / 2) * k1)
+        k3 = f(s + h / 2, t + (h / 2) * k2)
+        k4 = f(s + h, t + h * k3)
+        t = t + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return t
+
+
+@dataclass
+class IITMResult:
+    """Blocks ``(L + 1, 2L, 2L)`` for ``m = 0..L`` and what the integration did."""
+
+    blocks: NDArray[np.complex128]
+    steps: list[int]
+    evaluations: int
+    matrix_evaluations: int
+    richardson_change: float
+
+
+def integrate_profile(profile: Profile, order: int, k: float, n_medium: float,
+                      steps: Callable[[float, float], int] | list[int],
+                      richardson: bool = True, radial_rule: str = "laurent",
+                      parity: bool | None = None, polar_rule: str = "laurent") -> IITMResult:
+    """The T-matrix blocks of ``profile`` by invariant imbedding.
+
+    Parameters
+    ----------
+    profile : Profile
+        The body.
+    order : int
+        Truncation order ``L``.
+    k : float
+        Wavenumber in the medium, rad/um.
+    n_medium : float
+        Refractive index of the medium.
+    steps : callable or list of int
+        Runge-Kutta steps of each segment (``steps(r0, r1)`` or one number per segment).
+    richardson : bool
+        Also integrate with half the steps and extrapolate (``(16 T_h - T_2h) / 15``).
+    radial_rule : {"laurent", "inverse"}
+        How the radial field is eliminated (module docstring).
+    parity : bool, optional
+        Split by the parity under ``z -> -z`` (:class:`Groups`); by default when the profile
+        is mirror-symmetric.
+    """
+    L = order
+    groups = make_groups(L, bool(profile.mirror_symmetric) if parity is None else parity)
+    rhs = _Rhs(profile, L, k, n_medium, groups, radial_rule, polar_rule)
+    start = mie_start(L, k, profile.r_start, complex(profile.index_start) / n_medium)
+    t0 = to_groups(start, groups)
+    br = profile.breaks()
+    segs = list(itertools.pairwise(br))
+    counts = ([int(steps(a, b)) for a, b in segs] if callable(steps)
+              else [int(v) for v in steps])
+    if richardson:
+        counts = [c + (c % 2) for c in counts]
+    fine = t0
+    coarse = t0
+    for (a, b), c in zip(segs, counts, strict=True):
+        cache: dict[float, tuple] = {}
+        fine = _rk4_segment(rhs, fine, a, b, c, cache)
+        if richardson:
+            coarse = _rk4_segment(rhs, coarse, a, b, c // 2, cache)
+    change = 0.0
+    if richardson and segs:
+        out = fine + (fine - coarse) / 15.0
+        change = float(np.abs(out - fine).max())
+    else:
+        out = fine
+    return IITMResult(from_groups(out, groups, L), counts, rhs.evaluations,
+                      rhs.matrix_evaluations, change)

@@ -1,0 +1,135 @@
+"""The ``exact`` engine: registry entry, cache, waves, provenance, files, and that ``auto``'s
+choice is unchanged."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from holofit.dda.tmatrix_io import load_tmatrix, save_tmatrix
+from holofit.engines.registry import ENGINE_NAMES, EXACT_ENGINES, get_theory
+from holofit.engines.select import select_theory
+from holofit.optics import Optics
+from holofit.particles import Dimer, Ellipsoid, JanusSphere, Sphere, Spherocylinder, Spheroid
+from holofit.scattering.axisym import (
+    AxisymmetricTMatrix,
+    TaperedJanusSphere,
+    build_exact_tmatrix,
+    supports,
+)
+from holofit.scattering.axisym.profiles import CapProfile
+from holofit.scattering.multipole import NEAR_ZONE
+from holofit.scattering.theory import Orientation
+from holofit.scattering.tmatrix_wave import TMatrixWave
+
+OPTICS = Optics(0.660, 1.33)
+ROD = Spherocylinder(0.501, 1.079, 1.495)
+
+
+def test_registered_by_name_but_not_among_autos_choices() -> None:
+    assert "exact" in ENGINE_NAMES
+    assert "exact" not in EXACT_ENGINES
+    assert isinstance(get_theory("exact"), AxisymmetricTMatrix)
+    # auto still picks the DDA for a rod and Mie for a sphere
+    assert select_theory(ROD).name == "builtin"
+    assert select_theory(Sphere(0.5, 1.59)).name == "mie"
+    assert select_theory(ROD, engine="exact").name == "exact"
+
+
+def test_supports_bodies_of_revolution_only() -> None:
+    assert supports(ROD) and supports(Spheroid(0.5, 0.8, 1.5))
+    assert supports(JanusSphere(0.443, 0.047, 1.581, 2.74))
+    assert not supports(Ellipsoid(0.3, 0.4, 0.5, 1.5))
+    assert not supports(Dimer(0.3, 0.3, 0.0, 1.5, 1.5))
+    with pytest.raises(TypeError):
+        AxisymmetricTMatrix().solve(Dimer(0.3, 0.3, 0.0, 1.5, 1.5), OPTICS)
+
+
+def test_engine_builds_once_and_serves_every_orientation() -> None:
+    engine = AxisymmetricTMatrix()
+    w1 = engine.solve(ROD, OPTICS, Orientation(0.3, 0.7, 0.0))
+    w2 = engine.solve(ROD, OPTICS, Orientation(1.1, 0.2, 0.5))
+    assert engine.builds == 1
+    assert isinstance(w1, TMatrixWave) and isinstance(w2, TMatrixWave)
+    # a spin about the rod's own axis changes nothing
+    w3 = engine.solve(ROD, OPTICS, Orientation(0.3, 0.7, 1.9))
+    xs = np.linspace(-3, 3, 7)
+    ys = np.linspace(-2, 2, 7)
+    a = w1.field_on_pixels((0.1, -0.2, 8.0), xs, ys)
+    b = w3.field_on_pixels((0.1, -0.2, 8.0), xs, ys)
+    assert np.abs(a[0] - b[0]).max() < 1e-12 * np.abs(a[0]).max()
+    assert np.abs(a[0]).max() > 1e-3
+    # a tilt does change it
+    c = w2.field_on_pixels((0.1, -0.2, 8.0), xs, ys)
+    assert np.abs(a[0] - c[0]).max() > 1e-2 * np.abs(a[0]).max()
+
+
+def test_near_points_from_the_expansion_and_refused_inside_the_particle() -> None:
+    wave = AxisymmetricTMatrix().solve(ROD, OPTICS, Orientation(0.0, 0.5, 0.0))
+    r = ROD.bounding_radius_um
+    near = np.array([[0.0, 0.0, 1.5 * r]])
+    assert 1.5 < NEAR_ZONE
+    far = np.array([[0.0, 0.0, 3.0 * r]])
+    assert np.all(np.isfinite(wave.field_at(near)))
+    assert np.all(np.isfinite(wave.field_at(far)))
+    with pytest.raises(ValueError, match="circumscribing"):
+        wave.field_at(np.array([[0.0, 0.0, 0.5 * r]]))
+
+
+def test_provenance_and_file_round_trip(tmp_path) -> None:
+    tm = build_exact_tmatrix(Spheroid(0.5, 1.0, 1.495), OPTICS)
+    p = tm.provenance
+    assert p["method"] == "ebcm" and p["engine"] == "exact"
+    assert p["order"] == tm.order and tm.modulus == 2 * tm.order + 1
+    assert p["tolerance_met"] and p["truncation_estimate"] <= 1e-5
+    assert p["build_seconds"] > 0 and p["q_condition_max"] < 1e9
+    path = save_tmatrix(tm, tmp_path / "spheroid.npz")
+    back = load_tmatrix(path)
+    assert back.order == tm.order and back.modulus == tm.modulus
+    assert np.abs(back.dense() - tm.dense()).max() == 0.0
+
+
+def test_tapered_cap_is_thinner_than_the_uniform_cap() -> None:
+    """The crescent's shell is inside the uniform cap's and ends at z = t/2: its scattering
+    lies between the bare core's and the uniform cap's."""
+    prof = CapProfile(0.443, 0.047, 1.581, 2.74, tapered=True)
+    assert prof.intervals(0.443 + 1e-9, 1.33)[0][0] == pytest.approx(0.047 / (2 * 0.443), 1e-6)
+    assert prof.intervals(0.489, 1.33)[0][0] > 0.9
+    core = build_exact_tmatrix(Sphere(0.443, 1.581), OPTICS, order=14)
+    taper = build_exact_tmatrix(TaperedJanusSphere(0.443, 0.047, 1.581, 2.74), OPTICS, order=14)
+    cap = build_exact_tmatrix(JanusSphere(0.443, 0.047, 1.581, 2.74), OPTICS, order=14)
+
+    def forward(tm):
+        c = tm.lab_coefficients((0.0, 0.0, 0.0), np.array([1.0, 0.0, 0.0]))
+        return tm.expansion(c.vector).far_amplitude(np.array([[0.0, 0.0, -1.0]]))[0, 0]
+
+    f0, f1, f2 = abs(forward(core)), abs(forward(taper)), abs(forward(cap))
+    assert min(f0, f2) < f1 < max(f0, f2)
+
+
+def test_rotation_derivatives_of_the_exact_wave_match_finite_differences() -> None:
+    """Downstream reuse: the exact T-matrix's orientation derivatives (Wigner) are those of the
+    field itself."""
+    from holofit.conventions import euler_zyz, euler_zyz_from_matrix
+
+    engine = AxisymmetricTMatrix()
+    o = Orientation(0.4, 0.9, 0.0)
+    wave = engine.solve(ROD, OPTICS, o)
+    xs = np.linspace(-2.0, 2.0, 5)
+    ys = np.linspace(-1.5, 1.5, 5)
+    pos = (0.2, 0.1, 6.0)
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    (ex, _), derivs = wave.field_and_rotation_derivatives(pos, xs, ys, [axis])
+    h = 1e-5
+    kx = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]],
+                   [-axis[1], axis[0], 0.0]])
+    fields = []
+    for sign in (1.0, -1.0):
+        rot = np.eye(3) + np.sin(sign * h) * kx + (1 - np.cos(sign * h)) * kx @ kx
+        angles = euler_zyz_from_matrix(rot @ euler_zyz(*o.as_tuple()))
+        fields.append(engine.solve(ROD, OPTICS, Orientation(*angles)).field_on_pixels(
+            pos, xs, ys)[0])
+    fd = (fields[0] - fields[1]) / (2 * h)
+    assert np.abs(derivs[0][0] - fd).max() < 1e-5 * np.abs(fd).max()
+    assert np.abs(fd).max() > 1e-3 * np.abs(ex).max()
+    assert engine.builds == 1
