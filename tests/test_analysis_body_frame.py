@@ -72,9 +72,13 @@ def test_body_frame_means_match_monte_carlo_for_a_turning_rod() -> None:
     assert abs(4 * d_perp * kappa[-1] / mc_perp[-1] - 1) > 0.05
 
 
+@pytest.mark.slow
 def test_turning_rod_unbiased_with_the_body_frame_fit() -> None:
     # 60 runs of 150 frames (seeds not used to tune the analysis): the separate lines come
-    # out ~5 % low along and high across the axis (pulls -0.26 and +0.32 over 800 runs)
+    # out ~5 % low along and high across the axis (-4.6 +- 1.1 % and +5.0 +- 0.7 %, pulls
+    # -0.27 and +0.32 over 400 runs, bench/drift_pulls.py); on the same seeds the body-frame
+    # fit is unbiased, so the difference of the two means (paired: it scatters far less than
+    # either) shows the shift
     rows = {r["quantity"]: r for r in drift_pull_case(ROD_CASES["turning"], 150, 60, 31_000)}
     old = {r["quantity"]: r for r in drift_pull_case(
         ROD_CASES["turning"], 150, 60, 31_000,
@@ -82,7 +86,8 @@ def test_turning_rod_unbiased_with_the_body_frame_fit() -> None:
     for q in ("D_par", "D_perp", "D_t"):
         assert abs(rows[q]["bias_rel"]) < 3 * rows[q]["bias_rel_se"], rows[q]
         assert abs(rows[q]["pull_mean"]) < 0.4 and 0.7 < rows[q]["pull_sd"] < 1.35, rows[q]
-    assert old["D_par"]["bias_rel"] < -0.03 and old["D_perp"]["bias_rel"] > 0.03
+    assert old["D_par"]["bias_rel"] - rows["D_par"]["bias_rel"] < -0.03
+    assert old["D_perp"]["bias_rel"] - rows["D_perp"]["bias_rel"] > 0.03
 
 
 def test_joint_fit_errors_are_correlated_and_combined() -> None:

@@ -21,7 +21,12 @@ for the motion tests):
   size the measurement implies is reported as the ratio hydrodynamic / optical,
   ``(D_th / D_hat)^(1/e)`` with ``e = 1`` for translation and 3 for rotation (a sphere's
   Stokes-Einstein radius over its fitted radius; for a rod, the factor by which ``a`` and ``b``
-  would both have to grow at a fixed aspect ratio).
+  would both have to grow at a fixed aspect ratio), and as the sizes themselves: the
+  hydrodynamic radius against the fitted one for a sphere or a Janus particle (``829 +- 64 nm
+  against the fitted 500 +- 1 nm``), the rod's ``a`` and ``b`` scaled by the ratio against the
+  fitted ones. A flagged track's message always ends with the sizes (from every size test that
+  ran, failed or not): a sphere that sticks for a third of its run is flagged by the
+  diffusivity-change test, and its apparent hydrodynamic radius says what that did to ``D``.
 * **Motion**: a change of diffusivity (sticking), of drift, a velocity along the particle's
   axis (swimming), heavy-tailed steps, a curved MSD.
 
@@ -128,6 +133,7 @@ class AnalysedTrack(Protocol):
     fits: dict[str, FitResult]
     measured: dict[str, Measurement]
     predictions: dict[str, tuple[Prediction, str, str]]
+    sizes: dict[str, tuple[float, float, str]]
 
 
 @dataclass
@@ -172,15 +178,57 @@ class Consistency:
                            "detail": t.detail, **t.values} for t in self.tests]}
 
 
+#: the fitted sizes a size test reports (hydrodynamic against optical), by the recipes' names
+_SIZE_LABELS = {"a_um": "a", "b_um": "b"}
+
+
+def _nm(x: float) -> str:
+    return f"{x:.0f}" if abs(x) >= 10 else f"{x:.2g}"
+
+
+def _size_words(ratio: float, ratio_err: float, sizes: dict[str, tuple[float, float, str]]
+                ) -> tuple[str, dict[str, float]]:
+    """The hydrodynamic sizes ``ratio`` x the fitted ones, in nm, as words and values."""
+    names = [k for k in _SIZE_LABELS if k in sizes]
+    if not names or not math.isfinite(ratio):
+        return "", {}
+    values: dict[str, float] = {}
+    parts_h, parts_o = [], []
+    single = names == ["a_um"]
+    for k in names:
+        v, e = 1e3 * sizes[k][0], 1e3 * sizes[k][1]
+        h = ratio * v
+        h_err = ratio_err * v if math.isfinite(ratio_err) else math.nan
+        label = "radius" if single else _SIZE_LABELS[k]
+        values[f"hydrodynamic_{_SIZE_LABELS[k]}_nm"] = h
+        values[f"hydrodynamic_{_SIZE_LABELS[k]}_err_nm"] = h_err
+        values[f"optical_{_SIZE_LABELS[k]}_nm"] = v
+        values[f"optical_{_SIZE_LABELS[k]}_err_nm"] = e
+        parts_h.append(f"{label} {h:.0f} +- {_nm(h_err)} nm")
+        parts_o.append(f"{label} {v:.0f} +- {_nm(e)} nm")
+    shape = "" if single else " (at the fitted aspect ratio)"
+    return (f"hydrodynamic {', '.join(parts_h)}{shape} against the fitted "
+            f"{', '.join(parts_o)}"), values
+
+
 def size_test(check: SizeCheck, measured: Measurement, fit: FitResult | None,
-              prediction: Prediction, tolerance: float) -> TestResult:
+              prediction: Prediction, tolerance: float,
+              sizes: dict[str, tuple[float, float, str]] | None = None) -> TestResult:
     """The score test of a measured coefficient against its prediction (module docstring).
+
+    Parameters
+    ----------
+    sizes : dict, optional
+        The fitted sizes (``a_um``, ``b_um``: value, error, source), for the hydrodynamic
+        sizes in nm beside the ratio.
 
     Returns
     -------
     TestResult
         Statistic ``z``; values: ``ratio`` (measured / predicted), ``size_ratio``
-        (hydrodynamic / optical) with ``size_ratio_err`` (from the sided errors), ``z``.
+        (hydrodynamic / optical) with ``size_ratio_err`` (from the sided errors), ``z``, and
+        for each fitted size ``hydrodynamic_<a|b>_nm`` and ``optical_<a|b>_nm`` (each with
+        ``_err_nm``); the sizes in words in ``detail`` and :attr:`TestResult.sizes`.
     """
     name = f"size {check.prediction}"
     d, d_th = measured.value, prediction.value
@@ -199,13 +247,18 @@ def size_test(check: SizeCheck, measured: Measurement, fit: FitResult | None,
     big = (d_th / max(d - lo, 1e-12 * d_th)) ** (1 / e)
     small = (d_th / (d + hi)) ** (1 / e)
     size_err = 0.5 * (big - small) if math.isfinite(big) else math.nan
+    words, size_values = _size_words(size, size_err, sizes or {})
+    sizes_text = (f"{words} ({size:.3g} +- {size_err:.2g} x the optical, from "
+                  f"{check.measured})" if words
+                  else f"hydrodynamic size {size:.3g} +- {size_err:.2g} x the optical "
+                       f"(from {check.measured})")
     detail = (f"{check.measured} {d:.4g} (-{lo:.2g} +{hi:.2g}) against {d_th:.4g} +- "
               f"{prediction.error:.2g} from the fitted size, {100 * tolerance * e:.0f} % theory "
-              f"tolerance: ratio {d / d_th:.3f}, z = {z:+.2f} (p = {p:.2g}); hydrodynamic size "
-              f"{size:.3g} +- {size_err:.2g} x the optical")
+              f"tolerance: ratio {d / d_th:.3f}, z = {z:+.2f} (p = {p:.2g}); {sizes_text}")
     return TestResult(name, z, p, detail, {"ratio": d / d_th, "size_ratio": size,
                                            "size_ratio_err": size_err, "z": z,
-                                           "sigma": sig, "sigma_at_prediction": at_th})
+                                           "sigma": sig, "sigma_at_prediction": at_th,
+                                           **size_values}, sizes_text)
 
 
 def _body_components(steps: NDArray, u: NDArray) -> NDArray:
@@ -292,7 +345,8 @@ def check_consistency(
             tests.append(TestResult(f"size {check.prediction}", math.nan, math.nan,
                                     "not tested: no prediction (no fitted size)"))
             continue
-        tests.append(size_test(check, m, track.fits.get(check.fit), pred[0], tol))
+        tests.append(size_test(check, m, track.fits.get(check.fit), pred[0], tol,
+                               track.sizes))
     tests += _motion_tests(track, plan, position_um, axis, frame_interval_s, duration_s)
     result = Consistency(tests, alpha)
     limit = result.threshold
@@ -300,8 +354,11 @@ def check_consistency(
     if failed:
         result.flagged = True
         result.failed = [t.name for t in failed]
+        sizes = [t.sizes for t in tests
+                 if t.name.startswith("size ") and t.sizes and t not in failed]
         result.message = (
             f"not the free Brownian motion of the fitted particle ({len(failed)} of "
             f"{sum(math.isfinite(t.p_value) for t in tests)} tests below p = {limit:.2g}): "
-            + "; ".join(f"{t.name}: {t.detail}" for t in failed))
+            + "; ".join(f"{t.name}: {t.detail}" for t in failed)
+            + "".join(f"; sizes: {s}" for s in sizes))
     return result

@@ -90,6 +90,8 @@ class TestResult:
         One line with the numbers, for messages and the summary table.
     values : dict
         The numbers by name (frames, ratios, errors).
+    sizes : str
+        A size test's hydrodynamic and optical sizes in words ('' for the other tests).
     """
 
     name: str
@@ -97,6 +99,7 @@ class TestResult:
     p_value: float
     detail: str
     values: dict[str, float] = field(default_factory=dict)
+    sizes: str = ""
 
 
 def _skipped(name: str, why: str) -> TestResult:

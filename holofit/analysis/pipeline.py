@@ -287,10 +287,17 @@ class _Pass:
             return model.bridged(self.bridge_s)
         return model
 
-    def fit(self, key: str, name: str, model: CurveModel, lags: NDArray) -> FitResult:
-        """Fit observable ``name`` at ``lags`` and keep the result as ``key``."""
-        f = fit_lag_statistics(self.stats[name].at(lags), self._model(name, model), self.obs,
-                               self.pair_filter)
+    @property
+    def observables(self) -> Observables:
+        """The pass's pairs (set by :meth:`run` before anything is fitted)."""
+        if self.obs is None:
+            raise AnalysisError("internal: the lag statistics are not computed yet")
+        return self.obs
+
+    def fit(self, key: str, observable: str, model: CurveModel, lags: NDArray) -> FitResult:
+        """Fit ``observable`` at ``lags`` and keep the result as ``key``."""
+        f = fit_lag_statistics(self.stats[observable].at(lags), self._model(observable, model),
+                               self.observables, self.pair_filter)
         self.fits[key] = f
         return f
 
@@ -303,10 +310,11 @@ class _Pass:
         if self.bridge_s:
             v = np.flatnonzero(self.traj.valid)
             span = (int(v[0]), int(v[-1]))
-        assert self.axis is not None and self.obs is not None
+        if self.axis is None:
+            raise AnalysisError("the body-frame fit needs the rod's axis")
         coeffs = BodyFrameCoefficients(self.axis, self.valid, self.dt, self.pair_filter, span)
         fp, fq = fit_body_frame(self.stats["par"].at(lags), self.stats["perp"].at(lags), coeffs,
-                                self.obs, self.pair_filter)
+                                self.observables, self.pair_filter)
         self.fits["par"], self.fits["perp"] = fp, fq
         return fp, fq
 
@@ -314,7 +322,7 @@ class _Pass:
         """The adaptive last lag from a preliminary fit of lags 1..``last``."""
         pre = fit_lag_statistics(
             self.stats[probe.observable].at(_range((1, last), self.n, what)),
-            self._model(probe.observable, probe.model()), self.obs, self.pair_filter,
+            self._model(probe.observable, probe.model()), self.observables, self.pair_filter,
         )
         eps2 = pre.value("eps2") - probe.resolved_sigma * pre.error("eps2")
         minimum = probe.min_last_lag if probe.min_last_lag is not None else MIN_FIT_LAGS
@@ -354,8 +362,8 @@ class _Pass:
         probe chose longer than the lags computed for the plots)."""
         missing = np.setdiff1d(lags, next(iter(self.stats.values())).lags)
         if missing.size:
-            _merge(self.stats, lag_statistics(self.obs, list(self.recipe.observables), missing,
-                                              self.dt, self.pair_filter))
+            _merge(self.stats, lag_statistics(self.observables, list(self.recipe.observables),
+                                              missing, self.dt, self.pair_filter))
 
 
 def _sensitivity(
@@ -364,7 +372,9 @@ def _sensitivity(
 ) -> None:
     """Redo the measurement with the rejection's ``D_est`` scaled by each sensitivity factor
     (same fit ranges) and record the values in the measurements' ``sensitivity``."""
-    est = core.cleaning.estimate
+    est = core.cleaning.estimate if core.cleaning is not None else None
+    if est is None:
+        return
     fit_lags = np.union1d(_range(ranges["t"], traj.n_frames, "translation"),
                           _range(ranges["r"], traj.n_frames, "rotation", sparse=True))
     for factor in s.sensitivity_factors:

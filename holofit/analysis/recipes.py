@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 import holofit.analysis.hydrodynamics as hd
 from holofit.analysis.consistency import ConsistencyPlan, SizeCheck
+from holofit.analysis.errors import AnalysisError
 from holofit.analysis.linefit import (
     CurveModel,
     FitResult,
@@ -269,6 +270,13 @@ def _d(f: FitResult, unit: str) -> Measurement:
     return Measurement(f.value("D"), f.error("D"), unit, error_below=lo, error_above=hi)
 
 
+def _rotation_lags(r_lags: NDArray[np.int64] | None) -> NDArray[np.int64]:
+    """The rotational fit lags of a model with a rotational observable."""
+    if r_lags is None:
+        raise AnalysisError("internal: no rotational fit range for a model that has one")
+    return r_lags
+
+
 def _combined(parts: list, value: float, unit: str) -> Measurement:
     v, e, lo, hi = combine(parts, value)
     return Measurement(v, e, unit, error_below=lo, error_above=hi)
@@ -285,7 +293,7 @@ def _measure_rod(
         fp = fit("par", "par", linear_msd_model(2, "par"), t_lags)
         fq = fit("perp", "perp", linear_msd_model(4, "perp"), t_lags)
     fl = fit("lab_3d", "lab_3d", linear_msd_model(6, "lab_3d"), t_lags)
-    fr = fit("orient", "orient", orientation_msd_model(), r_lags)
+    fr = fit("orient", "orient", orientation_msd_model(), _rotation_lags(r_lags))
     dpar, dperp = fp.value("D"), fq.value("D")
     meas["D_par"] = _d(fp, "um^2/s")
     meas["D_perp"] = _d(fq, "um^2/s")
@@ -390,12 +398,13 @@ def _measure_janus(
 ) -> dict[str, Measurement]:
     meas = _measure_xy(fit, t_lags, r_lags, options)
     amplitude = options.projection_amplitude
-    fj = fit("proj", "proj", projection_model(amplitude), r_lags)
+    fj = fit("proj", "proj", projection_model(amplitude), _rotation_lags(r_lags))
     meas["D_r"] = _d(fj, "1/s")
     if amplitude:
         meas["A"] = Measurement(fj.value("A"), fj.error("A"), "1")
     try:  # for comparison only (biased at short lags)
-        fit("proj_single_exp", "proj", single_exponential_model(amplitude), r_lags)
+        fit("proj_single_exp", "proj", single_exponential_model(amplitude),
+            _rotation_lags(r_lags))
     except ValueError:
         pass
     return meas

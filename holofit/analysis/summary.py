@@ -131,14 +131,14 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
         ("a_eff_t", "a_eff from D_t", "Stokes-Einstein radius of the measured D_t"),
         ("a_eff_r", "a_eff from D_r", "Stokes-Einstein-Debye radius of the measured D_r"),
     ):
-        m = meas.get(key)
-        if m is None:
+        a_eff = meas.get(key)
+        if a_eff is None:
             continue
         if recipe.radius_is_hydrodynamic and radius is not None:
-            rows.append(_row(label, "nm", m.value, m.error, 1e3 * radius[0], 1e3 * radius[1],
-                             src + " vs fitted radius"))
+            rows.append(_row(label, "nm", a_eff.value, a_eff.error, 1e3 * radius[0],
+                             1e3 * radius[1], src + " vs fitted radius"))
         else:
-            rows.append(_row(label, "nm", m.value, m.error, source=src))
+            rows.append(_row(label, "nm", a_eff.value, a_eff.error, source=src))
     if result.consistency is not None:
         rows += consistency_rows(result.consistency)
     return rows
@@ -202,18 +202,18 @@ def format_report(result: AnalysisResult) -> str:
                      "its removal)")
     cl = result.cleaning
     if cl is not None:
-        parts = []
+        done: list[str] = []
         if s.head_tail:
-            parts.append(f"{int(cl.flipped.sum())} head-tail flips corrected")
+            done.append(f"{int(cl.flipped.sum())} head-tail flips corrected")
         if s.reject and cl.estimate is not None:
             rej = next(iter(result.stats.values()))
-            parts.append(
+            done.append(
                 f"{int(cl.outliers.sum())} frames rejected, {int(rej.rejected[0])} pairs at lag 1"
                 f" (P < {s.reject_probability:g}, D_est = {cl.estimate.d_est:.3g} 1/s "
                 f"{cl.estimate.source}, eps_r = {cl.estimate.eps_r:.3g} rad)"
             )
-        if parts:
-            lines.append("  cleaning: " + "; ".join(parts))
+        if done:
+            lines.append("  cleaning: " + "; ".join(done))
     for key, f in result.fits.items():
         lines.append(
             f"  fit {key}: lags {f.lags[0]}-{f.lags[-1]} frames ({f.tau_s[0]:.3g}-"
