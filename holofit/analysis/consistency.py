@@ -22,11 +22,12 @@ for the motion tests):
   ``(D_th / D_hat)^(1/e)`` with ``e = 1`` for translation and 3 for rotation (a sphere's
   Stokes-Einstein radius over its fitted radius; for a rod, the factor by which ``a`` and ``b``
   would both have to grow at a fixed aspect ratio), and as the sizes themselves: the
-  hydrodynamic radius against the fitted one for a sphere or a Janus particle (``829 +- 64 nm
-  against the fitted 500 +- 1 nm``), the rod's ``a`` and ``b`` scaled by the ratio against the
-  fitted ones. A flagged track's message always ends with the sizes (from every size test that
-  ran, failed or not): a sphere that sticks for a third of its run is flagged by the
-  diffusivity-change test, and its apparent hydrodynamic radius says what that did to ``D``.
+  hydrodynamic radius against the fitted one for a sphere or a Janus particle (``hydrodynamic
+  radius 827 +- 123 nm against the fitted radius 500 +- 0.82 nm``), the rod's ``a`` and ``b``
+  scaled by the ratio against the fitted ones. A flagged track's message always ends with
+  the sizes (from every size test that ran, failed or not): a sphere that sticks for a third
+  of its run is flagged by the diffusivity-change test, and its apparent hydrodynamic radius
+  says what that did to ``D``.
 * **Motion**: a change of diffusivity (sticking), of drift, a velocity along the particle's
   axis (swimming), heavy-tailed steps, a curved MSD.
 
