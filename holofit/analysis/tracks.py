@@ -16,7 +16,11 @@ one particle model, so their coefficients estimate the same quantities and are p
 
 Tracks are left out of the pool, and say why, when they are too short (``short``), when most of
 their fitted frames missed the particle model (``poor_fit``: dust or an impurity, not the
-particle the model describes), or when their analysis failed (``failed``).
+particle the model describes), when their analysis failed (``failed``), or when they fail the
+physical-consistency check (``flagged``: a hydrodynamic size unlike the fitted one, sticking, a
+drift that changes, swimming; :mod:`holofit.analysis.consistency`), unless
+``TrackPooling(include_flagged=True)`` asks for them; the message and ``tracks.csv`` give the
+numbers.
 """
 
 from __future__ import annotations
@@ -43,12 +47,14 @@ from holofit.status import OK, POOR_FIT
 from holofit.tables.fit import FitTableError, validate_fit_table
 
 __all__ = [
+    "CHECK_COLUMNS",
     "TRACK_COLUMN",
     "PooledEstimate",
     "TrackPooling",
     "TrackResult",
     "TracksResult",
     "analyze_tracks",
+    "check_columns",
     "format_tracks_report",
     "has_tracks",
     "n_tracks",
@@ -78,11 +84,16 @@ class TrackPooling:
         reported as ``poor_fit`` and not pooled.
     outlier_sigma : float
         A track whose pull against the other tracks exceeds this is an outlier of that quantity.
+    include_flagged : bool
+        Pool the tracks that failed the physical-consistency check too (by default they are
+        reported as ``flagged`` and left out: their coefficients do not measure free
+        diffusion of the fitted particle).
     """
 
     min_frames: int = 20
     max_poor_fraction: float = 0.5
     outlier_sigma: float = 3.0
+    include_flagged: bool = False
 
     def __post_init__(self) -> None:
         if self.min_frames < 3:
@@ -103,8 +114,8 @@ class TrackResult:
         Track id.
     n_frames, n_ok, n_poor : int
         Rows of the track, ``ok`` rows, ``poor_fit`` rows.
-    status : {"analysed", "short", "poor_fit", "failed"}
-        ``analysed`` tracks are pooled.
+    status : {"analysed", "short", "poor_fit", "failed", "flagged"}
+        ``analysed`` tracks are pooled (``flagged`` ones only when the pooling asks).
     message : str
         Why, for the others.
     result : AnalysisResult or None
@@ -236,9 +247,16 @@ def _leave_one_out_pulls(x: NDArray[np.float64], s: NDArray[np.float64]) -> NDAr
     return pulls
 
 
-def _pool(quantity: str, tracks: list[TrackResult], sigma: float) -> PooledEstimate | None:
+def _pooled_status(pooling: TrackPooling) -> tuple[str, ...]:
+    return ("analysed", "flagged") if pooling.include_flagged else ("analysed",)
+
+
+def _pool(quantity: str, tracks: list[TrackResult], pooling: TrackPooling
+          ) -> PooledEstimate | None:
+    sigma = pooling.outlier_sigma
+    use = _pooled_status(pooling)
     rows = [(t.particle, t.result.measured[quantity]) for t in tracks
-            if t.status == "analysed" and t.result is not None and quantity in t.result.measured]
+            if t.status in use and t.result is not None and quantity in t.result.measured]
     rows = [(p, m) for p, m in rows
             if not m.upper_limit and math.isfinite(m.value) and m.error > 0]
     if not rows:
@@ -280,6 +298,12 @@ def _analyse_track(particle: int, rows: pd.DataFrame, settings: AnalysisConfig,
         track.message = (f"{n_poor} of {n_ok + n_poor} fitted frames are poor_fit "
                          f"({100 * track.poor_fraction:.0f} %): not the particle the model "
                          "describes (dust, an impurity?); not pooled")
+    elif track.result.flagged:
+        assert track.result.consistency is not None
+        track.status = "flagged"
+        track.message = track.result.consistency.message + (
+            "; pooled as asked (include_flagged)" if pooling.include_flagged
+            else "; not pooled (TrackPooling(include_flagged=True) pools it)")
     return track
 
 
@@ -320,8 +344,8 @@ def analyze_tracks(path: str | Path, settings: AnalysisConfig, *,
                             + "; ".join(f"particle {t.particle}: {t.message}" for t in tracks)
                             + ")")
     pooled = {q: est for q in POOLED_QUANTITIES
-              if (est := _pool(q, tracks, pooling.outlier_sigma)) is not None}
-    return TracksResult(tracks, pooled, pooling, _notes(tracks, pooled, pooling.outlier_sigma))
+              if (est := _pool(q, tracks, pooling)) is not None}
+    return TracksResult(tracks, pooled, pooling, _notes(tracks, pooled, pooling))
 
 
 def _sidecar_interval(path: Path) -> float | None:
@@ -335,8 +359,9 @@ def _sidecar_interval(path: Path) -> float | None:
     return float(value) if isinstance(value, int | float) else None
 
 
-def _notes(tracks: list[TrackResult], pooled: dict[str, PooledEstimate], sigma: float
+def _notes(tracks: list[TrackResult], pooled: dict[str, PooledEstimate], pooling: TrackPooling
            ) -> list[str]:
+    sigma = pooling.outlier_sigma
     notes = [f"particle {t.particle}: {t.status}: {t.message}" for t in tracks
              if t.status != "analysed"]
     for est in pooled.values():
@@ -349,12 +374,41 @@ def _notes(tracks: list[TrackResult], pooled: dict[str, PooledEstimate], sigma: 
     return notes
 
 
+#: the consistency columns of ``tracks.csv`` (:func:`check_columns`)
+CHECK_COLUMNS = ("flagged", "check_failed", "check_threshold_p", "check_min_p",
+                 "size_ratio_t", "size_ratio_t_err", "size_z_t", "size_ratio_r",
+                 "size_ratio_r_err", "size_z_r")
+
+
+def check_columns(result: AnalysisResult | None) -> dict[str, Any]:
+    """A track's consistency numbers (:data:`CHECK_COLUMNS`): whether it is flagged, the
+    tests it failed, the per-test threshold and the smallest p-value, and the hydrodynamic /
+    optical size ratio with its error and ``z`` from ``D_t`` and ``D_r`` (NaN where not
+    tested)."""
+    out: dict[str, Any] = dict.fromkeys(CHECK_COLUMNS, math.nan)
+    c = result.consistency if result is not None else None
+    if c is None:
+        return out
+    ps = [t.p_value for t in c.tests if math.isfinite(t.p_value)]
+    out.update(flagged=c.flagged, check_failed=" ".join(n.replace(" ", "_") for n in c.failed),
+               check_threshold_p=c.threshold, check_min_p=min(ps) if ps else math.nan)
+    for key, name in (("t", "size D_t"), ("r", "size D_r")):
+        t = c.test(name)
+        if t is not None and "size_ratio" in t.values:
+            out[f"size_ratio_{key}"] = t.values["size_ratio"]
+            out[f"size_ratio_{key}_err"] = t.values["size_ratio_err"]
+            out[f"size_z_{key}"] = t.statistic
+    return out
+
+
 def track_rows(result: TracksResult) -> list[dict[str, Any]]:
-    """One row per (track, quantity) for ``tracks.csv`` (tracks not analysed: one row)."""
+    """One row per (track, quantity) for ``tracks.csv`` (tracks not analysed: one row), with
+    the track's consistency numbers (:func:`check_columns`)."""
     rows: list[dict[str, Any]] = []
     for t in result.tracks:
         base = {"particle": t.particle, "status": t.status, "n_frames": t.n_frames,
-                "n_ok": t.n_ok, "n_poor_fit": t.n_poor, "message": t.message}
+                "n_ok": t.n_ok, "n_poor_fit": t.n_poor, "message": t.message,
+                **check_columns(t.result)}
         measured = t.result.measured if t.result is not None else {}
         qs = [q for q in POOLED_QUANTITIES if q in measured]
         if not qs:
@@ -383,7 +437,10 @@ def write_tracks(result: TracksResult, out_dir: str | Path, inputs: list[str | P
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cfg = {"pooling": result.pooling.__dict__}
-    units = {"measured": "unit column", "measured_err": "unit column", "pull": "1"}
+    units = {"measured": "unit column", "measured_err": "unit column", "pull": "1",
+             "check_threshold_p": "1", "check_min_p": "1", "size_ratio_t": "1",
+             "size_ratio_t_err": "1", "size_z_t": "1 (sigma)", "size_ratio_r": "1",
+             "size_ratio_r_err": "1", "size_z_r": "1 (sigma)"}
     files = {"tracks": write_table(out / "tracks.csv", pd.DataFrame(track_rows(result)),
                                    sidecar(kind="diffusion per track", units=units, config=cfg,
                                            inputs=inputs, extra={"notes": result.notes}))}
