@@ -71,7 +71,7 @@ def plot_track_msds(result: TracksResult, path: Path) -> Path:
                     + ("" if t.status == "analysed" else f" ({t.status})"))
         if ok.any():
             tau_max = max(tau_max, float(st.tau_s[ok][-1]))
-    pooled = result.pooled.get("D_t")
+    pooled = result.estimate("D_t")
     if pooled is not None and tau_max > 0 and name is not None:
         tau = np.linspace(0.0, tau_max, 50)
         ax.plot(tau, _LAB_MSDS[name] * pooled.value * tau, "k--", lw=1.2,
