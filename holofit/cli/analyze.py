@@ -140,8 +140,8 @@ def analyze(
         base, why = default_model(fit_table)
         if base is None:
             raise click.UsageError(f"give --model ({', '.join(MODELS)}): {fit_table}: {why}")
-        click.echo(f"model: each track's from the fit; where it names none, {base} ({why})",
-                   err=True)
+        click.echo(f"model: {base} ({why}); a track the fit gave another particle model is "
+                   "analysed with that one's", err=True)
 
     try:
         settings = AnalysisConfig(
