@@ -199,7 +199,7 @@ def test_only_the_fits_table_of_tracks_is_read(tmp_path) -> None:
     assert read_fit_tracks(path) == {}  # an analysis' own tracks.csv
     (tmp_path / "tracks.csv.json").unlink()
     pd.DataFrame({"particle": [0]}).to_csv(tmp_path / "tracks.csv")
-    with pytest.raises(AnalysisError, match="tracks.csv: the fit's table of tracks has no"):
+    with pytest.raises(AnalysisError, match=r"tracks\.csv: the fit's table of tracks has no"):
         read_fit_tracks(path)
     assert model_from_sidecar(path)[0] is None
 
@@ -227,3 +227,19 @@ def test_cli_analyze_a_population_run_folder(tmp_path) -> None:
     bad = CliRunner().invoke(main, ["analyze", str(fit), "-o", str(out), "--particle", "7",
                                     "--no-plot"])
     assert bad.exit_code == 1 and "no track(s) [7]" in bad.output
+
+
+def test_a_table_of_one_track_takes_its_own_model(tmp_path) -> None:
+    # a rod run whose one track the fit gave the sphere: analysed as a sphere, not a rod
+    fit = tmp_path / "fit.csv"
+    _sphere(0, 300, 6).to_csv(fit, index=False)
+    (tmp_path / "fit.csv.json").write_text(json.dumps(
+        {"frame_interval_s": DT, "particle_model": "spherocylinder"}))
+    from holofit.analysis import run_analysis
+
+    run = run_analysis(fit, ROD_RUN, tmp_path / "an", plots=False)
+    assert run.result is not None and run.result.settings.model == "sphere"
+    assert "D_r" not in run.result.measured
+    assert abs(run.result.measured["D_t"].pull(D_SPHERE)) < 3
+    with pytest.raises(AnalysisError, match=r"no track\(s\) \[4\]"):
+        run_analysis(fit, ROD_RUN, tmp_path / "an", selection=TrackSelection(particles=(4,)))

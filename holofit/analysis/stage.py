@@ -67,8 +67,9 @@ class AnalysisRun:
 def analyze_table(
     path: str | Path, settings: AnalysisConfig, frame_interval_s: float | None = None
 ) -> AnalysisResult:
-    """Read a fit table of one track (validating it) and analyse it."""
-    fit = read_fit_table(path, frame_interval_s)
+    """Read a fit table of one track (validating it; columns empty on every row, another
+    particle model's, left out) and analyse it."""
+    fit = read_fit_table(path, frame_interval_s, drop_empty=True)
     traj = Trajectory.from_fit_table(fit, bool(settings.drop_ambiguous))
     return analyze_trajectory(traj, settings)
 
