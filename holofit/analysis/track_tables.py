@@ -149,8 +149,10 @@ def format_tracks_report(result: TracksResult) -> str:
         d = t.result.measured.get("D_t") if t.result is not None else None
         dtxt = f"D_t {d.value:.3f} +- {d.error:.3f} um^2/s" if d is not None else ""
         what = t.model + (f" ({t.kind})" if t.kind else "") if t.model else (t.kind or "?")
-        lines.append(f"  particle {t.particle}: {what}, {t.n_ok}/{t.n_frames} ok frames, "
-                     f"{t.status}" + (f", {dtxt}" if dtxt else "")
+        statics = ", ".join(f"{k} {v:.4g}" for k, v in sorted(t.statics.items()))
+        lines.append(f"  particle {t.particle}: {what}" + (f" [{statics}]" if statics else "")
+                     + f", {t.n_ok}/{t.n_frames} ok frames, {t.status}"
+                     + (f", {dtxt}" if dtxt else "")
                      + (f" ({t.message})" if t.message and t.result is not None else ""))
     if result.left_out:
         lines.append("left out:")

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import click
 
-from holofit.analysis.population import default_model, model_from_sidecar
+from holofit.analysis.population import default_model
 from holofit.analysis.recipes import MODELS
 from holofit.cli.common import out_dir_option, track_options
 
-__all__ = ["OPTION_OF_SETTING", "analyze", "model_from_sidecar"]
+__all__ = ["OPTION_OF_SETTING", "analyze"]
 
 #: the option that sets each field of AnalysisConfig (to name it in messages)
 OPTION_OF_SETTING = {
