@@ -8,12 +8,12 @@ import pytest
 
 from holofit.analysis import AnalysisConfig
 from holofit.analysis.errors import AnalysisError
+from holofit.analysis.track_tables import write_tracks
 from holofit.analysis.tracks import (
     TrackPooling,
     analyze_tracks,
     pool_estimates,
     split_tracks,
-    write_tracks,
 )
 from holofit.simulate.brownian import BrownianParameters, MeasurementNoise, simulate_trajectory
 
@@ -76,11 +76,12 @@ def test_tracks_recover_d_and_name_the_odd_ones(tmp_path) -> None:
     assert status == {0: "analysed", 1: "analysed", 2: "analysed", 3: "analysed",
                       4: "flagged", 5: "poor_fit", 6: "short"}
     assert "size D_t" in res.tracks[4].message and "x the optical" in res.tracks[4].message
-    assert sorted(res.pooled["D_t"].particles) == [0, 1, 2, 3]
+    assert sorted(res.estimate("D_t", "sphere").particles) == [0, 1, 2, 3]
     # ... and pooled as asked, it is the outlier the leave-one-out pulls name
     res = analyze_tracks(path, SPHERE, frame_interval_s=DT,
                          pooling=TrackPooling(include_flagged=True))
-    est = res.pooled["D_t"]
+    est = res.estimate("D_t")
+    assert est is not None and est.model == "sphere"
     assert est.outliers == [4]
     assert sorted(est.particles) == [0, 1, 2, 3]
     assert abs(est.value - D_TRUE) < 2 * est.error
