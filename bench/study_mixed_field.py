@@ -40,6 +40,8 @@ from holofit.config import load_particle, resolve_config
 from holofit.conventions import axis_from_angles
 
 HERE = Path(__file__).resolve().parent
+#: the command line of the environment that runs the study
+HOLOFIT = str(Path(sys.executable).parent / "holofit")
 SCENES = {
     "mixed_rods_spheres": ("paper_60x_water", ["rod_paper", "sphere_ps_1um"]),
     "crossing_small_rods": ("paper_60x_water", [str(HERE / "scenes" / "rod_small.toml")]),
@@ -210,14 +212,14 @@ def main(argv: list[str]) -> None:
         log = work / "log.txt"
         result: dict = {"scene": name}
         if not (work / "sim" / "truth.csv").exists():
-            rc, t = _run(["holofit", "simulate", "field-of-view", str(scene), "-o",
+            rc, t = _run([HOLOFIT, "simulate", "field-of-view", str(scene), "-o",
                           str(work / "sim")], log)
             result["simulate_s"] = t
             if rc:
                 raise SystemExit(f"simulate failed, see {log}")
         run = work / "run"
         if not (run / "Makefile").exists():
-            cmd = ["holofit", "init", str(run), "--movie", str(work / "sim" / "movie.tif"),
+            cmd = [HOLOFIT, "init", str(run), "--movie", str(work / "sim" / "movie.tif"),
                    "-b", str(work / "sim" / "background.tif"), "-i", instrument]
             for m in models:
                 cmd += ["-p", m]

@@ -26,10 +26,11 @@ class LRUCache(Generic[K, V]):
     maxsize : int
         Most entries kept (>= 1).
     on_evict : callable, optional
-        Called as ``on_evict(key, value)`` for every entry pushed out by a newer one.
+        Called as ``on_evict(key, value)`` for every entry pushed out by a newer one (what it
+        returns is ignored).
     """
 
-    def __init__(self, maxsize: int, on_evict: Callable[[K, V], None] | None = None) -> None:
+    def __init__(self, maxsize: int, on_evict: Callable[[K, V], object] | None = None) -> None:
         if maxsize < 1:
             raise ValueError(f"maxsize must be >= 1, got {maxsize}")
         self.maxsize = maxsize

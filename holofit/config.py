@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -254,7 +255,7 @@ def load_instrument(path: str | Path) -> Instrument:
                        str(path))
 
 
-def instrument_from_dict(doc: dict[str, Any], source: str = "<dict>") -> Instrument:
+def instrument_from_dict(doc: Mapping[str, Any], source: str = "<dict>") -> Instrument:
     """An :class:`Instrument` from its :meth:`Instrument.as_dict` form (e.g. a sidecar JSON).
 
     Keys as in an instrument file; ``path`` and null values are ignored; ``name``,

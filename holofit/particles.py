@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, fields
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -52,8 +52,9 @@ class ParticleModel:
         """Model parameters by name."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
-    def replace(self, **changes: float | complex) -> ParticleModel:
-        """A copy with some parameters changed."""
+    def replace(self, **changes: Any) -> ParticleModel:
+        """A copy with some parameters changed (numbers; a voxel shape's or a cluster's
+        ``indices`` as a tuple)."""
         params = self.parameters()
         params.update(changes)
         return type(self)(**params)

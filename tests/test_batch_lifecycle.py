@@ -209,6 +209,13 @@ def test_scheduler_nobody_listens_on_is_reported_at_once():
     assert time.monotonic() - t0 < 5
 
 
+def test_a_malformed_scheduler_port_is_a_scheduler_error():
+    pytest.importorskip("distributed")
+    # a ValueError has no strerror: this used to escape as an AttributeError
+    with pytest.raises(SchedulerError, match="cannot reach the Dask scheduler at"):
+        DaskBackend("tcp://127.0.0.1:notaport")
+
+
 def test_a_peer_that_accepts_but_never_answers_is_given_up_on():
     pytest.importorskip("distributed")
     server = socket.socket()

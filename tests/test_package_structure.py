@@ -1,6 +1,7 @@
 """The package's structure: dependencies that run one way between layers, no import cycles
 between modules or between subpackages, every module importable on its own and in any order,
-the public API of ``holofit/__init__`` resolvable, and the README's layout complete.
+the public API of ``holofit/__init__`` resolvable, and the layout of the docs' architecture page
+complete.
 
 The layers, lowest first (a module may import from its own layer and the layers below it):
 
@@ -211,24 +212,25 @@ def test_public_api_names_resolve() -> None:
 
 
 def test_the_names_the_docs_promise_are_exported() -> None:
-    """Every name of the package docstring's API table and every ``holofit.<name>`` the
-    README's Python examples use is exported."""
+    """Every name of the package docstring's API table and every ``holofit.<name>(...)`` the
+    README's and the docs' Python examples call is exported."""
     doc = holofit.__doc__ or ""
     table = doc[doc.index("The public API"):doc.index("Names are imported")]
     promised = set(re.findall(r"\b([A-Za-z_][A-Za-z0-9_]*)\b", table.split("::", 1)[1]))
     promised -= {"stages", "simulation", "configuration", "particles", "geometry", "engines",
                  "holograms", "fitting", "tables"}
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    promised |= set(re.findall(r"\bholofit\.([A-Za-z_][A-Za-z0-9_]*)\(", readme))
+    root = Path(__file__).resolve().parents[1]
+    for page in [root / "README.md", *sorted((root / "docs").rglob("*.md"))]:
+        promised |= set(re.findall(r"\bholofit\.([A-Za-z_][A-Za-z0-9_]*)\(", page.read_text()))
     missing = sorted(n for n in promised if n not in holofit.__all__)
     assert not missing, missing
 
 
-def test_the_readme_layout_names_every_module() -> None:
-    """The README's package tree ("Repository layout") has a line for every module and
-    subpackage of holofit, and none that does not exist."""
+def test_the_documented_layout_names_every_module() -> None:
+    """The package tree of the docs' architecture page ("Repository layout") has a line for
+    every module and subpackage of holofit, and none that does not exist."""
     root = Path(__file__).resolve().parents[1]
-    readme = (root / "README.md").read_text()
+    readme = (root / "docs" / "architecture.md").read_text()
     section = readme[readme.index("## Repository layout"):]
     tree = section[section.index("```") + 3:]
     tree = tree[:tree.index("```")]
@@ -255,6 +257,22 @@ def test_the_readme_layout_names_every_module() -> None:
     actual |= {str(p.relative_to(root)) for p in package.rglob("*")
                if p.is_dir() and "__pycache__" not in p.parts and any(p.glob("*.py"))}
     actual.add("holofit")
-    assert sorted(actual - listed) == [], "modules missing from the README's layout"
+    assert sorted(actual - listed) == [], "modules missing from docs/architecture.md's layout"
     extra = {p for p in listed - actual if not (root / p).is_file()}  # an __init__ may be named
-    assert sorted(extra) == [], "README lists modules that do not exist"
+    assert sorted(extra) == [], "docs/architecture.md lists modules that do not exist"
+
+
+def test_the_api_reference_covers_every_subpackage_and_module() -> None:
+    """Every subpackage and top-level module of holofit is rendered by a ``::: holofit.X``
+    block of an API reference page (a subpackage's page shows its submodules)."""
+    root = Path(__file__).resolve().parents[1]
+    rendered: set[str] = set()
+    for page in (root / "docs" / "api").glob("*.md"):
+        rendered |= set(re.findall(r"^::: (holofit(?:\.[A-Za-z_][A-Za-z0-9_]*)*)\s*$",
+                                   page.read_text(), flags=re.MULTILINE))
+    package = root / "holofit"
+    wanted = {f"holofit.{p.name}" for p in package.iterdir() if p.is_dir()
+              and (p / "__init__.py").exists()}
+    wanted |= {f"holofit.{p.stem}" for p in package.glob("*.py") if p.name != "__init__.py"}
+    wanted.add("holofit")
+    assert sorted(wanted - rendered) == [], "add these to a page of docs/api/"

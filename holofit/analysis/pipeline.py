@@ -73,8 +73,8 @@ FIT_LOG = 40
 #: fewer frames with a fit than this cannot be analysed (the rotational-diffusion estimate of
 #: the rejection needs MIN_ESTIMATE_PAIRS pairs at lags 1 and 2: 10 consecutive frames)
 MIN_FRAMES = MIN_ESTIMATE_PAIRS + 2
-#: fewer frames than this get a note (bench/calibration.py: errors calibrated, but large, and
-#: the estimates skewed)
+#: fewer frames than this get a note: the errors are calibrated but large, and the estimates
+#: skewed (docs: validation, "analysis pulls")
 SHORT_FRAMES = 100
 #: observables whose positions were drift-corrected (their models get the bridge factor)
 POSITIONAL = ("par", "perp", "lab_x", "lab_y", "lab_z", "lab_3d", "xy")

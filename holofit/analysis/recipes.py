@@ -224,7 +224,8 @@ def _eps(f: FitResult, scale: float, unit: str) -> Measurement:
     """The localisation error ``sqrt(eps2)`` of a fit's intercept, times ``scale``.
 
     ``sqrt`` of an intercept that is not resolved from zero would report the noise of the fit
-    as a localisation error (a true 1 nm came out as 10 nm): then the result is an upper limit.
+    as a localisation error: then the result is an upper limit (docs: validation, "analysis
+    pulls").
     """
     e2, de2 = f.value("eps2"), f.error("eps2")
     if not math.isfinite(de2) or e2 > RESOLVED_SIGMA * de2:

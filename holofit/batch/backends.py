@@ -312,8 +312,10 @@ def _probe(scheduler: str, address: str, timeout_s: float) -> None:
             pass
     except TimeoutError:
         raise _unreachable(scheduler, address, f"no answer within {timeout_s:g} s") from None
-    except (OSError, ValueError) as exc:
+    except OSError as exc:
         raise _unreachable(scheduler, address, exc.strerror or str(exc)) from None
+    except ValueError as exc:  # a malformed host or port (a ValueError has no strerror)
+        raise _unreachable(scheduler, address, str(exc)) from None
 
 
 def _connect(distributed: Any, scheduler: str, timeout_s: float) -> Any:

@@ -1,12 +1,12 @@
 """The item key of a batch: which row of a stage table an item is.
 
 A batch runs one *item function* on many items; each item is named by a key, and the table
-holds one row per key, with the key in its *key columns*. Today every stage runs per frame:
-the key columns are ``("frame",)`` and a key is the frame number. A stage keyed by several
-columns (e.g. ``("particle", "frame")`` for a movie with several particles) gives the key as
-a tuple of the same length; the batch runner, its journal and the stage skeleton
-(:mod:`holofit.batch.stage`) treat a key only through the functions here, so they need no
-change for such a stage.
+holds one row per key, with the key in its *key columns*. The crop stage's search runs per
+frame (:data:`FRAME_KEY`: a key is the frame number); every stage after it is keyed by
+``("particle", "frame")`` (:data:`holofit.tables.cropset.PARTICLE_KEY`: a key is a tuple of
+the same length as the key columns). The batch runner, its journal and the stage skeleton
+(:mod:`holofit.batch.stage`) treat a key only through the functions here, so one runner
+serves every key.
 
 A *multi-row item* (a chunk of a track: several frames fitted in one go) returns several rows,
 each with its own key; one of them has the item's key (:func:`item_rows` checks it and puts it
@@ -18,7 +18,7 @@ are then there too. Resuming therefore never redoes a finished multi-row item.
 from __future__ import annotations
 
 import numbers
-from collections.abc import Hashable, Mapping, Sequence
+from collections.abc import Hashable, Iterable, Mapping, Sequence
 from typing import Any
 
 __all__ = [
@@ -29,6 +29,7 @@ __all__ = [
     "key_of_row",
     "key_row",
     "normal_key",
+    "sorted_keys",
 ]
 
 #: an item's key: a frame number, or a tuple with one value per key column
@@ -45,7 +46,7 @@ def _plain(value: Any) -> Any:
     if isinstance(value, numbers.Integral):
         return int(value)
     if isinstance(value, numbers.Real) and float(value).is_integer():
-        return int(value)
+        return int(float(value))  # a float-typed whole number (e.g. a frame read back as 3.0)
     return value
 
 
@@ -74,6 +75,17 @@ def normal_key(key: Any, key_columns: Sequence[str]) -> Key:
     if not isinstance(key, tuple) or len(key) != len(key_columns):
         raise ValueError(f"key {key!r} does not match key columns {tuple(key_columns)}")
     return tuple(_plain(v) for v in key)
+
+
+def sorted_keys(keys: Iterable[Key]) -> list[Key]:
+    """``keys`` in ascending order, as ``sorted`` gives them.
+
+    The keys of one table are all plain values or all tuples of plain values
+    (:func:`normal_key`), so they compare; :data:`Key` (any hashable) cannot say so.
+    """
+    ordered: list[Any] = list(keys)
+    ordered.sort()
+    return ordered
 
 
 def key_row(key: Key, key_columns: Sequence[str]) -> dict[str, Any]:

@@ -33,7 +33,7 @@ import pandas as pd
 
 from holofit.batch.errors import BatchError
 from holofit.batch.journal import JournalError, read_journal
-from holofit.batch.keys import FRAME_KEY, Key, key_of_row, key_row
+from holofit.batch.keys import FRAME_KEY, Key, key_of_row, key_row, sorted_keys
 from holofit.io.tables import read_table, sidecar_path, write_table
 from holofit.status import ERROR
 
@@ -233,7 +233,7 @@ class OutputFiles:
               staged: bool = False) -> None:
         """Write the rows (sorted by key) as the final or the partial table, atomically
         (``staged``: the final table under the partial table's name)."""
-        frames = sorted(rows)
+        frames = sorted_keys(rows)
         table = pd.DataFrame([rows[f] for f in frames], columns=self.columns)
         if final and self.finish_table is not None:
             self.finish_table(table)

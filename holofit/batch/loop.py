@@ -23,7 +23,7 @@ from typing import Any
 from holofit.batch.backends import Backend
 from holofit.batch.errors import BatchError, WorkerLost
 from holofit.batch.journal import Journal
-from holofit.batch.keys import FRAME_KEY, Key, item_rows, key_of_row, key_row
+from holofit.batch.keys import FRAME_KEY, Key, item_rows, key_of_row, key_row, sorted_keys
 from holofit.batch.layout import OutputFiles
 from holofit.batch.mainguard import GUARD_ADVICE
 from holofit.batch.options import BatchOptions, BatchSummary, Precomputed
@@ -286,7 +286,7 @@ def open_journal(
         header["key_columns"] = list(files.key_columns)
     journal = Journal(files.journal, header)
     if fresh:
-        for f in sorted(rows):
+        for f in sorted_keys(rows):
             journal.append(rows[f])
     return journal
 

@@ -82,6 +82,7 @@ def main_hidden_from_workers(objects: Iterable[Any] = ()) -> Iterator[None]:
     if not script or any(_from_main(o) for o in objects):
         yield
         return
+    assert main is not None  # a script implies a __main__ module
     # spawn's preparation data names the script by __main__'s __spec__ or __file__: a bare
     # module has neither, so the child runs no script
     sys.modules["__main__"] = types.ModuleType("__main__")

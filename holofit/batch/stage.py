@@ -20,9 +20,9 @@ continuity sweeps) is
    it is published under its own name, or on the published table when it was complete before
    this run.
 
-The table is keyed by its key columns (:mod:`holofit.batch.keys`; ``("frame",)`` for the
-stages here): :func:`run_stage` passes them to the runner untouched, so a stage keyed by
-``("particle", "frame")`` uses the same skeleton with a loader that takes such keys.
+The table is keyed by its key columns (:mod:`holofit.batch.keys`; ``("particle", "frame")``
+for the stages here, the crop folder's :attr:`holofit.tables.cropset.CropSet.key_columns`):
+:func:`run_stage` passes them to the runner untouched, and the loader takes such keys.
 """
 
 from __future__ import annotations
@@ -151,6 +151,10 @@ class FrameStart:
 class FrameLoader:
     """The shared frame loader and skip policy of the per-frame stages.
 
+    Calling the loader with a frame gives its :class:`FrameStart`, or a ``skipped``
+    :class:`~holofit.batch.runner.Precomputed` row saying why not (the crop stage's status, the
+    prefit's, the library's, in this order).
+
     Parameters
     ----------
     crops : CropSet
@@ -160,10 +164,6 @@ class FrameLoader:
         a frame without a usable start is skipped.
     library : pandas.DataFrame, optional
         The library table, indexed by frame: a frame without a candidate is skipped.
-
-    Calling the loader with a frame gives its :class:`FrameStart`, or a ``skipped``
-    :class:`~holofit.batch.runner.Precomputed` row saying why not (the crop stage's status, the
-    prefit's, the library's, in this order).
     """
 
     def __init__(self, crops: CropSet, prefit: pd.DataFrame | None = None,

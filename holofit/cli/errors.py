@@ -182,7 +182,10 @@ class HolofitGroup(click.Group):
                 raise click.exceptions.Exit(INTERRUPTED_EXIT) from None
             except click.ClickException as exc:
                 if held.lines and not debug:
-                    exc.message += "".join(f"\n  ({line})" for line in held.lines)
+                    # click types ``message`` Final; appending in place keeps the exception's
+                    # own class and formatting (UsageError's usage line, BadParameter's hint)
+                    exc.message += "".join(  # type: ignore[misc]
+                        f"\n  ({line})" for line in held.lines)
                 raise
             except Exception as exc:
                 message = _message(exc)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -108,7 +109,7 @@ def prefit(
     is run again.
     """
     inst = load_instrument_arg(instrument) if instrument else None
-    space_kw = {}
+    space_kw: dict[str, Any] = {}  # SearchSpace's keyword arguments by name
     for key, value, name in (
         ("z_range_um", z_range, "--z-range"),
         ("radius_range_um", radius_range, "--radius-range"),

@@ -42,10 +42,10 @@ PROFILE_REACH = 3.0
 #: pixels farther than this many ring standard deviations from a ring's mean are left out of it
 CLIP = 2.5
 #: a new hologram in the residual must score this many times the main search's smallest
-#: score, and its point symmetry must lie halfway from the main search's smallest to 1 (what
-#: subtraction leaves behind can pass the main search's thresholds by a hair: a fringe cut by
-#: the frame's edge scored 10.6 and 0.507 against 10 and 0.5 in HoloPy's image0001); peeled
-#: neighbours score 100-230 and 0.8-0.95 in tests/test_crop_pairs.py
+#: score, and its point symmetry must lie halfway from the main search's smallest to 1: what
+#: subtraction leaves behind (a fringe cut by the frame's edge) can pass the main search's
+#: thresholds by a hair, while real neighbours pass these by far (docs: validation, "field of
+#: view")
 PEEL_SCORE = 3.0
 #: ... and not be within ~10 px of the frame's edge (fewer than this fraction of its point
 #: pairs inside: the main search finds such holograms, with the radial refinement)
@@ -55,8 +55,8 @@ ROUNDS = 3
 #: how far one round may move a centre, pixels
 MOVE = 4.0
 #: a centre whose point symmetry is below this is peeled again about its most circular rings'
-#: centre if the first peel finds nothing (lone spheres score 0.94-0.99; a sphere with a
-#: neighbour 2.5-2.8 um away 0.7-0.9, which can hide the neighbour from the first peel)
+#: centre if the first peel finds nothing: a lone sphere scores above it, and a close
+#: neighbour, which can hide from the first peel, pulls a sphere's score below it
 RING_CHECK = 0.95
 #: largest radius of the rings whose circularity places a ring model, pixels (the central
 #: rings place it as well as all of them, at a fraction of the cost)
@@ -167,7 +167,7 @@ def _rings_at(small: NDArray, factor: int, x0: float, y0: float, radius_px: floa
     """The centre of the most circular rings near ``(x0, y0)`` (full-frame pixels), on the
     block-averaged frame ``small`` (a quarter block is precise enough to place a ring model).
 
-    A neighbour pulls the point-symmetry centre off: by ~2.5 px at ~2.5 um, and onto the
+    A neighbour pulls the point-symmetry centre off, by pixels at a few um, and onto the
     midpoint when the two holograms are alike (a pair is nearly point-symmetric about its
     midpoint). The most circular rings' centre is sought first on a grid of trial centres
     ``span_px`` about the start (if ``span_px`` > 0; the radial variance,

@@ -10,7 +10,7 @@ This module finds the centre whose rings are most circular: the point ``m`` that
 
 the scatter of the intensity about its mean on quarter-pixel-wide rings around ``m`` (pixels
 within ``radius`` of ``m``, valid ones only). ``V`` is evaluated on a grid of trial centres,
-coarse then fine (~130 trial centres, ~40 ms for a 70-px radius), and a quadratic fit to its
+coarse then fine (~130 trial centres), and a quadratic fit to its
 minimum gives the sub-pixel centre. Rings must be circular: for elongated holograms (tilted
 rods) the point-symmetry centre is the better one, which is why this is the edge fallback.
 """

@@ -73,19 +73,14 @@ class LinkOptions:
         Frames a hologram may go undetected and keep its track. Two holograms closer than the
         centre finder resolves (about 2 um) give one detection for as long as they stay that
         close; a track must outlive that gap, or the detection that merged both carries on
-        with the wrong particle when they part. With 3 frames, the five-sphere field of view
-        of ``bench/study_field_of_view.py`` (a pair unresolved for up to ~45 frames) had one
-        track hold 355 frames of one sphere and 58 of the other; with 10 (and 30) no track
-        mixes two spheres, though the pair's slower member is cut in two tracks; with 60 both
-        are whole.
+        with the wrong particle when they part (docs: validation, "field of view").
     min_track_length : int
         Shorter tracks (in detected frames) are reported and left out.
     min_detected_fraction : float
         Tracks detected in fewer than this fraction of the frames of their span are reported
         and left out: sparse detections (a fringe of a strong hologram found now and then)
-        that the memory strings together. A 2000-frame rod movie gave such a track, 11
-        detections over 33 frames, 35 px from the rod; a real track bridging a close
-        approach (the five-sphere study: 54 undetected frames in 500) keeps most of its span.
+        that the memory strings together; a real track bridging a close approach keeps most
+        of its span.
     max_particles : int, optional
         Keep at most this many tracks: the longest (ties: the higher mean score).
     """

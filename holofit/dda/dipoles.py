@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -219,14 +220,15 @@ class DipoleSystem:
                 f"{result.iterations} iterations (tolerance {tol:g}, {self.lattice.n_dipoles} "
                 "dipoles)"
             )
-        P = result.x.reshape(-1, 3) * w
+        x = cast("NDArray[np.complex128]", result.x)  # the solvers keep b's dtype, complex128
+        P = x.reshape(-1, 3) * w
         t_end = clock()
         timings = {"polarizability": t_alpha - t_start, "incident_field": t_inc - t_alpha,
                    "start": t_x0 - t_inc, "matvec": mv_time[0],
                    "krylov": t_end - t_x0 - mv_time[0], "total": t_end - t_start}
         return DipoleSolution(
             lattice=self.lattice, k=self.k, propagation=a, polarization=e, alpha=alpha,
-            x=result.x, P=P, iterations=result.iterations, residual=result.residual,
+            x=x, P=P, iterations=result.iterations, residual=result.residual,
             timings=timings,
         )
 

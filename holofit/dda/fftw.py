@@ -35,7 +35,7 @@ import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
-from numpy.typing import NDArray
+from numpy.typing import DTypeLike, NDArray
 
 __all__ = [
     "BACKWARD",
@@ -130,7 +130,7 @@ def _candidate_handles(lib: str) -> list[ctypes.CDLL]:
     """Shared objects that may hold FFTW's symbols, best first."""
     handles = []
     try:  # pyFFTW links its own FFTW build: dlsym on its module finds the symbols
-        import pyfftw.pyfftw as _ext  # type: ignore[import-not-found]
+        import pyfftw.pyfftw as _ext
 
         handles.append(ctypes.CDLL(_ext.__file__))
     except (ImportError, OSError):  # pragma: no cover - depends on the installation
@@ -161,7 +161,7 @@ def _library(dtype: np.dtype) -> _Library | None:
     return _LIBS[dtype]
 
 
-def available(dtype: type = np.complex128) -> bool:
+def available(dtype: DTypeLike = np.complex128) -> bool:
     """True if FFTW can be used for complex ``dtype`` (and ``HOLOFIT_FFT`` is not 'numpy')."""
     if os.environ.get("HOLOFIT_FFT", "").lower() == "numpy":
         return False
@@ -170,13 +170,13 @@ def available(dtype: type = np.complex128) -> bool:
     return _library(np.dtype(dtype)) is not None
 
 
-def aligned_zeros(shape: Sequence[int], dtype: type) -> NDArray:
+def aligned_zeros(shape: Sequence[int], dtype: DTypeLike) -> NDArray:
     """Zeroed C-contiguous array whose data start on a 64-byte boundary."""
-    dtype = np.dtype(dtype)
-    n = int(np.prod(shape)) * dtype.itemsize
+    dt = np.dtype(dtype)
+    n = int(np.prod(shape)) * dt.itemsize
     raw = np.zeros(n + _ALIGN, dtype=np.uint8)
     start = (-raw.ctypes.data) % _ALIGN
-    return raw[start : start + n].view(dtype).reshape(shape)
+    return raw[start : start + n].view(dt).reshape(shape)
 
 
 class Plan:
@@ -195,7 +195,7 @@ class Plan:
             self._library.destroy_plan(self.pointer)
 
 
-def plan_dft(dtype: type, n: int, stride_in: int, stride_out: int,
+def plan_dft(dtype: DTypeLike, n: int, stride_in: int, stride_out: int,
              batch: Sequence[tuple[int, int, int]], array_in: NDArray, array_out: NDArray,
              direction: int, offset_in: int = 0, offset_out: int = 0,
              patient: bool = False) -> Plan:
@@ -246,12 +246,15 @@ def plan_dft(dtype: type, n: int, stride_in: int, stride_out: int,
     return Plan(ptr, lib, (array_in, array_out))
 
 
-def execute_address(dtype: type) -> int:
+def execute_address(dtype: DTypeLike) -> int:
     """Address of ``fftw_execute`` (or ``fftwf_execute``) for :func:`execute`."""
     lib = _library(np.dtype(dtype))
     if lib is None:
         raise RuntimeError("FFTW is not available")
-    return int(ctypes.cast(lib.execute, ctypes.c_void_p).value)
+    address = ctypes.cast(lib.execute, ctypes.c_void_p).value
+    if address is None:
+        raise RuntimeError("FFTW's execute function has a null address")
+    return int(address)
 
 
 @intrinsic

@@ -177,7 +177,8 @@ class Interaction:
         outer = np.zeros(dist.shape, dtype=bool)
         outer[-1, :, :] = outer[:, -1, :] = outer[:, :, -1] = True
         coords = (x, y, z)
-        g_oct = np.empty((6, mz // 2 + 1, my // 2 + 1, mx // 2 + 1), dtype=dtype)
+        g_oct: NDArray[np.complexfloating] = np.empty(
+            (6, mz // 2 + 1, my // 2 + 1, mx // 2 + 1), dtype=dtype)
         for c, (p, q) in enumerate(COMPONENTS):
             g = b * (coords[p] * inv) * (coords[q] * inv)
             if p == q:

@@ -77,11 +77,10 @@ class Lattice:
         ``(m_eff^2 - 1)/(m_eff^2 + 2) = sum_k f_k (m_k^2 - 1)/(m_k^2 + 2)`` (Maxwell-Garnett
         with the medium as host; the CM polarisability of a voxel is then the fraction-weighted
         sum of its materials'). A full voxel has its material's permittivity, an empty one the
-        medium's, and a voxel's polarisability goes to zero continuously with its filling. For
-        a sphere this halves the far-field error of linear permittivity mixing (0.41 % vs
-        0.75 % of max|S| at r = 0.45 um, d = 0.0345 um).
+        medium's, and a voxel's polarisability goes to zero continuously with its filling.
+        It is more accurate than linear permittivity mixing (docs: validation, "the DDA").
         """
-        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices])
+        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices], dtype=np.complex128)
         s = self.fractions @ ((m2 - 1.0) / (m2 + 2.0))
         return (1.0 + 2.0 * s) / (1.0 - s)
 
@@ -112,7 +111,7 @@ class Lattice:
         isotropic = np.repeat(self.relative_permittivity(n_medium)[:, None], 3, axis=1)
         if self.normals is None:
             return isotropic
-        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices])
+        m2 = np.array([(complex(n) / n_medium) ** 2 for n in self.indices], dtype=np.complex128)
         f_medium = 1.0 - self.fractions.sum(axis=1)
         eps_par = f_medium + self.fractions @ m2
         with np.errstate(divide="ignore", invalid="ignore"):

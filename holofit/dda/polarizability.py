@@ -73,7 +73,7 @@ def polarizability(
     ndarray of complex
         ``alpha`` in um^3 (Gaussian units).
     """
-    m2 = np.asarray(eps_rel, dtype=complex)
+    m2 = np.asarray(eps_rel, dtype=np.complex128)
     alpha_cm = 3.0 * d**3 / (4.0 * np.pi) * (m2 - 1.0) / (m2 + 2.0)
     if kind == "cm":
         return alpha_cm

@@ -62,8 +62,8 @@ class DDASettings:
         centre-inside voxels (:mod:`holofit.dda.voxelize`).
     polarizability : {"fcd", "ldr", "ldr_avg", "cm"}
         Filtered coupled dipoles (FCD polarisability and filtered interaction; ADDA ``-pol fcd
-        -int fcd``; the default: 1.5-4x smaller hologram errors than LDR for n >= 2 and
-        absorbing materials, see ``bench/study_dda_discretisation.py``), the lattice dispersion
+        -int fcd``; the default: smaller hologram errors than LDR for high-index and
+        absorbing materials, docs: validation, "the DDA"), the lattice dispersion
         relation (ADDA's default: use it to compare with ADDA), LDR with its direction- and
         polarisation-dependent S term replaced by the average 1/5 (``"ldr_avg"``), or
         Clausius-Mossotti. All but ``"ldr"`` are incidence-independent: the lattice then has a

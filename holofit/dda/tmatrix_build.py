@@ -15,22 +15,17 @@ Order
 the polarisability-weighted RMS over the dipoles of the plane wave's discarded tail,
 ``eps(L)^2 = sum_j |alpha_j| sum_{n>L} (2n+1) j_n(k r_j)^2 / sum_j |alpha_j|`` (the tail of
 ``sum_n (2n+1) j_n^2 = 1``, i.e. of the incident field each dipole feels; the scattered field's
-discarded orders come from the same dipoles and fall off alike). Measured against direct
-solves, the camera-field error ``max|dE|/max|E|`` of a truncated T-matrix is 10-20 times below
-the estimate (measured with ``ldr_avg`` on isotropic voxels: paper's rod, L = 22: estimate
-8.8e-6, error 4.9e-7; L = 23: 2.6e-6 and 1.1e-7; Janus particle on a 40 nm lattice, L = 14:
-6.1e-6 and 4.5e-7). Orientation derivatives carry the truncated orders with a factor ~n, so
-the default is set by them: at 3e-6 the rod's theta-derivative is exact to 2.4e-6 of itself
-(1e-5 at the estimate 1e-5). With the engine's defaults (filtered coupled dipoles, laminate
-voxels) the paper's rod, Janus particle and a dimer at 50 orientations stay within 4.4e-7 of
-direct solves (tests/test_dda_tmatrix_slow.py).
+discarded orders come from the same dipoles and fall off alike). The camera-field error
+``max|dE|/max|E|`` of a truncated T-matrix lies well below the estimate; orientation
+derivatives carry the truncated orders with a factor ~n, so the default is set by them (docs:
+validation, "T-matrices").
 
 Tolerance
 ---------
 The solves run to a relative residual of 1e-6 by default; the T-matrix's camera-field error
-from the solver is then ~2.5e-7 (0.15-0.3 times the tolerance, measured). Every build checks
-itself against one direct DDA solve of a random plane wave and records the measured far-field
-error (truncation and solver together) next to the estimate.
+from the solver then lies below the tolerance. Every build checks itself against one direct
+DDA solve of a random plane wave and records that far-field error (truncation and solver
+together) next to the estimate.
 """
 
 from __future__ import annotations
@@ -400,14 +395,14 @@ def build_tmatrix(
     ``"ldr_avg"`` or ``"cm"``);
     the solver tolerance is ``min(settings.tolerance, 1e-6)`` unless ``tolerance`` is given.
     The solves use the single-precision FFT convolution by default (``precision``): the
-    iterations and the T-matrix's error are unchanged at these tolerances (measured: 3.1e-7
-    against 3.0e-7 in the camera field), the build's validation solve stays in double.
+    iterations and the T-matrix's error are unchanged at these tolerances (docs: validation,
+    "T-matrices"); the build's validation solve stays in double.
     The provenance (:func:`holofit.dda.tmatrix_io.describe` plus the build's numbers) is
     stored in the result.
 
     The build runs its linear algebra on one BLAS thread: its many small solves and products
-    gain nothing from a thread pool, and OpenBLAS's spent 3-6x the CPU on them (a rod's
-    build: 6.4 s on one thread, 23 s with the default pool on two cores). ``workers`` > 1
+    gain nothing from a thread pool, which spends several times the CPU on them (docs:
+    validation, "T-matrices"). ``workers`` > 1
     shares its solves by that many processes instead (:func:`build_lattice_tmatrix`).
     """
     with threadpool_limits(limits=1, user_api="blas"):

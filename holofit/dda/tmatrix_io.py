@@ -150,12 +150,16 @@ def save_tmatrix(tmatrix: TMatrix, path: str | Path) -> Path:
         path = path.with_suffix(path.suffix + ".npz") if path.suffix else path.with_suffix(".npz")
     path.parent.mkdir(parents=True, exist_ok=True)
     text = json.dumps(tmatrix.provenance, indent=2, sort_keys=True, default=_jsonable)
-    arrays = {f"block_{i}": b for i, b in enumerate(tmatrix.blocks)}
+    arrays: dict[str, np.ndarray | np.generic] = {
+        "order": np.int64(tmatrix.order), "k": np.float64(tmatrix.k),
+        "radius_um": np.float64(tmatrix.radius_um), "modulus": np.int64(tmatrix.modulus),
+        "provenance": np.array(text),
+        **{f"block_{i}": b for i, b in enumerate(tmatrix.blocks)},
+    }
     tmp = path.with_name(path.name + ".part")
     with tmp.open("wb") as fh:
-        np.savez(fh, order=np.int64(tmatrix.order), k=np.float64(tmatrix.k),
-                 radius_um=np.float64(tmatrix.radius_um), modulus=np.int64(tmatrix.modulus),
-                 provenance=np.array(text), **arrays)
+        # numpy's stub lets a **dict fill savez's keyword allow_pickle (a bool): a typing gap
+        np.savez(fh, **arrays)  # type: ignore[arg-type]
     os.replace(tmp, path)
     path.with_name(path.name + ".json").write_text(text + "\n")
     return path

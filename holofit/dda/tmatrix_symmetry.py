@@ -87,8 +87,11 @@ def lattice_symmetries(lattice: Lattice, values: NDArray | None = None, per_axis
     tol : float
         Largest difference of matched values.
 
-    Returns the identity alone if the dipole positions are not on a lattice symmetric under
-    any operation about the centre.
+    Returns
+    -------
+    list of ndarray
+        The operations, the identity first; the identity alone if the dipole positions are
+        not on a lattice symmetric under any operation about the centre.
     """
     half = 2.0 * lattice.positions / lattice.d  # integers where the centre is a (half) node
     rounded = np.rint(half)
@@ -149,10 +152,11 @@ class SymmetryGroup:
             for b in ops:
                 if _key(a @ b) not in keys:
                     raise ValueError("lattice operations do not form a group")
-        blocks, sn, sm = [], [], []
+        blocks: list[list[NDArray[np.complex128]]] = []
+        sn, sm = [], []
         for op in ops:
-            b, s_n, s_m = operation_blocks(op, order)
-            blocks.append(b)
+            op_blocks, s_n, s_m = operation_blocks(op, order)
+            blocks.append(op_blocks)
             sn.append(s_n)
             sm.append(s_m)
         return cls(list(ops), order, blocks, np.array(sn), np.array(sm))
@@ -218,7 +222,8 @@ def design_vectors(group: SymmetryGroup, seed: int = 20140101) -> NDArray[np.com
     rng = np.random.default_rng(seed)
     if group.size == 1:
         q, r = np.linalg.qr(rng.normal(size=(size, size)) + 1j * rng.normal(size=(size, size)))
-        return q * (np.diag(r) / np.abs(np.diag(r)))[None, :]
+        # complex already (numpy's stubs type an untyped-dtype quotient as float64)
+        return np.asarray(q * (np.diag(r) / np.abs(np.diag(r)))[None, :], dtype=np.complex128)
     classes = group.classes()
     c_class = rng.normal(size=len(classes)) + 1j * rng.normal(size=len(classes))
     r_alg = rng.normal(size=group.size) + 1j * rng.normal(size=group.size)

@@ -33,13 +33,10 @@ full tensor, makes sub-voxel smoothing second-order accurate in FDTD; here its d
 lattice axes), with the interface normal ``n`` from the gradient of the signed distances
 (:attr:`Lattice.normals`); per lattice axis ``c``,
 ``eps_c = eps_par (1 - n_c^2) + eps_perp n_c^2`` (:meth:`Lattice.component_permittivity`;
-voxels holding a metal, ``Re eps < 0``, keep Maxwell-Garnett mixing). Measured against exact
-Lorenz-Mie for homogeneous and coated spheres (``bench/study_dda_discretisation.py``), this
-with filtered coupled dipoles is more accurate than binary voxels with ADDA's LDR for silica,
-polystyrene, n = 2.0, absorbing (n = 1.5 + 0.5i, 1.2 + 2i) and TiO2 spheres and thin shells,
-where an earlier scheme (a ramp twice as wide, Maxwell-Garnett mixing) lost to binary
-voxels by up to 6x in hologram error; the plane-cut rule against the ramp, by particle, is in
-``docs/validation/exact_tmatrix.md``.
+voxels holding a metal, ``Re eps < 0``, keep Maxwell-Garnett mixing). With filtered coupled
+dipoles it is more accurate than binary voxels with ADDA's LDR against exact (coated-sphere)
+Lorenz-Mie (docs: validation, "the DDA"); the plane-cut rule against the ramp, by particle,
+is on the validation page of the DDA's accuracy.
 
 The ``filling="binary"`` mode keeps a voxel if its centre lies inside the shape (ADDA's rule
 for built-in shapes, without ADDA's volume correction).
@@ -101,19 +98,10 @@ def dipole_size(model: ParticleModel, wavelength_medium_um: float, n_medium: flo
     the most refractive material (ADDA's default rule with dpl = 10). With ``layer_dipoles``
     ``k``, also ``d <= t / k`` for the thinnest layer ``t`` (:func:`thinnest_layer_um`).
 
-    Bias of fitted parameters (``bench/study_exact_bias.py``; README "The DDA fit against
-    exact holograms"): within the fit errors for dielectric sphere dimers at the default rule;
-    not for the paper's 47 nm TiO2 shell on polystyrene, where the bias falls only about as
-    ``d^1.4`` (first-order estimate, shell index 11.6 sigma at d = 24 nm, 6.1 at 12 nm = t/4,
-    3.8 at 8.6 nm = t/5.5): 1 sigma would need d ~ 3 nm, ~10^7 dipoles.
-
-    Accuracy of the default (dpl = 10, smooth laminate filling, filtered coupled dipoles),
-    measured against exact (coated-sphere) Lorenz-Mie on 100 x 100-pixel holograms 8 um from
-    focus (``bench/study_dda_discretisation.py``): ``1 - R^2 <= 1e-4`` for dielectrics up to
-    ``|m| = 1.5`` (silica 6e-6, polystyrene 3e-6, n = 2.0 in water 3e-5) and weakly absorbing
-    materials (n = 1.5 + 0.5i: 6e-6). Not reached for high-index or strongly absorbing
-    materials, where the DDA converges slowly in d: a TiO2 shell two dipoles thick or n =
-    1.2 + 2i are at 1e-3 to 3e-3 (dpl 10-20), resonant TiO2 spheres at 1e-2 to 4e-2.
+    The default rule fits dielectric particles (``|m|`` up to about 1.5) within their errors;
+    thin high-index layers (a TiO2 shell or cap) and strongly absorbing materials converge
+    slowly in ``d``, and their fitted sizes and indices carry a bias even at several times
+    the dipoles (docs: validation, "the DDA"; engines, "the built-in DDA").
     """
     if isinstance(model, VoxelShape):
         return model.dipole_size_um

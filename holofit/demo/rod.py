@@ -124,12 +124,15 @@ def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: 
 def _simulate_and_crop(demo: _Demo, inst: Instrument, truth_config: ParticleConfig) -> None:
     """Steps 1 and 2: the movie with known truth, and its crops."""
     t0 = time.perf_counter()
+    if inst.frame_rate_hz is None:
+        raise ValueError(f"instrument {inst.name} has no frame_rate_hz: the demo needs one")
     dynamics = BrownianParameters(
         n_frames=demo.n_frames, frame_interval_s=1.0 / inst.frame_rate_hz,
         d_par_um2_s=ROD_D_PAR, d_perp_um2_s=ROD_D_PERP, d_r_s=ROD_D_R,
         drift_um_s=(0.0, 0.0, -SEDIMENTATION_UM_S), start_position_um=(17.0, 17.0, 15.0))
     sim = diffusing_movie(truth_config, inst, dynamics, demo.out, frame_shape=(192, 192), seed=7)
     demo.truth = truth = sim.trajectory.truth.set_index("frame")
+    assert sim.movie.movie is not None  # written: an output folder is given
     demo.echo(f"1. simulate: {sim.movie.movie}")
     demo.timed("simulate", t0)
 
@@ -178,6 +181,8 @@ def _fit(demo: _Demo, config: ParticleConfig, batch: BatchOptions, initial_frame
     run = run_fit(out / "crop", out / "prefit", out / "library", out / "fit",
                   FitConfig(config, initial_frames=initial_frames), batch=batch)
     demo.timed("fit", t0)
+    if run.static is None or run.final is None:
+        raise RuntimeError(f"the fit in {out / 'fit'} wrote no static parameters or final table")
     static = json.loads(run.static.read_text())["values"]
     fit = pd.read_csv(run.final).set_index("frame")
     ok = fit["status"] == OK
@@ -204,6 +209,7 @@ def _analyze(demo: _Demo) -> tuple[dict[str, float], dict]:
     echo = demo.echo
     t0 = time.perf_counter()
     settings = AnalysisConfig(model="rod", temperature_c=TEMPERATURE_C)
+    assert demo.final_table is not None  # set by the fit step, which runs first
     result = run_analysis(demo.final_table, settings, demo.out / "analysis").result
     assert result is not None
     demo.timed("analyze", t0)

@@ -48,6 +48,8 @@ def run_sphere_demo(out: Path, echo: Callable[[str], None] = print, workers: int
     sphere = Sphere(radius_um=0.5, index=1.59)
     theory = sphere_diffusion(sphere.radius_um, TEMPERATURE_C)
     d_true, d_r_true = float(theory["D_t"]), float(theory["D_r"])
+    if inst.frame_rate_hz is None:
+        raise ValueError(f"instrument {inst.name} has no frame_rate_hz: the demo needs one")
     dt = 1.0 / inst.frame_rate_hz
     params = BrownianParameters(
         n_frames=n_frames, frame_interval_s=dt, d_par_um2_s=d_true, d_perp_um2_s=d_true,
@@ -62,6 +64,7 @@ def run_sphere_demo(out: Path, echo: Callable[[str], None] = print, workers: int
 
     t0 = time.perf_counter()
     sim = simulate_movie(sphere, inst, pos, (256, 256), alpha=0.85, seed=3, out_dir=out / "sim")
+    assert sim.movie is not None  # written: out_dir is given
     echo(f"1. simulate: {sim.movie} with 8-bit camera noise ({time.perf_counter() - t0:.1f} s)")
 
     t0 = time.perf_counter()

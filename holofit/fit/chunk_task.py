@@ -60,7 +60,8 @@ __all__ = [
 #: movie's spread
 REFIT_MIN_ROWS = 30
 #: ... with this least excess scatter of a right-minimum frame fitted with the movie's fixed
-#: statics (larger than :data:`holofit.quality.EXCESS_FLOOR`, measured with the true statics)
+#: statics: larger than :data:`holofit.quality.EXCESS_FLOOR`, since fixed statics are a little
+#: off each frame's own (docs: validation, "the final pass's chi^2 bar")
 FIXED_STATICS_FLOOR = 0.02
 #: where the final pass keeps its bars (beside ``initial.csv``)
 FINAL_BAR_FILE = "final_bar.json"

@@ -15,8 +15,8 @@ INITIAL_MAX = 500
 
 def default_initial_frames(n_fittable: int) -> int:
     """Frames of the initial pass when none are given: ``n / 20``, between 8 and 500 (and
-    at most ``n``). The initial pass fits every parameter free by direct DDA solves (a rod
-    frame ~6 s, a Janus frame ~66 s on one core), the final pass from the T-matrix (~0.5 s):
-    a 30-frame movie's initial pass on all its frames was most of its run."""
+    at most ``n``). The initial pass fits every parameter free by direct DDA solves, many
+    times a final-pass frame's cost, so it takes a share of the movie, not all of it (docs:
+    validation, "fits and replicates")."""
     share = -(-int(n_fittable) // INITIAL_SHARE)
     return max(min(max(share, INITIAL_MIN), INITIAL_MAX, int(n_fittable)), 1)

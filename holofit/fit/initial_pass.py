@@ -32,11 +32,13 @@ from holofit.fit.errors import FitStageError
 from holofit.fit.models import ModelFits, choose_model, parameter_count, prefit_sphere
 from holofit.fit.overlaps import overlap_rows
 from holofit.fit.passes import FitPasses, table_digest
+from holofit.fit.pictures import picture_prefix
 from holofit.fit.seeded import SEED_BUILD, seed_particle
 from holofit.fit.static import static_average, write_static
 from holofit.fit.task import PassConfig, TrackSetup
 from holofit.fit.tmatrix_policy import final_tmatrix
 from holofit.fit.track_status import TrackOutcome, left_out, write_tracks
+from holofit.holomodel.parameters import static_values
 from holofit.io.tables import read_table
 from holofit.particles import Sphere
 from holofit.quality import flag_off_level, initial_level, per_track
@@ -203,6 +205,7 @@ def _statics(fp: FitPasses, fits: list[ModelFits], inputs: list[Path]) -> Path:
     c = fp.config
     models = {fp.particle.model.kind: fp.particle.model,
               **{a.model.kind: a.model for a in c.alternatives}}
+    configured = set(models)
     if len(fits) > 1 and fits[1].label not in models:
         models[fits[1].label] = Sphere(0.5, 1.5)
     entries: dict[int, dict[str, Any]] = {}
@@ -215,7 +218,7 @@ def _statics(fp: FitPasses, fits: list[ModelFits], inputs: list[Path]) -> Path:
         rows = rows[rows["particle"] == p]
         model = models[choice.label]
         if not (rows["status"] == OK).any():
-            picture = f"frames_initial/p{p}_frame_*.png" if p else "frames_initial/frame_*.png"
+            picture = f"frames_initial/{picture_prefix(p, len(fp.tracks))}frame_*.png"
             outcome = left_out(rows, p, choice.label, picture if c.plot else None)
             if len(fits) > 1:
                 outcome = TrackOutcome(p, choice.label, "unmodelled",
@@ -226,6 +229,8 @@ def _statics(fp: FitPasses, fits: list[ModelFits], inputs: list[Path]) -> Path:
             outcomes.append(outcome)
             continue
         entry = {"model": choice.label, "status": "fitted", **static_average(rows, model)}
+        if choice.label in configured:
+            entry["start"] = dict(static_values(model))
         if len(fits) > 1:
             entry["model_test"] = {"bic": choice.bic, "n_frames": choice.n_frames,
                                    "reason": choice.reason}

@@ -9,10 +9,11 @@ position, orientation, alpha and static parameters, through the same engine) add
 model's field before the intensity (:mod:`holofit.holomodel.forward`, ``extra_field``).
 
 The refits are the items of one batch of the stage skeleton (:mod:`holofit.batch.stage`)
-keyed by ``(particle, frame)``, one table per pass (``overlaps_<pass>.csv`` beside the pass's
-table): parallel, journalled, resumable; its fingerprint holds both rows of every item, so new
-first fits start the batch afresh. The same round serves both passes: the final pass's rows
-(each track's settled statics) and the initial pass's (statics free, each row's own).
+keyed by ``(particle, frame)``, one table per pass (``overlaps/initial.csv`` and
+``overlaps/fit.csv`` in the fit's folder): parallel, journalled, resumable; its fingerprint
+holds both rows of every item, so new first fits start the batch afresh. The same round
+serves both passes: the final pass's rows (each track's settled statics) and the initial
+pass's (statics free, each row's own).
 """
 
 from __future__ import annotations

@@ -11,7 +11,13 @@ from holofit.holomodel.pictures import write_frame_pictures
 from holofit.holomodel.plots import plot_table
 from holofit.io.tables import read_table
 
-__all__ = ["pass_pictures"]
+__all__ = ["pass_pictures", "picture_prefix"]
+
+
+def picture_prefix(particle: int, n_tracks: int) -> str:
+    """The frame pictures' file prefix of a track: ``p<id>_`` in a run of several tracks,
+    none for a single one (the file names say whose frame it is)."""
+    return f"p{particle}_" if n_tracks > 1 else ""
 
 
 def pass_pictures(path: Path, given: Any, cfg: Any, out: Path, name: str, stem: str,
@@ -29,11 +35,12 @@ def pass_pictures(path: Path, given: Any, cfg: Any, out: Path, name: str, stem: 
     plot_table(path, out / f"{stem}.png", panels, f"holofit fit ({name} pass)", f"{stem}.csv")
     table = read_table(path)
     inst = given.instrument
-    for p in sorted(int(v) for v in table["particle"].unique()):
+    tracks = sorted(int(v) for v in table["particle"].unique())
+    for p in tracks:
         track = cfg.for_track(p)
         theory = track.particle.theory(config.engine)
         write_frame_pictures(table[table["particle"] == p], given.crops, track.particle.model,
                              theory, inst.optics, inst.pixel_size_um, out / f"frames_{name}",
                              f"fit ({name} pass)",
                              None if config.plot_frames is None else list(config.plot_frames),
-                             config.frame.far_field)
+                             config.frame.far_field, picture_prefix(p, len(tracks)))

@@ -2,7 +2,8 @@
 
 The initial pass measures the static parameters (sizes, indices) with direct DDA solves, one
 per orientation and per static finite difference. From the library's coarse orientations such
-a fit needs ~100 solves, and may settle in a wrong minimum; from a good pose it needs ~20-35.
+a fit needs several times the solves it needs from a good pose, and may settle in a wrong
+minimum (docs: validation, "the initial pass").
 A T-matrix of the particle at its start statics (the particle config's values) gives that pose
 for the cost of a final-pass frame (no solve): :func:`fit_frame_seeded`
 

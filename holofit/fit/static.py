@@ -8,9 +8,11 @@ for that track's final pass. Per track by default (tracks of different particles
 particles).
 
 The file holds ``tracks`` (track id -> ``model``, ``status``, ``values``, ``spread``,
-``mean``, ``std``, ``n_frames``; a track left out: its ``status``, ``reason`` and ``remedy``)
-and, for one fitted track or pooled statics of one model, the same values at the top level,
-so that a ``static.json`` of one run can fix the statics of another (``--static``).
+``mean``, ``std``, ``n_frames`` and, for a model of the run's configs, ``start``: the config's
+values; a track left out: its ``status``, ``reason`` and ``remedy``), the primary model's
+config values as ``start`` and, for one fitted track or pooled statics of one model, the same
+values at the top level, so that a ``static.json`` of one run can fix the statics of another
+(``--static``).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import pandas as pd
 
 from holofit.config import ConfigError
 from holofit.fit.errors import FitStageError
-from holofit.holomodel.parameters import static_parameters
+from holofit.holomodel.parameters import static_parameters, static_values
 from holofit.io.tables import write_json
 from holofit.particles import ParticleModel
 from holofit.provenance import sidecar
@@ -180,7 +182,8 @@ def write_static(path: Path, inputs: list[Path], tracks: Mapping[int, dict[str, 
         **sidecar(kind="static parameters (robust average of the initial pass)",
                   units={p.name: p.unit for p in static_parameters(primary)},
                   inputs=list(inputs)),
-        "particle_model": kind, "static_mode": mode, **top,
+        "particle_model": kind, "static_mode": mode,
+        "start": dict(static_values(primary)), **top,
         "tracks": {str(p): e for p, e in sorted(tracks.items())},
     })
     return path

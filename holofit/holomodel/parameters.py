@@ -313,7 +313,7 @@ class ParameterSpace:
             out.update(state.aberration.values())
         return out
 
-    def state(self, vector: Sequence[float]) -> State:
+    def state(self, vector: Sequence[float] | NDArray) -> State:
         """The state at an optimiser vector."""
         values = self._flat(self.start)
         w = np.zeros(3)
@@ -341,7 +341,8 @@ class ParameterSpace:
                         else Aberration.from_values(values, self.start.aberration)),
         )
 
-    def holding(self, name: str, vector: Sequence[float]) -> tuple[ParameterSpace, list[int]]:
+    def holding(self, name: str, vector: Sequence[float] | NDArray
+                ) -> tuple[ParameterSpace, list[int]]:
         """This space with parameter ``name`` held at its value in ``vector``.
 
         Returns
@@ -367,7 +368,7 @@ class ParameterSpace:
         return particle_with(self.model, dict(state.statics))
 
     # -- reporting ----------------------------------------------------------------------
-    def report(self, vector: Sequence[float],
+    def report(self, vector: Sequence[float] | NDArray,
                covariance: NDArray[np.float64] | None = None) -> tuple[dict, dict]:
         """Values and 1-sigma errors of every reported quantity at ``vector``.
 
@@ -457,6 +458,7 @@ def particle_with(model: ParticleModel, statics: dict[str, float]) -> ParticleMo
         if p.name not in statics:
             continue
         value = statics[p.name]
+        assert p.field is not None  # every static parameter names its model field
         if p.element is not None and indices is not None:
             indices[p.element] = complex(value, complex(indices[p.element]).imag)
         elif p.unit == "1":
@@ -477,6 +479,7 @@ def static_values(model: ParticleModel) -> tuple[tuple[str, float], ...]:
         if p.element is not None:
             v = complex(model.indices[p.element]).real  # type: ignore[attr-defined]
         else:
+            assert p.field is not None  # every static parameter names its model field
             v = complex(getattr(model, p.field)).real
         out.append((p.name, float(v)))
     return tuple(out)

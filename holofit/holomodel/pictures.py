@@ -87,11 +87,11 @@ def model_image(
 def write_frame_pictures(
     table: pd.DataFrame, crops: CropSource, model: ParticleModel, theory: ScatteringTheory,
     optics: Optics, pixel_size_um: float, out_dir: str | Path, stage: str,
-    frames: Iterable[int] | None = None, far_field: bool = False,
+    frames: Iterable[int] | None = None, far_field: bool = False, prefix: str = "",
 ) -> list[Path]:
     """Draw data, model and residual of chosen frames of one track into
-    ``out_dir/frame_<n>.png`` (``out_dir/p<particle>_frame_<n>.png`` for a track other than 0
-    of a table keyed by ``(particle, frame)``).
+    ``out_dir/<prefix>frame_<n>.png`` (a run of several tracks passes ``p<particle>_``, so
+    that every track's pictures are named alike).
 
     Frames whose model cannot be rendered (no values) are skipped.
     """
@@ -99,7 +99,6 @@ def write_frame_pictures(
     written: list[Path] = []
     by_frame = table.set_index("frame")
     particle = int(table["particle"].iloc[0]) if "particle" in table and len(table) else None
-    prefix = "" if not particle else f"p{particle}_"
     for frame in choose_frames(table, frames):
         row = by_frame.loc[frame].to_dict()
         if not all(math.isfinite(float(row.get(c, math.nan))) for c in

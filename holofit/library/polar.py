@@ -54,7 +54,7 @@ def polar_grid(centre_xy_um: tuple[float, float], rho_max_um: float, step_um: fl
         raise ValueError(f"polar grid needs n_phi >= 8 and rho_max > step, got {n_phi}, "
                          f"{rho_max_um}, {step_um}")
     n_rho = int(np.floor(rho_max_um / step_um))
-    rho = (np.arange(n_rho) + 0.5) * step_um
+    rho = (np.arange(n_rho, dtype=float) + 0.5) * step_um
     phi = 2.0 * np.pi * np.arange(n_phi) / n_phi
     xs = centre_xy_um[0] + rho[:, None] * np.cos(phi)[None, :]
     ys = centre_xy_um[1] + rho[:, None] * np.sin(phi)[None, :]

@@ -9,9 +9,9 @@ failures recorded); each worker solves the library's tilts once and keeps them f
 frames.
 
 Grid resolution: tilts every ``tilt_step_deg`` (10 deg by default) and ``n_phi`` azimuths
-(128: 2.8 deg). The DDA fit converges from an error of half a step (5 deg in tilt) in every
-synthetic test (its basin is far wider: see the README), and the fit, not the library, sets
-the final precision.
+(128: 2.8 deg). The DDA fit converges from an error of half a step (5 deg in tilt): its basin
+is far wider, and the fit, not the library, sets the final precision (docs: user guide,
+"library").
 """
 
 from __future__ import annotations
@@ -119,9 +119,8 @@ def new_library(config: LibraryConfig) -> OrientationLibrary:
 
     Its DDA solves use the single-precision FFT convolution (:data:`LIBRARY_PRECISION`)
     unless the particle's ``[dda]`` table sets ``precision``: the library only ranks starting
-    orientations, and single precision changes a tilt's field by ~1e-7 of itself while
-    taking 0.5-0.7 times the time (the paper's Janus particle: 1.7-2.2 s against 2.5-4.2 s a
-    solve).
+    orientations, and single precision changes a tilt's field by ~1e-7 of itself at a
+    fraction of the time (docs: validation, "the DDA").
     """
     model = config.particle.model
     tilts = tilt_grid(model, math.radians(config.settings.tilt_step_deg))

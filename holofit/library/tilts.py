@@ -51,9 +51,10 @@ def _solve_block(make: Any, indices: Sequence[int]) -> list[tuple[Any, ...]] | N
     for i in indices:
         pair = lib.waves(i)
         expansions = [getattr(w, "expansion", None) for w in pair]
-        if any(e is None for e in expansions):
+        present = [e for e in expansions if e is not None]
+        if len(present) != len(expansions):
             return None
-        out.append((i, *((e.k, e.p, e.q, e.radius_um) for e in expansions)))
+        out.append((i, *((e.k, e.p, e.q, e.radius_um) for e in present)))
     return out
 
 
@@ -72,9 +73,10 @@ def solve_tilts(make: Any, key: str, n_tilts: int, workers: int, path: Path) -> 
     with cf.ProcessPoolExecutor(max_workers=len(blocks),
                                 mp_context=multiprocessing.get_context("spawn")) as pool:
         parts = list(pool.map(_solve_block, [make] * len(blocks), blocks))
-    if any(p is None for p in parts):
+    solved = [p for p in parts if p is not None]
+    if len(solved) != len(parts):
         return None
-    rows = sorted((r for p in parts for r in p), key=lambda r: r[0])  # type: ignore[union-attr]
+    rows = sorted((r for p in solved for r in p), key=lambda r: r[0])
     arrays: dict[str, Any] = {"key": np.array(key), "n_tilts": np.array(n_tilts)}
     for i, *pair in rows:
         for pol, (k, p, q, radius) in zip("xy", pair, strict=True):

@@ -322,7 +322,7 @@ def _refine(
 
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
         z, a, n = p[0], p[1], p[2]
-        alpha = p[3] if free_alpha else fix_alpha
+        alpha = p[3] if fix_alpha is None else fix_alpha
         if not (a > a_lo and n > 0.5 and abs(z) > z_clear * a):
             return np.full(d.size, 10.0) * sw
         wave = MieWave(Sphere(float(a), complex(n, index_imag)), optics)
@@ -337,7 +337,7 @@ def _refine(
     except (ValueError, np.linalg.LinAlgError):  # pragma: no cover - defensive
         p = p0
         cost = float(np.sum(residuals(p0) ** 2))
-    alpha = float(p[3]) if free_alpha else float(fix_alpha)
+    alpha = float(p[3]) if fix_alpha is None else float(fix_alpha)
     return ProfileStart(float(p[0]), float(p[1]), float(p[2]), alpha, cost)
 
 

@@ -184,8 +184,8 @@ def write_batch_makefile(folder: str | Path) -> tuple[Path, str | None]:
         first = path.read_text(encoding="utf-8", errors="replace").split("\n", 1)[0]
         if not first.startswith(BATCH_MAKEFILE_MARK):
             return path, (f"{path} exists and was not written by holofit: left as it is (see "
-                          "README.md, 'Batch runs with make', for the lines that run every "
-                          "run folder)")
+                          "holofit's docs, 'Run folders and make', for the lines that run "
+                          "every run folder)")
     _write_if_changed(path, render_batch_makefile())
     return path, None
 

@@ -58,7 +58,7 @@ _GUIDE = """\
 #   make -n                    show what would run; make -q: exit status 0 if nothing would
 #   make clean                 remove every stage's output (not the movie, not the configs)
 # (from elsewhere: make -C THIS_FOLDER ...). Stages run one after another, each using JOBS
-# workers; make -j adds nothing inside one folder (many folders: see README.md).
+# workers; make -j adds nothing inside one folder (many folders: holofit's docs, run folders).
 #
 # Targets, and what makes them out of date (a newer prerequisite reruns the stage and every
 # stage after it):

@@ -29,10 +29,8 @@ Truncation
 Sphere ``i`` keeps ``L_i = n_stop(k a_i) + SPHERE_MARGIN`` orders (the Lorenz-Mie series length
 of :func:`holofit.scattering.mie_coefficients.n_stop`, plus a margin for the near fields of
 touching neighbours); the cluster expansion keeps ``L = n_stop(k R)`` with ``R`` the radius of
-the sphere about the centre that contains every sphere. Measured on touching polystyrene
-dimers in water (tests/test_cluster.py): raising every order by 4 changes the camera field by
-9.4e-9 of its maximum (0.53 um spheres, 10 um from the camera) and the field beside the contact
-point by 6.9e-7.
+the sphere about the centre that contains every sphere: more orders change nothing a fit can
+see, even for touching spheres (docs: validation, "T-matrices").
 
 Conditioning
 ------------

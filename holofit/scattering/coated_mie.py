@@ -203,5 +203,6 @@ class CoatedMie(ScatteringTheory):
     def solve(self, model: ParticleModel, optics: Optics,
               orientation: Orientation | None = None) -> CoatedSphereWave:
         self.check_model(model)
+        assert isinstance(model, CoatedSphere)  # check_model passes only ``models``
         return CoatedSphereWave(model.radius_um, model.bounding_radius_um, model.index_core,
                                 model.index_shell, optics)

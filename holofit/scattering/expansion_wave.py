@@ -58,7 +58,11 @@ class ExpansionWave(ScatteredWave):
                  near_field: NearField | None = None, radius_um: float | None = None) -> None:
         self.optics = optics
         self._expansion = expansion
-        self.radius_um = float(expansion.radius_um if radius_um is None else radius_um)
+        if radius_um is None:
+            if expansion is None:
+                raise ValueError("an ExpansionWave built without its expansion needs radius_um")
+            radius_um = expansion.radius_um
+        self.radius_um = float(radius_um)
         self._near = near_field
         self._grids: LRUCache[tuple, PlaneGrid] = LRUCache(4)
 
@@ -106,7 +110,7 @@ class ExpansionWave(ScatteredWave):
     def _pixel_geometry(self, position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike,
                         far_field: bool) -> tuple:
         """Offsets, height, widest angle, incident phase and near-zone mask of the pixels."""
-        xp, yp, zp = (float(v) for v in position_um)
+        xp, yp, zp = (float(v) for v in np.asarray(position_um, dtype=float))
         dx = np.asarray(xs_um, dtype=float).ravel() - xp
         dy = np.asarray(ys_um, dtype=float).ravel() - yp
         rho_max = float(np.sqrt(np.max(dx * dx + dy * dy))) if dx.size else 0.0

@@ -183,6 +183,8 @@ class LensImage:
         x_step = k * step * np.sin(pupil.theta)
         base = _node_factor(pupil, k, z, aberration)
         bkey = (round(k * step, 12), *pupil.key)
+        a: NDArray
+        b: NDArray[np.complex128] | None
         if isinstance(self.source, SpherePupil):
             a, b = sphere_tables(*pupil.modes, base, x_step, n_rho, bkey)
         else:
@@ -230,6 +232,7 @@ class LensImage:
         tables = self._tables_for(zp, float(np.sqrt(r2.max())), theta_max,
                                   self.aberration_for(aberration))
         if isinstance(self.source, SpherePupil):
+            assert tables.b is not None  # a sphere's tables have both a and b
             self._sphere_pixels(tables.a, tables.b, tables.step, dx, dy, r2, ex, ey)
         else:
             _polar_field(tables.a, tables.step, dx, dy, ex, ey)
@@ -304,7 +307,9 @@ class LensImage:
         pupil = self._pupil(theta_max, n_nodes)
         base = _node_factor(pupil, k, zp, ab)
         n_terms = max([SPHERICAL_NAMES.index(n) + 1 for n in names if n != "z_um"], default=0)
-        basis = spherical_basis(pupil.theta, n_terms) if n_terms else None
+        # no spherical term asked: an empty basis (never indexed)
+        basis = (spherical_basis(pupil.theta, n_terms) if n_terms
+                 else np.empty((0, pupil.theta.size)))
         factors = [base * (1j * k * (np.cos(pupil.theta) - 1.0)) if n == "z_um"
                    else base * (1j * basis[SPHERICAL_NAMES.index(n)]) for n in names]
         x_step = k * step * np.sin(pupil.theta)
@@ -336,7 +341,7 @@ class LensImage:
 
 
 def _node_factor(pupil: _Pupil, k: float, z: float, aberration: Aberration
-                 ) -> NDArray[np.complex128]:
+                 ) -> NDArray[np.complexfloating]:
     """What multiplies the pupil field at each node: the quadrature weight, ``sin th``, the
     phase of each plane wave at the focal plane, the incident phase at the particle and, for
     an aberrated objective, ``exp(i Phi(th))`` (left out for the ideal one: no operation, so
@@ -513,7 +518,7 @@ def lens_fields_on_pixels(
 def _pixel_arrays(position_um: ArrayLike, xs_um: ArrayLike, ys_um: ArrayLike
                   ) -> tuple[tuple[float, float, float], NDArray[np.float64], NDArray[np.float64]]:
     """The particle position as floats and the pixel coordinates as arrays of one shape."""
-    xp, yp, zp = (float(v) for v in position_um)
+    xp, yp, zp = (float(v) for v in np.asarray(position_um, dtype=float))
     xs = np.asarray(xs_um, dtype=float)
     ys = np.asarray(ys_um, dtype=float)
     if xs.shape != ys.shape:

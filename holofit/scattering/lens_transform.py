@@ -219,7 +219,7 @@ def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
     n_orders, n_nodes, n_cols = h.shape
     sphere = orders is None
     if _table_bytes(n_orders, n_rho, n_nodes, sphere) <= BESSEL_CACHE_BYTES:
-        if not sphere and max_orders is not None and max_orders > orders and _table_bytes(
+        if orders is not None and max_orders is not None and max_orders > orders and _table_bytes(
                 max_orders + 1, int(ROW_MARGIN * n_rho), n_nodes, sphere) <= BESSEL_CACHE_BYTES:
             orders = max_orders
         blocks = _cached_table(x_step, n_rho, orders, (sphere, *key))

@@ -147,7 +147,9 @@ class SphereSeriesWave(ScatteredWave):
         e_n = (1j) ** n * (2 * n + 1) / (n * (n + 1.0))
         c1 = 1j * e_n * self.a
         c2 = -e_n * self.b
-        self._coefs = tuple(np.ascontiguousarray(v) for v in (c1.real, c1.imag, c2.real, c2.imag))
+        c1r, c1i, c2r, c2i = (np.ascontiguousarray(v)
+                              for v in (c1.real, c1.imag, c2.real, c2.imag))
+        self._coefs = (c1r, c1i, c2r, c2i)
         self._frame = bh_frame(optics.polarization_rad)
 
     def far_field_amplitudes(self, theta: ArrayLike) -> tuple[NDArray, NDArray]:
@@ -187,7 +189,7 @@ class SphereSeriesWave(ScatteredWave):
         pts = np.atleast_2d(np.asarray(points_um, dtype=float))
         self._check_outside(np.linalg.norm(pts, axis=1))
         p_bh = np.ascontiguousarray(pts @ self._frame.T)
-        e_bh = np.empty((p_bh.shape[0], 3), dtype=complex)
+        e_bh = np.empty((p_bh.shape[0], 3), dtype=np.complex128)
         field_at_points(p_bh, self.optics.k, *self._coefs, bool(far_field), e_bh)
         return e_bh @ self._frame
 
@@ -201,7 +203,7 @@ class SphereSeriesWave(ScatteredWave):
         ValueError
             If the detector plane cuts the particle.
         """
-        xp, yp, zp = (float(v) for v in position_um)
+        xp, yp, zp = (float(v) for v in np.asarray(position_um, dtype=float))
         if abs(zp) <= self.radius_um:
             raise ValueError(
                 f"|z| = {abs(zp):.4g} um is within the {self._body} radius "
@@ -247,4 +249,5 @@ class LorenzMie(ScatteringTheory):
         self, model: ParticleModel, optics: Optics, orientation: Orientation | None = None
     ) -> MieWave:
         self.check_model(model)
+        assert isinstance(model, Sphere)  # check_model passes only ``models``
         return MieWave(model, optics)

@@ -18,8 +18,8 @@ R``, what :class:`holofit.holomodel.forward.HologramModel` uses), all per radian
 included, with the same conventions as every
 :class:`~holofit.scattering.theory.ScatteredWave` (``field_on_detector`` and ``field_at`` too).
 ``wave.field_and_rotation_derivatives(position, xs, ys, axes)`` gives the field and the
-rotation derivatives for several axes in one pass over the pixels (a fit's Jacobian columns,
-about 40 % cheaper than separate calls).
+rotation derivatives for several axes in one pass over the pixels (a fit's Jacobian columns:
+cheaper than separate calls, which each pass over the pixels again).
 """
 
 from __future__ import annotations

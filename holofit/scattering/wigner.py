@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from math import lgamma
+from typing import Literal, overload
 
 import numba
 import numpy as np
@@ -153,6 +154,18 @@ def _wigner_kernel(psi, beta, phi, lmax, sq, sb, want_derivatives, big, d_psi, d
                     d_phi[n, a + L, b + L] = -1j * b * val
 
 
+@overload
+def wigner_d_all(
+    order: int, psi: float, theta: float, phi: float, derivatives: Literal[False] = False
+) -> NDArray[np.complex128]: ...
+@overload
+def wigner_d_all(
+    order: int, psi: float, theta: float, phi: float, derivatives: Literal[True]
+) -> tuple[NDArray[np.complex128], tuple[NDArray, NDArray, NDArray]]: ...
+@overload
+def wigner_d_all(
+    order: int, psi: float, theta: float, phi: float, derivatives: bool = False
+) -> NDArray[np.complex128] | tuple[NDArray[np.complex128], tuple[NDArray, NDArray, NDArray]]: ...
 def wigner_d_all(
     order: int, psi: float, theta: float, phi: float, derivatives: bool = False
 ) -> NDArray[np.complex128] | tuple[NDArray[np.complex128], tuple[NDArray, NDArray, NDArray]]:
@@ -184,6 +197,19 @@ def _small_d_and_derivative(n: int, beta: float) -> tuple[NDArray, NDArray]:
     return ((v * e) @ vh).real, ((v * (-1j * w * e)) @ vh).real
 
 
+@overload
+def rotation_blocks(
+    order: int, psi: float, theta: float, phi: float, derivatives: Literal[False] = False
+) -> list[NDArray[np.complex128]]: ...
+@overload
+def rotation_blocks(
+    order: int, psi: float, theta: float, phi: float, derivatives: Literal[True]
+) -> tuple[list[NDArray], list[tuple[NDArray, NDArray, NDArray]]]: ...
+@overload
+def rotation_blocks(
+    order: int, psi: float, theta: float, phi: float, derivatives: bool = False
+) -> (list[NDArray[np.complex128]]
+      | tuple[list[NDArray], list[tuple[NDArray, NDArray, NDArray]]]): ...
 def rotation_blocks(
     order: int, psi: float, theta: float, phi: float, derivatives: bool = False
 ) -> list[NDArray[np.complex128]] | tuple[list[NDArray], list[tuple[NDArray, NDArray, NDArray]]]:
@@ -206,7 +232,8 @@ def rotation_blocks(
     return (blocks, derivs) if derivatives else blocks
 
 
-def operation_blocks(op: NDArray, order: int) -> tuple[list[NDArray], NDArray, NDArray]:
+def operation_blocks(op: NDArray, order: int
+                     ) -> tuple[list[NDArray[np.complex128]], NDArray, NDArray]:
     """Representation of an orthogonal 3x3 operation (rotation or rotation-reflection) on
     coefficient vectors: ``D^n`` of its proper part for n = 1..L and the signs of the N- and
     M-type blocks (each of length L), so that the field ``S E(S^T r)`` has coefficients

@@ -5,8 +5,8 @@ for part of the movie (its hologram then enters or leaves through an edge). The 
 the sum of the particles' scattered *fields* with the incident wave (superposition at the
 camera, :mod:`holofit.scattering.recorded_field`), so overlapping holograms interfere as they do
 in a real microscope; multiple scattering between the particles is neglected (it is of the order of
-the scattered amplitude at the neighbour's distance squared, see the multi-particle section of
-the README). The truth table is keyed by (``particle``, ``frame``).
+the scattered amplitude at the neighbour's distance squared: docs: validation, "field of
+view"). The truth table is keyed by (``particle``, ``frame``).
 """
 
 from __future__ import annotations

@@ -202,7 +202,8 @@ class FitTable:
         """
         out: dict[str, dict[str, float]] = {}
         rows = self.table[self.ok]
-        source = self.meta.get("static") if isinstance(self.meta.get("static"), dict) else {}
+        static = self.meta.get("static")
+        source = static if isinstance(static, dict) else {}
         for c in self.static_columns():
             values = rows[c].to_numpy(dtype=float)
             values = values[np.isfinite(values)]
@@ -214,9 +215,11 @@ class FitTable:
                     "count": int(values.size),
                     "held": 0,
                 }
-                held = (source.get("spread", {}).get(c), source.get("n_frames"))
-                if not spread and all(isinstance(v, int | float) for v in held):
-                    out[c].update(std=float(held[0]), count=int(held[1]), held=1)
+                held_std = source.get("spread", {}).get(c)
+                held_count = source.get("n_frames")
+                if (not spread and isinstance(held_std, int | float)
+                        and isinstance(held_count, int | float)):
+                    out[c].update(std=float(held_std), count=int(held_count), held=1)
         return out
 
 

@@ -68,9 +68,9 @@ def find_adda(adda_path: str | os.PathLike[str] | None = None) -> Path:
             )
         return found
     tried.append(f"{ADDA_ENV_VAR} (unset)")
-    found = shutil.which(ADDA_BINARY_NAME)
-    if found is not None:
-        return Path(found).resolve()
+    on_path = shutil.which(ADDA_BINARY_NAME)
+    if on_path is not None:
+        return Path(on_path).resolve()
     tried.append(f"{ADDA_BINARY_NAME!r} on PATH (not found)")
     raise AddaNotFoundError(
         "no ADDA binary found; tried " + ", ".join(tried) + ". Build ADDA "
