@@ -1,11 +1,12 @@
 """Exact T-matrices of bodies of revolution (holofit.scattering.axisym): build times and the
 errors against the references.
 
-Usage: ``python bench/bench_exact.py`` prints one flat JSON object (``make bench`` runs it
-through ``bench/run.py`` as the group ``exact``). Keys carry the prefix ``exact_`` (the DDA's
-T-matrix benchmark owns ``tmatrix_build_rod_s``). Times are the best of three builds on one
-thread, after one warm-up build (compiled kernels loaded); errors are relative to the largest
-amplitude or value.
+Usage: ``python bench/bench_exact.py [--references]`` prints one flat JSON object (with
+``--references``, only the comparisons with the independent references below; ``make bench``
+runs it through ``bench/run.py`` as the group ``exact``). Keys carry the prefix ``exact_``
+(the DDA's T-matrix benchmark owns ``tmatrix_build_rod_s``). Times are the best of three
+builds on one thread, after one warm-up build (compiled kernels loaded); errors are relative to
+the largest amplitude or value.
 
 References independent of the engine (``tests/exact_references.py``): the rod against the
 extended-precision (long double) EBCM of ``tests/ebcm_reference.py`` at orders 50 and 54 (their
@@ -197,5 +198,16 @@ def bench_exact(dda: bool = True) -> dict[str, float]:
 BENCHMARKS = {"exact": bench_exact}
 
 
+def references_only() -> dict[str, float]:
+    """:func:`bench_references` alone, on the default builds (``--references``)."""
+    with threadpool_limits(limits=1):
+        tms = {name: build_exact_tmatrix(model, OPTICS)
+               for name, model in (("rod", ROD), ("spheroid", SPHEROID), ("cylinder", CYLINDER))}
+        return bench_references(tms)
+
+
 if __name__ == "__main__":
-    print(json.dumps(bench_exact(), indent=1, sort_keys=True))
+    if "--references" in sys.argv[1:]:
+        print(json.dumps(references_only(), indent=1, sort_keys=True))
+    else:
+        print(json.dumps(bench_exact(), indent=1, sort_keys=True))

@@ -57,6 +57,7 @@ from holofit.config import load_instrument, load_particle, resolve_config  # noq
 from holofit.conventions import DetectorGrid  # noqa: E402
 from holofit.dda.engine import BuiltinDDA  # noqa: E402
 from holofit.dda.settings import DDASettings  # noqa: E402
+from holofit.engines.registry import get_theory  # noqa: E402
 from holofit.fit.frame import fit_frame  # noqa: E402
 from holofit.fit.problem import FrameProblem  # noqa: E402
 from holofit.fit.settings import FrameFitSettings  # noqa: E402
@@ -64,7 +65,7 @@ from holofit.hologram import calc_hologram  # noqa: E402
 from holofit.holomodel.parameters import static_parameters  # noqa: E402
 from holofit.library.search import Candidate  # noqa: E402
 from holofit.particles import ParticleModel, Spheroid  # noqa: E402
-from holofit.scattering.axisym import AxisymmetricTMatrix, build_exact_tmatrix  # noqa: E402
+from holofit.scattering.axisym import build_exact_tmatrix  # noqa: E402
 from holofit.scattering.theory import Orientation  # noqa: E402
 from holofit.scattering.tmatrix_wave import TMatrixWave  # noqa: E402
 from tests.exact_references import (  # noqa: E402
@@ -266,13 +267,14 @@ def summarise(fits: list[dict]) -> dict[str, dict]:
 
 
 def _engine(name: str, truth: ParticleModel, optics):
-    """``exact``; ``builtin``: the DDA at its default rule (one lattice for the whole fit);
+    """The fitting engine by its public name (:func:`holofit.engines.registry.get_theory`):
+    ``exact``; ``builtin``: the DDA at its default rule (one lattice for the whole fit);
     ``builtin-ramp``: the same with the filling before issue 37 (to compare)."""
     if name == "exact":
-        return AxisymmetricTMatrix()
+        return get_theory("exact")
     d = DDASettings().dipole_size_for(truth, optics)
     filling = "ramp" if name == "builtin-ramp" else "fractional"
-    return BuiltinDDA(DDASettings(dipole_size_um=d, filling=filling))
+    return get_theory("builtin", settings=DDASettings(dipole_size_um=d, filling=filling))
 
 
 def _print_fit(r: dict) -> None:

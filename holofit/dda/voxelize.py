@@ -109,7 +109,7 @@ def dipole_size(model: ParticleModel, wavelength_medium_um: float, n_medium: flo
     m_max = max(abs(n) / n_medium for n in indices)
     d = wavelength_medium_um / (dipoles_per_wavelength * m_max)
     layer = thinnest_layer_um(model) if layer_dipoles else None
-    if layer is not None and layer > 0:
+    if layer is not None and layer > 0 and layer_dipoles:
         d = min(d, layer / layer_dipoles)
     return d
 
@@ -263,8 +263,8 @@ def _extent(model: ParticleModel) -> tuple[NDArray, NDArray]:
         return np.array([-r, -r, -model.radius_um]), np.array([r, r, r])
     if isinstance(model, Cluster):
         c = np.asarray(model.positions_um)
-        r = np.asarray(model.radii_um)[:, None]
-        return (c - r).min(axis=0), (c + r).max(axis=0)
+        radii = np.asarray(model.radii_um)[:, None]
+        return (c - radii).min(axis=0), (c + radii).max(axis=0)
     if isinstance(model, CoatedSphere):
         r = model.bounding_radius_um
         return np.full(3, -r), np.full(3, r)
