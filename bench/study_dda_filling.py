@@ -10,7 +10,7 @@ Error: ``max |F_DDA - F_exact| / max |F_exact|`` of the far-field amplitude over
 directions, for the plane wave of the orientation (psi 30, theta 45, phi 23 deg), x
 polarisation; solver tolerance 1e-7. References (their own accuracy in brackets): Lorenz-Mie
 and coated-sphere Mie (1e-8), holofit's exact T-matrix for the spheroid (EBCM order 28, 1e-10),
-the rod (EBCM order 26, ~3e-4 against the long-double EBCM), the cylinder (EBCM order 34, ~2e-5
+the rod (EBCM order 26, 3-7e-4 against the long-double EBCM), the cylinder (EBCM order 34, ~2e-5
 against the long-double EBCM and pytmatrixc) and the Janus particle (imbedding order 28,
 ~5e-4).
 

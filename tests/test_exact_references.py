@@ -119,3 +119,23 @@ def test_extrapolation_to_zero_dipole_size() -> None:
     np.testing.assert_allclose(linear.far_field_amplitude(dirs), f0, atol=1e-13)
     quad = ExtrapolatedWave([_Linear(d, 5.0) for d in (0.01, 0.02, 0.03)], [0.01, 0.02, 0.03])
     np.testing.assert_allclose(quad.far_field_amplitude(dirs), f0, atol=1e-12)
+
+
+def test_long_double_ebcm_obeys_the_optical_theorem() -> None:
+    """Extinction from the forward amplitude equals the scattered power integrated over the
+    sphere (a lossless spheroid: no absorption), ``4 pi Im(e* . A(k_in)) = int |A|^2 dOmega``,
+    to the truncation error of the order (a truncated T-matrix conserves energy only to it)."""
+    ebcm = LongDoubleEBCM(spheroid(0.5, 1.0), 1.495 / 1.33, K, 24)
+    k_in = np.array([np.sin(0.7), 0.0, np.cos(0.7)])
+    e = np.array([np.cos(0.7), 0.0, -np.sin(0.7)])
+    x, w = np.polynomial.legendre.leggauss(48)
+    ph = np.arange(96) * 2 * np.pi / 96
+    ct, pp = np.meshgrid(x, ph, indexing="ij")
+    st = np.sqrt(1 - ct**2)
+    dirs = np.stack([st * np.cos(pp), st * np.sin(pp), ct], -1).reshape(-1, 3)
+    a = ebcm.amplitude(k_in, e, dirs)
+    scattered = float(((np.abs(a) ** 2).sum(axis=1).reshape(ct.shape) * w[:, None]).sum()
+                      * 2 * np.pi / 96)
+    forward = ebcm.amplitude(k_in, e, k_in[None])[0]
+    extinction = 4 * np.pi * float(np.imag(np.conj(e) @ forward))
+    assert extinction == pytest.approx(scattered, rel=1e-7)
