@@ -186,10 +186,12 @@ FIT = $(HOLOFIT) fit crop --prefit prefit {library_option}-p particle.toml {popu
 
 fit/static.json: {fit_prerequisites} particle.toml {population_files}settings/fit
 \t$(FIT) --pass initial $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) \\
-\t  $(call overwrite,$@ fit/initial.csv fit/initial.csv.journal))
+\t  $(call overwrite,$@ fit/initial.csv fit/initial.csv.journal \\
+\t    $(wildcard fit/initial*_frames.csv)))
 
 fit/fit.csv: fit/static.json {fit_prerequisites} particle.toml {population_files}settings/fit
-\t$(FIT) --pass final $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) $(call overwrite,$@ $@.journal))
+\t$(FIT) --pass final $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) \\
+\t  $(call overwrite,$@ $@.journal fit/fit_chunks.csv fit/fit_frames.csv))
 
 analysis/summary.csv: fit/fit.csv settings/analyze
 \t$(HOLOFIT) analyze fit/fit.csv -o analysis $(strip $(if $(MODEL),--model $(MODEL)) \\
