@@ -55,6 +55,11 @@ _ANALYSIS_MODEL = {"sphere": "sphere", "coated_sphere": "sphere", "spherocylinde
                    "cylinder": "rod", "spheroid": "rod", "janus": "janus"}
 
 
+#: the summary's names of a quantity of the truth's analysis, where they differ (a sphere's
+#: translational coefficient is its x-y MSD's)
+_SUMMARY_NAMES = {"D_t": ("D_t", "D (x-y MSD)")}
+
+
 def _say(text: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
 
@@ -179,7 +184,9 @@ def measure(name: str, work: Path, kinds: list[str]) -> dict:
             pulls = {}
             for q, (tv, _te) in entry["truth_analysis"].items() \
                     if isinstance(entry["truth_analysis"], dict) else []:
-                m = srow[srow["quantity"] == q] if "quantity" in srow else srow.iloc[0:0]
+                names = _SUMMARY_NAMES.get(q, (q,))
+                m = (srow[srow["quantity"].isin(names)] if "quantity" in srow
+                     else srow.iloc[0:0])
                 if not len(m):
                     continue
                 v, e = float(m["measured"].iloc[0]), float(m["measured_err"].iloc[0])

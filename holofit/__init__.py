@@ -2,9 +2,9 @@
 
 The public API, by job (the command line is a thin layer over these functions)::
 
-    stages         run_crop, run_prefit, run_library, run_fit, run_analysis
-                   (BatchOptions, LibrarySettings, FitConfig, FrameFitSettings, FollowSettings,
-                   ContinuitySettings, AnalysisConfig)
+    stages         run_crop, run_prefit, run_calibrate, run_library, run_fit, run_analysis
+                   (BatchOptions, CalibrateConfig, LibrarySettings, FitConfig, FrameFitSettings,
+                   FollowSettings, ContinuitySettings, AnalysisConfig, TrackSelection)
     simulation     simulate_movie, simulate_trajectory, BrownianParameters
     configuration  Instrument, load_instrument, ParticleConfig, load_particle, DDASettings
     particles      Sphere, Spherocylinder, JanusSphere, Dimer, Spheroid, Ellipsoid, Cylinder,
@@ -41,6 +41,8 @@ _API: dict[str, str] = {
     # stages
     "run_crop": "holofit.crop.stage",
     "run_prefit": "holofit.prefit.stage",
+    "run_calibrate": "holofit.calibrate.stage",
+    "CalibrateConfig": "holofit.calibrate.config",
     "run_library": "holofit.library.stage",
     "LibrarySettings": "holofit.library.stage",
     "run_fit": "holofit.fit.stage",
@@ -51,6 +53,7 @@ _API: dict[str, str] = {
     "run_analysis": "holofit.analysis",
     "BatchOptions": "holofit.batch.runner",
     "AnalysisConfig": "holofit.analysis",
+    "TrackSelection": "holofit.analysis",
     # simulation
     "simulate_movie": "holofit.simulate.holograms",
     "simulate_trajectory": "holofit.simulate.brownian",

@@ -33,8 +33,12 @@ Particle-model file (``configs/particles/*.toml``)::
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
-from collections.abc import Mapping
+import numbers
+import re
+import tomllib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,6 +64,7 @@ __all__ = [
     "Instrument",
     "ParticleConfig",
     "instrument_from_dict",
+    "instrument_toml",
     "load_instrument",
     "load_particle",
     "read_toml",
@@ -274,6 +279,86 @@ def instrument_from_dict(doc: Mapping[str, Any], source: str = "<dict>") -> Inst
     values = validate_table(known, INSTRUMENT_SPECS, Path(source), "instrument")
     return _instrument(values, str(doc.get("path", "")))
 
+
+
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def _toml_key(key: str) -> str:
+    return key if _BARE_KEY.match(key) else json.dumps(key)
+
+
+def _toml_value(value: Any) -> str:
+    """A TOML value: strings, booleans, integers, floats (``repr``: round-trips; nan, inf)
+    and arrays of them."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):
+        return repr(float(value))
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"no TOML form for {value!r}")
+
+
+def _toml_table(name: str, table: Mapping[str, Any]) -> list[str]:
+    """``[name]`` and its keys; a mapping value becomes the subtable ``[name.key]``."""
+    lines = [f"[{name}]"]
+    subtables = []
+    for key, value in table.items():
+        if isinstance(value, Mapping):
+            subtables.append((f"{name}.{_toml_key(key)}", value))
+        elif value is not None:
+            lines.append(f"{_toml_key(key)} = {_toml_value(value)}")
+    for sub, value in subtables:
+        lines += ["", *_toml_table(sub, value)]
+    return lines
+
+
+def instrument_toml(instrument: Instrument, *, comments: Sequence[str] = (),
+                    tables: Mapping[str, Mapping[str, Any]] | None = None) -> str:
+    """The text of an instrument file for ``instrument`` that :func:`load_instrument` reads
+    back to the same values.
+
+    Parameters
+    ----------
+    instrument : Instrument
+        What the ``[instrument]`` table holds (its keys of :data:`INSTRUMENT_SPECS`; the
+        polarisation in degrees, as the file gives it).
+    comments : sequence of str
+        Lines of the comment written above the table (without ``#``).
+    tables : mapping, optional
+        Further top-level tables (``{"calibration": {...}}``; a mapping inside one becomes a
+        subtable): :func:`load_instrument` reads ``[instrument]`` only, so they carry what
+        the instrument's own keys cannot, e.g. a calibration's errors and provenance.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ConfigError
+        If the instrument's values would not load (checked by reading the text back).
+    """
+    values = instrument.as_dict()
+    table = {k: values[k] for k in INSTRUMENT_SPECS
+             if k in values and values[k] is not None and values[k] != ""}
+    lines = [f"# {c}".rstrip() for c in comments]
+    lines += _toml_table("instrument", table)
+    for name, extra in (tables or {}).items():
+        if name == "instrument":
+            raise ConfigError("instrument_toml: the [instrument] table is the instrument's own")
+        lines += ["", *_toml_table(_toml_key(name), extra)]
+    text = "\n".join(lines) + "\n"
+    where = Path(instrument.path or "<written instrument>")
+    doc = tomllib.loads(text)
+    _instrument(validate_table(doc["instrument"], INSTRUMENT_SPECS, where, "instrument"),
+                str(where))
+    return text
 
 
 

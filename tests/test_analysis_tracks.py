@@ -8,11 +8,12 @@ import pytest
 
 from holofit.analysis import AnalysisConfig
 from holofit.analysis.errors import AnalysisError
+from holofit.analysis.track_tables import write_tracks
 from holofit.analysis.tracks import (
+    TrackPooling,
     analyze_tracks,
     pool_estimates,
     split_tracks,
-    write_tracks,
 )
 from holofit.simulate.brownian import BrownianParameters, MeasurementNoise, simulate_trajectory
 
@@ -67,11 +68,20 @@ def test_tracks_recover_d_and_name_the_odd_ones(tmp_path) -> None:
     parts.append(_track(4, 3 * D_TRUE, 600, seed=20))  # an impurity: a smaller particle
     parts.append(_track(5, D_TRUE, 600, seed=21, poor=0.7))  # dust: the model misses it
     parts.append(_track(6, D_TRUE, 12, seed=22))  # a track that left the field at once
-    res = analyze_tracks(_write(tmp_path, parts), SPHERE, frame_interval_s=DT)
+    path = _write(tmp_path, parts)
+    # the impurity diffuses 3x too fast for the fitted 500 nm: the consistency check flags it
+    # (its hydrodynamic size a third of the optical one) and the pool leaves it out ...
+    res = analyze_tracks(path, SPHERE, frame_interval_s=DT)
     status = {t.particle: t.status for t in res.tracks}
     assert status == {0: "analysed", 1: "analysed", 2: "analysed", 3: "analysed",
-                      4: "analysed", 5: "poor_fit", 6: "short"}
-    est = res.pooled["D_t"]
+                      4: "flagged", 5: "poor_fit", 6: "short"}
+    assert "size D_t" in res.tracks[4].message and "x the optical" in res.tracks[4].message
+    assert sorted(res.estimate("D_t", "sphere").particles) == [0, 1, 2, 3]
+    # ... and pooled as asked, it is the outlier the leave-one-out pulls name
+    res = analyze_tracks(path, SPHERE, frame_interval_s=DT,
+                         pooling=TrackPooling(include_flagged=True))
+    est = res.estimate("D_t")
+    assert est is not None and est.model == "sphere"
     assert est.outliers == [4]
     assert sorted(est.particles) == [0, 1, 2, 3]
     assert abs(est.value - D_TRUE) < 2 * est.error

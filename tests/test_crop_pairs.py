@@ -52,9 +52,12 @@ def test_a_close_pair_gives_two_centres(inst, tmp_path, distance_um):
             assert np.hypot(xy[:, 0] - tx, xy[:, 1] - ty).min() < 1.0, (distance_um, angle)
         near = np.hypot(xy[:, 0] - 100, xy[:, 1] - 80) < 40
         assert near.sum() == 2, found  # and nothing else near the pair
-        # without peeling the finder merges them into one (what the issue found)
+        # without peeling the finder merges them into one (what the issue found) up to 3 um;
+        # from ~2 zone radii (4 um) on their votes are two maxima and the main search finds
+        # both (issue 36)
         merged = find_centers(image, radius_px=SIZE / 2, peel=False)
-        assert (np.hypot(merged["x_px"] - 100, merged["y_px"] - 80) < 40).sum() == 1
+        if distance_um < 4.0:
+            assert (np.hypot(merged["x_px"] - 100, merged["y_px"] - 80) < 40).sum() == 1
 
 
 def test_ring_model_of_a_sphere_is_its_hologram(inst, tmp_path):

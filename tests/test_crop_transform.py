@@ -126,7 +126,8 @@ def test_find_centers_on_known_pattern_and_auto_settings():
     image = ring_pattern(shape, 211.3, 140.7) + ring_pattern(shape, 60.2, 231.9, amplitude=0.2) - 1
     found = find_centers(image)
     assert len(found) == 2
-    assert list(found.columns) == ["x_px", "y_px", "score", "alignment", "symmetry", "refinement"]
+    assert list(found.columns) == ["x_px", "y_px", "score", "alignment", "symmetry", "refinement",
+                                   "zone_px", "reach_px"]
     assert found["score"].is_monotonic_decreasing
     assert np.hypot(found["x_px"].iat[0] - 211.3, found["y_px"].iat[0] - 140.7) < 0.05
     assert np.hypot(found["x_px"].iat[1] - 60.2, found["y_px"].iat[1] - 231.9) < 0.05

@@ -78,7 +78,10 @@ def test_every_particle_is_a_track_with_no_swap(scene):
     entering = mapping_inverse(mapping, 2)
     # the particle that enters starts a track at its first frame in view
     assert spans.loc[entering].tolist() == [ENTERS, N - 1, N - ENTERS]
-    assert (frames["status"] == "ok").all() and not frames["overlap"].any()
+    assert (frames["status"] == "ok").all()
+    # ~10 um apart, each sphere's fringes (above the noise out to ~10 um at 100x) reach into
+    # the others' 6.8-um crops: every row overlaps another track's hologram (issue 36)
+    assert frames["overlap"].all() and (frames["n_overlapping"] >= 1).all()
     with CropSet(crop.out_dir) as crops:
         assert crops.multi and crops.key_columns == ("particle", "frame")
         assert len(crops.keys) == len(frames)

@@ -15,8 +15,8 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
+from holofit.analysis.population import model_from_sidecar
 from holofit.cli import COMMANDS, main
-from holofit.cli.analyze import model_from_sidecar
 from holofit.config import load_particle
 from holofit.holomodel.parameters import static_parameters
 from tests.test_crop_cli import _movie

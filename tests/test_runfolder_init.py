@@ -392,5 +392,8 @@ def test_a_population_names_every_model_and_the_rod_is_the_primary(tmp_path, inp
     ran = dict(stages_run(run_make(run, "-n").stdout, run))
     assert "library" in ran
     assert "-p particle.toml -p particle_sphere.toml" in ran["fit initial"]
+    # no model forced on the analysis: each track gets the one of the model the fit gave it
+    assert ran["analyze"].split() == ["fit/fit.csv", "-o", "analysis", "--temperature-c", "21"]
+    assert "each track with the model of the particle" in (run / "README.md").read_text()
     twice = _init(tmp_path / "b", inputs, "-p", "janus_paper", particle="rod_paper")
     assert twice.exit_code == 1 and "second non-spherical model" in twice.output

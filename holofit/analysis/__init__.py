@@ -12,18 +12,14 @@ from __future__ import annotations
 from holofit.analysis.errors import AnalysisError
 from holofit.analysis.measurement import Measurement
 from holofit.analysis.pipeline import analyze_trajectory
+from holofit.analysis.population import TrackSelection
 from holofit.analysis.recipes import MODELS
 from holofit.analysis.results import AnalysisResult
 from holofit.analysis.settings import AnalysisConfig, SettingError
 from holofit.analysis.stage import AnalysisRun, analyze_table, run_analysis
 from holofit.analysis.summary import format_report
-from holofit.analysis.tracks import (
-    TrackPooling,
-    TracksResult,
-    analyze_tracks,
-    format_tracks_report,
-    n_tracks,
-)
+from holofit.analysis.track_tables import format_tracks_report
+from holofit.analysis.tracks import TrackPooling, TracksResult, analyze_tracks, n_tracks
 from holofit.analysis.trajectory import Trajectory
 
 __all__ = [
@@ -35,6 +31,7 @@ __all__ = [
     "Measurement",
     "SettingError",
     "TrackPooling",
+    "TrackSelection",
     "TracksResult",
     "Trajectory",
     "analyze_table",

@@ -16,7 +16,7 @@ parameter errors (and weighs the lags badly). Three cases:
   is simulated, :mod:`holofit.analysis.projection_covariance`, and too noisy to invert): the
   fit is weighted by the block errors ``sigma_k`` of the points, and the parameter covariance
   is ``A C A^T`` with ``A = (J^T W J)^-1 J^T W`` the fit's linear response to the data.
-  Its sided errors (:func:`_sided_errors`) take ``sigma(D)`` with both ``A`` and ``C`` at
+  Its sided errors (:func:`sided_errors`) take ``sigma(D)`` with both ``A`` and ``C`` at
   ``D``: the correlation decays faster for a larger ``D_r``, so the same data fix it less well,
   and a ``sigma(D)`` with ``A`` held at the estimate made the upper errors of low estimates
   too small (Janus ``D_r``: mean pull -0.3 at 300 frames; -0.1 with ``A`` at ``D``). The
@@ -42,6 +42,13 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from holofit.analysis.blocking import block_standard_errors
+from holofit.analysis.curve_models import (
+    CurveModel,
+    linear_msd_model,
+    orientation_msd_model,
+    projection_model,
+    single_exponential_model,
+)
 from holofit.analysis.errors import AnalysisError
 from holofit.analysis.msd import (
     LagStatistics,
@@ -50,205 +57,46 @@ from holofit.analysis.msd import (
     influence_series,
     pair_mask,
 )
-from holofit.analysis.msd_covariance import MsdCovarianceBasis
-from holofit.analysis.projection import (
-    projection_correlation,
-    projection_correlation_derivative,
-)
-from holofit.analysis.projection_covariance import projection_covariance
 
 __all__ = [
     "CurveModel",
     "FitResult",
+    "JointFit",
     "combine",
     "fit_lag_statistics",
     "linear_msd_model",
     "orientation_msd_model",
     "projection_model",
+    "sided_errors",
+    "sigma_function",
     "single_exponential_model",
+    "whitener",
 ]
 
 
-#: ``covariance(lags, masks, frame_interval_s)(theta)``: covariance matrix of the lag averages
-#: at ``lags`` (frames) whose usable pairs are ``masks`` (one per lag), for parameters ``theta``
-#: (a factory, so that what does not depend on ``theta`` is computed once per fit)
-Covariance = Callable[[NDArray, Sequence[NDArray], float], Callable[[NDArray], NDArray]]
-
-
 @dataclass(frozen=True)
-class CurveModel:
-    """A model ``f(tau; theta)`` with its Jacobian and a starting guess.
+class JointFit:
+    """Parameters fitted together for several observables, with their full covariance.
 
     Attributes
     ----------
-    covariance : callable, optional
-        Covariance of the lag averages the model describes (:data:`Covariance`).
-    gls : bool
-        Fit by generalised least squares with ``covariance`` (else: weighted fit, sandwich
-        error).
-    bridged : callable, optional
-        ``bridged(duration_s)``: the model for a trajectory whose end-to-end drift was
-        subtracted (:func:`linear_msd_model`).
-    lower : tuple of float, optional
-        Lower bounds of the parameters (where the model is undefined below them).
+    params : tuple of str
+        Names of the joint parameters.
+    values : ndarray
+        Their fitted values.
+    covariance : ndarray
+        Their covariance matrix (the :class:`FitResult` views hold its diagonal blocks).
     """
 
-    name: str
     params: tuple[str, ...]
-    formula: str
-    f: Callable[[NDArray, NDArray], NDArray]
-    jac: Callable[[NDArray, NDArray], NDArray]
-    guess: Callable[[NDArray, NDArray], NDArray]
-    covariance: Covariance | None = None
-    gls: bool = True
-    bridged: Callable[[float], CurveModel] | None = None
-    lower: tuple[float, ...] | None = None
+    values: NDArray[np.float64]
+    covariance: NDArray[np.float64] = field(repr=False)
 
-
-#: smallest ``D_r T`` (T the run's duration) at which the projection covariance is simulated
-PROJECTION_D_FLOOR = 0.1
-#: smallest ``D dt`` relative to the data's scale used in a covariance (a fit may end at 0)
-_TINY = 1e-9
-
-
-def linear_msd_model(k: float, label: str, duration_s: float | None = None) -> CurveModel:
-    """``k (D tau + eps^2)``: the MSD of ``k/2`` Brownian degrees of freedom with noise ``eps``.
-
-    With ``duration_s = T`` (the time between the first and last frame), the MSD of the same
-    motion after the end-to-end drift ``(r(T) - r(0)) / T`` was subtracted:
-    ``k (D tau (1 - tau / T) + eps^2)``. Subtracting the estimated drift turns a Brownian path
-    into a Brownian bridge, whose increments are smaller by that factor, exactly, whatever the
-    true drift; without the factor a run of 30 frames fitted to lag 3 comes out 10 % low. The
-    covariance is that of :func:`holofit.analysis.msd_covariance.msd_covariance` for ``k/2``
-    coordinates (the bridge's correction to it is of the same small order and left out).
-    """
-    shrink = (lambda tau: 1.0 - tau / duration_s) if duration_s else (lambda tau: 1.0)
-
-    def f(p: NDArray, tau: NDArray) -> NDArray:
-        return k * (p[0] * tau * shrink(tau) + p[1])
-
-    def jac(p: NDArray, tau: NDArray) -> NDArray:
-        return np.stack([k * tau * shrink(tau), np.full_like(tau, k)], axis=1)
-
-    def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
-        basis = MsdCovarianceBasis(lags, masks)
-
-        def at(p: NDArray) -> NDArray:
-            d = max(p[0], _TINY * max(abs(p[1]), 1e-12) / dt, 0.0)
-            return basis.covariance(2.0 * d * dt, max(p[1], 0.0), k / 2.0)
-
-        return at
-
-    def guess(tau: NDArray, m: NDArray) -> NDArray:
-        if tau.size >= 2:
-            slope, icpt = np.polyfit(tau, m, 1)
-            return np.array([slope / k, icpt / k])
-        return np.array([m[0] / (k * tau[0]), 0.0])
-
-    if duration_s:
-        formula = f"{k:g} D tau (1 - tau/T) + {k:g} eps^2, T = {duration_s:.4g} s"
-    else:
-        formula = f"{k:g} D tau + {k:g} eps^2"
-    return CurveModel(label, ("D", "eps2"), formula, f, jac, guess, covariance, True,
-                      lambda t: linear_msd_model(k, label, t))
-
-
-def orientation_msd_model() -> CurveModel:
-    """``2 (1 - exp(-2 D_r tau)) + 2 eps_r^2``: MSD of the unit axis.
-
-    Its covariance is that of two coordinates diffusing with ``D_r`` in the plane tangent to
-    the axis, each with noise ``eps_r^2 / 2`` (:mod:`holofit.analysis.msd_covariance`): right
-    while the axis turns little within the fit range (``D_r tau << 1``, which the default
-    range keeps).
-    """
-
-    def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
-        basis = MsdCovarianceBasis(lags, masks)
-
-        def at(p: NDArray) -> NDArray:
-            d = max(p[0], _TINY * max(abs(p[1]), 1e-12) / dt, 0.0)
-            return basis.covariance(2.0 * d * dt, max(p[1], 0.0) / 2.0, 2.0)
-
-        return at
-
-    def f(p: NDArray, tau: NDArray) -> NDArray:
-        return 2.0 * (1.0 - np.exp(-2.0 * p[0] * tau)) + 2.0 * p[1]
-
-    def jac(p: NDArray, tau: NDArray) -> NDArray:
-        return np.stack([4.0 * tau * np.exp(-2.0 * p[0] * tau), np.full_like(tau, 2.0)], axis=1)
-
-    def guess(tau: NDArray, m: NDArray) -> NDArray:
-        if tau.size >= 2:
-            slope, icpt = np.polyfit(tau[: max(2, tau.size // 3)], m[: max(2, tau.size // 3)], 1)
-            return np.array([max(slope / 4.0, 1e-6), max(icpt / 2.0, 0.0)])
-        return np.array([m[0] / (4 * tau[0]), 0.0])
-
-    return CurveModel(
-        "orientation", ("D", "eps2"), "2 (1 - exp(-2 D_r tau)) + 2 eps_r^2", f, jac, guess,
-        covariance,
-    )
-
-
-def projection_model(amplitude: bool = True, n_odd: int | None = None) -> CurveModel:
-    """Paper appendix series ``A sum_l ... exp(-l(l+1) D_r tau)`` (``n_odd`` terms; all by default).
-
-    ``A`` (free when ``amplitude``) absorbs the loss of correlation from angular noise; ``A = 1``
-    without noise.
-    """
-
-    def f(p: NDArray, tau: NDArray) -> NDArray:
-        amp = p[1] if amplitude else 1.0
-        return amp * projection_correlation(p[0], tau, n_odd)
-
-    def jac(p: NDArray, tau: NDArray) -> NDArray:
-        amp = p[1] if amplitude else 1.0
-        cols = [amp * projection_correlation_derivative(p[0], tau, n_odd)]
-        if amplitude:
-            cols.append(projection_correlation(p[0], tau, n_odd))
-        return np.stack(cols, axis=1)
-
-    def guess(tau: NDArray, m: NDArray) -> NDArray:
-        good = m > 0.05
-        if good.sum() >= 2:
-            slope = np.polyfit(tau[good], np.log(m[good]), 1)[0]
-            d = max(-slope / 2.0, 1e-8)
-        else:
-            d = 1.0 / tau[-1]
-        return np.array([d, 1.0]) if amplitude else np.array([d])
-
-    def covariance(lags: NDArray, masks: Sequence[NDArray], dt: float):
-        # the simulation has no angular noise: a D_r at 0 would give no scatter at all, so the
-        # covariance is taken at D_r T >= 0.1 at least (T the run's duration)
-        floor = PROJECTION_D_FLOOR / ((int(lags[0]) + masks[0].size) * dt)
-        return lambda p: projection_covariance(max(p[0], floor), dt, lags, masks)
-
-    label = "projection" if n_odd is None else f"projection_l{2 * n_odd - 1}"
-    params = ("D", "A") if amplitude else ("D",)
-    lower = (0.0, -np.inf) if amplitude else (0.0,)
-    return CurveModel(label, params, "A/4 sum_l odd ... exp(-l(l+1) D_r tau)", f, jac, guess,
-                      covariance, gls=False, lower=lower)
-
-
-def single_exponential_model(amplitude: bool = True) -> CurveModel:
-    """``A exp(-2 D_r tau)``: the single-exponential (``l = 1`` shape) approximation."""
-
-    def f(p: NDArray, tau: NDArray) -> NDArray:
-        amp = p[1] if amplitude else 1.0
-        return amp * np.exp(-2.0 * p[0] * tau)
-
-    def jac(p: NDArray, tau: NDArray) -> NDArray:
-        amp = p[1] if amplitude else 1.0
-        e = np.exp(-2.0 * p[0] * tau)
-        cols = [-2.0 * tau * amp * e]
-        if amplitude:
-            cols.append(e)
-        return np.stack(cols, axis=1)
-
-    def guess(tau: NDArray, m: NDArray) -> NDArray:
-        return projection_model(amplitude).guess(tau, m)
-
-    params = ("D", "A") if amplitude else ("D",)
-    return CurveModel("single_exponential", params, "A exp(-2 D_r tau)", f, jac, guess)
+    def correlation(self, i: int, j: int) -> float:
+        """Correlation coefficient of parameters ``i`` and ``j``."""
+        c = self.covariance
+        den = math.sqrt(max(c[i, i], 0.0) * max(c[j, j], 0.0))
+        return float(c[i, j] / den) if den > 0 else math.nan
 
 
 @dataclass
@@ -259,7 +107,9 @@ class FitResult:
     root); ``method`` says how it was found (``gls``, ``sandwich`` or ``influence``, see the
     module docstring). ``sigma`` are the points' error bars (from the covariance model where
     there is one, else the block errors); ``chi2_reduced`` is the generalised chi-square per
-    degree of freedom for a GLS fit.
+    degree of freedom for a GLS fit. A view of a joint fit (:mod:`holofit.analysis.body_frame`)
+    has ``joint``, and ``joint_index`` gives the joint parameter of each of its own;
+    ``sigma_at`` is ``sigma(D)`` at any ``D`` (:meth:`d_sigma`).
     """
 
     observable: str
@@ -277,9 +127,20 @@ class FitResult:
     error_converged: bool = True
     success: bool = True
     d_errors: tuple[float, float] = (float("nan"), float("nan"))
+    joint: JointFit | None = field(default=None, repr=False)
+    joint_index: tuple[int, ...] | None = None
+    sigma_at: Callable[[float], float] | None = field(default=None, repr=False)
+
+    def d_sigma(self, d: float) -> float:
+        """The error ``sigma(D)`` the fit would have if the coefficient were ``d`` (the other
+        parameters moved along their regression on it; what a score test of ``D = d`` needs);
+        the symmetric error where the fit has no covariance model."""
+        if self.sigma_at is None:
+            return self.error("D")
+        return self.sigma_at(d)
 
     def d_error_sides(self) -> tuple[float, float]:
-        """Errors of ``D`` below and above the value (:func:`_sided_errors`; both equal to
+        """Errors of ``D`` below and above the value (:func:`sided_errors`; both equal to
         the symmetric error where they were not computed)."""
         e = self.error("D")
         lo, hi = self.d_errors
@@ -310,7 +171,7 @@ GLS_ROUNDS = 3
 SIDED_ROUNDS = (4, 2)
 
 
-def _sided_errors(
+def sided_errors(
     p: NDArray[np.float64], pcov: NDArray[np.float64],
     pcov_at: Callable[[NDArray[np.float64]], NDArray[np.float64]], rounds: int,
 ) -> tuple[float, float]:
@@ -342,6 +203,25 @@ def _sided_errors(
     return out[0], out[1]
 
 
+def sigma_function(
+    p: NDArray[np.float64], pcov: NDArray[np.float64],
+    pcov_at: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+) -> Callable[[float], float] | None:
+    """``sigma(D)`` of the first parameter along the regression of the others on it (the
+    function whose fixed points are the sided errors, :func:`sided_errors`)."""
+    var = float(pcov[0, 0])
+    if not var > 0:
+        return None
+    direction = np.concatenate([[1.0], pcov[1:, 0] / var])
+    p = np.array(p, dtype=float)
+
+    def at(d: float) -> float:
+        v = float(pcov_at(p + (d - p[0]) * direction)[0, 0])
+        return math.sqrt(v) if v > 0 else float("nan")
+
+    return at
+
+
 def _solve(resid: Callable, jac: Callable, p0: NDArray, n_points: int, n_par: int,
            lower: tuple[float, ...] | None = None):
     if lower is not None:
@@ -354,12 +234,13 @@ def _solve(resid: Callable, jac: Callable, p0: NDArray, n_points: int, n_par: in
                          xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200 * (n_par + 1))
 
 
-def _whitener(cov: NDArray[np.float64]) -> NDArray[np.float64]:
+def whitener(cov: NDArray[np.float64]) -> NDArray[np.float64]:
     """``L^-1`` with ``L L^T = cov`` (a tiny ridge keeps a nearly singular covariance usable)."""
     scale = float(np.mean(np.diag(cov))) if cov.size else 1.0
     ridge = 1e-12 * (scale if scale > 0 else 1.0)
     chol = np.linalg.cholesky(cov + ridge * np.eye(cov.shape[0]))
     return np.linalg.inv(chol)
+
 
 
 @dataclass(frozen=True)
@@ -375,6 +256,7 @@ class _Errors:
     d_errors: tuple[float, float]
     method: str
     converged: bool = True
+    sigma_at: Callable[[float], float] | None = None
 
 
 def _usable(stats: LagStatistics) -> LagStatistics:
@@ -389,7 +271,7 @@ def _gls_errors(model: CurveModel, tau: NDArray, m: NDArray, p: NDArray, success
                 cov_at: Callable, dof: int) -> _Errors:
     """Generalised least squares with the lag covariance at the current D, iterated."""
     for _ in range(GLS_ROUNDS):
-        w = _whitener(cov_at(p))
+        w = whitener(cov_at(p))
 
         def gresid(q: NDArray, w: NDArray = w) -> NDArray:
             return w @ (model.f(q, tau) - m)
@@ -401,17 +283,18 @@ def _gls_errors(model: CurveModel, tau: NDArray, m: NDArray, p: NDArray, success
         p, success = sol.x, bool(sol.success)
 
     def gls_pcov(q: NDArray) -> NDArray:
-        wq = _whitener(cov_at(q))
+        wq = whitener(cov_at(q))
         jw = wq @ model.jac(q, tau)
         return np.linalg.pinv(jw.T @ jw)
 
     cov_m = cov_at(p)
-    w = _whitener(cov_m)
+    w = whitener(cov_m)
     pcov = gls_pcov(p)
     chi2 = float(np.sum((w @ (model.f(p, tau) - m)) ** 2) / dof)
-    d_errors = _sided_errors(p, pcov, gls_pcov, SIDED_ROUNDS[0])
+    d_errors = sided_errors(p, pcov, gls_pcov, SIDED_ROUNDS[0])
     sigma = np.sqrt(np.clip(np.diag(cov_m), 0, None))
-    return _Errors(p, success, pcov, sigma, chi2, d_errors, "gls")
+    return _Errors(p, success, pcov, sigma, chi2, d_errors, "gls", True,
+                   sigma_function(p, pcov, gls_pcov))
 
 
 def _sandwich_errors(model: CurveModel, tau: NDArray, m: NDArray, p: NDArray, cov_at: Callable,
@@ -444,12 +327,13 @@ def _sandwich_errors(model: CurveModel, tau: NDArray, m: NDArray, p: NDArray, co
         aq = np.linalg.pinv(jq.T @ jq) @ jq.T / sig_m[None, :]
         return aq @ cov_at(q) @ aq.T
 
-    d_errors = _sided_errors(p, pcov, sandwich_at, SIDED_ROUNDS[1])
+    d_errors = sided_errors(p, pcov, sandwich_at, SIDED_ROUNDS[1])
     if model.lower is not None and math.isfinite(model.lower[0]):
         # the interval ends at the bound (D >= 0): no error below reaches past it
         d_errors = (min(d_errors[0], float(p[0] - model.lower[0])), d_errors[1])
     sigma = np.sqrt(np.clip(np.diag(cov_m), 0, None))
-    return _Errors(p, success, pcov, sigma, chi2, d_errors, "sandwich")
+    return _Errors(p, success, pcov, sigma, chi2, d_errors, "sandwich", True,
+                   sigma_function(p, pcov, sandwich_at))
 
 
 def _influence_covariance(obs: Observables, st: LagStatistics, a: NDArray, n_par: int,
@@ -519,6 +403,7 @@ def fit_lag_statistics(
     return FitResult(
         st.name, model, res.p, errors, naive, st.lags, tau, m, res.sigma, res.chi2,
         np.atleast_2d(res.pcov), res.method, res.converged, res.success, res.d_errors,
+        sigma_at=res.sigma_at,
     )
 
 
@@ -527,11 +412,12 @@ def combine(
 ) -> tuple[float, float, float, float]:
     """Error of a derived quantity ``q(theta_1, theta_2, ...)`` by the delta method.
 
-    Parameters of the same fit are combined with their covariance; different fits are taken
-    as independent (the recipes combine fits of independent coordinates, e.g. the MSDs along
-    and across a rod's axis, which are independent for Gaussian steps and isotropic noise).
-    The sided errors scale each fit's contribution by its ``D``'s sided error (the side that
-    moves ``q`` the same way).
+    Parameters of the same fit, or of the same joint fit (:class:`JointFit`, e.g. ``D_par``
+    and ``D_perp`` of :func:`holofit.analysis.body_frame.fit_body_frame`), are combined with
+    their covariance; different fits are independent (they fit different data, or
+    coordinates whose fluctuations are independent). The sided errors scale each ``D``'s
+    fluctuation by the ratio of its sided error to its symmetric one, the side that moves
+    ``q`` the same way, because a diffusion coefficient's error grows with it.
 
     Parameters
     ----------
@@ -544,19 +430,27 @@ def combine(
     -------
     value, error, error_below, error_above : float
     """
-    var = np.zeros(3)
-    fits: dict[int, tuple[FitResult, NDArray[np.float64]]] = {}
+    groups: dict[int, tuple[NDArray, NDArray, NDArray, NDArray]] = {}
     for grad, fit, name in parts:
-        g = fits.setdefault(id(fit), (fit, np.zeros(len(fit.model.params))))[1]
-        g[fit.model.params.index(name)] += grad
-    for fit, g in fits.values():
-        v = float(g @ fit.covariance @ g)
-        e = fit.error("D") if "D" in fit.model.params else 0.0
-        lo, hi = fit.d_error_sides() if "D" in fit.model.params else (e, e)
-        rising = g[fit.model.params.index("D")] >= 0 if "D" in fit.model.params else True
-        below, above = (lo, hi) if rising else (hi, lo)
-        f_lo = (below / e) ** 2 if e > 0 else 1.0
-        f_hi = (above / e) ** 2 if e > 0 else 1.0
-        var += v * np.array([1.0, f_lo, f_hi])
+        own = fit.model.params.index(name)
+        if fit.joint is not None and fit.joint_index is not None:
+            key, size, cov, idx = id(fit.joint), len(fit.joint.params), fit.joint.covariance, \
+                fit.joint_index[own]
+        else:
+            key, size, cov, idx = id(fit), len(fit.model.params), fit.covariance, own
+        g, lo_f, hi_f, _ = groups.setdefault(
+            key, (np.zeros(size), np.ones(size), np.ones(size), cov))
+        g[idx] += grad
+        if name == "D":
+            e = fit.error("D")
+            lo, hi = fit.d_error_sides()
+            lo_f[idx] = lo / e if e > 0 else 1.0
+            hi_f[idx] = hi / e if e > 0 else 1.0
+    var = np.zeros(3)
+    for g, lo_f, hi_f, cov in groups.values():
+        rising = g >= 0
+        below = g * np.where(rising, lo_f, hi_f)
+        above = g * np.where(rising, hi_f, lo_f)
+        var += [float(g @ cov @ g), float(below @ cov @ below), float(above @ cov @ above)]
     err = np.sqrt(np.clip(var, 0.0, None))
     return value, float(err[0]), float(err[1]), float(err[2])

@@ -26,7 +26,7 @@ class Measurement:
         zero); ``error`` is then NaN.
     error_below, error_above : float
         Errors below and above the value where they differ (a diffusion coefficient's error
-        grows with it, :func:`holofit.analysis.linefit._sided_errors`); NaN: equal to
+        grows with it, :func:`holofit.analysis.linefit.sided_errors`); NaN: equal to
         ``error``.
     """
 

@@ -62,7 +62,7 @@ class Observables:
     valid: NDArray[np.bool_]
 
     def __post_init__(self) -> None:
-        self._proj = None
+        self._proj: NDArray[np.float64] | None = None
         if self.axis is not None:
             psi = np.arctan2(self.axis[:, 1], self.axis[:, 0])
             self._proj = np.stack([np.cos(psi), np.sin(psi)], axis=1)
@@ -73,10 +73,14 @@ class Observables:
         """``x_t(lag)`` for the origins where ``mask`` (length ``N - lag``) is set, one row per
         name."""
         out = np.empty((len(names), int(np.count_nonzero(mask))))
-        dr = None
-        if any(n in _POSITIONAL for n in names):
-            dr = (self.position_um[lag:] - self.position_um[:-lag])[mask]
-        u0 = self.axis[:-lag][mask] if any(n in ("par", "perp") for n in names) else None
+        dr = (self.position_um[lag:] - self.position_um[:-lag])[mask]
+        needs_axis = any(n in ("par", "perp", "orient", "proj") for n in names)
+        if needs_axis and (self.axis is None or self._proj is None):
+            raise ValueError(f"observables {', '.join(names)} need an axis; this trajectory "
+                             "has none")
+        axis = self.axis if self.axis is not None else np.zeros_like(self.position_um)
+        pp = self._proj if self._proj is not None else np.zeros((axis.shape[0], 2))
+        u0 = axis[:-lag][mask]
         for i, name in enumerate(names):
             if name == "par":
                 out[i] = np.einsum("ij,ij->i", dr, u0) ** 2
@@ -94,10 +98,9 @@ class Observables:
             elif name == "xy":
                 out[i] = dr[:, 0] ** 2 + dr[:, 1] ** 2
             elif name == "orient":
-                du = (self.axis[lag:] - self.axis[:-lag])[mask]
+                du = (axis[lag:] - axis[:-lag])[mask]
                 out[i] = np.einsum("ij,ij->i", du, du)
             elif name == "proj":
-                pp = self._proj
                 out[i] = (pp[:-lag, 0] * pp[lag:, 0] + pp[:-lag, 1] * pp[lag:, 1])[mask]
             else:
                 raise ValueError(f"unknown observable {name!r}; known: {', '.join(OBSERVABLES)}")
@@ -179,7 +182,7 @@ def lag_statistics(
             continue
         x = obs.values(names, int(lag), mask)
         mean[:, i], sem[:, i], _, conv[:, i] = block_standard_errors(x)
-    tau = lags * frame_interval_s
+    tau = np.asarray(lags * frame_interval_s, dtype=np.float64)
     return {
         name: LagStatistics(name, lags, tau, mean[k], sem[k], count, rejected, conv[k])
         for k, name in enumerate(names)

@@ -20,6 +20,19 @@ which is exact for any pattern of gaps (Qian, Sheetz & Elson, Biophys. J. 60, 91
 it for a gap-free trajectory without noise; Michalet, Phys. Rev. E 82, 041914, 2010, with
 localisation noise). An observable summing ``n_c`` independent such coordinates (the MSD
 across a rod's axis: 2; the 3D MSD: 3) has ``n_c`` times this covariance.
+
+After the removal of the end-to-end drift ``(x_b - x_a) / M`` (``M`` frames between the first
+and last frame with a fit) every displacement loses ``k/M`` of the same sum of all ``M``
+steps, so two displacements' covariance falls by the common mode ``k l 2 D dt / M`` (the
+estimate's error, shared by every pair; the noise at the two ends adds a negligible
+``O(eps^2 / M^2)``). With ``c~ = c - r``, ``r = k l s / M``,
+
+    sum c~^2 = sum c^2 - 2 r (s W_kl + e G_kl) + n_k n_l r^2,
+
+``W_kl = sum_j w_k(j) w_l(j)`` (``w_k(j)`` the lag-``k`` pairs used that cover step ``j``) and
+``G_kl = sum_x f_k(x) f_l(x)`` (``f_k(x)`` the lag-``k`` pairs used that end at frame ``x`` less
+those that start there): the bridge's MSDs scatter less than the free path's, by ~8 % in the
+error of a 30-frame run's ``D`` fitted to lag 3.
 """
 
 from __future__ import annotations
@@ -47,10 +60,12 @@ class MsdCovarianceBasis:
         Lags, frames.
     masks : sequence of ndarray of bool
         For each lag ``k``, the pairs ``(t, t + k)`` used (length ``N - k``).
+    bridge_frames : int, optional
+        ``M``: the end-to-end drift over ``M`` frames was removed (module docstring).
     """
 
     def __init__(self, lags: Sequence[int] | NDArray[np.int64],
-                 masks: Sequence[NDArray[np.bool_]]) -> None:
+                 masks: Sequence[NDArray[np.bool_]], bridge_frames: int | None = None) -> None:
         lags = np.asarray(lags, dtype=np.int64)
         n_frames = int(lags[0]) + masks[0].size
         kmax = int(lags.max())
@@ -67,6 +82,26 @@ class MsdCovarianceBasis:
         self.a = np.sum(ov**2 * counts, axis=2) / norm
         self.b = 2.0 * np.sum(ov * delta * counts, axis=2) / norm
         self.e = np.sum(delta**2 * counts, axis=2) / norm
+        if bridge_frames:
+            self._bridge(lags, masks, n_frames, float(bridge_frames), norm)
+
+    def _bridge(self, lags: NDArray[np.int64], masks: Sequence[NDArray[np.bool_]],
+                n_frames: int, m: float, norm: NDArray[np.float64]) -> None:
+        """The common mode of the drift estimate's error (module docstring)."""
+        cover = np.zeros((lags.size, n_frames - 1))
+        ends = np.zeros((lags.size, n_frames))
+        for i, (k, mk) in enumerate(zip(lags, masks, strict=True)):
+            k = int(k)
+            used = mk.astype(float)
+            cover[i] = np.convolve(used, np.ones(k))[: n_frames - 1]
+            ends[i, k:] += used
+            ends[i, : used.size] -= used
+        w = cover @ cover.T
+        g = ends @ ends.T
+        kk = np.outer(lags, lags).astype(float)
+        n = np.array([float(np.count_nonzero(mk)) for mk in masks])
+        self.a = self.a - 2.0 * kk * w / (m * norm) + np.outer(n, n) * kk**2 / (m * m * norm)
+        self.b = self.b - 2.0 * kk * g / (m * norm)
 
     def covariance(self, step_var: float, noise_var: float,
                    components: float = 1.0) -> NDArray[np.float64]:
@@ -103,6 +138,7 @@ def msd_covariance(
     step_var: float,
     noise_var: float,
     components: float = 1.0,
+    bridge_frames: int | None = None,
 ) -> NDArray[np.float64]:
     """Covariance matrix of the time-averaged squared displacements at ``lags``.
 
@@ -118,9 +154,12 @@ def msd_covariance(
         Variance of the measurement noise of one coordinate in one frame.
     components : float
         Number of independent, identically distributed coordinates summed by the observable.
+    bridge_frames : int, optional
+        The end-to-end drift over this many frames was removed.
 
     Returns
     -------
     ndarray, shape (L, L)
     """
-    return MsdCovarianceBasis(lags, masks).covariance(step_var, noise_var, components)
+    return MsdCovarianceBasis(lags, masks, bridge_frames).covariance(step_var, noise_var,
+                                                                     components)

@@ -18,7 +18,11 @@ is the model's recipe (:mod:`holofit.analysis.recipes`):
    localisation error (:func:`_adaptive_last_lag`);
 5. the rejection is redone with ``D_est`` times 2/3 and 4/3 and the coefficients reported for
    each (sensitivity, not folded into the statistical error);
-6. hydrodynamic predictions (:mod:`holofit.analysis.hydrodynamics`) and the summary table.
+6. hydrodynamic predictions (:mod:`holofit.analysis.hydrodynamics`);
+7. the physical-consistency check (:mod:`holofit.analysis.consistency`): the hydrodynamic size
+   against the fitted one and the motion against Brownian motion; a track that fails is
+   flagged, with the numbers, in its notes and summary;
+8. the summary table.
 """
 
 from __future__ import annotations
@@ -30,12 +34,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 import holofit.analysis.hydrodynamics as hd
+from holofit.analysis.body_frame import BodyFrameCoefficients, fit_body_frame
 from holofit.analysis.cleaning import (
     MIN_ESTIMATE_PAIRS,
     OrientationCleaning,
     RotationEstimate,
     clean_orientations,
 )
+from holofit.analysis.consistency import check_consistency
 from holofit.analysis.errors import AnalysisError
 from holofit.analysis.linefit import CurveModel, FitResult, fit_lag_statistics
 from holofit.analysis.measurement import Measurement
@@ -63,6 +69,7 @@ __all__ = [
 #: lags of the preliminary fits that measure the reduced localisation error
 PRELIM_LAGS = 10
 #: default fit range 1..p with p = P_BASE + P_SLOPE sqrt(x), clipped to [MIN_FIT_LAGS, P_MAX]
+#: (a probe may allow fewer, :class:`holofit.analysis.recipes.Probe`)
 P_BASE = 2.0
 P_SLOPE = 2.5
 P_MAX = 20
@@ -146,11 +153,13 @@ def _merge(stats: dict[str, LagStatistics], more: dict[str, LagStatistics]) -> N
         )
 
 
-def _adaptive_last_lag(noise_sq: float, step_sq: float, n_frames: int) -> int:
+def _adaptive_last_lag(noise_sq: float, step_sq: float, n_frames: int,
+                       minimum: int = MIN_FIT_LAGS) -> int:
     """Last lag of the default fit range from the reduced localisation error.
 
     ``x = noise_sq / step_sq`` (``eps^2 / (D dt)`` for an MSD ``k (D tau + eps^2)``); the range
-    is 1..p with ``p = 2 + 2.5 sqrt(x)`` (at least 3, at most 20 lags), the rule that minimised
+    is 1..p with ``p = 2 + 2.5 sqrt(x)`` (at least ``minimum``, at most 20 lags), the rule that
+    minimised
     the scatter of this estimator in simulations for x = 0.01-10 (the optimal number of MSD
     points grows with the localisation error, as Michalet, Phys. Rev. E 82, 041914, 2010, found
     for unweighted fits).
@@ -159,7 +168,7 @@ def _adaptive_last_lag(noise_sq: float, step_sq: float, n_frames: int) -> int:
         return min(PRELIM_LAGS, n_frames - 1)
     x = max(noise_sq, 0.0) / step_sq
     p = math.floor(P_BASE + P_SLOPE * math.sqrt(x) + 0.5)
-    return max(MIN_FIT_LAGS, min(p, P_MAX, n_frames - 1))
+    return max(minimum, min(p, P_MAX, n_frames - 1))
 
 
 def _usable_until(usable: NDArray[np.bool_], st: LagStatistics, n_frames: int) -> tuple[int, int]:
@@ -239,7 +248,7 @@ class _Pass:
         t_lags = _range(self._translation_range(), self.n, "translation")
         self._ensure(t_lags)
         r_lags = self._rotation_lags()
-        measured = self.recipe.measure(self.fit, t_lags, r_lags, self.settings)
+        measured = self.recipe.measure(self, t_lags, r_lags, self.settings)
         return _Core(self.cleaning, self.valid, self.stats, self.fits, measured)
 
     def _clean(
@@ -278,21 +287,47 @@ class _Pass:
             return model.bridged(self.bridge_s)
         return model
 
-    def fit(self, key: str, name: str, model: CurveModel, lags: NDArray) -> FitResult:
-        """Fit observable ``name`` at ``lags`` and keep the result as ``key``."""
-        f = fit_lag_statistics(self.stats[name].at(lags), self._model(name, model), self.obs,
-                               self.pair_filter)
+    @property
+    def observables(self) -> Observables:
+        """The pass's pairs (set by :meth:`run` before anything is fitted)."""
+        if self.obs is None:
+            raise AnalysisError("internal: the lag statistics are not computed yet")
+        return self.obs
+
+    def fit(self, key: str, observable: str, model: CurveModel, lags: NDArray) -> FitResult:
+        """Fit ``observable`` at ``lags`` and keep the result as ``key``."""
+        f = fit_lag_statistics(self.stats[observable].at(lags), self._model(observable, model),
+                               self.observables, self.pair_filter)
         self.fits[key] = f
         return f
+
+    __call__ = fit
+
+    def body_frame(self, lags: NDArray) -> tuple[FitResult, FitResult]:
+        """Fit ``par`` and ``perp`` at ``lags`` together, with the exact means of the measured
+        axis path and the drift removal (:mod:`holofit.analysis.body_frame`)."""
+        span = None
+        if self.bridge_s:
+            v = np.flatnonzero(self.traj.valid)
+            span = (int(v[0]), int(v[-1]))
+        if self.axis is None:
+            raise AnalysisError("the body-frame fit needs the rod's axis")
+        coeffs = BodyFrameCoefficients(self.axis, self.valid, self.dt, self.pair_filter, span)
+        fp, fq = fit_body_frame(self.stats["par"].at(lags), self.stats["perp"].at(lags), coeffs,
+                                self.observables, self.pair_filter)
+        self.fits["par"], self.fits["perp"] = fp, fq
+        return fp, fq
 
     def _probe_last_lag(self, probe: Probe, last: int, what: str) -> int:
         """The adaptive last lag from a preliminary fit of lags 1..``last``."""
         pre = fit_lag_statistics(
             self.stats[probe.observable].at(_range((1, last), self.n, what)),
-            self._model(probe.observable, probe.model()), self.obs, self.pair_filter,
+            self._model(probe.observable, probe.model()), self.observables, self.pair_filter,
         )
-        noise = probe.noise_factor * pre.value("eps2")
-        return _adaptive_last_lag(noise, pre.value("D") * self.dt, self.n)
+        eps2 = pre.value("eps2") - probe.resolved_sigma * pre.error("eps2")
+        minimum = probe.min_last_lag if probe.min_last_lag is not None else MIN_FIT_LAGS
+        return _adaptive_last_lag(probe.noise_factor * eps2, pre.value("D") * self.dt, self.n,
+                                  minimum)
 
     def _translation_range(self) -> tuple[int, int]:
         if "t" not in self.ranges:
@@ -327,8 +362,8 @@ class _Pass:
         probe chose longer than the lags computed for the plots)."""
         missing = np.setdiff1d(lags, next(iter(self.stats.values())).lags)
         if missing.size:
-            _merge(self.stats, lag_statistics(self.obs, list(self.recipe.observables), missing,
-                                              self.dt, self.pair_filter))
+            _merge(self.stats, lag_statistics(self.observables, list(self.recipe.observables),
+                                              missing, self.dt, self.pair_filter))
 
 
 def _sensitivity(
@@ -337,7 +372,9 @@ def _sensitivity(
 ) -> None:
     """Redo the measurement with the rejection's ``D_est`` scaled by each sensitivity factor
     (same fit ranges) and record the values in the measurements' ``sensitivity``."""
-    est = core.cleaning.estimate
+    est = core.cleaning.estimate if core.cleaning is not None else None
+    if est is None:
+        return
     fit_lags = np.union1d(_range(ranges["t"], traj.n_frames, "translation"),
                           _range(ranges["r"], traj.n_frames, "rotation", sparse=True))
     for factor in s.sensitivity_factors:
@@ -421,6 +458,13 @@ def _analyze(traj: Trajectory, s: AnalysisConfig) -> AnalysisResult:
         predictions, sizes, [], notes, drift_err,
     )
     _effective_radii(result)
+    if s.check_consistency and recipe.consistency is not None:
+        result.consistency = check_consistency(
+            result, recipe.consistency, pos,
+            core.cleaning.axis if core.cleaning is not None else None,
+            traj.frame_interval_s, bridge_s, s.consistency_alpha, s.theory_tolerance)
+        if result.consistency.flagged:
+            notes.append(f"flagged: {result.consistency.message}")
     result.rows = summary_rows(result)
     return result
 

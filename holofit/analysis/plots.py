@@ -161,6 +161,7 @@ def plot_trajectory(result: AnalysisResult, path: str | Path) -> Path:
         ax = axes[1, 0]
         cl = result.cleaning
         axis = cl.axis if cl is not None else traj.axis
+        assert axis is not None and traj.axis is not None  # has_axis
         for k, (name, color) in enumerate((("u_x", "C0"), ("u_y", "C1"), ("u_z", "C2"))):
             ax.plot(t, axis[:, k], "-", color=color, lw=0.8, label=name + " (cleaned)")
         if cl is not None and cl.outliers.any():

@@ -114,8 +114,9 @@ def projection_covariance(
     sim_counts = np.empty(lags.size)
     if scaled or all(m.all() for m in masks):  # no gaps: every lag at once, by FFT
         nfft = 1 << int(np.ceil(np.log2(2 * n_run)))
-        corr = sum(np.fft.irfft(np.abs(np.fft.rfft(c, nfft, axis=1)) ** 2, nfft, axis=1)
-                   for c in (px, py))
+        corr = np.zeros((n_sim, nfft))
+        for c in (px, py):
+            corr += np.fft.irfft(np.abs(np.fft.rfft(c, nfft, axis=1)) ** 2, nfft, axis=1)
         sim_counts = (n_run - lags).astype(float)
         means = corr[:, lags] / sim_counts
         lags_done = True

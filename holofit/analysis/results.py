@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from holofit.analysis.cleaning import OrientationCleaning
+from holofit.analysis.consistency import Consistency
 from holofit.analysis.hydrodynamics import Prediction
 from holofit.analysis.linefit import FitResult
 from holofit.analysis.measurement import Measurement
@@ -54,6 +55,9 @@ class AnalysisResult:
         What the user should know.
     drift_err_um_s : ndarray, shape (3,)
         The Brownian 1-sigma error of the end-to-end drift velocity, um/s (NaN if unknown).
+    consistency : Consistency, optional
+        The physical-consistency tests and whether the track is flagged
+        (:mod:`holofit.analysis.consistency`; None when not checked).
     """
 
     settings: AnalysisConfig
@@ -69,6 +73,12 @@ class AnalysisResult:
     rows: list[dict[str, Any]]
     notes: list[str] = field(default_factory=list)
     drift_err_um_s: NDArray[np.float64] = field(default_factory=lambda: np.full(3, np.nan))
+    consistency: Consistency | None = None
+
+    @property
+    def flagged(self) -> bool:
+        """The consistency check failed (the track is left out of pooled results)."""
+        return self.consistency is not None and self.consistency.flagged
 
     def summary(self) -> dict[str, Any]:
         """A JSON-ready description of the analysis."""
@@ -98,6 +108,8 @@ class AnalysisResult:
             "table": self.rows,
             "notes": self.notes,
         }
+        if self.consistency is not None:
+            doc["consistency"] = self.consistency.summary()
         if cl is not None:
             first = next(iter(self.stats.values()))
             doc["cleaning"] = {

@@ -88,10 +88,11 @@ class AnalysisConfig:
         carry the Brownian bridge's factor ``1 - tau / T``, so this costs no bias).
     fit_lags_translation, fit_lags_rotation : tuple of int, optional
         Inclusive fit ranges in frames. Defaults: lags 1..p with ``p = 2 + 2.5 sqrt(x)``
-        (3 <= p <= 20) for translation and for the rod's orientation MSD, ``x`` being the
-        reduced localisation error ``eps^2 / (D dt)`` from a preliminary fit of lags 1-10 (the
-        orientation MSD also stops before ``<|du|^2>`` reaches 0.5); for the Janus projection
-        correlation, up to the lag where ``<p . p'>`` falls to 0.5.
+        (3 <= p <= 20; a rod's translation 2 <= p, with ``eps^2`` less twice its error, the
+        noise where resolved) for translation and for the rod's orientation MSD, ``x`` being
+        the reduced localisation error ``eps^2 / (D dt)`` from a preliminary fit of lags 1-10
+        (the orientation MSD also stops before ``<|du|^2>`` reaches 0.5); for the Janus
+        projection correlation, up to the lag where ``<p . p'>`` falls to 0.5.
     max_lag : int, optional
         Longest lag computed for the plots (default: a quarter of the trajectory).
     drop_ambiguous : bool, optional
@@ -99,6 +100,21 @@ class AnalysisConfig:
         within the noise) as gaps (default: True for rods, False otherwise).
     projection_amplitude : bool
         Fit an amplitude ``A`` in front of the projection series (absorbs angular noise).
+    body_frame : bool
+        Fit a rod's MSDs along and across its axis together with their exact means for the
+        measured axis path and the drift removal (:mod:`holofit.analysis.body_frame`); False:
+        two separate lines ``2 D_par tau (1 - tau/T)`` and ``4 D_perp tau (1 - tau/T)``, which
+        are biased when an anisotropic rod turns within the fit range (kept for comparison).
+    check_consistency : bool
+        Test the track's hydrodynamic size against its optical size and its motion against
+        Brownian motion (:mod:`holofit.analysis.consistency`); a track that fails is flagged
+        and left out of pooled results.
+    consistency_alpha : float
+        Probability that a Brownian track of the fitted size is flagged (split over the
+        tests), default 0.01.
+    theory_tolerance : float, optional
+        Relative uncertainty of the hydrodynamic theory in the size test (default: the
+        model's, 5 % for spheres and Janus particles, 10 % for rods).
 
     Raises
     ------
@@ -126,6 +142,10 @@ class AnalysisConfig:
     max_lag: int | None = None
     projection_amplitude: bool = True
     drop_ambiguous: bool | None = None
+    body_frame: bool = True
+    check_consistency: bool = True
+    consistency_alpha: float = 0.01
+    theory_tolerance: float | None = None
 
     def __post_init__(self) -> None:
         if self.model not in RECIPES:
@@ -143,6 +163,12 @@ class AnalysisConfig:
             value = getattr(self, name)
             if value is not None and (problem := number_problem(value, spec)):
                 raise SettingError(name, problem)
+        if not 0 < self.consistency_alpha < 1:
+            raise SettingError(
+                "consistency_alpha", f"expected a value in (0, 1), got {self.consistency_alpha}")
+        if self.theory_tolerance is not None and not 0 <= self.theory_tolerance < 1:
+            raise SettingError(
+                "theory_tolerance", f"expected a fraction in [0, 1), got {self.theory_tolerance}")
         if not 0 < self.reject_probability < 1:
             raise SettingError(
                 "reject_probability", f"expected a value in (0, 1), got {self.reject_probability}"

@@ -5,8 +5,10 @@ A table keyed by ``(particle, frame)`` with one track is analysed as one traject
 ``summary.json``, ``msd.csv`` and the plots. With several tracks each is analysed on its own
 and the tracks are pooled (:mod:`holofit.analysis.tracks`): each analysed track's files with
 the prefix ``particle_<id>_``, ``tracks.csv``, ``pooled.csv``, ``tracks.png``,
-``track_msds.png`` and, last, ``summary.csv`` with every analysed track's rows and a
-``particle`` column (the file ``make`` waits for).
+``track_msds.png`` and, last, ``summary.csv`` with every analysed track's rows and one row for
+each track left out, each with its ``particle``, analysis ``model``, ``track_status`` and
+``reason`` (the file ``make`` waits for). Each track is analysed with its own model
+(:mod:`holofit.analysis.population`) unless the selection imposes one.
 """
 
 from __future__ import annotations
@@ -17,17 +19,17 @@ from pathlib import Path
 import pandas as pd
 
 from holofit.analysis.pipeline import analyze_trajectory
+from holofit.analysis.population import (
+    TrackSelection,
+    analysis_model_of,
+    settings_for_model,
+    track_kinds,
+)
 from holofit.analysis.results import AnalysisResult
 from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.summary import format_report, write_summary
-from holofit.analysis.tracks import (
-    TrackPooling,
-    TracksResult,
-    analyze_tracks,
-    format_tracks_report,
-    n_tracks,
-    write_tracks,
-)
+from holofit.analysis.track_tables import format_tracks_report, model_records, write_tracks
+from holofit.analysis.tracks import TrackPooling, TracksResult, analyze_tracks, n_tracks
 from holofit.analysis.trajectory import Trajectory
 from holofit.io.tables import write_table
 from holofit.provenance import sidecar
@@ -65,8 +67,9 @@ class AnalysisRun:
 def analyze_table(
     path: str | Path, settings: AnalysisConfig, frame_interval_s: float | None = None
 ) -> AnalysisResult:
-    """Read a fit table of one track (validating it) and analyse it."""
-    fit = read_fit_table(path, frame_interval_s)
+    """Read a fit table of one track (validating it; columns empty on every row, another
+    particle model's, left out) and analyse it."""
+    fit = read_fit_table(path, frame_interval_s, drop_empty=True)
     traj = Trajectory.from_fit_table(fit, bool(settings.drop_ambiguous))
     return analyze_trajectory(traj, settings)
 
@@ -79,6 +82,7 @@ def run_analysis(
     plots: bool = True,
     frame_interval_s: float | None = None,
     pooling: TrackPooling | None = None,
+    selection: TrackSelection | None = None,
 ) -> AnalysisRun:
     """Analyse a fit table of one track or several and write the summary files and plots
     (see the module docstring).
@@ -97,15 +101,21 @@ def run_analysis(
         The time between frames, s, where the table's sidecar does not say it.
     pooling : TrackPooling, optional
         How several tracks are pooled.
+    selection : TrackSelection, optional
+        The tracks analysed (``--particle`` / ``--exclude-particle``) and a model imposed on
+        all (``--model``); default: every track, each with its own model.
 
     Raises
     ------
     FitTableError, AnalysisError
         Naming the file and what is wrong.
     """
+    selection = selection or TrackSelection()
     if n_tracks(path) > 1:
-        return _run_tracks(path, settings, Path(out_dir), plots, frame_interval_s, pooling)
-    result = analyze_table(path, settings, frame_interval_s)
+        return _run_tracks(path, settings, Path(out_dir), plots, frame_interval_s, pooling,
+                           selection)
+    result = analyze_table(path, _single_track_settings(path, settings, selection),
+                           frame_interval_s)
     pngs: list[Path] = []
     if plots:
         from holofit.analysis.plots import write_plots
@@ -118,14 +128,48 @@ def run_analysis(
     return AnalysisRun(result=result, files=files)
 
 
+def _single_track_settings(path: str | Path, settings: AnalysisConfig,
+                           selection: TrackSelection) -> AnalysisConfig:
+    """The settings of a table of one track: its own model where the fit table's ``model``
+    column names one and none is imposed; the selection checked against the track.
+
+    Raises
+    ------
+    AnalysisError
+        A selection the table does not meet.
+    """
+    try:
+        head = pd.read_csv(path, usecols=lambda c: c in ("particle", "model"), dtype=str)
+    except (OSError, ValueError, pd.errors.ParserError, pd.errors.EmptyDataError):
+        return settings  # the reader that follows names the problem
+    if "particle" in head.columns and (selection.particles or selection.exclude_particles):
+        ids = pd.to_numeric(head["particle"], errors="coerce").dropna().astype(int)
+        selection.kept(set(ids), str(path))
+    if selection.model is not None:
+        return settings_for_model(settings, selection.model)
+    kinds = track_kinds(head) if "particle" in head.columns else {}
+    if not kinds and "model" in head.columns and head["model"].notna().any():
+        kinds = {0: str(head["model"].dropna().mode().iloc[0])}
+    if not kinds:
+        return settings
+    model, _ = analysis_model_of(next(iter(kinds.values())))
+    # a kind that alone does not decide (a dimer): the settings' model, the sidecar's or given
+    return settings if model is None else settings_for_model(settings, model)
+
+
 def _run_tracks(path: str | Path, settings: AnalysisConfig, out: Path, plots: bool,
-                frame_interval_s: float | None, pooling: TrackPooling | None) -> AnalysisRun:
+                frame_interval_s: float | None, pooling: TrackPooling | None,
+                selection: TrackSelection) -> AnalysisRun:
     """Every track of a table of several, each one's files prefixed, then the pooling."""
-    result = analyze_tracks(path, settings, pooling=pooling, frame_interval_s=frame_interval_s)
+    result = analyze_tracks(path, settings, pooling=pooling, frame_interval_s=frame_interval_s,
+                            selection=selection)
     files: dict[str, Path] = {}
     rows = []
     for t in result.tracks:
+        head = {"particle": t.particle, "model": t.model, "track_status": t.status,
+                "reason": t.message}
         if t.result is None:
+            rows.append({**head, "quantity": "", "remedy": t.remedy})
             continue
         prefix = f"particle_{t.particle}_"
         if plots:
@@ -135,7 +179,7 @@ def _run_tracks(path: str | Path, settings: AnalysisConfig, out: Path, plots: bo
                 files[png.stem + "_png"] = png
         for name, f in write_summary(t.result, out, inputs=[path], prefix=prefix).items():
             files[f"{prefix}{name}"] = f
-        rows += [{"particle": t.particle, "track_status": t.status, **r} for r in t.result.rows]
+        rows += [{**head, **r} for r in t.result.rows]
     files.update(write_tracks(result, out, inputs=[path]))
     if plots:
         from holofit.analysis.track_plots import write_track_plots
@@ -144,7 +188,9 @@ def _run_tracks(path: str | Path, settings: AnalysisConfig, out: Path, plots: bo
             files[png.stem + "_png"] = png
     files["summary_csv"] = write_table(
         out / "summary.csv", pd.DataFrame(rows),
-        sidecar(kind="diffusion analysis summary, one block per track",
-                config={"settings": settings.__dict__}, inputs=[path],
-                extra={"notes": result.notes}))
+        sidecar(kind="diffusion analysis summary, one block per track (one row for a track "
+                     "left out)",
+                config={"settings": settings.__dict__, "selection": selection.summary()},
+                inputs=[path],
+                extra={"notes": result.notes, "models": model_records(result)}))
     return AnalysisRun(tracks=result, files=files)

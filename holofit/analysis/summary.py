@@ -8,12 +8,14 @@ from typing import Any
 
 import pandas as pd
 
+from holofit.analysis.consistency import Consistency
 from holofit.analysis.recipes import Compared, recipe_for
 from holofit.analysis.results import AnalysisResult
 from holofit.io.tables import write_json, write_table
 from holofit.provenance import sidecar
 
-__all__ = ["SUMMARY_COLUMNS", "format_report", "summary_rows", "write_summary"]
+__all__ = ["SUMMARY_COLUMNS", "consistency_rows", "format_report", "summary_rows",
+           "write_summary"]
 
 SUMMARY_COLUMNS = (
     "quantity",
@@ -129,14 +131,37 @@ def summary_rows(result: AnalysisResult) -> list[dict[str, Any]]:
         ("a_eff_t", "a_eff from D_t", "Stokes-Einstein radius of the measured D_t"),
         ("a_eff_r", "a_eff from D_r", "Stokes-Einstein-Debye radius of the measured D_r"),
     ):
-        m = meas.get(key)
-        if m is None:
+        a_eff = meas.get(key)
+        if a_eff is None:
             continue
         if recipe.radius_is_hydrodynamic and radius is not None:
-            rows.append(_row(label, "nm", m.value, m.error, 1e3 * radius[0], 1e3 * radius[1],
-                             src + " vs fitted radius"))
+            rows.append(_row(label, "nm", a_eff.value, a_eff.error, 1e3 * radius[0],
+                             1e3 * radius[1], src + " vs fitted radius"))
         else:
-            rows.append(_row(label, "nm", m.value, m.error, source=src))
+            rows.append(_row(label, "nm", a_eff.value, a_eff.error, source=src))
+    if result.consistency is not None:
+        rows += consistency_rows(result.consistency)
+    return rows
+
+
+def consistency_rows(c: Consistency) -> list[dict[str, Any]]:
+    """Rows of the physical-consistency check: each size test's size ratio, each test's
+    p-value (``expected``: the p-value below which it fails) and the verdict."""
+    rows: list[dict[str, Any]] = []
+    thr = c.threshold
+    for t in c.tests:
+        failed = " -- FAILED" if t.name in c.failed else ""
+        if t.name.startswith("size ") and "size_ratio" in t.values:
+            rows.append(_row(f"check: hydrodynamic/optical size from {t.name[5:]}", "1",
+                             t.values["size_ratio"], t.values["size_ratio_err"], 1.0,
+                             source=f"(D_predicted / D_measured)^(1/e); z = "
+                                    f"{t.statistic:+.2f}{failed}"))
+        rows.append(_row(f"check: {t.name}", "p", t.p_value, expected=thr,
+                         source=t.detail + failed))
+    verdict = c.message if c.flagged else (
+        f"consistent with the free Brownian motion of the fitted particle (every test "
+        f"p >= {thr:.2g}, the rule that flags {100 * c.alpha:g} % of such tracks at most)")
+    rows.append(_row("check: flagged", "1", float(c.flagged), source=verdict))
     return rows
 
 
@@ -177,18 +202,18 @@ def format_report(result: AnalysisResult) -> str:
                      "its removal)")
     cl = result.cleaning
     if cl is not None:
-        parts = []
+        done: list[str] = []
         if s.head_tail:
-            parts.append(f"{int(cl.flipped.sum())} head-tail flips corrected")
+            done.append(f"{int(cl.flipped.sum())} head-tail flips corrected")
         if s.reject and cl.estimate is not None:
             rej = next(iter(result.stats.values()))
-            parts.append(
+            done.append(
                 f"{int(cl.outliers.sum())} frames rejected, {int(rej.rejected[0])} pairs at lag 1"
                 f" (P < {s.reject_probability:g}, D_est = {cl.estimate.d_est:.3g} 1/s "
                 f"{cl.estimate.source}, eps_r = {cl.estimate.eps_r:.3g} rad)"
             )
-        if parts:
-            lines.append("  cleaning: " + "; ".join(parts))
+        if done:
+            lines.append("  cleaning: " + "; ".join(done))
     for key, f in result.fits.items():
         lines.append(
             f"  fit {key}: lags {f.lags[0]}-{f.lags[-1]} frames ({f.tau_s[0]:.3g}-"

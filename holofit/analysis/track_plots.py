@@ -15,7 +15,8 @@ from holofit.io.atomic import atomic_path
 
 __all__ = ["plot_field_of_view", "plot_track_msds", "write_track_plots"]
 
-_STATUS_STYLE = {"analysed": "-", "poor_fit": ":", "short": "--", "failed": ":"}
+_STATUS_STYLE = {"analysed": "-", "poor_fit": ":", "flagged": ":", "short": "--",
+                 "failed": ":"}
 
 
 def _save(fig, path: Path) -> Path:
@@ -56,29 +57,35 @@ def _lab_msd(stats: dict) -> str | None:
 
 
 def plot_track_msds(result: TracksResult, path: Path) -> Path:
-    """A lab-frame MSD of every analysed track, with the pooled ``D_t`` as a line."""
+    """A lab-frame MSD of every analysed track (its model's: x-y for a sphere, 3D for a
+    rod), with each model's pooled ``D_t`` as a line."""
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    tau_max = 0.0
-    names = {_lab_msd(t.result.stats) for t in result.tracks if t.result is not None}
-    name = next(iter(names)) if len(names) == 1 else None
+    tau_max: dict[str, float] = {}
+    names: dict[str, set[str]] = {}
     for t in result.tracks:
+        name = _lab_msd(t.result.stats) if t.result is not None else None
         if t.result is None or name is None:
             continue
+        names.setdefault(t.model, set()).add(name)
         st = t.result.stats[name]
         ok = np.isfinite(st.mean)
         ax.errorbar(st.tau_s[ok], st.mean[ok], yerr=st.sem[ok], fmt="o-", ms=2, lw=0.6,
-                    elinewidth=0.5, label=f"particle {t.particle}"
+                    elinewidth=0.5, label=f"particle {t.particle}, {t.model} ({name})"
                     + ("" if t.status == "analysed" else f" ({t.status})"))
         if ok.any():
-            tau_max = max(tau_max, float(st.tau_s[ok][-1]))
-    pooled = result.pooled.get("D_t")
-    if pooled is not None and tau_max > 0 and name is not None:
-        tau = np.linspace(0.0, tau_max, 50)
-        ax.plot(tau, _LAB_MSDS[name] * pooled.value * tau, "k--", lw=1.2,
-                label=f"{_LAB_MSDS[name]:g} D tau, pooled D_t {pooled.value:.3g} um^2/s")
+            tau_max[t.model] = max(tau_max.get(t.model, 0.0), float(st.tau_s[ok][-1]))
+    for model, used in names.items():
+        pooled = result.estimate("D_t", model)
+        if pooled is None or len(used) != 1 or not tau_max.get(model, 0.0) > 0:
+            continue
+        k = _LAB_MSDS[next(iter(used))]
+        tau = np.linspace(0.0, tau_max[model], 50)
+        ax.plot(tau, k * pooled.value * tau, "--", lw=1.2,
+                label=f"{k:g} D tau, pooled {model} D_t {pooled.value:.3g} um^2/s")
     ax.set_xlabel("lag time (s)")
-    ax.set_ylabel(f"MSD {name or ''} (um$^2$)")
-    ax.legend(fontsize=7)
+    ax.set_ylabel("lab-frame MSD (um$^2$)")
+    if names:
+        ax.legend(fontsize=7)
     return _save(fig, path)
 
 

@@ -2,8 +2,10 @@
 
 A multi-particle fit table holds one row per (``particle``, ``frame``); ``particle`` is the track
 id (trackpy's name). Each track is analysed on its own, exactly as a single-particle table is
-(:func:`holofit.analysis.pipeline.analyze_trajectory`). The tracks of one run are fitted with
-one particle model, so their coefficients estimate the same quantities and are pooled:
+(:func:`holofit.analysis.pipeline.analyze_trajectory`), with its own analysis model: the one of
+the particle model the fit gave it (a run may fit a population of models; a sphere among rods
+translates only), or the one given for all (:mod:`holofit.analysis.population`). Tracks of one
+analysis model estimate the same quantities and are pooled, never with another model's:
 
 * the pooled value is the inverse-variance weighted mean ``sum(w_i x_i) / sum(w_i)`` with
   ``w_i = 1 / sigma_i^2``, its error ``1 / sqrt(sum w_i)``;
@@ -14,9 +16,14 @@ one particle model, so their coefficients estimate the same quantities and are p
   the others (an impurity, a dimer among rods): ``|pull| > outlier_sigma`` marks it
   ``outlier`` in the pooled table, and it is left out of that quantity's pooled value.
 
-Tracks are left out of the pool, and say why, when they are too short (``short``), when most of
-their fitted frames missed the particle model (``poor_fit``: dust or an impurity, not the
-particle the model describes), or when their analysis failed (``failed``).
+Every track is a row of the result, analysed or not, with its status and why
+(:data:`TRACK_STATUSES`): a track the fit left out keeps the fit's reason and remedy (the fit's
+``tracks.csv``, :mod:`holofit.analysis.population`); one the selection leaves out is
+``excluded``; one too short, mostly ``poor_fit``, whose analysis failed or that fails the
+physical-consistency check (``flagged``: a hydrodynamic size unlike the fitted one, sticking,
+a drift that changes, swimming; :mod:`holofit.analysis.consistency`) is not pooled, the last
+unless ``TrackPooling(include_flagged=True)`` asks for it. The tables and the report are
+:mod:`holofit.analysis.track_tables`'.
 """
 
 from __future__ import annotations
@@ -34,35 +41,53 @@ from scipy.stats import chi2 as chi2_dist
 
 from holofit.analysis.errors import AnalysisError
 from holofit.analysis.pipeline import analyze_trajectory
+from holofit.analysis.population import (
+    FitTrack,
+    TrackModel,
+    TrackSelection,
+    read_fit_tracks,
+    settings_for_model,
+    track_kinds,
+    track_model,
+)
 from holofit.analysis.results import AnalysisResult
 from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.trajectory import Trajectory
-from holofit.io.tables import sidecar_path, write_table
-from holofit.provenance import sidecar
-from holofit.status import OK, POOR_FIT
-from holofit.tables.fit import FitTableError, validate_fit_table
+from holofit.io.tables import sidecar_path
+from holofit.status import OK, POOR_FIT, SKIPPED
+from holofit.tables.fit import REQUIRED_COLUMNS, FitTableError, validate_fit_table
 
 __all__ = [
+    "POOLED_QUANTITIES",
     "TRACK_COLUMN",
+    "TRACK_STATUSES",
     "PooledEstimate",
     "TrackPooling",
     "TrackResult",
     "TracksResult",
     "analyze_tracks",
-    "format_tracks_report",
     "has_tracks",
     "n_tracks",
     "pool_estimates",
-    "pooled_rows",
     "split_tracks",
-    "track_rows",
-    "write_tracks",
 ]
 
 #: the column that holds the track id (trackpy's name)
 TRACK_COLUMN = "particle"
-#: the quantities pooled over tracks, when a track's analysis measured them
+#: the quantities pooled over the tracks of one analysis model, when their analyses measured them
 POOLED_QUANTITIES = ("D_t", "D_par", "D_perp", "D_r", "D_xy")
+#: what became of a track in the analysis
+TRACK_STATUSES = {
+    "analysed": "analysed and pooled with the tracks of its model",
+    "flagged": "analysed; fails the physical-consistency check: not pooled unless asked",
+    "poor_fit": "analysed; most fitted frames are poor_fit (dust, an impurity): not pooled",
+    "short": "fewer ok frames than the pooling's min_frames: not analysed",
+    "failed": "its analysis raised (the reason says why)",
+    "left_out": "the fit left it out (the fit's reason and remedy)",
+    "unmodelled": "no model of the fit's population fits it (the fit's reason and remedy)",
+    "excluded": "left out by --particle / --exclude-particle (of the fit or the analysis)",
+    "no_model": "no analysis model suits its particle model: give one (--model)",
+}
 
 
 @dataclass(frozen=True)
@@ -78,11 +103,16 @@ class TrackPooling:
         reported as ``poor_fit`` and not pooled.
     outlier_sigma : float
         A track whose pull against the other tracks exceeds this is an outlier of that quantity.
+    include_flagged : bool
+        Pool the tracks that failed the physical-consistency check too (by default they are
+        reported as ``flagged`` and left out: their coefficients do not measure free
+        diffusion of the fitted particle).
     """
 
     min_frames: int = 20
     max_poor_fraction: float = 0.5
     outlier_sigma: float = 3.0
+    include_flagged: bool = False
 
     def __post_init__(self) -> None:
         if self.min_frames < 3:
@@ -95,7 +125,7 @@ class TrackPooling:
 
 @dataclass
 class TrackResult:
-    """One track: its frames, why it is (not) pooled, and its analysis.
+    """One track: its frames, its model, why it is (not) pooled, and its analysis.
 
     Attributes
     ----------
@@ -103,12 +133,23 @@ class TrackResult:
         Track id.
     n_frames, n_ok, n_poor : int
         Rows of the track, ``ok`` rows, ``poor_fit`` rows.
-    status : {"analysed", "short", "poor_fit", "failed"}
-        ``analysed`` tracks are pooled.
+    status : str
+        One of :data:`TRACK_STATUSES`; ``analysed`` tracks are pooled (``flagged`` ones only
+        when the pooling asks).
     message : str
         Why, for the others.
     result : AnalysisResult or None
-        The track's analysis (also for ``poor_fit`` tracks, when it ran).
+        The track's analysis (also for ``poor_fit`` and ``flagged`` tracks).
+    model : str
+        Its analysis model ('' when it has none).
+    kind : str
+        The particle model the fit gave it ('' when not recorded).
+    model_source : str
+        Why that analysis model.
+    remedy : str
+        What to try, for a track left out ('' otherwise).
+    statics : dict
+        The static parameters its fit fixed (the fit's table of tracks; the model's units).
     """
 
     particle: int
@@ -118,6 +159,11 @@ class TrackResult:
     status: str
     message: str = ""
     result: AnalysisResult | None = None
+    model: str = ""
+    kind: str = ""
+    model_source: str = ""
+    remedy: str = ""
+    statics: dict[str, float] = field(default_factory=dict)
 
     @property
     def poor_fraction(self) -> float:
@@ -127,7 +173,7 @@ class TrackResult:
 
 @dataclass
 class PooledEstimate:
-    """One quantity pooled over tracks (inverse-variance weighted).
+    """One quantity pooled over the tracks of one analysis model (inverse-variance weighted).
 
     Attributes
     ----------
@@ -146,6 +192,8 @@ class PooledEstimate:
         Tracks left out as not like the others.
     pulls : dict
         Track -> pull against the other tracks' mean.
+    model : str
+        The analysis model of the pooled tracks.
     """
 
     quantity: str
@@ -158,16 +206,48 @@ class PooledEstimate:
     particles: list[int] = field(default_factory=list)
     outliers: list[int] = field(default_factory=list)
     pulls: dict[int, float] = field(default_factory=dict)
+    model: str = ""
 
 
 @dataclass
 class TracksResult:
-    """Every track's analysis and the pooled estimates."""
+    """Every track's analysis and the pooled estimates, by (analysis model, quantity).
+
+    Attributes
+    ----------
+    tracks : list of TrackResult
+        Every track, analysed or not, by track id.
+    pooled : dict
+        ``(model, quantity)`` -> :class:`PooledEstimate`.
+    pooling : TrackPooling
+    notes : list of str
+    selection : TrackSelection
+        The tracks asked for and the model imposed, if any.
+    """
 
     tracks: list[TrackResult]
-    pooled: dict[str, PooledEstimate]
+    pooled: dict[tuple[str, str], PooledEstimate]
     pooling: TrackPooling
     notes: list[str] = field(default_factory=list)
+    selection: TrackSelection = field(default_factory=TrackSelection)
+
+    def estimate(self, quantity: str, model: str | None = None) -> PooledEstimate | None:
+        """The pooled ``quantity`` of ``model``'s tracks; without ``model``, the one model's
+        that has it (None when none, or several, do)."""
+        if model is not None:
+            return self.pooled.get((model, quantity))
+        found = [e for (_, q), e in self.pooled.items() if q == quantity]
+        return found[0] if len(found) == 1 else None
+
+    @property
+    def models(self) -> dict[int, str]:
+        """Each track's analysis model ('' for a track without one)."""
+        return {t.particle: t.model for t in self.tracks}
+
+    @property
+    def left_out(self) -> list[TrackResult]:
+        """The tracks not analysed, each with its status and reason."""
+        return [t for t in self.tracks if t.result is None]
 
 
 def n_tracks(path: str | Path) -> int:
@@ -236,9 +316,18 @@ def _leave_one_out_pulls(x: NDArray[np.float64], s: NDArray[np.float64]) -> NDAr
     return pulls
 
 
-def _pool(quantity: str, tracks: list[TrackResult], sigma: float) -> PooledEstimate | None:
+def _pooled_status(pooling: TrackPooling) -> tuple[str, ...]:
+    return ("analysed", "flagged") if pooling.include_flagged else ("analysed",)
+
+
+def _pool(model: str, quantity: str, tracks: list[TrackResult], pooling: TrackPooling
+          ) -> PooledEstimate | None:
+    """``quantity`` pooled over the pooled tracks of analysis model ``model`` only."""
+    sigma = pooling.outlier_sigma
+    use = _pooled_status(pooling)
     rows = [(t.particle, t.result.measured[quantity]) for t in tracks
-            if t.status == "analysed" and t.result is not None and quantity in t.result.measured]
+            if t.model == model and t.status in use and t.result is not None
+            and quantity in t.result.measured]
     rows = [(p, m) for p, m in rows
             if not m.upper_limit and math.isfinite(m.value) and m.error > 0]
     if not rows:
@@ -256,55 +345,140 @@ def _pool(quantity: str, tracks: list[TrackResult], sigma: float) -> PooledEstim
         particles=[i for i, k in zip(ids, keep, strict=True) if k],
         outliers=[i for i, o in zip(ids, odd, strict=True) if o],
         pulls={i: float(v) for i, v in zip(ids, pulls, strict=True)},
+        model=model,
     )
 
 
-def _analyse_track(particle: int, rows: pd.DataFrame, settings: AnalysisConfig,
-                   pooling: TrackPooling, source: str, dt: float | None) -> TrackResult:
+def _own_columns(rows: pd.DataFrame) -> pd.DataFrame:
+    """A track's rows without the columns empty on every row (another model's of the run: a
+    sphere's rows hold no rod's orientation or lengths), so that the fit table's checks and
+    the size defaults see the track's own model."""
+    empty = [c for c in rows.columns if c not in REQUIRED_COLUMNS and rows[c].isna().all()]
+    return rows.drop(columns=empty)
+
+
+def _counts(particle: int, rows: pd.DataFrame) -> TrackResult:
     status = rows["status"].astype(str).str.strip().str.lower()
     n_ok, n_poor = int((status == OK).sum()), int((status == POOR_FIT).sum())
-    track = TrackResult(particle, len(rows), n_ok, n_poor, "analysed")
-    if n_ok < pooling.min_frames:
+    return TrackResult(particle, len(rows), n_ok, n_poor, "analysed")
+
+
+def _fit_left_out(track: TrackResult, rows: pd.DataFrame, fit: FitTrack | None) -> bool:
+    """Mark ``track`` with the fit's reason if the fit left it out; whether it did. Without
+    the fit's table of tracks, a track whose rows are all ``skipped`` with the fit's
+    message ("track N left out (...): ...") is one."""
+    if fit is not None and fit.left_out:
+        track.status = fit.status
+        track.message, track.remedy = fit.reason or f"the fit left it out ({fit.status})", \
+            fit.remedy
+        return True
+    status = rows["status"].astype(str).str.strip().str.lower()
+    msgs = rows["message"].astype(str) if "message" in rows else pd.Series([], dtype=str)
+    if track.n_ok == 0 and len(rows) and (status == SKIPPED).all() \
+            and msgs.str.startswith(f"track {track.particle} left out").all():
+        track.status, track.message = "left_out", str(msgs.iloc[0])
+        return True
+    return False
+
+
+def _analyse_track(track: TrackResult, rows: pd.DataFrame, settings: AnalysisConfig,
+                   pooling: TrackPooling, source: str, dt: float | None) -> TrackResult:
+    if track.n_ok < pooling.min_frames:
         track.status = "short"
-        track.message = f"{n_ok} ok frame(s), fewer than {pooling.min_frames}: not analysed"
+        track.message = (f"{track.n_ok} ok frame(s), fewer than {pooling.min_frames}: "
+                         "not analysed")
         return track
     try:
-        fit = validate_fit_table(rows, f"{source} (particle {particle})", dt)
+        fit = validate_fit_table(_own_columns(rows), f"{source} (particle {track.particle})", dt)
         track.result = analyze_trajectory(
             Trajectory.from_fit_table(fit, bool(settings.drop_ambiguous)), settings)
     except (FitTableError, AnalysisError) as exc:
-        track.status, track.message = "failed", str(exc)
+        track.status, track.message = "failed", f"{track.model} analysis: {exc}"
         return track
     if track.poor_fraction > pooling.max_poor_fraction:
         track.status = "poor_fit"
-        track.message = (f"{n_poor} of {n_ok + n_poor} fitted frames are poor_fit "
-                         f"({100 * track.poor_fraction:.0f} %): not the particle the model "
-                         "describes (dust, an impurity?); not pooled")
+        track.message = (f"{track.n_poor} of {track.n_ok + track.n_poor} fitted frames are "
+                         f"poor_fit ({100 * track.poor_fraction:.0f} %): not the particle the "
+                         "model describes (dust, an impurity?); not pooled")
+    elif track.result.flagged:
+        assert track.result.consistency is not None
+        track.status = "flagged"
+        track.message = track.result.consistency.message + (
+            "; pooled as asked (include_flagged)" if pooling.include_flagged
+            else "; not pooled (TrackPooling(include_flagged=True) pools it)")
     return track
+
+
+@dataclass(frozen=True)
+class _Run:
+    """What every track of one table shares."""
+
+    settings: AnalysisConfig
+    pooling: TrackPooling
+    selection: TrackSelection
+    source: str
+    dt: float | None
+    kinds: dict[int, str]
+    fit_tracks: dict[int, FitTrack]
+    default: tuple[str | None, str]
+    primary: dict[str, Any]
+
+
+def _track(run: _Run, particle: int, rows: pd.DataFrame, kept: set[int]) -> TrackResult:
+    """One track's row: left out (by the selection, by the fit, for want of a model) or
+    analysed with its own model."""
+    track = _counts(particle, rows)
+    fit = run.fit_tracks.get(particle)
+    tm: TrackModel = track_model(particle, run.kinds, run.fit_tracks, run.selection,
+                                 run.default, run.primary)
+    track.kind, track.model, track.model_source = tm.kind, tm.model or "", tm.source
+    track.statics = dict(fit.statics) if fit is not None else {}
+    if particle not in kept:
+        track.status, track.message = "excluded", run.selection.why_left_out(particle)
+        return track
+    if _fit_left_out(track, rows, fit):
+        track.model = ""  # not analysed: no analysis model is reported for it
+        return track
+    if tm.model is None:
+        track.status = "no_model"
+        track.message = f"no analysis model suits it: {tm.source}"
+        track.remedy = "give the analysis model (--model rod, janus or sphere)"
+        return track
+    return _analyse_track(track, rows, settings_for_model(run.settings, tm.model), run.pooling,
+                          run.source, run.dt)
 
 
 def analyze_tracks(path: str | Path, settings: AnalysisConfig, *,
                    pooling: TrackPooling | None = None,
-                   frame_interval_s: float | None = None) -> TracksResult:
-    """Analyse every track of a multi-particle fit table and pool them.
+                   frame_interval_s: float | None = None,
+                   selection: TrackSelection | None = None) -> TracksResult:
+    """Analyse every track of a multi-particle fit table, each with its model, and pool the
+    tracks of each model.
 
     Parameters
     ----------
     path : str or Path
-        A fit table with a ``particle`` column (and its sidecar, for the frame interval).
+        A fit table with a ``particle`` column (its sidecar for the frame interval, the fit's
+        ``tracks.csv`` beside it for the tracks it left out).
     settings : AnalysisConfig
-        How each track is analysed (the same for all).
+        How each track is analysed; its model is that of the tracks whose own model is not
+        recorded (:func:`holofit.analysis.population.settings_for_model` makes a track's of
+        another model).
     pooling : TrackPooling, optional
         Which tracks are analysed and pooled.
     frame_interval_s : float, optional
         Overrides the sidecar's frame interval, s.
+    selection : TrackSelection, optional
+        The tracks analysed and a model imposed on all (default: every track, each its own).
 
     Raises
     ------
     AnalysisError
-        No track column, no rows, or no track long enough to analyse (naming the file).
+        No track column, no rows, a selection of tracks the table does not hold, or no track
+        that could be analysed (naming the file and each track's reason).
     """
     pooling = pooling or TrackPooling()
+    selection = selection or TrackSelection()
     path = Path(path)
     table = pd.read_csv(path, dtype={"status": str, "message": str})
     if not has_tracks(table):
@@ -312,16 +486,30 @@ def analyze_tracks(path: str | Path, settings: AnalysisConfig, *,
                             "(analyse it with analyze_table)")
     if table.empty:
         raise AnalysisError(f"{path}: the table has no rows")
-    dt = frame_interval_s if frame_interval_s is not None else _sidecar_interval(path)
-    tracks = [_analyse_track(p, rows, settings, pooling, str(path), dt)
-              for p, rows in split_tracks(table, str(path)).items()]
+    by_track = split_tracks(table, str(path))
+    kept = selection.kept(by_track, str(path))
+    fit_tracks = read_fit_tracks(path)
+    run = _Run(settings, pooling, selection, str(path),
+               frame_interval_s if frame_interval_s is not None else _sidecar_interval(path),
+               track_kinds(table), fit_tracks, (settings.model, "the settings' model"),
+               _sidecar_particle(path))
+    tracks = [_track(run, p, rows, kept) for p, rows in by_track.items()]
+    # tracks the fit records but the table lacks (left out before its final pass)
+    for p, f in sorted(fit_tracks.items()):
+        if p not in by_track:
+            status = f.status if f.left_out else "left_out"
+            tracks.append(TrackResult(p, 0, 0, 0, status, f.reason or "no rows in the fit table",
+                                      kind=f.kind, model_source="the fit's table of tracks",
+                                      remedy=f.remedy, statics=dict(f.statics)))
+    tracks.sort(key=lambda t: t.particle)
     if not any(t.result is not None for t in tracks):
         raise AnalysisError(f"{path}: no track could be analysed ("
-                            + "; ".join(f"particle {t.particle}: {t.message}" for t in tracks)
-                            + ")")
-    pooled = {q: est for q in POOLED_QUANTITIES
-              if (est := _pool(q, tracks, pooling.outlier_sigma)) is not None}
-    return TracksResult(tracks, pooled, pooling, _notes(tracks, pooled, pooling.outlier_sigma))
+                            + "; ".join(f"particle {t.particle}: {t.status}: {t.message}"
+                                        for t in tracks) + ")")
+    models = sorted({t.model for t in tracks if t.result is not None})
+    pooled = {(m, q): est for m in models for q in POOLED_QUANTITIES
+              if (est := _pool(m, q, tracks, pooling)) is not None}
+    return TracksResult(tracks, pooled, pooling, _notes(tracks, pooled, pooling), selection)
 
 
 def _sidecar_interval(path: Path) -> float | None:
@@ -335,80 +523,35 @@ def _sidecar_interval(path: Path) -> float | None:
     return float(value) if isinstance(value, int | float) else None
 
 
-def _notes(tracks: list[TrackResult], pooled: dict[str, PooledEstimate], sigma: float
-           ) -> list[str]:
-    notes = [f"particle {t.particle}: {t.status}: {t.message}" for t in tracks
-             if t.status != "analysed"]
+def _sidecar_particle(path: Path) -> dict[str, Any]:
+    """The run's primary particle's parameters from the fit table's sidecar ({} if none)."""
+    try:
+        doc = json.loads(sidecar_path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+    particle = (doc.get("config") or {}).get("particle") if isinstance(doc, dict) else None
+    return dict(particle) if isinstance(particle, dict) else {}
+
+
+def _notes(tracks: list[TrackResult], pooled: dict[tuple[str, str], PooledEstimate],
+           pooling: TrackPooling) -> list[str]:
+    sigma = pooling.outlier_sigma
+    notes = [f"particle {t.particle}: {t.status}: {t.message}"
+             + (f" (remedy: {t.remedy})" if t.remedy else "")
+             for t in tracks if t.status != "analysed"]
+    by_model: dict[str, list[int]] = {}
+    for t in tracks:
+        if t.result is not None:
+            by_model.setdefault(t.model, []).append(t.particle)
+    if len(by_model) > 1:
+        notes.append("tracks of different models are pooled apart: " + "; ".join(
+            f"{m}: particle(s) {', '.join(map(str, ps))}" for m, ps in by_model.items()))
     for est in pooled.values():
+        what = f"{est.quantity} ({est.model})"
         if est.outliers:
-            notes.append(f"{est.quantity}: particle(s) {', '.join(map(str, est.outliers))} not "
+            notes.append(f"{what}: particle(s) {', '.join(map(str, est.outliers))} not "
                          f"like the others (|pull| > {sigma:g}): left out of the pooled value")
         if est.dof > 0 and est.p_value < 1e-3:
-            notes.append(f"{est.quantity}: the pooled tracks disagree (chi^2 {est.chi2:.1f} on "
+            notes.append(f"{what}: the pooled tracks disagree (chi^2 {est.chi2:.1f} on "
                          f"{est.dof} dof, p {est.p_value:.1e})")
     return notes
-
-
-def track_rows(result: TracksResult) -> list[dict[str, Any]]:
-    """One row per (track, quantity) for ``tracks.csv`` (tracks not analysed: one row)."""
-    rows: list[dict[str, Any]] = []
-    for t in result.tracks:
-        base = {"particle": t.particle, "status": t.status, "n_frames": t.n_frames,
-                "n_ok": t.n_ok, "n_poor_fit": t.n_poor, "message": t.message}
-        measured = t.result.measured if t.result is not None else {}
-        qs = [q for q in POOLED_QUANTITIES if q in measured]
-        if not qs:
-            rows.append({**base, "quantity": "", "measured": math.nan, "measured_err": math.nan,
-                         "pull": math.nan, "pooled": False})
-        for q in qs:
-            m, est = measured[q], result.pooled.get(q)
-            rows.append({**base, "quantity": q, "unit": m.unit, "measured": m.value,
-                         "measured_err": m.error,
-                         "pull": est.pulls.get(t.particle, math.nan) if est else math.nan,
-                         "pooled": bool(est and t.particle in est.particles)})
-    return rows
-
-
-def pooled_rows(result: TracksResult) -> list[dict[str, Any]]:
-    """One row per quantity for ``pooled.csv``."""
-    return [{"quantity": e.quantity, "unit": e.unit, "value": e.value, "error": e.error,
-             "chi2": e.chi2, "dof": e.dof, "p_value": e.p_value, "n_tracks": len(e.particles),
-             "particles": " ".join(map(str, e.particles)),
-             "outliers": " ".join(map(str, e.outliers))} for e in result.pooled.values()]
-
-
-def write_tracks(result: TracksResult, out_dir: str | Path, inputs: list[str | Path]
-                 ) -> dict[str, Path]:
-    """Write ``tracks.csv`` and ``pooled.csv`` (+ sidecars, atomically; ``pooled.csv`` last)."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    cfg = {"pooling": result.pooling.__dict__}
-    units = {"measured": "unit column", "measured_err": "unit column", "pull": "1"}
-    files = {"tracks": write_table(out / "tracks.csv", pd.DataFrame(track_rows(result)),
-                                   sidecar(kind="diffusion per track", units=units, config=cfg,
-                                           inputs=inputs, extra={"notes": result.notes}))}
-    files["pooled"] = write_table(
-        out / "pooled.csv", pd.DataFrame(pooled_rows(result)),
-        sidecar(kind="diffusion pooled over tracks (inverse-variance weighted)",
-                units={"value": "unit column", "error": "unit column", "chi2": "1"},
-                config=cfg, inputs=inputs, extra={"notes": result.notes}))
-    return files
-
-
-def format_tracks_report(result: TracksResult) -> str:
-    """A short text report: each track, then the pooled values and their consistency."""
-    lines = ["tracks:"]
-    for t in result.tracks:
-        d = t.result.measured.get("D_t") if t.result is not None else None
-        dtxt = f"D_t {d.value:.3f} +- {d.error:.3f} um^2/s" if d is not None else ""
-        lines.append(f"  particle {t.particle}: {t.n_ok}/{t.n_frames} ok frames, {t.status}"
-                     + (f", {dtxt}" if dtxt else "") + (f" ({t.message})" if t.message else ""))
-    lines.append("pooled over tracks (inverse-variance weighted):")
-    for e in result.pooled.values():
-        consistency = (f"chi^2 {e.chi2:.1f} on {e.dof} dof, p {e.p_value:.2g}" if e.dof > 0
-                       else "one track")
-        lines.append(f"  {e.quantity:<7} {e.value:.3f} +- {e.error:.3f} {e.unit} from "
-                     f"{len(e.particles)} track(s); {consistency}"
-                     + (f"; outliers: {' '.join(map(str, e.outliers))}" if e.outliers else ""))
-    lines += [f"note: {n}" for n in result.notes]
-    return "\n".join(lines)

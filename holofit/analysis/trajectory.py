@@ -59,7 +59,7 @@ class Trajectory:
     @property
     def time_s(self) -> NDArray[np.float64]:
         """Time of every slot from the first frame, s."""
-        return np.arange(self.n_frames) * self.frame_interval_s
+        return np.arange(self.n_frames, dtype=np.float64) * self.frame_interval_s
 
     @classmethod
     def from_arrays(

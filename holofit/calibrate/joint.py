@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -52,13 +52,13 @@ from holofit.calibrate.settings import (
     JointFitSettings,
     SphereFrame,
 )
+from holofit.calibrate.solver import NormalSolution, covariance_from_normal, solve_normal_lm
 from holofit.holomodel.aperture import SCAN_LOWEST, SCAN_STEP, aperture_minima, aperture_start
 from holofit.holomodel.forward import InvalidParameters
-from holofit.holomodel.leastsq import Solution, solve_least_squares
 from holofit.holomodel.parameters import APERTURE
 from holofit.holomodel.pixels import select_pixels
 from holofit.holomodel.result import APERTURE_CHI2, FitResult, aperture_spread
-from holofit.holomodel.statistics import covariance_from_jacobian, estimate_noise_sd
+from holofit.holomodel.statistics import estimate_noise_sd
 from holofit.optics import Optics
 from holofit.prefit.sphere import SPHERE_COLUMNS, fit_sphere_crop
 from holofit.status import NOT_CONVERGED, OK
@@ -90,8 +90,14 @@ def _prefit_start(frame: SphereFrame, optics: Optics, pixel_size_um: float,
     return {c: float(fit.values[c]) for c in SPHERE_COLUMNS}
 
 
+#: what a joint fit tells its ``progress`` callable: the step begun, the steps begun so far,
+#: the steps planned (the NA scan's minima set how many full fits follow it)
+Progress = Callable[[str, int, int], None]
+
+
 def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_size_um: float,
-                   settings: JointFitSettings | None = None) -> InstrumentFit:
+                         settings: JointFitSettings | None = None, *,
+                         progress: Progress | None = None) -> InstrumentFit:
     """Fit the instrument shared by several sphere holograms (the module docstring).
 
     Parameters
@@ -105,6 +111,9 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
         Pixel pitch in the sample plane, um.
     settings : JointFitSettings, optional
         What is fitted (default: the NA and the 4th- and 6th-order spherical aberration).
+    progress : callable, optional
+        Called as ``progress(step, begun, planned)`` at the start of each step: a frame's
+        prefit, an aberration start, the NA scan, a full fit.
 
     Returns
     -------
@@ -126,9 +135,22 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
     n_terms = max([SPHERICAL_NAMES.index(n) + 1 for n in st.aberration], default=0)
     start_ab = optics.aberration.padded(n_terms)
     base = replace(optics, aberration=start_ab)
+    fixed = st.fixed_values()
     frame_names = tuple(n for n in SPHERE_COLUMNS
-                        if not (n == "alpha" and st.fix_alpha is not None))
+                        if not (n == "alpha" and st.fix_alpha is not None) and n not in fixed)
     rng = np.random.default_rng(st.seed)
+    n_starts = (1 + len(st.aberration_starts if st.aberration_starts is not None
+                        else DEFAULT_ABERRATION_STARTS)) if st.aberration else 0
+    held_first = int(st.fit_na and bool(st.aberration or st.fit_polarization))
+    plan = [sum(f.start is None for f in frames) + n_starts
+            + ((held_first + 1 + 3) if st.fit_na else 1), 0]
+
+    def begin(step: str) -> None:
+        plan[1] += 1
+        plan[0] = max(plan[0], plan[1])
+        if progress is not None:
+            progress(step, plan[1], plan[0])
+
     prepared: list[Frame] = []
     for j, fr in enumerate(frames):
         pix = select_pixels(np.asarray(fr.crop, dtype=float), fr.corner_rc, pixel_size_um,
@@ -139,8 +161,10 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
             raise ValueError(f"frame {j}: no pixel noise estimate (give noise_sd)")
         m = min(st.screen_pixels, pix.size)
         subset = np.sort(rng.choice(pix.size, size=m, replace=False))
-        prepared.append(Frame(pix, float(noise),
-                               _prefit_start(fr, base, pixel_size_um, st, j), subset))
+        if fr.start is None:
+            begin(f"frame {j}: prefit")
+        sphere = {**_prefit_start(fr, base, pixel_size_um, st, j), **fixed}
+        prepared.append(Frame(pix, float(noise), sphere, subset))
     shared: dict[str, float] = {APERTURE.name: (aperture_start(optics) if st.fit_na
                                                 else float(optics.numerical_aperture)),
                                 POLARIZATION: float(optics.polarization_rad),
@@ -151,17 +175,16 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
     n_eval = 0
 
     def run(free: Sequence[str], subset: bool, values: Mapping[str, float],
-            max_nfev: int | None = None) -> tuple[JointModel, Solution]:
+            max_nfev: int | None = None) -> tuple[JointModel, NormalSolution]:
         nonlocal n_eval
         jm = JointModel(prepared, base, values, free, frame_names, st, subset)
-        sol = solve_least_squares(jm, jm.data(), jm.vector(),
-                                  max_nfev=max_nfev or st.max_nfev,
-                                  ftol=1e-6 if subset else st.ftol,
-                                  xtol=1e-6 if subset else st.xtol)
-        n_eval += sol.n_eval
+        sol = solve_normal_lm(jm, jm.data(), jm.vector(), max_nfev=max_nfev or st.max_nfev,
+                              ftol=1e-6 if subset else st.ftol,
+                              xtol=1e-6 if subset else st.xtol)
+        n_eval += jm.n_holograms
         return jm, sol
 
-    def adopt(jm: JointModel, sol: Solution) -> dict[str, float]:
+    def adopt(jm: JointModel, sol: NormalSolution) -> dict[str, float]:
         values, spheres = jm.values(sol.vector)
         for f, s in zip(prepared, spheres, strict=True):
             f.sphere = s
@@ -176,10 +199,12 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
             c = c + starts[0][len(c):]
             if c not in starts:
                 starts.append(c)
+        plan[0] += len(starts) - n_starts
         spheres0 = [dict(f.sphere) for f in prepared]
         best: tuple[float, dict, list] | None = None
         free = [n for n in free_all if n != APERTURE.name]
-        for c in starts:
+        for k, c in enumerate(starts):
+            begin(f"aberration start {k + 1}/{len(starts)}")
             for f, s in zip(prepared, spheres0, strict=True):
                 f.sphere = dict(s)
             values = {**shared, **dict(zip(st.aberration, c, strict=True))}
@@ -199,14 +224,18 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
     if st.fit_na:
         held = [n for n in free_all if n != APERTURE.name]
         if held:
+            begin("all frames, the NA held")
             jm, sol = run(held, False, shared)
             shared = adopt(jm, sol)
+        begin("NA scan")
         grid, rss = _scan_aperture(prepared, base, shared, frame_names, st)
         scan = (grid, rss)
         na_starts = aperture_minima(grid, rss) or [shared[APERTURE.name]]
+        plan[0] = plan[1] + len(na_starts)
         spheres0 = [dict(f.sphere) for f in prepared]
-        best_run: tuple[JointModel, Solution] | None = None
-        for na in na_starts:
+        best_run: tuple[JointModel, NormalSolution] | None = None
+        for k, na in enumerate(na_starts):
+            begin(f"full fit {k + 1}/{len(na_starts)} from NA {na:.3f}")
             for f, s in zip(prepared, spheres0, strict=True):
                 f.sphere = dict(s)
             jm, sol = run(free_all, False, {**shared, APERTURE.name: na})
@@ -217,6 +246,7 @@ def calibrate_instrument(frames: Sequence[SphereFrame], optics: Optics, pixel_si
         assert best_run is not None
         jm, sol = best_run
     else:
+        begin("full fit")
         jm, sol = run(free_all, False, shared)
     shared = adopt(jm, sol)
     return _result(jm, sol, prepared, base, shared, scan, trials, n_eval,
@@ -244,12 +274,12 @@ def _scan_aperture(frames: list[Frame], optics: Optics, shared: Mapping[str, flo
     return grid, rss
 
 
-def _result(jm: JointModel, sol: Solution, frames: list[Frame], optics: Optics,
+def _result(jm: JointModel, sol: NormalSolution, frames: list[Frame], optics: Optics,
             shared: Mapping[str, float], scan: tuple[NDArray, NDArray] | None,
             trials: list[dict], n_eval: int, time_s: float) -> InstrumentFit:
     n = int(sol.residuals.size)
     p = int(sol.vector.size)
-    cov = covariance_from_jacobian(sol.jacobian, sol.rss, n)
+    cov = covariance_from_normal(sol.normal, sol.rss, n)
     dof = max(n - p, 1)
     chi2_red = sol.rss / dof
     values = {name: float(shared[name]) for name in jm.free_shared}
@@ -263,7 +293,7 @@ def _result(jm: JointModel, sol: Solution, frames: list[Frame], optics: Optics,
     fitted_optics = replace(
         optics, numerical_aperture=float(shared[APERTURE.name]),
         polarization_rad=float(shared.get(POLARIZATION, optics.polarization_rad)),
-        aberration=Aberration.from_values(shared, optics.aberration))
+        aberration=Aberration.from_values(dict(shared), optics.aberration))
     edge, edge_error = _edge_phase(fitted_optics, jm.free_shared, cov)
     status = OK if sol.converged else NOT_CONVERGED
     results = []
@@ -296,6 +326,8 @@ def _result(jm: JointModel, sol: Solution, frames: list[Frame], optics: Optics,
 def _edge_phase(optics: Optics, free_shared: Sequence[str], cov: NDArray[np.float64]
                 ) -> tuple[float, float]:
     """``Phi(th_max)`` of the fitted pupil and its error from the shared covariance."""
+    if optics.numerical_aperture is None:
+        return math.nan, math.nan
     na = float(optics.numerical_aperture)
     n_medium = optics.n_medium
 

@@ -74,6 +74,7 @@ class JointModel:
         self._frame_free = tuple(model_free)
         index = {n: i for i, n in enumerate(self.space.names)}
         self._index: list[NDArray[np.intp]] = []
+        self._priors = self._prior_rows()
         for j in range(len(self.frames)):
             space = self._space(j)
             self._index.append(np.array(
@@ -87,7 +88,7 @@ class JointModel:
         st = self.settings
         alpha = sphere["alpha"] if st.fix_alpha is None else st.fix_alpha
         model = Sphere(sphere["radius_um"], complex(sphere["n"], st.index_imag))
-        aberration = Aberration.from_values(s, self.optics.aberration)
+        aberration = Aberration.from_values(dict(s), self.optics.aberration)
         state = State((sphere["x_um"], sphere["y_um"], sphere["z_um"]), None, alpha,
                       (("radius_um", sphere["radius_um"]), ("n", sphere["n"])),
                       s.get(APERTURE.name), aberration)
@@ -122,31 +123,67 @@ class JointModel:
     def n_holograms(self, value: int) -> None:
         self._extra += int(value) - self.n_holograms
 
-    # -- data, holograms, Jacobian ------------------------------------------------------
+    # -- data, holograms, normal equations ----------------------------------------------
+    def _prior_rows(self) -> list[tuple[int, float, float]]:
+        """``(vector index, value, sd)`` of every prior row: each frame's free parameters
+        that :attr:`JointFitSettings.priors` names, in frame order."""
+        rows = []
+        names = self.space.names
+        for j in range(len(self.frames)):
+            for name, (value, sd) in self.settings.priors:
+                if name in self.frame_names:
+                    rows.append((names.index(f"frame{j}.{name}"), float(value), float(sd)))
+        return rows
+
     def data(self) -> NDArray[np.float64]:
-        """Every frame's data, weighted, in the model's row order."""
-        return np.concatenate([
-            (f.pix.data[f.subset] if self.subset else f.pix.data) * w
-            for f, w in zip(self.frames, self.weights, strict=True)])
+        """Every frame's data, weighted, in the model's row order, then the priors' values
+        over their sds."""
+        pixels = [(f.pix.data[f.subset] if self.subset else f.pix.data) * w
+                  for f, w in zip(self.frames, self.weights, strict=True)]
+        prior = np.array([value / sd for _, value, sd in self._priors])
+        return np.concatenate([*pixels, prior])
 
     def hologram(self, vector: NDArray) -> NDArray[np.float64]:
+        """The frames' holograms, weighted, and the prior rows' parameters over their sds."""
         v = np.asarray(vector, dtype=float)
         models = self._models_for(self._beta(v))
-        return np.concatenate([m.hologram(v[idx]) * w for m, idx, w in
-                               zip(models, self._index, self.weights, strict=True)])
+        prior = np.array([v[i] / sd for i, _, sd in self._priors])
+        return np.concatenate([*(m.hologram(v[idx]) * w for m, idx, w in
+                                 zip(models, self._index, self.weights, strict=True)), prior])
 
-    def jacobian(self, vector: NDArray) -> NDArray[np.float64]:
+    def normal(self, vector: NDArray, residuals: NDArray
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``J^T J`` and ``J^T r`` at ``vector`` for the weighted residuals ``r`` there,
+        accumulated frame by frame (the stacked ``J`` is never formed:
+        :mod:`holofit.calibrate.solver`)."""
         v = np.asarray(vector, dtype=float)
+        r = np.asarray(residuals, dtype=float)
         models = self._models_for(self._beta(v))
-        jac = np.zeros((int(self._rows[-1]), v.size))
-        for j, (m, idx, w) in enumerate(zip(models, self._index, self.weights, strict=True)):
-            jac[self._rows[j]:self._rows[j + 1], idx] = m.jacobian(v[idx]) * w
+        a = np.zeros((v.size, v.size))
+        g = np.zeros(v.size)
+        pol = None
         if POLARIZATION in self.free_shared:
-            i = self.space.names.index(INSTRUMENT_PREFIX + POLARIZATION)
+            i_pol = self.space.names.index(INSTRUMENT_PREFIX + POLARIZATION)
             q = v.copy()
-            q[i] += POLARIZATION_STEP
-            jac[:, i] = (self.hologram(q) - self.hologram(v)) / POLARIZATION_STEP
-        return jac
+            q[i_pol] += POLARIZATION_STEP
+            base = self.hologram(v)
+            pol = (self.hologram(q) - base) / POLARIZATION_STEP
+            models = self._models_for(self._beta(v))
+        for j, (m, idx, w) in enumerate(zip(models, self._index, self.weights, strict=True)):
+            rows = slice(int(self._rows[j]), int(self._rows[j + 1]))
+            jac = m.jacobian(v[idx]) * w
+            if pol is not None:
+                jac = np.column_stack([jac, pol[rows]])
+                cols = np.append(idx, i_pol)
+            else:
+                cols = idx
+            a[np.ix_(cols, cols)] += jac.T @ jac
+            g[cols] += jac.T @ r[rows]
+        tail = int(self._rows[-1])
+        for k, (i, _, sd) in enumerate(self._priors):
+            a[i, i] += 1.0 / sd**2
+            g[i] += r[tail + k] / sd
+        return a, g
 
     # -- vectors <-> values -------------------------------------------------------------
     def vector(self) -> NDArray[np.float64]:

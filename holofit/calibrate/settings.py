@@ -14,8 +14,8 @@ from holofit.holomodel.result import FitResult
 from holofit.optics import Optics
 from holofit.prefit.sphere import SphereFitSettings
 
-__all__ = ["DEFAULT_ABERRATION_STARTS", "INSTRUMENT_PREFIX", "POLARIZATION", "POLARIZATION_STEP",
-           "InstrumentFit", "JointFitSettings", "SphereFrame"]
+__all__ = ["DEFAULT_ABERRATION_STARTS", "FIXABLE", "INSTRUMENT_PREFIX", "POLARIZATION",
+           "POLARIZATION_STEP", "InstrumentFit", "JointFitSettings", "SphereFrame"]
 
 #: names of the shared parameters in the joint vector start with this (and a frame's with
 #: ``frame<j>.``), so that the one least-squares entry point treats the NA as any parameter
@@ -31,6 +31,8 @@ POLARIZATION_STEP = 1e-4
 #: or an oil objective 10 um into water lies inside)
 DEFAULT_ABERRATION_STARTS: tuple[tuple[float, float], ...] = tuple(
     (a, b) for a in (-10.0, 0.0, 10.0) for b in (-30.0, 0.0, 30.0))
+#: the sphere parameters a calibration may hold at a stated material's value or give a prior
+FIXABLE = ("radius_um", "n")
 
 
 @dataclass(frozen=True)
@@ -93,6 +95,12 @@ class JointFitSettings:
         Settings of step 1's per-frame prefits.
     seed : int
         Seed of the pixel subsets.
+    fix_radius_um, fix_index : float, optional
+        Hold every sphere's radius (um) or real index at this value (a stated material of
+        known size or index); free by default.
+    priors : tuple of (str, (float, float))
+        Gaussian priors ``(name, (value, sd))`` on each frame's ``radius_um`` (um) or ``n``:
+        one residual row ``(p - value) / sd`` per frame, for a material known to ``sd``.
     """
 
     fit_na: bool = True
@@ -108,6 +116,9 @@ class JointFitSettings:
     xtol: float = 1e-8
     prefit: SphereFitSettings = field(default_factory=SphereFitSettings)
     seed: int = 0
+    fix_radius_um: float | None = None
+    fix_index: float | None = None
+    priors: tuple[tuple[str, tuple[float, float]], ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "aberration", tuple(self.aberration))
@@ -122,6 +133,29 @@ class JointFitSettings:
             raise ValueError("screen_pixels must be >= 100 and max_nfev >= 1")
         if not 0 < self.pixel_fraction <= 1:
             raise ValueError(f"pixel_fraction must be in (0, 1], got {self.pixel_fraction}")
+        priors = tuple((str(n), (float(v), float(sd))) for n, (v, sd) in self.priors)
+        object.__setattr__(self, "priors", priors)
+        fixed = self.fixed_values()
+        for name, value in fixed.items():
+            if not value > 0:
+                raise ValueError(f"a fixed {name} must be positive, got {value}")
+        for name, (value, sd) in priors:
+            if name not in FIXABLE:
+                raise ValueError(f"a prior on {name!r}: only on {', '.join(FIXABLE)}")
+            if name in fixed:
+                raise ValueError(f"{name} is both fixed and given a prior")
+            if not (sd > 0 and math.isfinite(sd) and math.isfinite(value)):
+                raise ValueError(f"the prior on {name} needs a finite value and sd > 0, got "
+                                 f"{value} +- {sd}")
+
+    def fixed_values(self) -> dict[str, float]:
+        """The sphere parameters held at a stated value (``radius_um``, ``n``)."""
+        out = {}
+        if self.fix_radius_um is not None:
+            out["radius_um"] = float(self.fix_radius_um)
+        if self.fix_index is not None:
+            out["n"] = float(self.fix_index)
+        return out
 
 
 @dataclass

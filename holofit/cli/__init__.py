@@ -20,6 +20,7 @@ COMMANDS: dict[str, str] = {
     "init": "holofit.cli.init:init",
     "crop": "holofit.cli.crop:crop",
     "prefit": "holofit.cli.prefit:prefit",
+    "calibrate": "holofit.cli.calibrate:calibrate",
     "library": "holofit.cli.library:library",
     "fit": "holofit.cli.fit:fit",
     "analyze": "holofit.cli.analyze:analyze",
@@ -56,7 +57,9 @@ def main(debug: bool) -> None:
     Stages, in order: crop -> prefit -> library -> fit -> analyze. Each reads files and writes
     files (with a sidecar JSON of units, config, versions and the command), so stages can be
     rerun and chained from a Makefile (`holofit init`). `simulate` makes synthetic data with
-    known truth.
+    known truth. `calibrate` (between prefit and library, when the instrument's NA and
+    spherical aberration are not known well enough) fits them on spheres at several heights
+    and writes an instrument file for `holofit init -i` and every stage.
 
     A failure caused by the input (a file, an option, ADDA) is one line,
     `holofit STAGE: error: MESSAGE`, with exit status 1.

@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Any
 
 import click
 
+from holofit.analysis.population import default_model
 from holofit.analysis.recipes import MODELS
-from holofit.cli.common import out_dir_option
-from holofit.io.tables import sidecar_path
+from holofit.cli.common import out_dir_option, track_options
+
+__all__ = ["OPTION_OF_SETTING", "analyze"]
 
 #: the option that sets each field of AnalysisConfig (to name it in messages)
 OPTION_OF_SETTING = {
@@ -28,38 +28,6 @@ OPTION_OF_SETTING = {
     "fit_lags_rotation": "--fit-lags-r",
     "max_lag": "--max-lag",
 }
-
-
-#: analysis model of each particle model whose kind decides it (a dimer: by its two spheres)
-_MODEL_OF_KIND = {"sphere": "sphere", "janus": "janus", "spherocylinder": "rod",
-                  "cylinder": "rod", "spheroid": "rod", "ellipsoid": "rod"}
-
-
-def model_from_sidecar(fit_table: Path) -> tuple[str | None, str]:
-    """The analysis model of a fit table, from its sidecar's particle; or None and why not.
-
-    A prefit table is a sphere's; a fit table records ``particle_model`` and the particle's
-    parameters (``config.particle``): rods, spheroids, ellipsoids, cylinders and a dimer of two
-    equal spheres are head-tail symmetric (``rod``), a Janus particle is ``janus``.
-    """
-    side = sidecar_path(fit_table)
-    try:
-        doc: dict[str, Any] = json.loads(side.read_text())
-    except (OSError, ValueError):
-        return None, f"{side} is missing or unreadable"
-    if str(doc.get("kind", "")).startswith("prefit table"):
-        return "sphere", "a prefit table (Lorenz-Mie spheres)"
-    particle = (doc.get("config") or {}).get("particle") or {}
-    kind = doc.get("particle_model") or particle.get("model")
-    if kind in _MODEL_OF_KIND:
-        return _MODEL_OF_KIND[kind], f"the fit's particle, a {kind}"
-    if kind == "dimer":
-        same = (particle.get("radius1_um") == particle.get("radius2_um")
-                and particle.get("index1") == particle.get("index2"))
-        if same:
-            return "rod", "the fit's particle, a dimer of two equal spheres"
-        return None, "its particle is a dimer of two different spheres"
-    return None, (f"its particle is a {kind}" if kind else f"{side} names no particle")
 
 
 def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
@@ -80,8 +48,9 @@ def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
 @click.argument("fit_table", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--model", "-m", type=click.Choice(MODELS), default=None,
               help="rod: any head-tail symmetric particle (rods, dimers); janus: capped "
-              "sphere (x, y and psi only); sphere: translation only [default: from the "
-              "particle the fit table's sidecar records].")
+              "sphere (x, y and psi only); sphere: translation only. Given, every track's "
+              "[default: each track's from the particle model the fit gave it (the fit "
+              "table's model column), else from the particle its sidecar records].")
 @click.option("--temperature-c", type=float, default=21.0, show_default=True,
               help="Sample temperature, C.")
 @click.option("--temperature-err-c", type=float, default=2.0, show_default=True,
@@ -120,6 +89,7 @@ def _lag_range(value: str | None, name: str) -> tuple[int, int] | None:
 @click.option("--min-track-frames", type=click.IntRange(min=3), default=20, show_default=True,
               help="Multi-particle tables: tracks with fewer ok frames are reported and left "
                    "out.")
+@track_options
 @out_dir_option()
 def analyze(
     fit_table: Path,
@@ -142,6 +112,8 @@ def analyze(
     frame_interval_s: float | None,
     plots: bool,
     min_track_frames: int,
+    particles: tuple[int, ...],
+    exclude_particles: tuple[int, ...],
     out: Path,
 ) -> None:
     """Diffusion analysis of FIT_TABLE: MSDs, orientation correlations, theory.
@@ -150,19 +122,30 @@ def analyze(
     (msd.png, orientation.png, trajectory.png), and prints a short report. A table of several
     tracks is analysed track by track (OUT/particle_N_summary.csv, ...) and pooled
     (OUT/tracks.csv, OUT/pooled.csv, tracks.png, track_msds.png; OUT/summary.csv with every
-    track's rows).
+    track's rows, and a row for each track left out, with its reason). Each track is analysed
+    with the model of the particle the fit gave it, unless --model imposes one; only tracks of
+    one model are pooled.
     """
-    from holofit.analysis import AnalysisConfig, SettingError, TrackPooling, run_analysis
+    from holofit.analysis import (
+        AnalysisConfig,
+        SettingError,
+        TrackPooling,
+        TrackSelection,
+        run_analysis,
+    )
 
-    if model is None:
-        model, why = model_from_sidecar(fit_table)
-        if model is None:
+    selection = TrackSelection(particles or None, exclude_particles, model)
+    base = model
+    if base is None:
+        base, why = default_model(fit_table)
+        if base is None:
             raise click.UsageError(f"give --model ({', '.join(MODELS)}): {fit_table}: {why}")
-        click.echo(f"model: {model} ({why})", err=True)
+        click.echo(f"model: {base} ({why}); a track the fit gave another particle model is "
+                   "analysed with that one's", err=True)
 
     try:
         settings = AnalysisConfig(
-            model=model, temperature_c=temperature_c, temperature_err_c=temperature_err_c,
+            model=base, temperature_c=temperature_c, temperature_err_c=temperature_err_c,
             a_um=a_um, b_um=b_um, a_err_um=da_um, b_err_um=db_um, head_tail=head_tail,
             reject=reject, reject_probability=reject_p, d_est=d_est, eps_r_est=eps_r_est,
             subtract_drift=drift, fit_lags_translation=_lag_range(fit_lags_t, "--fit-lags-t"),
@@ -173,7 +156,8 @@ def analyze(
     # FitTableError / AnalysisError name the file; the top-level handler shows them as
     # "holofit analyze: error: ..." like every stage's
     run = run_analysis(fit_table, settings, out, plots=plots, frame_interval_s=frame_interval_s,
-                       pooling=TrackPooling(min_frames=min_track_frames))
+                       pooling=TrackPooling(min_frames=min_track_frames), selection=selection)
     click.echo(run.report())
     click.echo("")
     click.echo("wrote " + ", ".join(str(p) for p in run.files.values()))
+

@@ -112,7 +112,8 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
     type=click.FloatRange(min=MIN_RADIUS_PX),
     default=None,
     help="Vote radius of the centre finder, pixels [default: size/2] (--radius: the old "
-    "name, deprecated).",
+    "name, deprecated). Close holograms are resolved whatever it is: two centres merge only "
+    "within half a hologram's measured zone radius, sqrt(wavelength in the medium x height).",
 )
 @click.option(
     "--min-score",

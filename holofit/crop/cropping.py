@@ -74,11 +74,14 @@ def blank_row(k: int) -> dict[str, Any]:
         "alignment": math.nan,
         "symmetry": math.nan,
         "refinement": "",
+        "zone_px": math.nan,
+        "reach_px": math.nan,
         "n_candidates": 0,
         "n_masked": 0,
         "neighbour": -1,
         "neighbour_px": math.inf,
         "overlap": False,
+        "n_overlapping": 0,
     }
 
 
@@ -102,6 +105,8 @@ def crop_chosen(row: dict[str, Any], best: pd.Series, image: NDArray, mask: NDAr
         alignment=float(best["alignment"]),
         symmetry=float(best["symmetry"]),
         refinement=str(best["refinement"]),
+        zone_px=float(best["zone_px"]),
+        reach_px=float(best["reach_px"]),
         n_masked=int(
             mask[corner_row : corner_row + size, corner_col : corner_col + size].sum()
         ),

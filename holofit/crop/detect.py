@@ -53,7 +53,7 @@ class DetectConfig:
         Background files (empty with a movie normalised already: a flat background).
     dark : float, tuple of str or None
         Dark level: counts or files.
-    min_background, saturation
+    min_background, saturation, full_scale
         As for :class:`~holofit.crop.normalize.Normalizer`.
     finder : CenterFinder
         Centre-finder settings.
@@ -68,6 +68,7 @@ class DetectConfig:
     saturation: float | None
     finder: CenterFinder
     key: str = ""
+    full_scale: float | None = None
 
 
 #: the per-worker resource of a detection config: its open movie and its normaliser
@@ -81,9 +82,10 @@ def _open_state(config: DetectConfig) -> tuple[Movie, Normalizer]:
         background = read_reference_frame([Path(p) for p in config.backgrounds], "background")
         dark = config.dark if not isinstance(config.dark, tuple) else list(config.dark)
         normalizer = Normalizer(background, read_dark(dark), min_background=config.min_background,
-                                saturation=config.saturation)
+                                saturation=config.saturation, full_scale=config.full_scale)
     else:
-        normalizer = Normalizer(np.ones(movie.frame_shape), saturation=config.saturation)
+        normalizer = Normalizer(np.ones(movie.frame_shape), saturation=config.saturation,
+                                full_scale=config.full_scale)
     return movie, normalizer
 
 
@@ -122,7 +124,7 @@ def read_normalised(movie: Movie, k: int, normalizer: Normalizer) -> tuple[NDArr
         raw = movie[k]
     except MovieError as exc:
         raise FrameError(str(exc)) from None
-    full = normalizer.saturation
+    full = normalizer.full_scale
     if full is not None and raw.size and float(np.max(raw)) > full:
         raise FrameError(
             f"{source}: frame {k}: counts up to {float(np.max(raw)):g} exceed the full scale "
@@ -159,6 +161,9 @@ def _plain(value: Any) -> Any:
 def found_from_json(text: Any) -> pd.DataFrame:
     """A frame's candidates (the finder's columns :data:`FOUND_COLUMNS`) from its row."""
     values = json.loads(text) if isinstance(text, str) and text else []
+    n = len(FOUND_COLUMNS)
+    # rows written before a column existed (zone_px, reach_px) get NaN for it
+    values = [list(v) + [float("nan")] * (n - len(v)) for v in values]
     return pd.DataFrame(values, columns=list(FOUND_COLUMNS))
 
 

@@ -56,7 +56,8 @@ def crop_frames(
             for rank, cand in enumerate(found.itertuples(index=False)):
                 candidates.append(
                     (k, rank, cand.x_px, cand.y_px, cand.score, cand.alignment,
-                     cand.symmetry, cand.refinement, rank == choice.index,
+                     cand.symmetry, cand.refinement, cand.zone_px, cand.reach_px,
+                     rank == choice.index,
                      0 if rank == choice.index else -1)
                 )  # fmt: skip
             if choice.index is None:

@@ -22,6 +22,7 @@ from holofit.crop.detect import DetectConfig
 from holofit.crop.errors import CropError
 from holofit.crop.normalize import Normalizer
 from holofit.crop.reference import read_dark, read_reference_frame
+from holofit.crop.saturation import find_pile_up
 from holofit.crop.settings import CropConfig, check_crop_settings
 from holofit.io.movie import Movie, MovieError, open_movie
 
@@ -101,7 +102,7 @@ def _bit_depth_advice(movie: Movie, peak: float, instrument: Instrument) -> str:
 
 
 def _prepare(movie: Movie, backgrounds: list[Path], config: CropConfig, full: float | None,
-             instrument_label: str) -> tuple[Normalizer, dict[str, Any]]:
+             level: float | None, instrument_label: str) -> tuple[Normalizer, dict[str, Any]]:
     """The normaliser of a raw movie from its background (and dark) files, and its record."""
     dark, min_background = config.dark, config.min_background
     background = read_reference_frame(backgrounds, "background")
@@ -126,9 +127,8 @@ def _prepare(movie: Movie, backgrounds: list[Path], config: CropConfig, full: fl
             f"background {background.shape}"
         )
     try:
-        normalizer = Normalizer(
-            background, dark_value, min_background=min_background, saturation=full
-        )
+        normalizer = Normalizer(background, dark_value, min_background=min_background,
+                                saturation=level, full_scale=full)
     except ValueError as exc:
         where = ", ".join(map(str, dark_files)) if "dark" in str(exc) and dark_files else named
         raise CropError(f"{where}: {exc}") from None
@@ -144,31 +144,41 @@ def _prepare(movie: Movie, backgrounds: list[Path], config: CropConfig, full: fl
         "min_background_fraction": min_background,
         "background_mean_counts": normalizer.background_mean,
         "n_masked_background_pixels": normalizer.n_masked_background,
-        "saturation_counts": full,
+        "saturation_counts": level,
     }
     return normalizer, info
 
 
 def prepare_normalizer(movie: Movie, backgrounds: list[Path], config: CropConfig,
-                       full: float | None,
-                       inst: Instrument) -> tuple[Normalizer, dict[str, Any]]:
-    """The frames' normaliser and its record (the sidecar's ``normalization``); the movie's
-    full scale checked."""
+                       full: float | None, inst: Instrument
+                       ) -> tuple[Normalizer, dict[str, Any], list[str]]:
+    """The frames' normaliser, its record (the sidecar's ``normalization``) and warnings;
+    the movie's full scale checked, and a saturation below it found in the data
+    (:mod:`holofit.crop.saturation`: the top count, where pixels pile up) masked too."""
+    pile = find_pile_up(movie, full) if full is not None else None
+    level = pile.level if pile is not None else full
+    warnings = [pile.describe(full, inst.bit_depth)] if pile is not None and full else []
     if config.normalized:
-        normalizer = Normalizer(np.ones(movie.frame_shape), saturation=full)
+        normalizer = Normalizer(np.ones(movie.frame_shape), saturation=level, full_scale=full)
         norm_info: dict[str, Any] = {
             "formula": "I / mean(I): the movie is background-divided already "
             "(--normalized; the paper's normalisation with a flat background)",
             "background": None,
             "dark": None,
-            "saturation_counts": full,
+            "saturation_counts": level,
         }
     else:
-        normalizer, norm_info = _prepare(movie, backgrounds, config, full,
+        normalizer, norm_info = _prepare(movie, backgrounds, config, full, level,
                                          inst.path or inst.name)
+    norm_info["full_scale_counts"] = full
+    norm_info["saturation_source"] = (
+        None if level is None else
+        f"data: {pile.pixels_per_frame:.0f} pixels a frame at count {pile.level:g} in "
+        f"{pile.frames} frames looked at" if pile is not None else
+        f"bit_depth {inst.bit_depth}")
     if full is not None:
         _check_full_scale(movie, full, inst)
-    return normalizer, norm_info
+    return normalizer, norm_info, warnings
 
 
 def _file_identity(path: str | Path) -> list[Any]:
@@ -182,7 +192,7 @@ def _file_identity(path: str | Path) -> list[Any]:
 
 
 def detect_config(movie: Movie, movie_path: str | Path, backgrounds: list[Path],
-                  config: CropConfig, full: float | None,
+                  config: CropConfig, normalizer: Normalizer,
                   finder: CenterFinder) -> DetectConfig:
     """What a worker needs to search frames, and its fingerprint (the movie's and the
     reference files' names, sizes and times with the settings): a rerun reuses the frames
@@ -191,7 +201,8 @@ def detect_config(movie: Movie, movie_path: str | Path, backgrounds: list[Path],
     dark_files = tuple(str(p) for p in config.dark_files())
     dark_spec = float(dark) if isinstance(dark, int | float) else (dark_files or None)
     detect = DetectConfig(str(movie_path), tuple(str(p) for p in backgrounds), dark_spec,
-                          config.min_background, full, finder)
+                          config.min_background, normalizer.saturation, finder,
+                          full_scale=normalizer.full_scale)
     key = fingerprint({
         "config": asdict(detect), "normalized": config.normalized,
         "movie": [*_file_identity(movie_path), len(movie), list(movie.frame_shape),

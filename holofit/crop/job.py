@@ -176,6 +176,8 @@ class CropInputs:
         The settings as the sidecars record them.
     inputs : list
         The input files (movie, backgrounds, dark frames).
+    warnings : list of str
+        What the inputs' checks found doubtful (saturation found in the data).
     """
 
     movie: Movie
@@ -185,6 +187,7 @@ class CropInputs:
     inst: Instrument
     settings: dict[str, Any]
     inputs: list[str | Path]
+    warnings: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -228,11 +231,13 @@ class CropJob:
                 settings["tracks"]["linked"] = linking
             if linking:
                 plan = link_detections(detections, len(movie), px, self.link, size,
-                                       cfg.particle)
+                                       cfg.particle, tuple(movie.frame_shape))
                 rows, candidates, preview = crop_tracks(movie, g.normalizer, detections, plan,
                                                         size, px, writer, self.progress)
                 warnings = list(plan.warnings)
+                losses = plan.losses
             else:
+                losses = []
                 rows, candidates, preview = crop_frames(movie, g.normalizer, detections,
                                                         self.follower, size, px, writer,
                                                         self.progress)
@@ -254,8 +259,9 @@ class CropJob:
             from holofit.crop.plot import plot_overview
 
             made_plot = plot_overview(paths.plot, preview, frames, cand_table, size)
+        warnings = [*g.warnings, *warnings]
         extra = crop_extra(settings, movie_info(movie), paths.stack, paths.table, len(frames),
-                           size, counts, warnings)
+                           size, counts, warnings, losses)
         self.publish(paths, frames, extra)
         note = settings.get("tracks", {}).get("note")
         return CropResult(self.out, paths.stack, paths.table, paths.candidates, made_plot,

@@ -53,6 +53,10 @@ class Normalizer:
     saturation : float, optional
         Raw frame count at or above which a pixel is clipped and masked (e.g. 255 for an 8-bit
         camera). None keeps every frame pixel.
+    full_scale : float, optional
+        The instrument's full-scale count (``2**bit_depth - 1``), which no frame may exceed
+        (:func:`holofit.crop.detect.read_normalised`); default ``saturation`` (lower where
+        the data show the camera saturating below it: :mod:`holofit.crop.saturation`).
 
     Raises
     ------
@@ -75,6 +79,7 @@ class Normalizer:
         *,
         min_background: float = DEFAULT_MIN_BACKGROUND,
         saturation: float | None = None,
+        full_scale: float | None = None,
     ) -> None:
         bg = np.asarray(background, dtype=np.float64)
         if bg.ndim != 2:
@@ -116,6 +121,7 @@ class Normalizer:
         self.shape: tuple[int, int] = (int(bg.shape[0]), int(bg.shape[1]))
         self.background_masked = masked
         self.saturation = saturation
+        self.full_scale = full_scale if full_scale is not None else saturation
         self._p = _Prepared(
             inverse=inverse,
             dark=np.asarray(dk, dtype=np.float32) if np.ndim(dk) else np.float32(dk),

@@ -86,7 +86,8 @@ def _grid_minimum(
     i, j = np.unravel_index(int(np.argmin(table)), table.shape)
     di, dj = quadratic_peak(-table, int(i), int(j))
     interior = 0 < i < len(offsets) - 1 and 0 < j < len(offsets) - 1
-    return x0 + (offsets[j] + dj * step), y0 + (offsets[i] + di * step), interior
+    return (float(x0 + (offsets[j] + dj * step)), float(y0 + (offsets[i] + di * step)),
+            bool(interior))
 
 
 def refine_center_radial(

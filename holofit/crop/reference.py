@@ -86,7 +86,7 @@ def _median(movies: list[Movie], what: str) -> NDArray[np.float64]:
     if stack.dtype.kind == "f":
         bad = ~np.isfinite(stack)
         if bad.any():
-            slot, row, col = np.unravel_index(int(np.argmax(bad)), bad.shape)
+            slot, row, col = (int(v) for v in np.unravel_index(int(np.argmax(bad)), bad.shape))
             movie, k = index[int(picks[slot])]
             raise CropError(
                 f"{movie.path}: {what} has {int(bad.sum())} non-finite (NaN/inf) value(s), "

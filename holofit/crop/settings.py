@@ -8,14 +8,16 @@ with a message naming the option to change.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from holofit.config import Instrument
 from holofit.crop.centerfind import CenterFinder
 from holofit.crop.errors import CropError
 from holofit.crop.follow import FOLLOW_MODES, Follower
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND
+from holofit.crop.profile import FringeOptics
 from holofit.crop.tracks import LinkOptions
 
 __all__ = [
@@ -98,9 +100,16 @@ class CropConfig:
     mask_saturated: bool = True
     plot: bool = True
 
-    def finder_for_size(self) -> CenterFinder:
-        """The centre finder: the one given, else the default with vote radius ``size / 2``."""
-        return self.finder or CenterFinder(radius_px=self.size / 2.0)
+    def finder_for_size(self, instrument: Instrument | None = None) -> CenterFinder:
+        """The centre finder: the one given, else the default with vote radius ``size / 2``;
+        with the instrument's fringe limits (:class:`holofit.crop.profile.FringeOptics`)
+        where it has none."""
+        finder = self.finder or CenterFinder(radius_px=self.size / 2.0)
+        if instrument is None or finder.optics is not None:
+            return finder
+        o = instrument.optics
+        return replace(finder, optics=FringeOptics.of(
+            o.wavelength_um, o.n_medium, instrument.pixel_size_um, o.numerical_aperture))
 
     def dark_files(self) -> list[Path]:
         """The dark frame files (none for a dark level in counts)."""

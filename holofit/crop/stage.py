@@ -86,7 +86,9 @@ def run_crop(
         reduced by the per-pixel median. None with ``normalized``.
     instrument : Instrument, str or Path
         Instrument config (object, file, or name in ``configs/instruments``); its pixel size
-        converts centres to um, its bit depth gives the saturation level.
+        converts centres to um, its bit depth gives the saturation level (or the data do: a
+        pile-up of pixels at the movie's top count below it, :mod:`holofit.crop.saturation`),
+        its optics the fringe limits of the centre finder (:mod:`holofit.crop.profile`).
     out_dir : str or Path
         Output folder (created).
     config : CropConfig, optional
@@ -112,15 +114,15 @@ def run_crop(
     inst = resolve_instrument(instrument)
     cfg = replace(cfg, size=int(cfg.size))
     backgrounds = check_arguments(cfg, background_path)
-    finder = cfg.finder_for_size()
+    finder = cfg.finder_for_size(inst)
     chosen = follower(cfg)
     link = link_options(cfg)
     with open_checked(movie_path) as movie:
         check_for_movie(movie, movie_path, cfg)
         full = saturation(movie, inst) if cfg.mask_saturated else None
-        normalizer, norm_info = prepare_normalizer(movie, backgrounds, cfg, full, inst)
+        normalizer, norm_info, warnings = prepare_normalizer(movie, backgrounds, cfg, full, inst)
         given = CropInputs(movie, movie_path, normalizer,
-                           detect_config(movie, movie_path, backgrounds, cfg, full, finder),
+                           detect_config(movie, movie_path, backgrounds, cfg, normalizer, finder),
                            inst, settings_record(cfg, chosen, finder, norm_info, link),
-                           [movie_path, *backgrounds, *cfg.dark_files()])
+                           [movie_path, *backgrounds, *cfg.dark_files()], warnings)
         return CropJob(given, cfg, chosen, link, Path(out_dir), batch, progress).run()

@@ -104,7 +104,7 @@ def _full_pair_weight(size: int, sigma: float, n: int) -> NDArray:
 
 def _score_map(
     image: NDArray, valid: NDArray | None, ci: int, cj: int, half_width: int, sigma: float
-) -> tuple[NDArray, NDArray, NDArray]:
+) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     """``N``, ``D``, ``W`` and the valid fraction of the pair weight for every ``s`` on the
     lattice of the window."""
     rows, cols = image.shape
@@ -211,7 +211,7 @@ def refine_center(
         if not np.isfinite(score[pi, pj]):
             return best
         filled = np.where(usable, closeness, 2 * closeness[pi, pj] - 1.0)
-        di, dj = quadratic_peak(filled, pi, pj)
+        di, dj = quadratic_peak(filled, int(pi), int(pj))
         x = cj + (pj + dj - reach) / 2.0
         y = ci + (pi + di - reach) / 2.0
         on_rim = bool(rim[pi, pj])

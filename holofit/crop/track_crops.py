@@ -21,8 +21,12 @@ each (particle, frame) with its nearest other track (:func:`holofit.crop.tracks.
 Tracks that are fringes of a stronger hologram (rings cut by the frame edge, or crossing, that
 the centre finder takes for centres) are left out and reported (:func:`drop_ghosts`).
 
-Two holograms whose centres are closer than half a crop's side overlap in the crop: the row's
-``overlap`` is true, ``neighbour`` names the other track and ``neighbour_px`` the distance.
+Where another track's hologram reaches into a crop (its centre closer to the crop's square
+than its reach, the radius within which its fringes stand above the noise:
+:mod:`holofit.crop.profile`), the row's ``overlap`` is true and ``n_overlapping`` counts such
+tracks; ``neighbour`` names the nearest other track and ``neighbour_px`` its distance. A
+track that is lost, or undetected for a while, next to another hologram is reported
+(:mod:`holofit.crop.losses`): in the warnings and, in full, in the sidecar.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from numpy.typing import NDArray
 from holofit.crop.cropping import blank_row, crop_chosen
 from holofit.crop.detect import DETECTED, found_from_json, read_normalised
 from holofit.crop.errors import CropError
+from holofit.crop.losses import describe_losses, track_losses
 from holofit.crop.normalize import Normalizer
 from holofit.crop.tracks import LinkOptions, TrackError, link_tracks, mark_neighbours
 from holofit.io.movie import Movie
@@ -79,13 +84,18 @@ class TrackPlan:
     spans : dict
         particle -> (first frame, last frame) of its rows.
     warnings : list of str
-        What the user should know (tracks left out, no hologram at all).
+        What the user should know (tracks left out, tracks lost next to another hologram,
+        no hologram at all).
+    losses : list of dict
+        Where a track was lost, started late or went undetected next to another hologram
+        (:func:`holofit.crop.losses.track_losses`).
     """
 
     linked: pd.DataFrame
     summary: pd.DataFrame
     spans: dict[int, tuple[int, int]]
     warnings: list[str] = field(default_factory=list)
+    losses: list[dict[str, Any]] = field(default_factory=list)
 
     def particles_in(self, frame: int) -> list[int]:
         """The tracks with a row in ``frame``, in id order."""
@@ -107,7 +117,8 @@ def _candidates_table(detections: dict[int, dict[str, Any]]) -> pd.DataFrame:
 
 
 def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_size_um: float,
-                    options: LinkOptions, size: int, particle: int | None = None) -> TrackPlan:
+                    options: LinkOptions, size: int, particle: int | None = None,
+                    frame_shape: tuple[int, int] | None = None) -> TrackPlan:
     """Link every frame's candidates into tracks; the rows to crop.
 
     Parameters
@@ -121,9 +132,13 @@ def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_
     options : LinkOptions
         Linking settings (``min_track_length`` capped: :func:`effective_link_options`).
     size : int
-        Crop side, pixels (holograms closer than ``size / 2`` overlap).
+        Crop side, pixels (a hologram whose reach comes into a track's ``size`` square
+        overlaps its crop).
     particle : int, optional
         Keep only this track (``--particle``).
+    frame_shape : tuple of int, optional
+        ``(rows, cols)`` of the frames: a track that ends or starts at the edge has left or
+        entered the field of view (not reported as lost; without it, none is at the edge).
 
     Raises
     ------
@@ -133,7 +148,7 @@ def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_
     opts = effective_link_options(options, n_frames)
     try:
         tracks = link_tracks(_candidates_table(detections), pixel_size_um, opts)
-        linked = mark_neighbours(tracks.candidates)
+        linked = mark_neighbours(tracks.candidates, size)
         linked, ghosts = drop_ghosts(linked, tracks.summary, size)
     except TrackError as exc:
         raise CropError(f"linking tracks: {exc}") from None
@@ -145,13 +160,19 @@ def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_
                         f"as strong in most of their frames): " + "; ".join(ghosts[:5]))
     summary = tracks.summary
     dropped = (summary[~summary["kept"].astype(bool) & (summary["reason"] != GHOST_REASON)]
-               if len(summary) else [])
+               if len(summary) else summary)
     if len(dropped):
         shown = "; ".join(f"frames {int(r.first_frame)}-{int(r.last_frame)} at "
                           f"({r.x_px_start:.0f}, {r.y_px_start:.0f}) px: {r.reason}"
                           for r in dropped.head(5).itertuples())
         more = f" (and {len(dropped) - 5} more)" if len(dropped) > 5 else ""
         warnings.append(f"{len(dropped)} track(s) left out: {shown}{more}")
+    losses = track_losses(linked, n_frames, frame_shape or (10**9, 10**9), pixel_size_um)
+    if particle is not None:
+        losses = [e for e in losses if e["particle"] == particle]
+    line = describe_losses(losses)
+    if line:
+        warnings.append(line)
     kept = tracks.particles
     if particle is not None:
         if particle not in kept:
@@ -172,7 +193,7 @@ def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_
     else:
         for p, track in linked.groupby("particle"):
             spans[int(p)] = (int(track["frame"].min()), int(track["frame"].max()))
-    return TrackPlan(linked, tracks.summary, spans, warnings)
+    return TrackPlan(linked, tracks.summary, spans, warnings, losses)
 
 
 #: a track this many times weaker than a neighbour within half a crop is that one's fringes
@@ -235,22 +256,18 @@ def drop_ghosts(linked: pd.DataFrame, summary: pd.DataFrame, size: int
     summary.loc[summary_ids, "kept"] = False
     summary.loc[summary_ids, "reason"] = GHOST_REASON
     summary["particle"] = [ids.get(p, -1) for p in summary["particle"]]
-    return mark_neighbours(kept.reset_index(drop=True)), reasons
+    return mark_neighbours(kept.reset_index(drop=True), size), reasons
 
 
-def track_rows(plan: TrackPlan, frame: int, size: int) -> list[tuple[int, dict[str, Any] | None]]:
+def track_rows(plan: TrackPlan, frame: int, size: int | None = None
+               ) -> list[tuple[int, dict[str, Any] | None]]:
     """``(particle, its detection in frame or None)`` for every track with a row in ``frame``;
-    a detection holds the candidate's columns, ``rank``, ``neighbour``, ``neighbour_px`` and
-    ``overlap`` (closer than ``size / 2`` to another track's centre)."""
+    a detection holds the candidate's columns, ``rank``, ``neighbour``, ``neighbour_px``,
+    ``overlap`` and ``n_overlapping`` (:func:`holofit.crop.tracks.mark_neighbours`, with the
+    plan's crop side; ``size`` is not used)."""
     here = plan.linked[plan.linked["frame"] == frame]
     by_particle = {int(r["particle"]): r for r in here.to_dict(orient="records")}
-    out = []
-    for p in plan.particles_in(frame):
-        det = by_particle.get(p)
-        if det is not None:
-            det["overlap"] = bool(float(det["neighbour_px"]) < size / 2.0)
-        out.append((p, det))
-    return out
+    return [(p, by_particle.get(p)) for p in plan.particles_in(frame)]
 
 
 def crop_tracks(
@@ -274,13 +291,14 @@ def crop_tracks(
         det = detections.get(k, {"status": CROP_ERROR, "message": "not searched"})
         found = (found_from_json(det["candidates"]) if det["status"] == DETECTED
                  else pd.DataFrame())
-        here = track_rows(plan, k, size)
+        here = track_rows(plan, k)
         chosen = {int(d["rank"]): p for p, d in here if d is not None}
         for rank, cand in enumerate(found.itertuples(index=False)):
             candidates.append((k, rank, cand.x_px, cand.y_px, cand.score, cand.alignment,
-                               cand.symmetry, cand.refinement, rank in chosen,
-                               chosen.get(rank, -1)))
-        image = mask = None
+                               cand.symmetry, cand.refinement, cand.zone_px, cand.reach_px,
+                               rank in chosen, chosen.get(rank, -1)))
+        image: NDArray | None = None
+        mask: NDArray | None = None
         for p, linked in here:
             row = blank_row(k)
             row["particle"] = p
@@ -296,13 +314,16 @@ def crop_tracks(
             else:
                 if image is None:
                     image, mask = read_normalised(movie, k, normalizer)
+                assert mask is not None  # read together with the image
                 page = crop_chosen(row, found.iloc[int(linked["rank"])], image, mask, size,
                                     pixel_size_um)
                 row.update(neighbour=int(linked["neighbour"]),
                            neighbour_px=float(linked["neighbour_px"]),
-                           overlap=bool(linked["overlap"]))
+                           overlap=bool(linked["overlap"]),
+                           n_overlapping=int(linked["n_overlapping"]))
                 if row["overlap"]:
-                    row["message"] = (f"overlaps track {row['neighbour']} "
+                    row["message"] = (f"overlaps {row['n_overlapping']} other track(s)' "
+                                      f"hologram(s); nearest track {row['neighbour']} "
                                       f"({row['neighbour_px']:.0f} px away)")
                 if preview is None:
                     preview = {"frame": k, "image": image,

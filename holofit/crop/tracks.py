@@ -13,7 +13,8 @@ same ids. Tracks shorter than ``min_track_length`` frames, and tracks beyond the
 table.
 
 :func:`mark_neighbours` adds, to each (particle, frame), the nearest other track in the same
-frame and its distance: holograms closer than a crop's half-width overlap in the crop.
+frame and its distance, and the tracks whose holograms reach into its crop (their fringes
+above the noise there: :mod:`holofit.crop.profile`).
 """
 
 from __future__ import annotations
@@ -30,8 +31,10 @@ __all__ = [
     "LinkOptions",
     "LinkedTracks",
     "TrackError",
+    "hidden_positions",
     "link_tracks",
     "mark_neighbours",
+    "track_reach",
 ]
 
 #: columns of the per-track summary returned by :func:`link_tracks`
@@ -253,8 +256,25 @@ def link_tracks(
     return LinkedTracks(linked, summary[list(TRACK_SUMMARY_UNITS)])
 
 
-def mark_neighbours(linked: pd.DataFrame) -> pd.DataFrame:
-    """Add, to each (particle, frame), the nearest other track in that frame.
+def track_reach(linked: pd.DataFrame) -> dict[int, float]:
+    """Each track's reach, pixels: the median of its detections' ``reach_px`` (the radius
+    within which its fringes stand above the noise, :mod:`holofit.crop.profile`; a track's
+    median, since a single frame's profile can be lengthened by a neighbour); 0 where unknown
+    (detections without it): then a neighbour overlaps a crop only if its centre lies in
+    it."""
+    reach: dict[int, float] = {}
+    values = (linked["reach_px"] if "reach_px" in linked.columns
+              else pd.Series(np.nan, index=linked.index))
+    for p, r in values.groupby(linked["particle"]):
+        r = r.to_numpy(dtype=float)
+        r = r[np.isfinite(r) & (r > 0)]
+        reach[int(p)] = float(np.median(r)) if r.size else 0.0
+    return reach
+
+
+def mark_neighbours(linked: pd.DataFrame, size: int | None = None) -> pd.DataFrame:
+    """Add, to each (particle, frame), the nearest other track in that frame, and which
+    other tracks' holograms reach into its crop.
 
     A track counts in the frames within its span where it was not detected too, at its
     linearly interpolated position: a hologram that merged into a neighbour's (closer than the
@@ -263,13 +283,20 @@ def mark_neighbours(linked: pd.DataFrame) -> pd.DataFrame:
     Parameters
     ----------
     linked : pandas.DataFrame
-        Columns ``particle``, ``frame``, ``x_px``, ``y_px``.
+        Columns ``particle``, ``frame``, ``x_px``, ``y_px`` (and ``reach_px``, for the
+        overlap).
+    size : int, optional
+        Crop side, pixels: with it, ``overlap`` and ``n_overlapping`` are added. Another
+        track's hologram reaches into the crop (a ``size`` square about the centre) when its
+        centre is closer to the square than its reach (:func:`track_reach`): its fringes
+        stand above the noise somewhere in the crop.
 
     Returns
     -------
     pandas.DataFrame
         A copy with ``neighbour`` (particle id, -1 if alone in the frame) and
-        ``neighbour_px`` (centre-to-centre distance, pixels; inf if alone).
+        ``neighbour_px`` (centre-to-centre distance, pixels; inf if alone), and with
+        ``size`` ``overlap`` (bool) and ``n_overlapping`` (count).
 
     Raises
     ------
@@ -285,26 +312,37 @@ def mark_neighbours(linked: pd.DataFrame) -> pd.DataFrame:
         )
     out = linked.copy()
     n = len(out)
-    hidden = _hidden(out)  # undetected holograms within their tracks' spans
+    hidden = hidden_positions(out)  # undetected holograms within their tracks' spans
     both = pd.concat([out[["particle", "frame", "x_px", "y_px"]], hidden], ignore_index=True)
     neighbour = np.full(len(both), -1, dtype=int)
     distance = np.full(len(both), np.inf)
+    reaching = np.zeros(len(both), dtype=int)
     pos = both[["x_px", "y_px"]].to_numpy(dtype=float)
     ids = both["particle"].to_numpy()
+    reach = track_reach(out) if size is not None else {}
     for rows in both.groupby("frame").indices.values():
         if len(rows) < 2:
             continue
-        d = np.hypot(*(pos[rows, None, :] - pos[None, rows, :]).transpose(2, 0, 1))
+        delta = pos[None, rows, :] - pos[rows, None, :]  # [i, j]: j's centre from i's
+        d = np.hypot(delta[..., 0], delta[..., 1])
         np.fill_diagonal(d, np.inf)
         nearest = np.argmin(d, axis=1)
         neighbour[rows] = ids[rows][nearest]
         distance[rows] = d[np.arange(len(rows)), nearest]
+        if size is not None:
+            gap = np.hypot(*np.maximum(np.abs(delta) - size / 2.0, 0.0).transpose(2, 0, 1))
+            into = gap < np.array([reach[int(q)] for q in ids[rows]])[None, :]
+            np.fill_diagonal(into, False)
+            reaching[rows] = into.sum(axis=1)
     out["neighbour"] = neighbour[:n]
     out["neighbour_px"] = distance[:n]
+    if size is not None:
+        out["n_overlapping"] = reaching[:n]
+        out["overlap"] = reaching[:n] > 0
     return out
 
 
-def _hidden(linked: pd.DataFrame) -> pd.DataFrame:
+def hidden_positions(linked: pd.DataFrame) -> pd.DataFrame:
     """Where each track's hologram is, by linear interpolation, in the frames within its span
     where it was not detected (bridged by the linker's memory): usually hidden in a
     neighbour's, whose crop it then overlaps."""

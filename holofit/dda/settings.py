@@ -24,7 +24,8 @@ _SPECS: dict[str, Spec] = {
     ),
     "layer_dipoles": Spec(
         "float", "dipoles across the thinnest layer (shell, cap)", 1.0, 50.0, required=False),
-    "filling": Spec("str", "'fractional' or 'binary'", required=False, default="fractional"),
+    "filling": Spec("str", "'fractional', 'ramp' or 'binary'", required=False,
+                    default="fractional"),
     "polarizability": Spec("str", "'fcd', 'ldr', 'ldr_avg' or 'cm'", required=False,
                            default="fcd"),
     "tolerance": Spec("float", "the solver's relative residual", 1e-14, 0.1, required=False,
@@ -55,8 +56,10 @@ class DDASettings:
         sphere (None: off, the default). A thin high-index shell needs far more dipoles than
         the wavelength rule gives to be fitted without bias; this buys it at a cost of
         ``~layer_dipoles^3`` (see :func:`holofit.dda.voxelize.dipole_size`).
-    filling : {"fractional", "binary"}
-        Smooth fractional filling (default) or centre-inside voxels.
+    filling : {"fractional", "ramp", "binary"}
+        Plane-cut fractional filling (default; the voxelised volume is exact for faces of
+        any orientation), the older smooth ramp of the signed distance (kept to compare), or
+        centre-inside voxels (:mod:`holofit.dda.voxelize`).
     polarizability : {"fcd", "ldr", "ldr_avg", "cm"}
         Filtered coupled dipoles (FCD polarisability and filtered interaction; ADDA ``-pol fcd
         -int fcd``; the default: smaller hologram errors than LDR for high-index and
@@ -94,7 +97,7 @@ class DDASettings:
     adda_path: str | None = None
 
     def __post_init__(self) -> None:
-        choices = {"filling": ("fractional", "binary"),
+        choices = {"filling": ("fractional", "ramp", "binary"),
                    "polarizability": ("ldr", "ldr_avg", "cm", "fcd"),
                    "precision": ("double", "single"), "engine": DDA_ENGINES,
                    "solver": ("qmr", "bicgstab")}

@@ -30,7 +30,7 @@ from holofit.config import ParticleConfig
 from holofit.fit.defaults import INITIAL_MAX, INITIAL_MIN, INITIAL_SHARE, default_initial_frames
 from holofit.fit.errors import FitStageError
 from holofit.fit.models import ModelFits, choose_model, parameter_count, prefit_sphere
-from holofit.fit.overlaps import overlap_rows
+from holofit.fit.overlaps import Neighbours, overlap_rows
 from holofit.fit.passes import FitPasses, table_digest
 from holofit.fit.pictures import picture_prefix
 from holofit.fit.seeded import SEED_BUILD, seed_particle
@@ -137,12 +137,17 @@ def initial_pass(fp: FitPasses) -> Path:
         table, key, extra = fp.frame_pass(cfg, chosen)
     path = fp.out / "initial.csv"
     fp.run.initial = _finish(fp, table, cfg, key, extra, path)
-    fits = [ModelFits(particle.model.kind, read_table(path),
-                      parameter_count(particle.model, cfg.free))]
+    primary = read_table(path)
+    fits = [ModelFits(particle.model.kind, primary, parameter_count(particle.model, cfg.free))]
+    # another model's overlapping rows are refitted with the neighbours' fields of the
+    # primary model, the run's own (it describes a sphere as well as a sphere does, where a
+    # sphere leaves a rod's rings in the crop)
+    neighbours = Neighbours(fp.overlap_config("initial", dict(cfg.tracks) or None), primary)
     for alt, alt_cfg in _alternatives(fp, chosen):
         stem = f"initial_{alt.model.kind}"
         alt_table, alt_key, _ = fp.frame_pass(alt_cfg, chosen, stem)
-        alt_path = _finish(fp, alt_table, alt_cfg, alt_key, {}, fp.out / f"{stem}.csv")
+        alt_path = _finish(fp, alt_table, alt_cfg, alt_key, {}, fp.out / f"{stem}.csv",
+                           neighbours)
         fits.append(ModelFits(alt.model.kind, read_table(alt_path),
                               parameter_count(alt.model, alt_cfg.free)))
     fp.pictures(path, cfg, "initial", "initial")
@@ -150,13 +155,16 @@ def initial_pass(fp: FitPasses) -> Path:
 
 
 def _finish(fp: FitPasses, table: pd.DataFrame, cfg: PassConfig, key: str,
-            extra: dict[str, Any], path: Path) -> Path:
-    """A model's initial table: each track's off-level rows flagged, overlapping rows refitted,
-    published (unless complete before this run)."""
+            extra: dict[str, Any], path: Path, neighbours: Neighbours | None = None) -> Path:
+    """A model's initial table: each track's off-level rows flagged, overlapping rows refitted
+    (with the neighbours' fields of ``neighbours`` if given), published (unless complete
+    before this run)."""
     c = fp.config
     key = fingerprint({"batch": key, "rows": table_digest(table),
                        "sigmas": c.continuity.chi2_sigmas,
-                       "overlaps": not overlap_rows(fp.given.crops).empty})
+                       "overlaps": not overlap_rows(fp.given.crops).empty,
+                       "neighbours": (table_digest(neighbours.table) if neighbours is not None
+                                      else None)})
     if published_fingerprint(path) == key:
         return path
     level = flag_initial(table, c.continuity.chi2_sigmas)
@@ -171,7 +179,7 @@ def _finish(fp: FitPasses, table: pd.DataFrame, cfg: PassConfig, key: str,
     if cfg.particle.model.kind != fp.particle.model.kind:
         overlap_cfg = PassConfig(cfg.particle, cfg.instrument, "initial", c.frame, cfg.engine,
                                  c.fixed, fit_na=c.fit_na, tracks=cfg.tracks)
-    table = fp.refit_overlaps(table, overlap_cfg, "initial", path.stem)
+    table = fp.refit_overlaps(table, overlap_cfg, "initial", path.stem, neighbours)
     return publish_table(path, table, {**meta, **extra}, key)
 
 

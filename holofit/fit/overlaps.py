@@ -43,7 +43,7 @@ from holofit.scattering.theory import ScatteringTheory
 from holofit.status import ERROR, OK, OVERLAP, SKIPPED
 from holofit.tables.cropset import PARTICLE_KEY, CropSet
 
-__all__ = ["OverlapPayload", "mark_overlap", "neighbour_field", "overlap_rows",
+__all__ = ["Neighbours", "OverlapPayload", "mark_overlap", "neighbour_field", "overlap_rows",
            "refit_overlap_task", "refit_overlaps"]
 
 
@@ -92,6 +92,29 @@ class OverlapPayload:
     neighbour: int
     neighbour_values: dict[str, float]
     time_s: float
+    #: the neighbour's pass (its model) where it is not the refitted row's own
+    neighbour_config: PassConfig | None = None
+
+
+@dataclass(frozen=True)
+class Neighbours:
+    """The rows whose fields stand for the neighbours in another model's refits.
+
+    A run that tests several models fits every track with each; a track's row refitted with
+    its neighbour's field needs that neighbour's field as well fitted as it can be, not as the
+    refitted model describes it (a rod fitted as a sphere leaves its rings in its neighbour's
+    crop, and the neighbour's sphere fit then looks worse than it is).
+
+    Attributes
+    ----------
+    config : PassConfig
+        The neighbours' pass (their model, statics and engine; no T-matrix).
+    table : pandas.DataFrame
+        Its rows, keyed by ``(particle, frame)``.
+    """
+
+    config: PassConfig
+    table: pd.DataFrame
 
 
 def _direct(config: PassConfig, track: int) -> PassConfig:
@@ -107,7 +130,7 @@ def refit_overlap_task(config: PassConfig, key: tuple[int, int],
     p, f = int(key[0]), int(key[1])
     q = payload.neighbour
     inst = config.instrument
-    mine, theirs = _direct(config, p), _direct(config, q)
+    mine, theirs = _direct(config, p), _direct(payload.neighbour_config or config, q)
     extra = neighbour_field(item_theory(theirs), theirs.particle.model, inst.optics,
                             payload.neighbour_values, payload.crop.shape, payload.corner,
                             inst.pixel_size_um, config.options.far_field)
@@ -142,7 +165,7 @@ def overlap_rows(crops: CropSet) -> pd.DataFrame:
 
 
 def refit_overlaps(table: pd.DataFrame, crops: CropSet, config: PassConfig, output: Path,
-                   batch: BatchOptions | None = None
+                   batch: BatchOptions | None = None, neighbours: Neighbours | None = None
                    ) -> tuple[pd.DataFrame, int, int, BatchSummary | None]:
     """Refit a pass's overlapping rows with their neighbour's field.
 
@@ -158,6 +181,9 @@ def refit_overlaps(table: pd.DataFrame, crops: CropSet, config: PassConfig, outp
         The batch's table.
     batch : BatchOptions, optional
         Backend and resumption.
+    neighbours : Neighbours, optional
+        Where the neighbours' fields come from, if not from ``table`` itself (another model's
+        pass of the same tracks).
 
     Returns
     -------
@@ -168,13 +194,16 @@ def refit_overlaps(table: pd.DataFrame, crops: CropSet, config: PassConfig, outp
     """
     overlaps = overlap_rows(crops)
     rows = {(int(r["particle"]), int(r["frame"])): i for i, r in table.iterrows()}
+    source = neighbours.table if neighbours is not None else table
+    their_rows = (rows if neighbours is None else
+                  {(int(r["particle"]), int(r["frame"])): i for i, r in source.iterrows()})
     items: dict[tuple[int, int], tuple[int, dict[str, float], dict[str, float]]] = {}
     for o in overlaps.itertuples():
         p, f, q = int(o.particle), int(o.frame), int(o.neighbour)
-        mine, theirs = rows.get((p, f)), rows.get((q, f))
+        mine, theirs = rows.get((p, f)), their_rows.get((q, f))
         if mine is None or theirs is None:
             continue
-        own, them = _placed(table.loc[mine]), _placed(table.loc[theirs])
+        own, them = _placed(table.loc[mine]), _placed(source.loc[theirs])
         if own is not None and them is not None:
             items[(p, f)] = (q, own, them)
     if not items:
@@ -185,9 +214,12 @@ def refit_overlaps(table: pd.DataFrame, crops: CropSet, config: PassConfig, outp
         q, own, them = items[key]
         crow = crops.row(key)
         return OverlapPayload(crops.crop(key), (int(crow["corner_row"]), int(crow["corner_col"])),
-                              own, q, them, float(own.get("time_s", math.nan)))
+                              own, q, them, float(own.get("time_s", math.nan)),
+                              neighbours.config if neighbours is not None else None)
 
     key = fingerprint({"config": config.as_dict(), "crops": crops.fingerprint(),
+                       "neighbours": (neighbours.config.as_dict() if neighbours is not None
+                                      else None),
                        "items": {f"{k[0]},{k[1]}": [v[0], _rounded(v[1]), _rounded(v[2])]
                                  for k, v in sorted(items.items())}})
     meta = sidecar(kind=f"overlapping rows of the {config.pass_name} pass refitted with the "
@@ -210,6 +242,11 @@ def _merged(table: pd.DataFrame, rows: dict[tuple[int, int], int], refits: pd.Da
             items: dict[tuple[int, int], Any]) -> tuple[pd.DataFrame, int, int]:
     """``table`` with the batch's refits in place of their rows."""
     out = table.copy()
+    for k in refits.columns:
+        # a text column read back empty is float (all NaN): the refits' text goes in as text
+        if (k in out.columns and not pd.api.types.is_numeric_dtype(refits[k])
+                and pd.api.types.is_numeric_dtype(out[k])):
+            out[k] = out[k].astype(object)
     n_refit = n_ok = 0
     for _, new in refits.iterrows():
         key = (int(new["particle"]), int(new["frame"]))

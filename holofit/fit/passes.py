@@ -43,7 +43,7 @@ from holofit.fit.chunks import (
 )
 from holofit.fit.config import FitConfig, FitRun
 from holofit.fit.follow import FOLLOW_COLUMNS
-from holofit.fit.overlaps import refit_overlaps
+from holofit.fit.overlaps import Neighbours, refit_overlaps
 from holofit.fit.task import (
     FitPayload,
     PassConfig,
@@ -268,13 +268,13 @@ class FitPasses:
             cfg = cfg.with_tracks({p: replace(s, tmatrix=None) for p, s in setups.items()})
         return cfg
 
-    def refit_overlaps(self, table: pd.DataFrame, cfg: PassConfig, name: str, stem: str
-                       ) -> pd.DataFrame:
+    def refit_overlaps(self, table: pd.DataFrame, cfg: PassConfig, name: str, stem: str,
+                       neighbours: Neighbours | None = None) -> pd.DataFrame:
         """A pass's overlapping rows refitted with their neighbour's field (the batch's table
-        ``overlaps/<stem>.csv``)."""
+        ``overlaps/<stem>.csv``; the neighbours' fields from ``neighbours`` if given)."""
         out = self.out / "overlaps" / f"{stem}.csv"
         table, n_refit, n_ok, summary = refit_overlaps(table, self.given.crops, cfg, out,
-                                                       self.batch)
+                                                       self.batch, neighbours)
         if summary is not None:
             self.run.summaries[f"{name}, overlaps"] = summary
             self.run.notes.append(f"{name} pass: overlapping frames refitted with the "

@@ -101,7 +101,8 @@ NORMALIZED = {normalized}
 # scattering engine of library and fit: auto, exact, mie, builtin, adda (empty: the particle
 # config's, i.e. auto: the exact one where the particle has one)
 ENGINE        = {engine}
-# diffusion analysis (rod, janus, sphere) and sample temperature (C)
+# diffusion analysis (rod, janus, sphere; empty: each track's from the particle model the fit
+# gave it) and sample temperature (C)
 MODEL         = {model}
 TEMPERATURE_C = {temperature}
 # extra options of each stage (holofit STAGE --help)
@@ -186,14 +187,16 @@ FIT = $(HOLOFIT) fit crop --prefit prefit {library_option}-p particle.toml {popu
 
 fit/static.json: {fit_prerequisites} particle.toml {population_files}settings/fit
 \t$(FIT) --pass initial $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) \\
-\t  $(call overwrite,$@ fit/initial.csv fit/initial.csv.journal))
+\t  $(call overwrite,$@ fit/initial.csv fit/initial.csv.journal \\
+\t    $(wildcard fit/initial*_frames.csv)))
 
 fit/fit.csv: fit/static.json {fit_prerequisites} particle.toml {population_files}settings/fit
-\t$(FIT) --pass final $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) $(call overwrite,$@ $@.journal))
+\t$(FIT) --pass final $(strip $(ENGINE_OPT) $(FIT_OPTS) $(BATCH) \\
+\t  $(call overwrite,$@ $@.journal fit/fit_chunks.csv fit/fit_frames.csv))
 
 analysis/summary.csv: fit/fit.csv settings/analyze
-\t$(HOLOFIT) analyze fit/fit.csv -o analysis --model $(MODEL) --temperature-c $(TEMPERATURE_C) \\
-\t  $(ANALYZE_OPTS)
+\t$(HOLOFIT) analyze fit/fit.csv -o analysis $(strip $(if $(MODEL),--model $(MODEL)) \\
+\t  --temperature-c $(TEMPERATURE_C) $(ANALYZE_OPTS))
 
 clean:
 \trm -rf crop prefit library fit analysis settings
@@ -239,7 +242,8 @@ def render_run_makefile(spec: RunSpec) -> str:
     variables = _VARIABLES.format(
         movie=spec.movie, backgrounds=" ".join(spec.backgrounds), darks=" ".join(spec.darks),
         dark_count=dark_count, normalized="yes" if spec.normalized else "",
-        engine=spec.engine or "", model=spec.analysis_model,
+        # a population: each track is analysed with its own model, none forced on all
+        engine=spec.engine or "", model="" if spec.alternatives else spec.analysis_model,
         temperature=f"{spec.temperature_c:g}",
         **{stage: make_value(spec.option(stage)) for stage in
            ("crop", "prefit", "library", "fit", "analyze")},

@@ -36,7 +36,7 @@ def render_readme(spec: RunSpec) -> str:
         "frames with every parameter free; the static parameters' robust average |",
         "| `make fit` | `fit/fit.csv` | DDA fit of every frame, static parameters fixed |",
         f"| `make` (`make analyze`) | `analysis/summary.csv` | diffusion analysis "
-        f"(`--model {spec.analysis_model}`, {spec.temperature_c:g} C) against theory |",
+        f"({_analysis_model(spec)}, {spec.temperature_c:g} C) against theory |",
     ]
     library_note = ("" if spec.anisotropic else
                     f"\nA {spec.particle_kind} has no orientation: there is no library stage "
@@ -88,3 +88,10 @@ def render_readme(spec: RunSpec) -> str:
         "settings/`).",
         "",
     ])
+
+
+def _analysis_model(spec: RunSpec) -> str:
+    """The analysis model the Makefile gives (a population: each track's own)."""
+    if spec.alternatives:
+        return "each track with the model of the particle the fit gave it"
+    return f"`--model {spec.analysis_model}`"

@@ -41,12 +41,17 @@ CROP_UNITS = {
     "symmetry": "1 (-1..1: point symmetry about the centre; 1 = perfect)",
     "refinement": ("symmetry | radial (near an edge) | peeled (found with a neighbour's "
                    "rings subtracted) | none (coarse centre)"),
+    "zone_px": ("pixel (radius of the hologram's first Fresnel zone, sqrt(lambda_m |z|), "
+                "from its fringes' zero crossings: holofit.crop.profile)"),
+    "reach_px": ("pixel (radius within which the hologram's fringes stand above the pixel "
+                 "noise: holofit.crop.profile)"),
     "n_candidates": "count (accepted candidate centres in the frame)",
     "n_masked": "pixels (masked, NaN, in the crop)",
     "neighbour": "track id of the nearest other track in the frame (-1: none)",
     "neighbour_px": "pixel, centre-to-centre distance to it (inf: none)",
-    "overlap": "bool (the neighbour's centre is closer than half the crop's side: the two "
-               "holograms overlap in the crop)",
+    "overlap": "bool (another track's hologram reaches into the crop: its centre is closer "
+               "to the crop's square than its reach, the track's median reach_px)",
+    "n_overlapping": "count (other tracks whose holograms reach into the crop)",
 }
 
 CANDIDATE_UNITS = {
@@ -58,6 +63,8 @@ CANDIDATE_UNITS = {
     "alignment": CROP_UNITS["alignment"],
     "symmetry": CROP_UNITS["symmetry"],
     "refinement": CROP_UNITS["refinement"],
+    "zone_px": CROP_UNITS["zone_px"],
+    "reach_px": CROP_UNITS["reach_px"],
     "selected": "bool (the candidate cropped in this frame)",
     "particle": "track id of the candidate (-1: in no kept track)",
 }
@@ -89,11 +96,15 @@ def stack_header(size: int, n_frames: int) -> dict[str, Any]:
 
 def crop_extra(settings: dict[str, Any], movie: dict[str, Any], stack: Path, table: Path,
                pages: int, size: int, counts: dict[str, int],
-               warnings: list[str]) -> dict[str, Any]:
+               warnings: list[str], losses: list[dict[str, Any]] | None = None
+               ) -> dict[str, Any]:
     """The ``extra`` of the crop stack's and the crop table's sidecars: the settings, the
     movie (``movie``: frames, frame_shape, dtype, problems, reader_notes), the stack's
-    layout, the status counts and the warnings."""
+    layout, the status counts, the warnings and ``track_losses``: every time a track was
+    lost, started late or went undetected next to another hologram within reach
+    (:func:`holofit.crop.losses.track_losses`; tracks mode)."""
     return {
+        "track_losses": list(losses or []),
         "settings": settings,
         "movie": movie,
         "crops": {

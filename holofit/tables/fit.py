@@ -421,7 +421,8 @@ def _check_times(
     return float(frame_interval_s)
 
 
-def read_fit_table(path: str | Path, frame_interval_s: float | None = None) -> FitTable:
+def read_fit_table(path: str | Path, frame_interval_s: float | None = None,
+                   drop_empty: bool = False) -> FitTable:
     """Read and validate a fit table (CSV) and its sidecar JSON.
 
     Parameters
@@ -430,6 +431,9 @@ def read_fit_table(path: str | Path, frame_interval_s: float | None = None) -> F
         The CSV file.
     frame_interval_s : float, optional
         Overrides the sidecar's ``frame_interval_s`` and the time stamps' spacing.
+    drop_empty : bool
+        Drop the columns empty on every row before the checks (a run of several particle
+        models writes every model's columns: a sphere's rows hold no orientation).
 
     Raises
     ------
@@ -454,6 +458,9 @@ def read_fit_table(path: str | Path, frame_interval_s: float | None = None) -> F
             raise FitTableError(f"{side}: sidecar is not valid JSON ({exc})") from None
     if frame_interval_s is None and isinstance(meta.get("frame_interval_s"), int | float):
         frame_interval_s = float(meta["frame_interval_s"])
+    if drop_empty:
+        df = df.drop(columns=[c for c in df.columns
+                              if c not in REQUIRED_COLUMNS and df[c].isna().all()])
     fit = validate_fit_table(df, str(path), frame_interval_s)
     fit.meta = meta
     return fit
