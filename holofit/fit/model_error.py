@@ -15,11 +15,12 @@ notes:
   dipole size ``d`` (first order: measured for shells, spheroids and, a little faster, rods),
   so with ``p(d) = p* + C d`` the change ``p(d) - p(d / r)`` is ``(1 - 1/r) C d``
   (:func:`estimate_model_error`) and its first-order extrapolation ``change / (1 - 1/r)`` the
-  estimate. Read it as a conservative size of the model error, not a signed correction: a
+  estimate. Read it as a size of the model error, not a signed correction: a
   lattice's staircase changes irregularly with ``d``, and the extrapolation multiplies that
   too. Against exact fits of the same frames (a rod made by its exact T-matrix,
-  ``tests/test_fit_exact.py``) it overstated the DDA's error of every static 1.6-8 times, and
-  its sign was wrong for the index (and, at the default rule, one length). Finer rather
+  ``tests/test_fit_exact.py``) it overstated the DDA's error of the lengths 1.6-8 times, but
+  had the wrong sign for the index and, with the plane-fraction filling, 0.6 times its size:
+  not a bound of the index's error. Finer rather
   than coarser, though it costs ``r^3`` times the run's solves on those frames: one step
   coarser the lattice leaves the convergent regime where the default is near its edge (a thin
   shell two dipoles thick is then one), and the change there has the wrong sign (measured on
@@ -331,10 +332,10 @@ def _dda_entry(fp: Any, table: pd.DataFrame, cfg: PassConfig,
         "frames": [[int(p), int(f)] for p, f in zip(done["particle"], done["frame"],
                                                     strict=True)],
         "rule": "estimate = (p(default) - p(fine)) / (1 - refine^-order): the default rule's "
-                "offset from the d -> 0 limit, assuming p(d) = p* + C d^order; a conservative "
+                "offset from the d -> 0 limit, assuming p(d) = p* + C d^order; a "
                 "size of the model error, not a signed correction (against exact fits of the "
-                "same frames it overstated every static's error 1.6-8x, and its sign was "
-                "wrong for some)"}
+                "same frames it overstated the lengths' error 1.6-8x, and gave the index's "
+                "the wrong sign at 0.6x its size)"}
     if done.empty:
         entry["reason"] = "no refit ended ok"
         return entry
