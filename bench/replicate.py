@@ -1,6 +1,7 @@
 """The paper's two experiments replicated on synthetic truth (``make replicate``; not a test).
 
     python bench/replicate.py [--out replicate] [--only rod|janus|dask] [--frames N] [--workers 2]
+                              [--engine builtin] [--keep-sim]
                               [--initial-frames K] [--dask-check N]
 
 Each experiment is a movie with known truth made like the paper's data — the rod: 2000 frames
@@ -24,6 +25,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import pickle
+import resource
 import time
 from pathlib import Path
 
@@ -35,7 +39,7 @@ from holofit.analysis import AnalysisConfig, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diffusion
 from holofit.batch import BatchOptions
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
-from holofit.crop import run_crop
+from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
 from holofit.fit.stage import run_fit
 from holofit.library.stage import run_library
@@ -57,29 +61,54 @@ PAPER_JANUS = {"a (nm)": (443, 20), "t (nm)": (47, 8), "n_TiO2": (2.74, 0.23),
                "a_eff from D_r (nm)": (523, 6), "eps (nm)": (21.8, math.nan)}
 
 
+def _cpu_s() -> float:
+    """CPU time (user + system) of this process and of its finished children (the stages'
+    worker processes): on shared cores the wall time depends on the load, the CPU time much
+    less."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(
+        resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def _stage(times: dict[str, float], name: str, fn, *args, **kwargs):
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_s()
     result = fn(*args, **kwargs)
     times[name] = time.perf_counter() - t0
-    print(f"  {name}: {times[name]:.0f} s", flush=True)
+    print(f"  {name}: {times[name]:.0f} s wall, {_cpu_s() - c0:.0f} s CPU (load average "
+          f"{os.getloadavg()[0]:.1f})", flush=True)
     return result
 
 
+def _simulated(truth: ParticleConfig, inst, dynamics, out: Path, seed: int, keep: bool):
+    """The movie (``diffusing_movie``), or with ``keep`` the one an earlier run of the same
+    length and seed left in ``OUT/sim.pkl`` (the engines' comparison fits one movie)."""
+    cache = out / "sim.pkl"
+    tag = (dynamics.n_frames, seed, repr(truth.model))
+    if keep and cache.exists():
+        saved_tag, sim = pickle.loads(cache.read_bytes())
+        if saved_tag == tag:
+            return sim
+    sim = diffusing_movie(truth, inst, dynamics, out, frame_shape=(192, 192), seed=seed)
+    cache.write_bytes(pickle.dumps((tag, sim)))
+    return sim
+
+
 def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dynamics, *,
-              workers: int, initial_frames: int, model: str, seed: int) -> dict:
+              workers: int, initial_frames: int, model: str, seed: int,
+              engine: str | None = None, keep_sim: bool = False) -> dict:
     times: dict[str, float] = {}
     batch = BatchOptions(workers=workers, progress=False)
-    sim = _stage(times, "simulate", diffusing_movie, truth, inst, dynamics, out,
-                 frame_shape=(192, 192), seed=seed)
+    sim = _stage(times, "simulate", _simulated, truth, inst, dynamics, out, seed, keep_sim)
     _stage(times, "crop", run_crop, sim.movie.movie, sim.movie.background, inst, out / "crop",
-           size=140)
+           CropConfig(size=140))
     # a non-spherical particle's prefit seeds its position only (as `holofit init` sets it)
     prefit_fit = SphereFitSettings(seed_only=config.model.anisotropic)
     _stage(times, "prefit", run_prefit, out / "crop", out / "prefit", batch=batch, fit=prefit_fit)
     _stage(times, "library", run_library, out / "crop", out / "prefit", config,
-           out / "library", batch=batch)
+           out / "library", engine=engine, batch=batch)
     run = _stage(times, "fit", run_fit, out / "crop", out / "prefit", out / "library",
-                 out / "fit", FitConfig(config, initial_frames=initial_frames), batch=batch)
+                 out / "fit", FitConfig(config, initial_frames=initial_frames, engine=engine),
+                 batch=batch)
     settings = AnalysisConfig(model=model, temperature_c=T_C)
     analysis = _stage(times, "analyze", run_analysis, run.final, settings, out / "analysis")
     result, files = analysis.result, analysis.files
@@ -143,7 +172,8 @@ def _fmt(v: float, e: float = math.nan, digits: int = 3) -> str:
 
 
 def rod(out: Path, frames: int, workers: int, initial_frames: int,
-        seed: int) -> tuple[list[str], dict]:
+        seed: int, engine: str | None = None,
+        keep_sim: bool = False) -> tuple[list[str], dict]:
     inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
     config = load_particle(resolve_config("rod_paper", "particles"))
     truth_model = Spherocylinder(0.501, 1.079, 1.495)
@@ -152,7 +182,8 @@ def rod(out: Path, frames: int, workers: int, initial_frames: int,
     dyn = BrownianParameters(frames, 1 / inst.frame_rate_hz, d_par, d_perp, d_r,
                              drift_um_s=(0.0, 0.0, -0.9), start_position_um=(17.0, 17.0, 20.0))
     r = _pipeline(out, config, truth, inst, dyn, workers=workers,
-                  initial_frames=initial_frames, model="rod", seed=seed)
+                  initial_frames=initial_frames, model="rod", seed=seed, engine=engine,
+                  keep_sim=keep_sim)
     m, st = r["result"].measured, r["static"]
     t = _truth_column(r)
     pred = spherocylinder_diffusion(0.501, 1.079, T_C)
@@ -184,7 +215,8 @@ def rod(out: Path, frames: int, workers: int, initial_frames: int,
 
 
 def janus(out: Path, frames: int, workers: int, initial_frames: int,
-          seed: int) -> tuple[list[str], dict]:
+          seed: int, engine: str | None = None,
+        keep_sim: bool = False) -> tuple[list[str], dict]:
     inst = load_instrument(resolve_config("paper_100x_oil", "instruments"))
     config = load_particle(resolve_config("janus_paper", "particles"))
     truth_model = JanusSphere(0.443, 0.047, 1.581, 2.74)
@@ -193,7 +225,8 @@ def janus(out: Path, frames: int, workers: int, initial_frames: int,
     dyn = BrownianParameters(frames, 1 / inst.frame_rate_hz, float(d["D_t"]), float(d["D_t"]),
                              float(d["D_r"]), start_position_um=(10.2, 10.2, 12.0))
     r = _pipeline(out, config, truth, inst, dyn, workers=workers,
-                  initial_frames=initial_frames, model="janus", seed=seed)
+                  initial_frames=initial_frames, model="janus", seed=seed, engine=engine,
+                  keep_sim=keep_sim)
     m, st = r["result"].measured, r["static"]
     t = _truth_column(r)
     rows = [
@@ -362,6 +395,10 @@ def main() -> None:
         help="override the initial pass's frames (rod 100, Janus 10)",
     )
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--engine", default=None,
+                    help="the library's and the fit's engine (default: auto; builtin: the DDA)")
+    ap.add_argument("--keep-sim", action="store_true",
+                    help="reuse the movie of an earlier run of the same length and seed")
     ap.add_argument("--dask-check", type=int, default=0)
     ap.add_argument("--seed", type=int, default=11, help="the simulation's random seed")
     args = ap.parse_args()
@@ -374,7 +411,8 @@ def main() -> None:
             continue
         print(f"{name}:", flush=True)
         part, _ = fn(
-            out / name, args.frames or n, args.workers, args.initial_frames or k, args.seed
+            out / name, args.frames or n, args.workers, args.initial_frames or k, args.seed,
+            args.engine, args.keep_sim,
         )
         lines = list(part)
         lines[2:2] = [

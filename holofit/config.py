@@ -438,17 +438,20 @@ class ParticleConfig:
     def theory(self, engine: str | None = None, fixed_lattice_for: Optics | None = None
                ) -> ScatteringTheory:
         """The scattering engine for this particle (:func:`holofit.engines.select.select_theory`:
-        Lorenz-Mie for a sphere without a ``[dda]`` table, else the table's engine), or the one
-        ``engine`` names.
+        the exact one where it has one - Lorenz-Mie for a sphere without a ``[dda]`` table, the
+        exact T-matrix of a body of revolution - else the ``[dda]`` table's engine), or the one
+        ``engine`` names. A ``[dda]`` table that names its ``engine`` (``builtin`` or
+        ``adda``) chooses it under ``auto``: that is how a config asks for the DDA.
 
         Parameters
         ----------
         engine : str, optional
-            Overrides the choice (``mie``, ``builtin``, ``adda``, ``auto``).
+            Overrides the choice (``mie``, ``builtin``, ``adda``, ``exact``, ``auto``).
         fixed_lattice_for : Optics, optional
             Freeze a DDA engine's dipole size at the value the dipoles-per-wavelength rule gives
-            for this particle in these optics (a fit must: a rule that followed a fitted index
-            would move the lattice, and the residuals would jump).
+            for this particle in these optics, and an exact engine's order and radial steps at
+            its reference build of this particle (a fit must: a rule that followed a fitted
+            size or index would move the lattice or the order, and the residuals would jump).
 
         Raises
         ------
@@ -461,10 +464,17 @@ class ParticleConfig:
             d = base.dipole_size_for(self.model, fixed_lattice_for)
             if settings is not None or not isinstance(self.model, Sphere):
                 settings = base.replace(dipole_size_um=d)
+        if (engine in (None, "auto") and settings is not None
+                and "engine" in self.settings.get("dda", {})):
+            engine = settings.engine
         try:
-            return select_theory(self.model, settings, engine)
+            theory = select_theory(self.model, settings, engine)
         except ValueError as exc:
             raise ConfigError(f"{self.path}: {exc}") from None
+        fix = getattr(theory, "fix_discretisation", None)
+        if fixed_lattice_for is not None and fix is not None:
+            fix(self.model, fixed_lattice_for, lazy=True)
+        return theory
 
 
 def load_particle(path: str | Path) -> ParticleConfig:

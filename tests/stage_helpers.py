@@ -9,7 +9,8 @@ from typing import Any
 from holofit.batch import BatchOptions
 
 SERIAL = BatchOptions(workers=0, progress=False)
-#: a small rod with a coarse lattice: a cheap DDA for stage tests
+#: a small rod with a coarse lattice: a cheap DDA for stage tests (the config names the
+#: built-in DDA: ``auto`` would give a rod its exact T-matrix)
 ROD_TOML = """
 [particle]
 model = "spherocylinder"
@@ -19,6 +20,7 @@ index = 1.5
 
 [dda]
 dipole_size_um = 0.1
+engine = "builtin"
 """
 
 

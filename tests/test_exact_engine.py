@@ -1,16 +1,26 @@
-"""The ``exact`` engine: registry entry, cache, waves, provenance, files, and that ``auto``'s
-choice is unchanged."""
+"""The ``exact`` engine: registry entry and ``auto``'s choice, cache, waves, provenance, files,
+and the fixed discretisation of a fit."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from holofit.dda.settings import DDASettings
 from holofit.dda.tmatrix_io import load_tmatrix, save_tmatrix
 from holofit.engines.registry import ENGINE_NAMES, EXACT_ENGINES, get_theory
 from holofit.engines.select import select_theory
 from holofit.optics import Optics
-from holofit.particles import Dimer, Ellipsoid, JanusSphere, Sphere, Spherocylinder, Spheroid
+from holofit.particles import (
+    CoatedSphere,
+    Cylinder,
+    Dimer,
+    Ellipsoid,
+    JanusSphere,
+    Sphere,
+    Spherocylinder,
+    Spheroid,
+)
 from holofit.scattering.axisym import (
     AxisymmetricTMatrix,
     TaperedJanusSphere,
@@ -26,14 +36,59 @@ OPTICS = Optics(0.660, 1.33)
 ROD = Spherocylinder(0.501, 1.079, 1.495)
 
 
-def test_registered_by_name_but_not_among_autos_choices() -> None:
-    assert "exact" in ENGINE_NAMES
-    assert "exact" not in EXACT_ENGINES
+def test_auto_picks_the_exact_engine_for_bodies_of_revolution() -> None:
+    assert "exact" in ENGINE_NAMES and "exact" in EXACT_ENGINES
     assert isinstance(get_theory("exact"), AxisymmetricTMatrix)
-    # auto still picks the DDA for a rod and Mie for a sphere
-    assert select_theory(ROD).name == "builtin"
+    # auto: the exact T-matrix for a rod, a spheroid, a cylinder and a Janus sphere, with or
+    # without DDA settings; the series for spheres and coated spheres; the DDA otherwise
+    for model in (ROD, Spheroid(0.5, 1.0, 1.5), Cylinder(0.5, 1.0, 1.5),
+                  JanusSphere(0.443, 0.047, 1.581, 2.74),
+                  TaperedJanusSphere(0.443, 0.047, 1.581, 2.74)):
+        assert select_theory(model).name == "exact", model.kind
+        assert select_theory(model, DDASettings()).name == "exact", model.kind
+        assert select_theory(model, engine="builtin").name == "builtin" or isinstance(
+            model, TaperedJanusSphere)
     assert select_theory(Sphere(0.5, 1.59)).name == "mie"
-    assert select_theory(ROD, engine="exact").name == "exact"
+    assert select_theory(Sphere(0.5, 1.59), DDASettings()).name == "builtin"
+    assert select_theory(CoatedSphere(0.4, 0.05, 1.59, 2.7)).name == "coated_sphere"
+    assert select_theory(Ellipsoid(0.3, 0.4, 0.5, 1.5)).name == "builtin"
+
+
+def test_auto_gives_a_voxel_shape_the_dda(tmp_path) -> None:
+    """A voxel file (an arbitrary shape: no exact engine handles it) gets the built-in DDA,
+    with or without a ``[dda]`` table; asking for the exact engine says why not."""
+    from holofit.config import load_particle
+    from holofit.particles import VoxelShape
+
+    geom = tmp_path / "l.geom"
+    geom.write_text("0 0 0\n1 0 0\n2 0 0\n0 1 0\n")  # an L of four dipoles
+    shape = VoxelShape(str(geom), 0.05, (1.5,))
+    assert select_theory(shape).name == "builtin"
+    assert select_theory(shape, DDASettings()).name == "builtin"
+    with pytest.raises(ValueError, match="exact engine handles"):
+        select_theory(shape, engine="exact")
+    (tmp_path / "l.toml").write_text(
+        f'[particle]\nmodel = "voxels"\npath = "{geom}"\ndipole_size_um = 0.05\n'
+        "indices = [1.5]\n")
+    assert load_particle(tmp_path / "l.toml").theory().name == "builtin"
+    # the DDA settings' engine = "adda" still picks ADDA (here without a binary: it says so)
+    with pytest.raises(Exception, match="ADDA"):
+        select_theory(ROD, DDASettings(engine="adda"))
+
+
+def test_a_config_that_names_its_dda_engine_gets_it_under_auto(tmp_path) -> None:
+    from holofit.config import load_particle
+
+    body = "[particle]\nmodel = \"spherocylinder\"\na_um = 0.3\nb_um = 0.7\nindex = 1.5\n"
+    (tmp_path / "plain.toml").write_text(body + "[dda]\ndipole_size_um = 0.1\n")
+    (tmp_path / "named.toml").write_text(body + "[dda]\nengine = \"builtin\"\n")
+    assert load_particle(tmp_path / "plain.toml").theory().name == "exact"
+    named = load_particle(tmp_path / "named.toml")
+    assert named.theory().name == "builtin" and named.theory("auto").name == "builtin"
+    assert named.theory("exact").name == "exact"
+    assert load_particle("rod_paper").theory().name == "exact"
+    assert load_particle("janus_paper").theory().name == "exact"
+    assert load_particle("rod_paper").theory("builtin").name == "builtin"
 
 
 def test_supports_bodies_of_revolution_only() -> None:
@@ -133,3 +188,54 @@ def test_rotation_derivatives_of_the_exact_wave_match_finite_differences() -> No
     assert np.abs(derivs[0][0] - fd).max() < 1e-5 * np.abs(fd).max()
     assert np.abs(fd).max() > 1e-3 * np.abs(ex).max()
     assert engine.builds == 1
+
+
+def test_a_fit_builds_every_model_at_its_reference_discretisation() -> None:
+    """A fit's engine keeps the reference build's order (and the imbedding's radial steps) for
+    every size: a rod 10 % longer, searched on its own, takes another order; at the fixed one
+    its far field is still within the stated accuracies of its own search's."""
+    import math
+
+    from holofit.scattering.axisym.order import far_field_change
+
+    engine = AxisymmetricTMatrix()
+    ref = Spherocylinder(0.5, 1.0, 1.495)
+    d = engine.fix_discretisation(ref, OPTICS)
+    assert engine.tmatrix(ref, OPTICS).order == d.order and engine.builds == 0
+    assert d.method == "ebcm" and d.radial_steps is None and d.truncation_estimate > 0
+    longer = Spherocylinder(0.5, 1.1, 1.495)
+    own = build_exact_tmatrix(longer, OPTICS, max_seconds=math.inf)
+    fixed = engine.tmatrix(longer, OPTICS)
+    assert fixed.order == d.order != own.order and engine.builds == 1
+    assert fixed.provenance["truncation_estimate"] == d.truncation_estimate
+    stated = max(d.truncation_estimate, own.provenance["truncation_estimate"])
+    assert far_field_change(fixed, own) < 3 * stated
+
+
+def test_a_janus_fit_keeps_its_radial_steps_and_moves_smoothly_with_the_cap() -> None:
+    """At the fixed discretisation the far field is a smooth function of the cap thickness: the
+    finite differences of the fit's step (2 nm) and of twice it agree to first order."""
+    janus = JanusSphere(0.443, 0.047, 1.581, 2.74)
+    engine = AxisymmetricTMatrix()
+    d = engine.fix_discretisation(janus, OPTICS)
+    assert d.method == "iitm" and d.radial_steps is not None
+    h = 2e-3
+
+    def far(t: float) -> np.ndarray:
+        tm = engine.tmatrix(JanusSphere(0.443, t, 1.581, 2.74), OPTICS)
+        assert tm.provenance["radial_steps"] == list(d.radial_steps)
+        c = tm.lab_coefficients((0.3, 0.8, 0.0), np.array([1.0, 0.0, 0.0]))
+        dirs = np.array([[0.0, 0.0, -1.0], [0.3, 0.0, -0.954], [0.0, 0.5, -0.866]])
+        return tm.expansion(c.vector).far_amplitude(dirs)
+
+    f = {k: far(0.047 + k * h / 2) for k in (0, 1, 2, 4)}
+
+    def slope(k: int) -> np.ndarray:  # forward difference of step k h / 2, per um
+        return (f[k] - f[0]) / (k * h / 2)
+
+    # smooth: the forward difference's error is first order in the step (it halves with it);
+    # a jump of the discretisation between the sizes would not
+    big, small = slope(2) - slope(4), slope(1) - slope(2)
+    assert np.abs(slope(2)).max() > 1.0
+    assert np.abs(big).max() < 0.1 * np.abs(slope(2)).max()
+    assert 0.35 < np.abs(small).max() / np.abs(big).max() < 0.65

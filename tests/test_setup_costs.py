@@ -35,10 +35,11 @@ def test_initial_pass_solves_in_single_precision_unless_the_config_says():
 
 def test_library_solves_in_single_precision_unless_the_config_says():
     inst = load_instrument(resolve_config("paper_100x_oil", "instruments"))
-    lib = new_library(LibraryConfig(_config({"dipole_size_um": 0.05}), inst))
+    # the DDA's library (auto would give a Janus particle its exact T-matrix)
+    dda = {"dipole_size_um": 0.05, "engine": "builtin"}
+    lib = new_library(LibraryConfig(_config(dda), inst))
     assert lib.theory.settings.precision == LIBRARY_PRECISION == "single"
-    lib = new_library(LibraryConfig(_config({"dipole_size_um": 0.05,
-                                             "precision": "double"}), inst))
+    lib = new_library(LibraryConfig(_config({**dda, "precision": "double"}), inst))
     assert lib.theory.settings.precision == "double"
 
 

@@ -28,6 +28,7 @@ from holofit.config import ParticleConfig
 from holofit.engines.select import ENGINE_CHOICES
 from holofit.fit.config import PASSES, FitConfig, FitRun
 from holofit.fit.continuity import ContinuitySettings
+from holofit.fit.model_error import MODEL_ERROR_FRAMES, ModelErrorSettings
 from holofit.fit.settings import FollowSettings, FrameFitSettings
 from holofit.fit.stage import run_fit
 from holofit.fit.static import STATIC_MODES
@@ -66,7 +67,8 @@ from holofit.quality import QualityLimits
               help="static.json with the static parameters of the final pass [default: "
                    "OUT/static.json from the initial pass].")
 @click.option("--engine", type=click.Choice(ENGINE_CHOICES), default=None,
-              help="Scattering engine [default: the particle config's].")
+              help="Scattering engine [default: the particle config's: auto, the exact one where "
+                   "the particle has one (docs/engines/index.md); builtin: the DDA].")
 @click.option("--fix", "fixed", default="", metavar="NAME,NAME",
               help="Hold these parameters at the particle config's values: x_um, y_um, z_um, "
                    "orientation, alpha, or the model's own, "
@@ -76,7 +78,8 @@ from holofit.quality import QualityLimits
 @click.option("--tmatrix", type=click.Choice(TMATRIX_CHOICES), default="auto",
               show_default=True,
               help="Serve the final pass from the particle's T-matrix (built once, saved as "
-                   "OUT/tmatrix.npz; auto: built-in engine and at least 8 frames).")
+                   "OUT/tmatrix.npz; auto: built-in engine and at least 8 frames, or the exact "
+                   "engine whatever the frames).")
 @click.option("--starts", "n_starts", type=click.IntRange(min=1), default=2, show_default=True,
               help="Library candidates used as starts (plus the mirrored best).")
 @click.option("--no-mirror", is_flag=True,
@@ -87,6 +90,13 @@ from holofit.quality import QualityLimits
 @click.option("--no-continuity", is_flag=True,
               help="Skip the continuity sweeps (final-pass frames that look like a wrong "
                    "minimum refitted from their neighbours' orientations).")
+@click.option("--model-error/--no-model-error", "model_error", default=None,
+              help="Estimate the final table's model error (sidecar and notes): a "
+                   "discrete-dipole engine refits a few frames on a 1.25x finer lattice (a size, "
+                   "not a signed correction); an exact "
+                   "engine records its T-matrix's stated accuracy [default: on].")
+@click.option("--model-error-frames", type=click.IntRange(min=1), default=MODEL_ERROR_FRAMES,
+              show_default=True, help="Frames the DDA's model-error estimate refits.")
 @click.option("--independent-frames", "independent", is_flag=True,
               help="Fit every frame independently from the library's starts (default for a "
                    "non-spherical particle: follow each track, each frame from its "
@@ -136,6 +146,8 @@ def fit(
     no_mirror: bool,
     no_model_test: bool,
     no_continuity: bool,
+    model_error: bool | None,
+    model_error_frames: int,
     independent: bool,
     no_tracking: bool,
     flag_probability: float,
@@ -194,6 +206,7 @@ def fit(
         follow=FollowSettings(warm=not (independent or no_tracking)),
         continuity=ContinuitySettings(enabled=not no_continuity,
                                       flag_probability=flag_probability),
+        model_error=ModelErrorSettings(enabled=model_error, frames=model_error_frames),
         frames=_tuple(frame_list(crop_dir, frame_range)), instrument=inst,
         override_instrument=override_instrument,
         numerical_aperture=aperture_choice(numerical_aperture), fit_na=fit_na,

@@ -212,7 +212,9 @@ def _orientations(orientation: tuple[str, ...], table: pd.DataFrame | None, n: i
     type=click.Choice(ENGINE_CHOICES),
     default="auto",
     show_default=True,
-    help="Scattering engine (auto: Lorenz-Mie for spheres, else the config's [dda]).",
+    help="Scattering engine (auto: the exact one where the particle has one - Lorenz-Mie, "
+    "coated sphere, cluster, the T-matrix of a body of revolution - else the config's "
+    "[dda]; docs/engines/index.md).",
 )
 @click.option(
     "--position",

@@ -53,19 +53,20 @@ def _dda(name: str) -> Callable[[], type[ScatteringTheory]]:
     return load
 
 
-#: the exact engines, in ``auto``'s order of preference (the first that can handle a model)
+#: the exact engines, in ``auto``'s order of preference (the first that can handle a model):
+#: a sphere's and a coated sphere's series before the T-matrix of a body of revolution, which
+#: also handles them (through the same series, or the imbedding)
 _EXACT: dict[str, Callable[[], type[ScatteringTheory]]] = {
     "mie": _mie,
     "cluster": _cluster,
     "coated_sphere": _coated_sphere,
+    "exact": _exact,
 }
 #: engine name -> loader of its class (Lorenz-Mie, the discrete-dipole engines, the other
 #: exact ones: the order ``--engine`` lists them in)
 _CLASSES: dict[str, Callable[[], type[ScatteringTheory]]] = {
     "mie": _mie, **{name: _dda(name) for name in DDA_ENGINES},
-    **{name: load for name, load in _EXACT.items() if name != "mie"},
-    # exact T-matrices of bodies of revolution: by name only, not yet among auto's choices
-    "exact": _exact}
+    **{name: load for name, load in _EXACT.items() if name != "mie"}}
 EXACT_ENGINES: tuple[str, ...] = tuple(_EXACT)
 ENGINE_NAMES: tuple[str, ...] = tuple(_CLASSES)
 

@@ -8,9 +8,16 @@ the engine the DDA settings name (the built-in DDA unless they say ``adda``):
   config is computed by the DDA (that is how the paper's DDA-vs-Mie validation is run);
 * a dimer or a sphere cluster: the superposition T-matrix (``cluster``,
   :mod:`holofit.scattering.cluster`), unless the DDA settings say ``adda``;
-* a coated sphere: coated-sphere Lorenz-Mie (``coated_sphere``), unless they say ``adda``.
+* a coated sphere: coated-sphere Lorenz-Mie (``coated_sphere``), unless they say ``adda``;
+* a body of revolution - spherocylinder (the paper's rod), spheroid, flat-ended cylinder,
+  Janus sphere: its exact T-matrix (``exact``, :mod:`holofit.scattering.axisym`), unless
+  they say ``adda``; a ``[dda]`` table without ``engine`` is the DDA's settings for when the
+  DDA is asked for, not a choice of it;
+* anything else (an ellipsoid, a voxel file): the built-in DDA (or ``adda``).
 
-``--engine builtin`` (or ``adda``) computes any of them by the DDA, for comparison.
+``--engine builtin`` (or ``adda``) computes any of them by the DDA, for comparison; so does a
+particle config whose ``[dda]`` table names ``engine`` (:meth:`holofit.config.ParticleConfig.
+theory`). ``docs/engines/index.md`` ("What auto picks") lists the choice by particle, and why.
 """
 
 from __future__ import annotations
@@ -45,7 +52,7 @@ def select_theory(
         The particle.
     settings : DDASettings, optional
         The particle's DDA settings (its config's ``[dda]`` table); None if it has none.
-    engine : {"auto", "mie", "builtin", "adda", "cluster", "coated_sphere"}, optional
+    engine : {"auto", "mie", "builtin", "adda", "cluster", "coated_sphere", "exact"}, optional
         Overrides the choice; ``auto`` (default) as in the module docstring.
 
     Raises

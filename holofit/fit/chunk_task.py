@@ -260,7 +260,7 @@ def chunk_loader(loader: FrameLoader, chunks: Mapping[int, Sequence[Sequence[int
             s = got.start
             frames.append(ChunkFrame(
                 f, got.crop, got.corner, (s["x_um"], s["y_um"], s["z_um"]), s["alpha"],
-                tuple(got.candidates),  # type: ignore[arg-type]
+                tuple(Candidate(*c) for c in got.candidates),
                 f / frame_rate_hz if frame_rate_hz else math.nan, initial.get((p, f))))
         return ChunkPayload(tuple(frames), tuple(skipped))
 
@@ -274,9 +274,7 @@ def follow_chunk_task(config: ChunkConfig, key: Any, payload: ChunkPayload
     p, chunk = int(key[0]), int(key[1])
     fit = config.fit.for_track(p)
     inst = fit.instrument
-    frames = [ChunkFrame(f.frame, f.crop, f.corner, f.position_um, f.alpha,
-                         tuple(Candidate(*c) for c in f.candidates), f.time_s, f.initial)
-              for f in payload.frames]
+    frames = list(payload.frames)
     fitter = ChunkFitter(item_theory(fit), fit.particle.model, inst.optics,
                          inst.pixel_size_um, fit.free, config.options)
     table = follow_chunk(frames, fitter, config.bar(p))

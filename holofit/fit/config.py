@@ -10,6 +10,7 @@ from holofit.batch import BatchSummary
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
 from holofit.config import Instrument, ParticleConfig
 from holofit.fit.continuity import ContinuityReport, ContinuitySettings
+from holofit.fit.model_error import ModelErrorSettings
 from holofit.fit.settings import FollowSettings, FrameFitSettings
 from holofit.fit.static import STATIC_MODES
 from holofit.fit.tmatrix_policy import TMATRIX_CHOICES
@@ -62,6 +63,9 @@ class FitConfig:
         independent frames (``--independent-frames``).
     continuity : ContinuitySettings
         The continuity sweeps after the final pass (default: on).
+    model_error : ModelErrorSettings
+        The final table's model-error estimate (:mod:`holofit.fit.model_error`; default: on
+        for the discrete-dipole engines, the stated accuracy for the exact ones).
     frames : tuple of int, optional
         Only these frames (both passes, every track).
     instrument : Instrument, optional
@@ -96,6 +100,7 @@ class FitConfig:
     tmatrix: str = "auto"
     follow: FollowSettings = field(default_factory=FollowSettings)
     continuity: ContinuitySettings = field(default_factory=ContinuitySettings)
+    model_error: ModelErrorSettings = field(default_factory=ModelErrorSettings)
     frames: tuple[int, ...] | None = None
     instrument: Instrument | None = None
     override_instrument: bool = False
@@ -138,7 +143,8 @@ class FitRun:
     continuity_by_track: dict[int, ContinuityReport] = field(default_factory=dict)
     tracks: Path | None = None
     left_out: dict[int, str] = field(default_factory=dict)
+    model_error: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {"initial": self.initial, "static": self.static, "final": self.final,
-                "notes": self.notes}
+                "notes": self.notes, "model_error": self.model_error}

@@ -6,9 +6,10 @@ primary model's tracks are served from their T-matrix where the policy says so
 particle, followed from frame to frame (:meth:`FitPasses.followed_pass`); tracks given another
 model of the run are fitted frame by frame (:meth:`FitPasses.frame_pass`). Then, on the whole
 table: the continuity sweeps of the followed tracks (:mod:`holofit.fit.sweeps`), the overlap
-refits, overlapping rows still not ``ok`` marked ``overlap``, and a track left out by the
-initial pass has ``skipped`` rows that say why. ``fit.csv`` is published last; ``tracks.csv``
-records each track's final counts.
+refits, overlapping rows still not ``ok`` marked ``overlap``, a track left out by the
+initial pass has ``skipped`` rows that say why, and the table's model error is estimated
+(:mod:`holofit.fit.model_error`: the sidecar's ``model_error``). ``fit.csv`` is published
+last; ``tracks.csv`` records each track's final counts.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from holofit.batch.layout import publish_table, published_fingerprint
 from holofit.batch.stage import fingerprint
 from holofit.config import ParticleConfig
 from holofit.fit.continuity import ContinuityReport
+from holofit.fit.model_error import model_error_entry, model_error_note
 from holofit.fit.overlaps import mark_overlap, overlap_rows
 from holofit.fit.passes import FitPasses, load_payload, table_digest
 from holofit.fit.static import TrackStatic, read_track_statics, static_doc
@@ -52,7 +54,8 @@ def final_pass(fp: FitPasses, static_path: Path) -> None:
     primary = [k for k in fp.given.frames if k[0] in setups and setups[k[0]].particle is None]
     others = [k for k in fp.given.frames if k[0] in setups and setups[k[0]].particle is not None]
     followed = c.follow.warm and model.anisotropic
-    parts, keys, extra = [], [], {}
+    parts, keys = [], []
+    extra: dict[str, Any] = {}
     if followed and primary:
         table, key, extra = fp.followed_pass(cfg, primary)
         parts.append(table)
@@ -70,6 +73,7 @@ def final_pass(fp: FitPasses, static_path: Path) -> None:
     path = fp.out / "fit.csv"
     key = fingerprint({"batch": keys, "rows": table_digest(table),
                        "continuity": c.continuity.__dict__,
+                       "model_error": c.model_error.__dict__,
                        "overlaps": not overlap_rows(fp.given.crops).empty})
     if published_fingerprint(path) != key:
         meta = {**fp.meta(cfg, static), **extra}
@@ -77,9 +81,16 @@ def final_pass(fp: FitPasses, static_path: Path) -> None:
             table = _sweeps(fp, cfg, table, meta, key)
         table = fp.refit_overlaps(table, fp.overlap_config("final", setups), "final", "fit")
         table = mark_overlap(table, overlap_rows(fp.given.crops))
+        entry = model_error_entry(fp, table, cfg, c.model_error)
+        if entry is not None:
+            meta["model_error"] = entry
         publish_table(path, table, meta, key)
     else:  # complete before this run: what the sweeps did, from its sidecar
         _continuity_from(fp, path)
+        entry = json.loads(sidecar_path(path).read_text()).get("model_error")
+    if entry is not None:
+        fp.run.model_error = entry
+        fp.run.notes.append(model_error_note(entry))
     fp.run.final = path
     _write_tracks(fp, statics, path)
     fp.pictures(path, cfg, "final", "fit")

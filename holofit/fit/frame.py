@@ -326,8 +326,8 @@ def _runner_up(fit: FrameFit, best: Branch, screened: list[Branch], free: Sequen
     if opts.refine_runner_up:
         runner = fit.refine(branch_state(screened[1]), free, screened[1].start,
                             branch_state(best).statics)
-        best, runner = challenge(fit, best, runner, free)
-        return best, runner, None
+        best, challenger = challenge(fit, best, runner, free)
+        return best, challenger, None
     runner = screened[1]  # screened on a subset: scale to all pixels
     return best, runner, runner.solution.rss * (fit.pix.size / max(
         runner.solution.residuals.size, 1))

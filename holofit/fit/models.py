@@ -114,13 +114,13 @@ def choose_model(fits: Sequence[ModelFits], particle: int,
         good = rows[rows["status"].isin(CONVERGED) & np.isfinite(rows["chi2"].astype(float))]
         frames = {int(f) for f in good.index}
         common = frames if common is None else common & frames
-    frames = sorted(common or ())
-    if not frames:
+    shared = sorted(common or ())
+    if not shared:
         return ModelChoice(fits[0].label, {}, 0, "no frame that every model converged on: "
                            "the primary model")
     bic = {}
     for f in fits:
-        rows = mine[f.label].loc[frames]
+        rows = mine[f.label].loc[shared]
         bic[f.label] = float((_chi2(rows) + f.n_params * np.log(rows["n_pixels"].astype(float)))
                              .sum())
     by_bic = sorted(fits, key=lambda f: bic[f.label])
@@ -130,8 +130,8 @@ def choose_model(fits: Sequence[ModelFits], particle: int,
             best = f
     others = ", ".join(f"{label} {value - bic[best.label]:+.4g}" for label, value in bic.items()
                        if label != best.label)
-    return ModelChoice(best.label, bic, len(frames),
-                       f"lowest BIC over {len(frames)} frame(s) ({others} above it)")
+    return ModelChoice(best.label, bic, len(shared),
+                       f"lowest BIC over {len(shared)} frame(s) ({others} above it)")
 
 
 def prefit_sphere(prefit: pd.DataFrame, particle: int) -> Sphere | None:

@@ -12,11 +12,11 @@ written. A published table whose fingerprint matches is complete: a rerun does n
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pandas as pd
 
@@ -144,7 +144,7 @@ class FitPasses:
         columns = pass_columns(cfg)
         return fit_table_meta(
             columns, kind=f"DDA fit table ({cfg.pass_name} pass)", config=cfg.as_dict(),
-            inputs=self.inputs, status_unit=describe(FIT_STATUS_MEANINGS),
+            inputs=list[str | Path](self.inputs), status_unit=describe(FIT_STATUS_MEANINGS),
             frame_interval_s=1.0 / inst.frame_rate_hz if inst.frame_rate_hz else None,
             extra={"crops": self.given.crops.fingerprint(), "particle_model": model.kind,
                    "quality": outlier_sidecar(self.config.outlier_factor,
@@ -208,7 +208,7 @@ class FitPasses:
                       for p, f in frames.items()}
         # the initial pass's direct solves are too dear for the probes, the recheck and the
         # other heights; its rows are checked by their level instead
-        dear = {"pole_probes": 0, "recheck_rad": 0.0, "reopen_dz_um": ()}
+        dear: dict[str, Any] = {"pole_probes": 0, "recheck_rad": 0.0, "reopen_dz_um": ()}
         follow = replace(c.follow, frame=cfg.options, **({} if name == "final" else dear))
         ccfg = ChunkConfig(cfg, follow, tuple((p, b) for p, (b, _) in sorted(bars.items())),
                            OVERLAP if name == "final" else INITIAL_OVERLAP)
@@ -227,8 +227,11 @@ class FitPasses:
         chunk_table = StageTable(self.out / f"{stem}_chunks.csv", (*CHUNK_KEY, *columns[1:]),
                                  meta, key, f"fit ({name}, chunks)", key_columns=CHUNK_KEY)
         items = [(p, i, ch[0]) for p, cs in chunks.items() for i, ch in enumerate(cs)]
+        # a multi-row item (a chunk's rows: the batch loop writes a list row by row), which
+        # run_stage's annotation of the item function (one row) does not say
+        chunk_func = cast(Callable[[Any, Any, Any], dict[str, Any]], follow_chunk_task)
         self.run.summaries[name], _ = run_stage(
-            follow_chunk_task, ccfg, items,
+            chunk_func, ccfg, items,
             chunk_loader(self.loader, chunks, self.given.instrument.frame_rate_hz, poses),
             chunk_table, batch=self.batch,
             sizes={(p, i, ch[0]): len(ch) for p, cs in chunks.items()

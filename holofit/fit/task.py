@@ -27,6 +27,7 @@ from holofit.fit.frame import RUNNER_UP_COLUMNS, fit_frame
 from holofit.fit.problem import FrameProblem
 from holofit.fit.seeded import fit_frame_seeded, seed_particle
 from holofit.fit.settings import FrameFitSettings
+from holofit.fit.tmatrix_policy import serve_tmatrix_file
 from holofit.holomodel.parameters import APERTURE, particle_with, static_parameters
 from holofit.holomodel.result import result_columns, result_row
 from holofit.library.search import Candidate
@@ -226,7 +227,7 @@ def worker_theory(config: PassConfig) -> ScatteringTheory:
     def make_theory() -> ScatteringTheory:
         theory = config.particle.theory(config.engine, fixed_lattice_for=inst.optics)
         if config.tmatrix is not None:
-            theory.tmatrix(config.particle.model, inst.optics, path=config.tmatrix)
+            serve_tmatrix_file(theory, config.particle.model, inst.optics, config.tmatrix)
         return theory
 
     return worker_resource("fit engine", key + str(config.tmatrix), make_theory, size=4)

@@ -261,11 +261,15 @@ def _shared_tilts(config: LibraryConfig, batch: BatchOptions | None, n_frames: i
                   out: Path) -> LibraryConfig:
     """``config`` with the tilts solved once by the driver on the stage's local workers
     (:mod:`holofit.library.tilts`), where the frames run on at least two local worker
-    processes; else as it is (each worker solves the tilts it needs)."""
+    processes; else as it is (each worker solves the tilts it needs). An engine that serves
+    every orientation from its own T-matrix (``exact``, ``cluster``) has nothing to share:
+    each worker solves once and rotates, without the spawned processes' start-up."""
     opts = batch or BatchOptions()
     workers = opts.workers if opts.workers is not None else available_cpus()
     workers = min(workers, n_frames)
     if opts.scheduler or opts.dask_local or workers < 2:
+        return config
+    if getattr(config.particle.theory(config.engine), "own_tmatrix", False):
         return config
     path = out / TILTS_FILE
     n_tilts = len(tilt_grid(config.particle.model, math.radians(config.settings.tilt_step_deg)))

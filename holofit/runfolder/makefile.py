@@ -98,7 +98,8 @@ DARK_COUNT = {dark_count}
 NORMALIZED = {normalized}
 
 # ---- stage settings: a change reruns the stage and every stage after it --------------------
-# scattering engine of library and fit: auto, mie, builtin, adda (empty: the particle config's)
+# scattering engine of library and fit: auto, exact, mie, builtin, adda (empty: the particle
+# config's, i.e. auto: the exact one where the particle has one)
 ENGINE        = {engine}
 # diffusion analysis (rod, janus, sphere; empty: each track's from the particle model the fit
 # gave it) and sample temperature (C)

@@ -98,7 +98,7 @@ class ScatteredWave(ABC):
         -------
         e_x, e_y : ndarray of complex, shape (N,)
         """
-        xp, yp, zp = (float(v) for v in position_um)
+        xp, yp, zp = (float(v) for v in np.asarray(position_um, dtype=float).reshape(3))
         xs = np.asarray(xs_um, dtype=float).ravel()
         ys = np.asarray(ys_um, dtype=float).ravel()
         pts = np.stack([xs - xp, ys - yp, np.full(xs.size, -zp)], axis=1)

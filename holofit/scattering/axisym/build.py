@@ -25,7 +25,9 @@ imbedding's steps double until Richardson's estimate of their error is below a t
 from __future__ import annotations
 
 import itertools
+import math
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -52,6 +54,7 @@ __all__ = [
     "build_exact_tmatrix",
     "build_profile_tmatrix",
     "choose_method",
+    "model_description",
     "supports",
 ]
 
@@ -112,20 +115,27 @@ def _indices(profile: Profile) -> list[complex]:
 
 
 def _iitm_build(profile: Profile, order: int, k: float, n_medium: float, step_tolerance: float,
-                steps: list[int] | None = None) -> tuple[NDArray, dict[str, Any]]:
+                steps: Sequence[int] | None = None, richardson: bool = True
+                ) -> tuple[NDArray, dict[str, Any]]:
     """IITM blocks at ``order``; steps doubled until Richardson's change is below
-    ``step_tolerance`` (at most three times)."""
+    ``step_tolerance`` (at most three times), unless ``steps`` fixes them (one per segment;
+    ignored where the profile has another number of segments); ``richardson`` False: plain
+    RK4 at the fixed steps."""
     polar = "inverse" if isinstance(profile, CapProfile) and not profile.tapered else "laurent"
-    counts = steps or _iitm_steps(profile, k, n_medium, order)
+    if steps is not None and len(steps) != len(profile.breaks()) - 1:
+        steps = None
+    counts = list(steps) if steps is not None else _iitm_steps(profile, k, n_medium, order)
     for _ in range(4):
-        res = integrate_profile(profile, order, k, n_medium, counts, richardson=True,
-                                polar_rule=polar)
+        res = integrate_profile(profile, order, k, n_medium, counts,
+                                richardson=richardson or steps is None, polar_rule=polar)
         if res.richardson_change <= step_tolerance or steps is not None:
             break
         counts = [2 * c for c in counts]
     info = {"radial_steps": res.steps, "richardson_change": res.richardson_change,
             "riccati_evaluations": res.evaluations, "polar_rule": polar,
-            "radial_rule": "laurent", "integrator": "RK4 + Richardson (h, 2h)",
+            "radial_rule": "laurent",
+            "integrator": ("RK4 + Richardson (h, 2h)" if richardson or steps is None
+                           else "RK4"),
             "segments_um": profile.breaks()}
     return res.blocks, info
 
@@ -133,7 +143,9 @@ def _iitm_build(profile: Profile, order: int, k: float, n_medium: float, step_to
 def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
                           tolerance: float = DEFAULT_TOLERANCE, order: int | None = None,
                           method: str | None = None,
-                          max_seconds: float = DEFAULT_MAX_SECONDS) -> TMatrix:
+                          max_seconds: float = DEFAULT_MAX_SECONDS, *,
+                          radial_steps: Sequence[int] | None = None, estimate: bool = True,
+                          max_order: int | None = None, richardson: bool = True) -> TMatrix:
     """The T-matrix of a profile (see :func:`build_exact_tmatrix`)."""
     t0 = time.perf_counter()
     method = method or choose_method(profile)
@@ -150,7 +162,8 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
                     "surface_pieces": len(profile.surface_kinks()) + 1,
                     "q_condition_max": float(cond.max())}
         elif method == "iitm":
-            blocks, info = _iitm_build(profile, L, k, n_medium, 0.1 * tolerance)
+            blocks, info = _iitm_build(profile, L, k, n_medium, 0.1 * tolerance, radial_steps,
+                                       richardson)
         else:
             raise ValueError(f"unknown method {method!r} (mie, ebcm, iitm)")
         return tmatrix_from_blocks(blocks, L, k, radius), info
@@ -159,13 +172,17 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
     stop = "order given"
     if order is not None:
         tm, info = build(int(order))
-        lower, _ = build(max(1, int(order) - ORDER_STEP))
-        estimate = far_field_change(lower, tm)
-        history.append((int(order), estimate))
+        change = math.nan
+        if estimate:
+            lower, _ = build(max(1, int(order) - ORDER_STEP))
+            change = far_field_change(lower, tm)
+        else:
+            stop = "order given, not estimated"
+        history.append((int(order), change))
     else:
         L0 = start_order(k, radius)
         prev, prev_info = build(max(1, L0 - ORDER_STEP))
-        tm, info, estimate = prev, prev_info, float("inf")
+        tm, info, change = prev, prev_info, float("inf")
         L = L0
         while True:
             t_build = time.perf_counter()
@@ -175,17 +192,18 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
                     and history):
                 stop = "EBCM conditioning"
                 break
-            estimate = far_field_change(prev, cand)
+            change = far_field_change(prev, cand)
             tm, info = cand, cand_info
-            history.append((L, estimate))
-            if estimate <= tolerance or method == "mie":
+            history.append((L, change))
+            if change <= tolerance or method == "mie":
                 stop = "tolerance met"
                 break
             if method == "ebcm" and cand_info["q_condition_max"] > EBCM_MAX_CONDITION:
                 stop = "EBCM conditioning"
                 break
             predicted = t_build * ((L + ORDER_STEP) / L) ** 4
-            if L >= L0 + MAX_ORDER_EXTRA:
+            if L >= L0 + MAX_ORDER_EXTRA or (max_order is not None
+                                              and L + ORDER_STEP > max_order):
                 stop = "order cap"
                 break
             if time.perf_counter() - t0 + predicted > max_seconds:
@@ -196,8 +214,8 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
     seconds = time.perf_counter() - t0
     tm.provenance.update({
         "format": FILE_FORMAT, "engine": "exact", "method": method, "order": tm.order,
-        "truncation_estimate": float(estimate), "tolerance": float(tolerance),
-        "tolerance_met": bool(estimate <= tolerance), "order_history": history,
+        "truncation_estimate": float(change), "tolerance": float(tolerance),
+        "tolerance_met": bool(change <= tolerance), "order_history": history,
         "order_search_stop": stop,
         "k_per_um": float(k), "n_medium": float(n_medium), "radius_um": radius,
         "storage": "modulus 2L+1: one block per m", "build_seconds": seconds,
@@ -206,7 +224,9 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
     return tm
 
 
-def _model_description(model: ParticleModel) -> dict[str, Any]:
+def model_description(model: ParticleModel) -> dict[str, Any]:
+    """The model as a T-matrix's provenance records it (``kind`` and its parameters, a
+    complex index as ``[re, im]``)."""
     params = {}
     for name, value in model.parameters().items():
         v = complex(value) if isinstance(value, complex) else value
@@ -217,7 +237,9 @@ def _model_description(model: ParticleModel) -> dict[str, Any]:
 def build_exact_tmatrix(model: ParticleModel, optics: Optics,
                         tolerance: float = DEFAULT_TOLERANCE, order: int | None = None,
                         method: str | None = None,
-                        max_seconds: float = DEFAULT_MAX_SECONDS) -> TMatrix:
+                        max_seconds: float = DEFAULT_MAX_SECONDS, *,
+                        radial_steps: Sequence[int] | None = None, estimate: bool = True,
+                        max_order: int | None = None, richardson: bool = True) -> TMatrix:
     """The exact T-matrix of a body of revolution, in the particle frame.
 
     Same basis, normalisation and storage interface as the DDA-built one
@@ -240,6 +262,20 @@ def build_exact_tmatrix(model: ParticleModel, optics: Optics,
         Override the choice of :func:`choose_method`.
     max_seconds : float
         Time after which the order is no longer raised, s.
+    radial_steps : sequence of int, optional
+        The imbedding's Runge-Kutta steps per radial segment instead of its own rule (no
+        doubling): a fit's builds keep one discretisation, so that the T-matrix moves
+        smoothly with the sizes.
+    estimate : bool
+        With ``order``: also build at ``order - 4`` for the truncation estimate (False: not
+        estimated, ``truncation_estimate`` NaN; a fit's rebuilds rely on the reference
+        build's).
+    max_order : int, optional
+        The search raises the order no further than this (a cap that, unlike
+        ``max_seconds``, does not depend on the machine's load).
+    richardson : bool
+        With ``radial_steps``: Richardson's extrapolation of the steps h and 2h (False: plain
+        RK4, a third of the work, for steps fine enough on their own).
 
     Raises
     ------
@@ -248,8 +284,9 @@ def build_exact_tmatrix(model: ParticleModel, optics: Optics,
     """
     profile = profile_of(model)
     tm = build_profile_tmatrix(profile, optics.k, optics.n_medium, tolerance, order, method,
-                               max_seconds)
-    tm.provenance.update({"model": _model_description(model),
+                               max_seconds, radial_steps=radial_steps, estimate=estimate,
+                               max_order=max_order, richardson=richardson)
+    tm.provenance.update({"model": model_description(model),
                           "wavelength_um": float(optics.wavelength_um)})
     return tm
 

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.scattering.axisym.angular import angular_matrices
+from holofit.scattering.axisym.angular import AngularMatrices, angular_matrices
 from holofit.scattering.axisym.bessel import riccati_bessel
 from holofit.scattering.axisym.profiles import Profile
 from holofit.scattering.mie_coefficients import mie_coefficients
@@ -164,7 +164,7 @@ class _Rhs:
         self.n_medium = n_medium
         self.rule = radial_rule
         self.polar_rule = polar_rule
-        self._angular_cache: dict[tuple, tuple] = {}
+        self._angular_cache: dict[tuple, tuple[AngularMatrices, NDArray]] = {}
         self.groups = groups
         n, valid = block_orders(order)
         self.valid = valid
@@ -188,19 +188,19 @@ class _Rhs:
         intervals = self.profile.intervals(r, self.n_medium)
         L = self.L
         key = tuple((round(lo, 15), round(hi, 15), e) for lo, hi, e in intervals)
-        ang = self._angular_cache.get(key)
-        if ang is None:
-            ang = angular_matrices(intervals, L, self.polar_rule)
+        cached = self._angular_cache.get(key)
+        if cached is None:
+            mats = angular_matrices(intervals, L, self.polar_rule)
             if self.rule == "inverse":  # Y_r = [[1/eps]]
                 yr = angular_matrices([(lo, hi, 1.0 / e) for lo, hi, e in intervals], L).yy
             else:
                 eye = np.eye(L)[None]
-                yr = np.linalg.inv(eye + ang.yy) - eye
+                yr = np.linalg.inv(eye + mats.yy) - eye
                 yr = yr * self.valid[:, :, None] * self.valid[:, None, :]
-            ang = (ang, yr)
+            cached = (mats, yr)
             if len(self._angular_cache) < 64:
-                self._angular_cache[key] = ang
-        ang, yr = ang
+                self._angular_cache[key] = cached
+        ang, yr = cached
         k = self.k
         nu2 = self.nu2
         d1 = (-1j / (k * r * r)) * yr * nu2[:, None, :]

@@ -1,0 +1,205 @@
+"""One discretisation for every build of a fit: the reference build and what it fixes.
+
+A fit moves the sizes and indices (the initial pass's finite differences, steps of 2 nm and
+1e-3); every new value is a new T-matrix. The order search of
+:func:`~holofit.scattering.axisym.build.build_exact_tmatrix` picks the order, and the
+imbedding its radial steps, from the model itself, in integer steps: left free they would jump
+between two neighbouring sizes and the finite differences would see the jump instead of the
+derivative. So a fit fixes them once, at a **reference build** of its start model
+(:func:`reference_build`), and builds every other model of the fit at that order and with
+those steps (:class:`Discretisation`); the quadrature of the EBCM (``2L + 10`` nodes per
+surface piece) follows from the order. The reference build's truncation estimate is the
+stated accuracy of them all (the models of a fit differ by a few per cent in size).
+
+The reference build is the order search without its wall-clock budget, so that it does not
+depend on the machine's load (a resumed run gets the rows of an uninterrupted one): the
+EBCM's order stops where the tolerance is met, where ``cond(Q)`` would exceed its bound, or
+16 orders past the start; the imbedding's order (Janus spheres, layered spheres) stays at
+its start ``L_0`` (:data:`IITM_EXTRA_ORDERS`): each order step past it costs about 2.5 times
+the build, and a fit makes tens of builds per frame. The imbedding's order being capped, its
+tolerance only sets its radial steps (to a tenth of it): :data:`IITM_TOLERANCE`, far below
+the truncation error at ``L_0`` of a cap (the paper's Janus particle: ~4e-3), where the
+default 1e-5 would double the steps (and the build's time) for nothing. The fit's builds of an
+imbedding then drop Richardson's extrapolation and halve the steps while plain RK4 stays
+within :data:`STEP_SHARE` of the truncation estimate of the reference (measured against it:
+the radial integration is then no longer the accuracy's limit, at a third to a sixth of the
+work); the reference model itself is rebuilt that way too, so that every build of the fit
+shares one discretisation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+from holofit.cache import LRUCache
+from holofit.optics import Optics
+from holofit.particles import ParticleModel
+from holofit.scattering.axisym.build import DEFAULT_TOLERANCE, build_exact_tmatrix, choose_method
+from holofit.scattering.axisym.order import far_field_change, start_order
+from holofit.scattering.axisym.profiles import profile_of
+from holofit.scattering.tmatrix import TMatrix
+
+__all__ = ["IITM_EXTRA_ORDERS", "IITM_TOLERANCE", "MIN_STEPS", "STEP_SHARE", "Discretisation",
+           "reference_build", "remember_reference"]
+
+#: orders past the start ``L_0`` that the reference build of an imbedding may raise
+IITM_EXTRA_ORDERS = 0
+#: the reference build's tolerance for the imbedding (whose order is capped): its radial steps
+#: are refined until Richardson's change is below a tenth of it
+IITM_TOLERANCE = 1e-4
+#: a fit's imbedding steps: plain RK4, halved while its far-field change from the reference
+#: stays below this share of the reference's truncation estimate
+STEP_SHARE = 0.1
+#: fewest Runge-Kutta steps per radial segment of a fit's build
+MIN_STEPS = 8
+
+
+@dataclass(frozen=True)
+class Discretisation:
+    """The order (and the imbedding's radial steps) every build of a fit uses.
+
+    Attributes
+    ----------
+    order : int
+        Truncation order ``L``.
+    radial_steps : tuple of int, optional
+        Runge-Kutta steps per radial segment (imbedding only; None for the EBCM and Mie).
+    method : str
+        ``"ebcm"``, ``"iitm"`` or ``"mie"``.
+    truncation_estimate : float
+        The reference build's far-field change between orders ``L - 4`` and ``L``, relative
+        to the largest amplitude: the stated accuracy of every build at this discretisation.
+    tolerance : float
+        The tolerance the reference build's order search aimed at.
+    stop : str
+        Why the reference build's search stopped (``order_search_stop``).
+    richardson : bool
+        The imbedding's Richardson extrapolation (False: plain RK4 at ``radial_steps``).
+    step_error : float
+        Far-field change of these radial steps from the reference build's (0 where they are
+        the reference's own).
+    """
+
+    order: int
+    radial_steps: tuple[int, ...] | None = None
+    method: str = ""
+    truncation_estimate: float = math.nan
+    tolerance: float = DEFAULT_TOLERANCE
+    stop: str = ""
+    richardson: bool = True
+    step_error: float = 0.0
+
+    @classmethod
+    def of(cls, tm: TMatrix) -> Discretisation:
+        """The discretisation of a built exact T-matrix (from its provenance: the one it was
+        built at, else its own order and steps)."""
+        p = tm.provenance
+        if isinstance(p.get("discretisation"), dict):
+            d = dict(p["discretisation"])
+            steps = d.get("radial_steps")
+            return cls(int(d["order"]), None if steps is None else tuple(int(s) for s in steps),
+                       str(d.get("method", "")), float(d.get("truncation_estimate", math.nan)),
+                       float(d.get("tolerance", DEFAULT_TOLERANCE)),
+                       str(d.get("order_search_stop", "")), bool(d.get("richardson", True)),
+                       float(d.get("step_error", 0.0)))
+        steps = p.get("radial_steps") if p.get("method") == "iitm" else None
+        return cls(int(tm.order), None if steps is None else tuple(int(s) for s in steps),
+                   str(p.get("method", "")), float(p.get("truncation_estimate", math.nan)),
+                   float(p.get("tolerance", DEFAULT_TOLERANCE)),
+                   str(p.get("order_search_stop", "")))
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-able form (sidecars)."""
+        return {"order": self.order, "radial_steps": None if self.radial_steps is None
+                else list(self.radial_steps), "method": self.method,
+                "truncation_estimate": self.truncation_estimate, "tolerance": self.tolerance,
+                "order_search_stop": self.stop, "richardson": self.richardson,
+                "step_error": self.step_error}
+
+    def build(self, model: ParticleModel, optics: Optics) -> TMatrix:
+        """``model``'s T-matrix at this discretisation (no search, no estimate of its own:
+        the provenance states the reference build's, ``truncation_estimate_of``)."""
+        tm = build_exact_tmatrix(model, optics, self.tolerance, order=self.order,
+                                 method=self.method or None, radial_steps=self.radial_steps,
+                                 estimate=False, richardson=self.richardson)
+        tm.provenance.update({"truncation_estimate": self.truncation_estimate,
+                              "truncation_estimate_of": "the fit's reference build",
+                              "tolerance_met": bool(self.truncation_estimate
+                                                    <= self.tolerance),
+                              "radial_step_error": self.step_error,
+                              "discretisation": self.as_dict()})
+        return tm
+
+
+def _cheaper_steps(model: ParticleModel, optics: Optics, ref: Discretisation,
+                   ref_tm: TMatrix) -> Discretisation:
+    """The imbedding's fit discretisation: plain RK4 at the reference's steps, halved while
+    its far-field change from the reference stays below :data:`STEP_SHARE` of the
+    reference's truncation estimate (module docstring)."""
+    assert ref.radial_steps is not None
+    bar = STEP_SHARE * ref.truncation_estimate
+    best = ref
+    steps = ref.radial_steps
+    while True:
+        trial = replace(ref, radial_steps=steps, richardson=False)
+        change = far_field_change(trial.build(model, optics), ref_tm)
+        if not change <= bar:
+            return best
+        best = replace(trial, step_error=change)
+        if all(s <= MIN_STEPS for s in steps):
+            return best
+        steps = tuple(max(MIN_STEPS, s // 2) for s in steps)
+
+
+#: reference builds of this process, by (model, wavelength, medium, tolerance)
+_REFERENCES: LRUCache[tuple, TMatrix] = LRUCache(16)
+
+
+def _key(model: ParticleModel, optics: Optics, tolerance: float) -> tuple:
+    return (model, float(optics.wavelength_um), float(optics.n_medium), float(tolerance))
+
+
+def _reference(model: ParticleModel, optics: Optics, tolerance: float) -> TMatrix:
+    method = choose_method(profile_of(model))
+    cap = None
+    if method == "iitm":
+        cap = start_order(optics.k, profile_of(model).r_outer) + IITM_EXTRA_ORDERS
+        tolerance = max(tolerance, IITM_TOLERANCE)
+    tm = build_exact_tmatrix(model, optics, tolerance, max_seconds=math.inf, max_order=cap)
+    ref = Discretisation.of(tm)
+    if method != "iitm" or ref.radial_steps is None:
+        tm.provenance["discretisation"] = ref.as_dict()
+        return tm
+    fit = _cheaper_steps(model, optics, ref, tm)
+    if fit == ref:
+        tm.provenance["discretisation"] = ref.as_dict()
+        return tm
+    out = fit.build(model, optics)
+    out.provenance.update({"order_history": tm.provenance.get("order_history"),
+                           "order_search_stop": tm.provenance.get("order_search_stop"),
+                           "reference_radial_steps": list(ref.radial_steps)})
+    return out
+
+
+def reference_build(model: ParticleModel, optics: Optics,
+                    tolerance: float = DEFAULT_TOLERANCE) -> TMatrix:
+    """The reference build of ``model`` at the fit's discretisation (module docstring; its
+    provenance's ``discretisation``), kept per process so that the stages' workers search
+    once per model (or not at all: :func:`remember_reference`)."""
+    key = _key(model, optics, tolerance)
+    tm = _REFERENCES.get(key)
+    if tm is None:
+        tm = _REFERENCES.put(key, _reference(model, optics, tolerance))
+    return tm
+
+
+def remember_reference(model: ParticleModel, optics: Optics, tolerance: float,
+                       tm: TMatrix) -> bool:
+    """Keep ``tm`` as ``model``'s reference build in this process (a worker reading the
+    driver's, instead of searching again) if its provenance says it is one (True)."""
+    if not isinstance(tm.provenance.get("discretisation"), dict):
+        return False
+    _REFERENCES.put(_key(model, optics, tolerance), tm)
+    return True
