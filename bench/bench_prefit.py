@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.camera import Camera
 from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid
@@ -144,7 +144,7 @@ def bench_prefit_batch() -> dict[str, float]:
         res = run_prefit(
             crops_dir,
             Path(tmp) / "out",
-            batch=BatchOptions(workers=2, progress=False),
+            batch=BatchSettings(workers=2, progress=False),
             plot=False,
         )
         wall = time.perf_counter() - t0

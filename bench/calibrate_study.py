@@ -50,7 +50,7 @@ import numpy as np
 import pandas as pd
 
 from holofit.aberration import layer_aberration
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.calibrate.stage import CalibrateConfig, run_calibrate
 from holofit.config import Instrument, load_instrument
 from holofit.crop import CropConfig, run_crop
@@ -66,7 +66,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from aberration_realdata import HOLOPY, PYLM, PYLM_SPHERES  # noqa: E402
 
-SERIAL = BatchOptions(workers=0, progress=False)
+SERIAL = BatchSettings(workers=0, progress=False)
 #: background frames of a simulated movie (their median divides every frame, as the crop
 #: stage does): 50 make its noise, common to every frame, small beside a frame's own
 N_BACKGROUND = 50
@@ -211,7 +211,7 @@ def pylorenzmie(work: Path) -> dict[str, float]:
         folders.append(folder)
     crops = _gather(folders, root / "crop", inst)
     run_prefit(crops, root / "prefit", plot=False,
-               batch=BatchOptions(workers=0, progress=False, overwrite=True))
+               batch=BatchSettings(workers=0, progress=False, overwrite=True))
     n_px = 301 * 301
     run = run_calibrate(crops, root / "prefit", root / "cal",
                         CalibrateConfig(max_pixels=int(0.35 * n_px)), batch=SERIAL)
@@ -265,7 +265,7 @@ def holopy(work: Path) -> dict[str, float]:
                  root / "crop", CropConfig(normalized=not bgs, size=size, follow="nearest",
                                            start=centre, plot=False))
         run_prefit(root / "crop", root / "prefit", plot=False,
-                   batch=BatchOptions(workers=0, progress=False, overwrite=True))
+                   batch=BatchSettings(workers=0, progress=False, overwrite=True))
         run = run_calibrate(root / "crop", root / "prefit", root / "cal",
                             CalibrateConfig(fit_na=False), batch=SERIAL)
         key = f"calibrate_holopy_{name}"

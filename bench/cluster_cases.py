@@ -45,7 +45,7 @@ from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
 from holofit.optics import Optics
 from holofit.particles import Dimer
-from holofit.scattering.cluster import ClusterTheory
+from holofit.scattering.cluster import ClusterEngine
 from holofit.scattering.theory import Orientation
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,7 +57,7 @@ DIMER = Dimer(0.53, 0.53, 0.0, 1.59, 1.59)
 
 def _warm_up() -> None:
     """Load the compiled kernels (multipole, Legendre, Wigner) on another particle."""
-    th = ClusterTheory()
+    th = ClusterEngine()
     wave = th.solve(Dimer(0.1, 0.12, 0.0, 1.5, 1.5), OPTICS, Orientation(0.1, 0.2))
     calc_hologram(wave, POS, GRID)
     wave.rotation_derivative([1.0, 0.0, 0.0]).field_on_detector(POS, GRID)
@@ -65,7 +65,7 @@ def _warm_up() -> None:
 
 def build() -> dict[str, float]:
     _warm_up()
-    th = ClusterTheory()
+    th = ClusterEngine()
     t0, c0 = time.perf_counter(), time.process_time()
     sol = th.solution(DIMER, OPTICS)
     first = time.perf_counter() - t0
@@ -81,7 +81,7 @@ def build() -> dict[str, float]:
 
 def orientation() -> dict[str, float]:
     _warm_up()
-    th = ClusterTheory()
+    th = ClusterEngine()
     th.solution(DIMER, OPTICS)
     rng = np.random.default_rng(1)
     oris = [Orientation(*rng.uniform(0, 2 * np.pi, 3)) for _ in range(40)]
@@ -176,14 +176,14 @@ def fit(ideal: bool = False) -> dict[str, float]:
 def realdata(engine: str) -> dict[str, float]:
     import pandas as pd
 
-    from holofit.batch import BatchOptions
+    from holofit.batch import BatchSettings
     from holofit.crop import CropConfig, run_crop
     from holofit.fit.config import FitConfig
     from holofit.fit.stage import run_fit
     from holofit.library.stage import run_library
     from holofit.prefit.stage import run_prefit
 
-    serial = BatchOptions(workers=0, progress=False)
+    serial = BatchSettings(workers=0, progress=False)
     inst = load_instrument(resolve_config("holopy_dimer2011", "instruments"))
     particle = load_particle(resolve_config("dimer_holopy2011", "particles"))
     out: dict[str, float] = {}

@@ -52,7 +52,7 @@ from holofit.holomodel.parameters import particle_with, static_values
 from holofit.library.polar import polar_grid, sample_crop
 from holofit.library.search import Candidate, OrientationLibrary, pick_candidates, tilt_grid
 from holofit.particles import JanusSphere, ParticleModel, Spherocylinder
-from holofit.scattering.theory import Orientation, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteringEngine
 
 CASES_SETUP = {
     "rod": ("paper_60x_water", "rod_paper", Spherocylinder(0.501, 1.079, 1.495),
@@ -116,7 +116,7 @@ class Case:
         """The prefit-like start: the truth moved by :data:`START_OFFSET_UM`."""
         return tuple(p + d for p, d in zip(self.position_um, START_OFFSET_UM, strict=True))
 
-    def fit_model(self) -> tuple[ParticleModel, ScatteringTheory]:
+    def fit_model(self) -> tuple[ParticleModel, ScatteringEngine]:
         """The final pass's particle (the truth's static parameters, as after the initial
         pass) and its engine (the config's, on the lattice fixed for the instrument)."""
         fixed = particle_with(self.config.model, dict(static_values(self.model)))
@@ -156,7 +156,7 @@ def make_case(case: str, orientation: Orientation | None = None, z_um: float = 1
                 calc_hologram(wave, pos, grid, alpha))
 
 
-def make_library(theory: ScatteringTheory, model: ParticleModel, inst: Instrument
+def make_library(theory: ScatteringEngine, model: ParticleModel, inst: Instrument
                  ) -> OrientationLibrary:
     """The library stage's tilts (10 deg) of ``model``, all solved."""
     lib = OrientationLibrary(theory, model, inst.optics, tilt_grid(model, math.radians(10)))
@@ -176,7 +176,7 @@ def library_candidates(lib: OrientationLibrary, case: Case, crop: NDArray,
     return pick_candidates(scores, lib.tilts, pg.phi, lib.model, 4, math.radians(20))
 
 
-def use_tmatrix(theory: ScatteringTheory, model: ParticleModel, inst: Instrument,
+def use_tmatrix(theory: ScatteringEngine, model: ParticleModel, inst: Instrument,
                 path: str | Path | None = None) -> float:
     """Serve ``theory``'s solves of ``model`` from its T-matrix, as the fit stage's final pass
     does: loaded from ``path`` if it holds this particle's, else built (and saved there).

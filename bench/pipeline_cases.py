@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
@@ -72,7 +72,7 @@ def run(n_rods: int, frames: int, out_dir: Path | None = None,
                                      seed=scene.seed, out_dir=root / "movie")
         _log("simulation done")
         config = load_particle(resolve_config("rod_paper", "particles"))
-        batch = BatchOptions(workers=workers, progress=False)
+        batch = BatchSettings(workers=workers, progress=False)
         out: dict[str, float] = {}
         t_all = time.perf_counter()
         t0 = time.perf_counter()

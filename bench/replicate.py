@@ -37,7 +37,7 @@ from truth_compare import compare_with_truth
 
 from holofit.analysis import AnalysisConfig, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diffusion
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
 from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
@@ -97,7 +97,7 @@ def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dy
               workers: int, initial_frames: int, model: str, seed: int,
               engine: str | None = None, keep_sim: bool = False) -> dict:
     times: dict[str, float] = {}
-    batch = BatchOptions(workers=workers, progress=False)
+    batch = BatchSettings(workers=workers, progress=False)
     sim = _stage(times, "simulate", _simulated, truth, inst, dynamics, out, seed, keep_sim)
     _stage(times, "crop", run_crop, sim.movie.movie, sim.movie.background, inst, out / "crop",
            CropConfig(size=140))
@@ -309,8 +309,8 @@ def dask_check(out: Path, n: int) -> list[str]:
     """The rod's final pass over its first ``n`` frames on a local Dask cluster vs processes."""
     config = load_particle(resolve_config("rod_paper", "particles"))
     tables = {}
-    for name, opts in (("processes", BatchOptions(workers=2, progress=False)),
-                       ("dask", BatchOptions(workers=2, dask_local=True, progress=False))):
+    for name, opts in (("processes", BatchSettings(workers=2, progress=False)),
+                       ("dask", BatchSettings(workers=2, dask_local=True, progress=False))):
         config_final = FitConfig(config, passes="final", static=out / "fit" / "static.json",
                                  frames=tuple(range(n)), plot=False)
         run = run_fit(out / "crop", out / "prefit", out / "library", out / f"fit_{name}",

@@ -26,7 +26,7 @@ from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
 from holofit.optics import Optics
 from holofit.particles import Dimer
-from holofit.scattering.cluster import ClusterTheory
+from holofit.scattering.cluster import ClusterEngine
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, 0.0)
@@ -38,7 +38,7 @@ ORIENTATION = Orientation(0.4, 1.0, 0.3)
 
 def compare(dpl: float, model: Dimer = MODEL) -> dict[str, float]:
     """Errors of the DDA at ``dpl`` dipoles per wavelength against the cluster engine."""
-    exact = ClusterTheory().solve(model, OPTICS, ORIENTATION)
+    exact = ClusterEngine().solve(model, OPTICS, ORIENTATION)
     engine = BuiltinDDA(dipoles_per_wavelength=dpl, tolerance=1e-8)
     t0 = time.perf_counter()
     wave = engine.solve_direct(model, OPTICS, ORIENTATION)

@@ -43,7 +43,7 @@ from holofit.camera import Camera
 from holofit.config import load_instrument, resolve_config
 from holofit.conventions import DetectorGrid
 from holofit.dda.engine import BuiltinDDA
-from holofit.engines.select import select_theory
+from holofit.engines.select import select_engine
 from holofit.fit.frame import fit_frame
 from holofit.fit.problem import FrameProblem
 from holofit.fit.settings import FrameFitSettings
@@ -82,7 +82,7 @@ def run_case(case: str, dpl: float, seed: int, o_index: int) -> dict[str, object
     px = inst.pixel_size_um
     grid = DetectorGrid((CROP, CROP), px, (100, 200))
     pos = ((200 + 70.3) * px, (100 + 69.6) * px, Z_UM)
-    exact = select_theory(truth).solve(truth, inst.optics, o)
+    exact = select_engine(truth).solve(truth, inst.optics, o)
     holo = calc_hologram(exact, pos, grid, ALPHA)
     if seed < 0:  # noise-free: the fit's offset from the truth is the model's own bias
         crop = holo
@@ -185,7 +185,7 @@ def linear_case(
     alpha, sizes and indices (orientation held); ``settings``: the DDA's (e.g. ``filling``,
     ``polarizability``)."""
     inst, truth, o, grid, pos = _setup(case, o_index)
-    exact = select_theory(truth)
+    exact = select_engine(truth)
 
     def holo(model: ParticleModel, p: tuple, alpha: float) -> np.ndarray:
         return calc_hologram(exact.solve(model, inst.optics, o), p, grid, alpha).ravel()

@@ -57,7 +57,7 @@ from holofit.config import load_instrument, load_particle, resolve_config  # noq
 from holofit.conventions import DetectorGrid  # noqa: E402
 from holofit.dda.engine import BuiltinDDA  # noqa: E402
 from holofit.dda.settings import DDASettings  # noqa: E402
-from holofit.engines.registry import get_theory  # noqa: E402
+from holofit.engines.registry import get_engine  # noqa: E402
 from holofit.fit.frame import fit_frame  # noqa: E402
 from holofit.fit.problem import FrameProblem  # noqa: E402
 from holofit.fit.settings import FrameFitSettings  # noqa: E402
@@ -267,14 +267,14 @@ def summarise(fits: list[dict]) -> dict[str, dict]:
 
 
 def _engine(name: str, truth: ParticleModel, optics):
-    """The fitting engine by its public name (:func:`holofit.engines.registry.get_theory`):
+    """The fitting engine by its public name (:func:`holofit.engines.registry.get_engine`):
     ``exact``; ``builtin``: the DDA at its default rule (one lattice for the whole fit);
     ``builtin-ramp``: the same with the filling before issue 37 (to compare)."""
     if name == "exact":
-        return get_theory("exact")
+        return get_engine("exact")
     d = DDASettings().dipole_size_for(truth, optics)
     filling = "ramp" if name == "builtin-ramp" else "fractional"
-    return get_theory("builtin", settings=DDASettings(dipole_size_um=d, filling=filling))
+    return get_engine("builtin", settings=DDASettings(dipole_size_um=d, filling=filling))
 
 
 def _print_fit(r: dict) -> None:

@@ -33,10 +33,10 @@ import pandas as pd
 
 from holofit.analysis.settings import AnalysisConfig
 from holofit.analysis.tracks import analyze_tracks
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.config import Instrument, load_instrument, load_particle, resolve_config
 from holofit.crop import CropConfig, run_crop
-from holofit.crop.tracks import LinkOptions
+from holofit.crop.tracks import LinkSettings
 from holofit.fit.config import FitConfig
 from holofit.fit.stage import run_fit
 from holofit.particles import Sphere
@@ -159,7 +159,7 @@ def _fit_overlapping(work: Path, prefit: Path, frames: pd.DataFrame, workers: in
         None,
         work / "fit",
         FitConfig(cfg, plot=False, passes="final", particles=tuple(pair), static=static),
-        batch=BatchOptions(workers=workers, progress=False),
+        batch=BatchSettings(workers=workers, progress=False),
     )
     fit = pd.read_csv(run.final)
     keep = [c for c in pre.columns if c in fit.columns]
@@ -208,8 +208,8 @@ def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None
     t_sim = time.perf_counter() - t0
     t0 = time.perf_counter()
     crop = run_crop(sim.movie, sim.background, inst, work / "crop",
-                    CropConfig(size=SIZE, plot=False, link=LinkOptions(memory=MEMORY)),
-                    batch=BatchOptions(workers=workers, progress=False))
+                    CropConfig(size=SIZE, plot=False, link=LinkSettings(memory=MEMORY)),
+                    batch=BatchSettings(workers=workers, progress=False))
     t_crop = time.perf_counter() - t0
     _say(f"crop {t_crop:.0f} s: {crop.counts}, tracks {sorted(crop.frames['particle'].unique())}")
     t0 = time.perf_counter()
@@ -217,7 +217,7 @@ def main(n: int, out_path: Path, work: Path, workers: int = 2, first: int | None
         work / "crop",
         work / "prefit",
         plot=False,
-        batch=BatchOptions(workers=workers, progress=False),
+        batch=BatchSettings(workers=workers, progress=False),
     )
     t_prefit = time.perf_counter() - t0
     _say(f"prefit {t_prefit:.0f} s: {pre.summary.statuses}")

@@ -24,7 +24,7 @@ from threadpoolctl import threadpool_limits
 from holofit.dda import interaction
 from holofit.dda.engine import BuiltinDDA
 from holofit.dda.tmatrix_io import load_tmatrix, save_tmatrix
-from holofit.engines.select import select_theory
+from holofit.engines.select import select_engine
 from holofit.hologram import calc_hologram
 from holofit.holomodel.parameters import particle_with, static_values
 from holofit.particles import JanusSphere, Spherocylinder
@@ -81,16 +81,16 @@ def auto_build(name: str, folder: Path, repeat: int = 3) -> dict[str, float]:
     at this one (``fix_discretisation``: no order search)."""
     model = PARTICLES[name]
     with threadpool_limits(1):
-        engine = select_theory(model)
+        engine = select_engine(model)
         engine.tmatrix(model, OPTICS)  # warm-up: compiled kernels, quadratures
         walls, cpus = [], []
         for _ in range(repeat):
-            engine = select_theory(model)
+            engine = select_engine(model)
             t0, c0 = time.perf_counter(), time.process_time()
             tm = engine.tmatrix(model, OPTICS)
             walls.append(time.perf_counter() - t0)
             cpus.append(time.process_time() - c0)
-        fit_engine = select_theory(model)
+        fit_engine = select_engine(model)
         fit_engine.fix_discretisation(model, OPTICS)
         first, value = next(iter(static_values(model)))
         bigger = particle_with(model, {first: float(value) + 0.002})

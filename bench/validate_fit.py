@@ -25,7 +25,7 @@ from truth_compare import compare_with_truth
 
 from holofit.analysis import AnalysisConfig, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion, spherocylinder_diffusion
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.config import ParticleConfig, load_instrument, load_particle, resolve_config
 from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
@@ -85,7 +85,7 @@ def main() -> None:
     times["simulate_s"] = time.perf_counter() - t0
     sim = movie.movie
     truth = movie.trajectory.truth
-    batch = BatchOptions(workers=args.workers, progress=False)
+    batch = BatchSettings(workers=args.workers, progress=False)
     t0 = time.perf_counter()
     run_crop(sim.movie, sim.background, inst, out / "crop", CropConfig(size=140, plot=False))
     times["crop_s"] = time.perf_counter() - t0

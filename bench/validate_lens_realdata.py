@@ -47,7 +47,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.batch.aperture import FROM_INSTRUMENT
 from holofit.batch.errors import BatchError
 from holofit.config import load_instrument, load_particle, resolve_config
@@ -66,7 +66,7 @@ from holofit.tables.cropset import CropSet
 ROOT = Path(__file__).resolve().parents[1]
 HOLOPY = ROOT / "tests" / "data" / "holopy"
 PYLM = ROOT / "tests" / "data" / "pylorenzmie"
-SERIAL = BatchOptions(workers=0, progress=False)
+SERIAL = BatchSettings(workers=0, progress=False)
 
 #: the fixed apertures compared with the ideal model
 FIXED_NA = (1.2, 1.3, 1.45)
@@ -167,7 +167,7 @@ def _prefit(case: Case, crops: Path, out: Path, label: str, na: Any, fit_na: boo
     except BatchError:  # other settings: start again
         result = run_prefit(crops, folder, fit=fit, numerical_aperture=na, plot=True,
                             plot_frames=[0],
-                            batch=BatchOptions(workers=0, progress=False, overwrite=True))
+                            batch=BatchSettings(workers=0, progress=False, overwrite=True))
     row = pd.read_csv(result.table).iloc[0].to_dict()
     row.update(config=label, na=na, wall_s=time.perf_counter() - t0, folder=str(folder))
     return row

@@ -3,15 +3,15 @@
 The public API, by job (the command line is a thin layer over these functions)::
 
     stages         run_crop, run_prefit, run_calibrate, run_library, run_fit, run_analysis
-                   (BatchOptions, CalibrateConfig, LibrarySettings, FitConfig, FrameFitSettings,
+                   (BatchSettings, CalibrateConfig, LibrarySettings, FitConfig, FrameFitSettings,
                    FollowSettings, ContinuitySettings, AnalysisConfig, TrackSelection)
     simulation     simulate_movie, simulate_trajectory, BrownianParameters
     configuration  Instrument, load_instrument, ParticleConfig, load_particle, DDASettings
     particles      Sphere, Spherocylinder, JanusSphere, Dimer, Spheroid, Ellipsoid, Cylinder,
                    CoatedSphere, Cluster, VoxelShape
     geometry       Orientation, DetectorGrid, Optics
-    engines        LorenzMie, BuiltinDDA, AddaEngine, ClusterTheory, CoatedMie, select_theory,
-                   get_theory
+    engines        LorenzMie, BuiltinDDA, AddaEngine, ClusterEngine, CoatedMie, select_engine,
+                   get_engine
     holograms      hologram, calc_hologram
     fitting        HologramModel, ParameterSpace, solve_least_squares, FitResult,
                    QualityLimits, fit_sphere_crop, FrameProblem, fit_frame, fit_frame_warm,
@@ -51,7 +51,8 @@ _API: dict[str, str] = {
     "FollowSettings": "holofit.fit.settings",
     "ContinuitySettings": "holofit.fit.continuity",
     "run_analysis": "holofit.analysis",
-    "BatchOptions": "holofit.batch.runner",
+    "BatchSettings": "holofit.batch.runner",
+    "BatchOptions": "holofit.batch.options",
     "AnalysisConfig": "holofit.analysis",
     "TrackSelection": "holofit.analysis",
     # simulation
@@ -83,10 +84,10 @@ _API: dict[str, str] = {
     "LorenzMie": "holofit.scattering.mie",
     "BuiltinDDA": "holofit.dda.engine",
     "AddaEngine": "holofit.dda.adda.engine",
-    "ClusterTheory": "holofit.scattering.cluster",
+    "ClusterEngine": "holofit.scattering.cluster",
     "CoatedMie": "holofit.scattering.coated_mie",
-    "select_theory": "holofit.engines.select",
-    "get_theory": "holofit.engines.registry",
+    "select_engine": "holofit.engines.select",
+    "get_engine": "holofit.engines.registry",
     # holograms
     "hologram": "holofit.hologram",
     "calc_hologram": "holofit.hologram",

@@ -54,10 +54,10 @@ from holofit.config_schema import (
     validate_table,
 )
 from holofit.dda.settings import DDASettings
-from holofit.engines.select import select_theory
+from holofit.engines.select import select_engine
 from holofit.optics import Optics
 from holofit.particles import MODEL_TYPES, ParticleModel, Sphere
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 
 __all__ = [
     "ConfigError",
@@ -436,8 +436,8 @@ class ParticleConfig:
         return dataclasses.replace(self, settings={**self.settings, "dda": table})
 
     def theory(self, engine: str | None = None, fixed_lattice_for: Optics | None = None
-               ) -> ScatteringTheory:
-        """The scattering engine for this particle (:func:`holofit.engines.select.select_theory`:
+               ) -> ScatteringEngine:
+        """The scattering engine for this particle (:func:`holofit.engines.select.select_engine`:
         the exact one where it has one - Lorenz-Mie for a sphere without a ``[dda]`` table, the
         exact T-matrix of a body of revolution - else the ``[dda]`` table's engine), or the one
         ``engine`` names. A ``[dda]`` table that names its ``engine`` (``builtin`` or
@@ -468,7 +468,7 @@ class ParticleConfig:
                 and "engine" in self.settings.get("dda", {})):
             engine = settings.engine
         try:
-            theory = select_theory(self.model, settings, engine)
+            theory = select_engine(self.model, settings, engine)
         except ValueError as exc:
             raise ConfigError(f"{self.path}: {exc}") from None
         fix = getattr(theory, "fix_discretisation", None)

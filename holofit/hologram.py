@@ -10,11 +10,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from holofit.conventions import DetectorGrid, hologram_intensity
-from holofit.engines.select import select_theory
+from holofit.engines.select import select_engine
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
 from holofit.scattering.recorded_field import recorded_field_on_detector
-from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringEngine
 
 __all__ = ["calc_hologram", "hologram"]
 
@@ -60,10 +60,10 @@ def hologram(
     optics: Optics,
     orientation: Orientation | None = None,
     alpha: float = 1.0,
-    theory: ScatteringTheory | None = None,
+    theory: ScatteringEngine | None = None,
     far_field: bool = False,
 ) -> NDArray[np.float64]:
     """Solve ``model`` and compute its hologram in one call (convenience for one-off use)."""
-    theory = theory or select_theory(model)
+    theory = theory or select_engine(model)
     wave = theory.solve(model, optics, orientation)
     return calc_hologram(wave, position_um, grid, alpha, far_field)

@@ -66,11 +66,11 @@ def calls(log_dir: str | Path) -> list[int]:
 
 def run_toy_batch(out: str, workers: int, n_frames: int, sleep_s: float) -> None:
     """A toy batch of slow frames (what the kill and lock tests run in a child process)."""
-    from holofit.batch import BatchOptions, run_batch
+    from holofit.batch import BatchSettings, run_batch
 
     summary = run_batch(
         toy_frame, ToyConfig(sleep_s=sleep_s), range(n_frames), toy_payload,
-        toy_table(out, desc="toy"), options=BatchOptions(workers=workers, progress=False),
+        toy_table(out, desc="toy"), options=BatchSettings(workers=workers, progress=False),
     )
     for note in summary.notes:
         print("note:", note, flush=True)

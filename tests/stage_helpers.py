@@ -6,9 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 
-SERIAL = BatchOptions(workers=0, progress=False)
+SERIAL = BatchSettings(workers=0, progress=False)
 #: a small rod with a coarse lattice: a cheap DDA for stage tests (the config names the
 #: built-in DDA: ``auto`` would give a rod its exact T-matrix)
 ROD_TOML = """

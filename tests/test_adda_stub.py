@@ -22,7 +22,7 @@ import pytest
 
 from holofit.conventions import DetectorGrid, euler_zyz, hologram_intensity
 from holofit.dda import adda as ae
-from holofit.engines.registry import get_theory
+from holofit.engines.registry import get_engine
 from holofit.hologram import calc_hologram
 from holofit.optics import Optics
 from holofit.particles import JanusSphere, Spherocylinder
@@ -102,7 +102,7 @@ def test_missing_binary_is_a_clear_error(tmp_path: Path, monkeypatch) -> None:
     with pytest.raises(ae.AddaNotFoundError, match=r"no ADDA binary found.*HOLOFIT_ADDA.*PATH"):
         ae.find_adda()
     with pytest.raises(ae.AddaNotFoundError, match="no ADDA binary found"):
-        get_theory("adda")
+        get_engine("adda")
     with pytest.raises(ae.AddaNotFoundError, match=r"adda_path = '/no/such/adda'"):
         ae.AddaEngine(adda_path="/no/such/adda")
     monkeypatch.setenv(ae.ADDA_ENV_VAR, str(tmp_path / "missing"))
@@ -112,10 +112,10 @@ def test_missing_binary_is_a_clear_error(tmp_path: Path, monkeypatch) -> None:
 
 def test_registry_builds_the_adda_engine(stub: Path, monkeypatch) -> None:
     monkeypatch.setenv(ae.ADDA_ENV_VAR, str(stub))
-    engine = get_theory("adda", dipole_size_um=D, tolerance=1e-6)
+    engine = get_engine("adda", dipole_size_um=D, tolerance=1e-6)
     assert isinstance(engine, ae.AddaEngine) and engine.name == "adda"
     assert engine.settings.dipole_size_um == D and engine.settings.tolerance == 1e-6
-    assert get_theory("adda", adda_path=str(stub)).binary == str(stub.resolve())
+    assert get_engine("adda", adda_path=str(stub)).binary == str(stub.resolve())
 
 
 # -- version check ---------------------------------------------------------------------------

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions, journal_path, run_batch
+from holofit.batch import BatchSettings, journal_path, run_batch
 from holofit.batch.journal import read_journal
 from holofit.batch.keys import FRAME_KEY, key_of_row, key_row, normal_key
 from tests.batch_helpers import PAIR_COLUMNS, ToyConfig, pair_item, toy_table
@@ -24,7 +24,7 @@ def _run(out, config, keys=KEYS, **opts):
     return run_batch(pair_item, config, keys, _payload,
                      toy_table(out, PAIR_COLUMNS, "pairs-1", desc="pairs",
                                key_columns=KEY_COLUMNS),
-                     options=BatchOptions(workers=0, progress=False, **opts))
+                     options=BatchSettings(workers=0, progress=False, **opts))
 
 
 def test_keys_normalised_and_written_back():

@@ -11,7 +11,7 @@ import pytest
 
 from holofit.batch import (
     BatchError,
-    BatchOptions,
+    BatchSettings,
     discard_outputs,
     journal_path,
     partial_path,
@@ -65,7 +65,7 @@ def test_published_fingerprint_of_no_table_or_no_sidecar(tmp_path):
 def test_a_batch_table_has_its_fingerprint_and_discard_outputs_removes_every_file(tmp_path):
     out = tmp_path / "table.csv"
     cfg = ToyConfig(fail_frames=tuple(range(6)))
-    opts = BatchOptions(workers=0, progress=False)
+    opts = BatchSettings(workers=0, progress=False)
     with pytest.raises(BatchError):  # every frame failed: journal and partial table stay
         run_batch(toy_frame, cfg, range(6), toy_payload, toy_table(out), options=opts)
     assert journal_path(out).exists() and partial_path(out).exists()
@@ -79,7 +79,7 @@ def test_a_batch_table_has_its_fingerprint_and_discard_outputs_removes_every_fil
 
 def test_replace_stale_discards_results_of_other_settings_instead_of_refusing(tmp_path):
     out = tmp_path / "table.csv"
-    opts = BatchOptions(workers=0, progress=False)
+    opts = BatchSettings(workers=0, progress=False)
     run_batch(toy_frame, ToyConfig(), range(3), toy_payload, toy_table(out, fingerprint="a"),
               options=opts)
     with pytest.raises(BatchError, match="other settings"):

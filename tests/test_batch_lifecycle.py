@@ -18,7 +18,7 @@ import psutil
 import pytest
 from click.testing import CliRunner
 
-from holofit.batch import BatchOptions, SchedulerError, WorkerLost, journal_path, run_batch
+from holofit.batch import BatchSettings, SchedulerError, WorkerLost, journal_path, run_batch
 from holofit.batch.backends import DaskBackend, SerialBackend
 from holofit.cli import main
 from holofit.io.lock import LOCK_NAME, OutputLocked
@@ -50,7 +50,7 @@ def _wait_for(condition, timeout_s: float = 60.0) -> None:
 def _run_toy(out: Path, **options) -> object:
     return run_batch(
         toy_frame, ToyConfig(), range(4), toy_payload, toy_table(out, desc="toy"),
-        options=BatchOptions(**({"workers": 0, "progress": False} | options)),
+        options=BatchSettings(**({"workers": 0, "progress": False} | options)),
     )
 
 
@@ -161,7 +161,7 @@ def test_a_frame_lost_beside_the_culprit_is_retried_alone_and_succeeds(tmp_path)
     backend = _ClusterLike()
     summary = run_batch(
         toy_frame, ToyConfig(), range(8), toy_payload, toy_table(tmp_path / "t.csv"),
-        options=BatchOptions(progress=False), backend=backend,
+        options=BatchSettings(progress=False), backend=backend,
     )
     table = pd.read_csv(tmp_path / "t.csv")
     assert summary.statuses == {"ok": 7, "error": 1}

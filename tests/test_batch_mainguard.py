@@ -11,7 +11,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchError, BatchOptions, partial_path, run_batch
+from holofit.batch import BatchError, BatchSettings, partial_path, run_batch
 from tests.batch_helpers import ToyConfig, calls, toy_frame, toy_payload, toy_table
 
 REPO = Path(__file__).resolve().parents[1]
@@ -22,10 +22,10 @@ _UNGUARDED = """
 import sys
 sys.path.insert(0, {repo!r})
 print("script body ran", flush=True)
-from holofit.batch import BatchOptions, run_batch
+from holofit.batch import BatchSettings, run_batch
 from tests.batch_helpers import ToyConfig, toy_frame, toy_payload, toy_table
 summary = run_batch(toy_frame, ToyConfig(), range(6), toy_payload, toy_table({out!r}, desc="toy"),
-                    options=BatchOptions(workers=2, progress=False))
+                    options=BatchSettings(workers=2, progress=False))
 print("statuses", summary.statuses, flush=True)
 """
 
@@ -33,7 +33,7 @@ print("statuses", summary.statuses, flush=True)
 def _run(tmp_path, config, name="t", frames=FRAMES, **opts):
     out = tmp_path / name / "table.csv"
     summary = run_batch(toy_frame, config, frames, toy_payload, toy_table(out, desc="toy"),
-                        options=BatchOptions(**({"workers": 0, "progress": False} | opts)))
+                        options=BatchSettings(**({"workers": 0, "progress": False} | opts)))
     return out, summary
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions, StageTable, journal_path, run_batch
+from holofit.batch import BatchSettings, StageTable, journal_path, run_batch
 from holofit.batch.journal import read_journal
 from holofit.batch.keys import item_rows
 
@@ -41,7 +41,7 @@ def _load(key: tuple[int, int]) -> list[int]:
 def _run(out: Path, config: dict) -> object:
     return run_batch(chunk_item, config, [(c, r.start) for c, r in CHUNKS.items()], _load,
                      StageTable(out, COLUMNS, {}, "chunks-1", "chunks", key_columns=KEYS),
-                     options=BatchOptions(workers=0, progress=False))
+                     options=BatchSettings(workers=0, progress=False))
 
 
 def test_item_rows_put_the_items_own_row_last():
@@ -89,7 +89,7 @@ def test_a_failed_chunk_is_one_error_row_and_is_retried(tmp_path):
     summary = run_batch(_failing_chunk, {"log": str(log)}, [(c, r.start) for c, r in
                                                              CHUNKS.items()], _load,
                         StageTable(out, COLUMNS, {}, "chunks-2", "chunks", key_columns=KEYS),
-                        options=BatchOptions(workers=0, progress=False))
+                        options=BatchSettings(workers=0, progress=False))
     table = pd.read_csv(out)
     bad = table[table["chunk"] == 1]
     assert len(bad) == 1 and bad["frame"].tolist() == [4] and bad["status"].tolist() == ["error"]

@@ -11,7 +11,7 @@ import pytest
 
 from holofit.batch import (
     BatchError,
-    BatchOptions,
+    BatchSettings,
     DaskBackend,
     Precomputed,
     ProcessPoolBackend,
@@ -37,7 +37,7 @@ def _run(tmp_path, name, config=None, frames=FRAMES, load=toy_payload, **opts):
         load,
         toy_table(out, fingerprint=opts.pop("fingerprint", "toy-1"), meta={"kind": "toy"},
                   desc="toy"),
-        options=BatchOptions(**({"workers": 0, "progress": False} | opts)),
+        options=BatchSettings(**({"workers": 0, "progress": False} | opts)),
         backend=backend,
     )
     return out, summary
@@ -186,7 +186,7 @@ def test_process_pool_backend_validates_workers():
     with pytest.raises(ValueError):
         ProcessPoolBackend(0)
     with pytest.raises(ValueError):
-        BatchOptions(workers=-1)
+        BatchSettings(workers=-1)
 
 
 def test_journal_round_trips_floats_exactly_and_rejects_foreign_files(tmp_path):

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions, release_worker_resources, run_batch, worker_resource
+from holofit.batch import BatchSettings, release_worker_resources, run_batch, worker_resource
 from holofit.batch import worker as worker_module
 from holofit.batch.worker import worker_resource_kinds
 from tests.batch_helpers import RESOURCE_COLUMNS, resource_frame, toy_table
@@ -62,7 +62,7 @@ def test_every_item_of_a_batch_reuses_its_workers_resource(tmp_path, workers):
     out = tmp_path / "resources.csv"
     run_batch(resource_frame, {"key": "same"}, range(8), lambda f: None,
               toy_table(out, RESOURCE_COLUMNS),
-              options=BatchOptions(workers=workers, progress=False))
+              options=BatchSettings(workers=workers, progress=False))
     table = pd.read_csv(out)
     assert (table["made"] == 1).all()  # once per process, whatever the number of items
     assert (table["resource"] == "made in " + table["pid"].astype(str)).all()

@@ -25,14 +25,14 @@ import pytest
 from click.testing import CliRunner
 
 from holofit.aberration import layer_aberration
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.calibrate.stage import CalibrateConfig, CalibrateError, run_calibrate
 from holofit.cli import main
 from holofit.config import Instrument, load_instrument
 from holofit.particles import Sphere
 from holofit.simulate.holograms import Exposure, simulate_movie
 
-SERIAL = BatchOptions(workers=0, progress=False)
+SERIAL = BatchSettings(workers=0, progress=False)
 PIXEL_UM = 0.1767
 NA_TRUE = 0.9
 ABERRATION, _ = layer_aberration(0.66, 1.33, NA_TRUE, 1.523, 10.0)

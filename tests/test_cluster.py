@@ -10,12 +10,12 @@ import pytest
 from scipy.special import spherical_jn
 
 from holofit.config import ConfigError, load_particle
-from holofit.engines.select import select_theory
+from holofit.engines.select import select_engine
 from holofit.fit.problem import FrameProblem
 from holofit.optics import Optics
 from holofit.particles import Cluster, CoatedSphere, Dimer, Sphere, Spherocylinder
 from holofit.scattering.cluster import (
-    ClusterTheory,
+    ClusterEngine,
     ClusterWave,
     SphereSumWave,
     solve_cluster,
@@ -116,7 +116,7 @@ def test_two_spheres_far_apart_tend_to_the_sum_of_two_mie_fields() -> None:
     errs = []
     for sep in (3.0, 6.0):
         cl = Cluster((0.3, 0.35), (1.59, 1.45 + 0.01j), ((0, 0, -sep / 2), (0, 0, sep / 2)))
-        wave = ClusterTheory().solve(cl, OPTICS, Orientation(0.4, 1.1, 0.3))
+        wave = ClusterEngine().solve(cl, OPTICS, Orientation(0.4, 1.1, 0.3))
         ref = 0
         for rad, n, p in zip(cl.radii_um, cl.indices, cl.positions_um, strict=True):
             c = wave.rotation @ np.asarray(p)
@@ -164,7 +164,7 @@ def _absorption(sol, wave: ClusterWave) -> float:
 
 def test_optical_theorem_absorbing_dimer() -> None:
     cl = Cluster((0.4, 0.3), (1.59 + 0.05j, 1.8 + 0.1j), ((0, 0, -0.4), (0.05, 0.2, 0.3)))
-    sol = ClusterTheory().solution(cl, OPTICS)
+    sol = ClusterEngine().solution(cl, OPTICS)
     wave = ClusterWave(cl, OPTICS, Orientation(0.5, 0.9, 1.3), sol)
     fwd = wave.far_field_amplitude(np.array([[0.0, 0.0, -1.0]]))[0]
     c_ext = 4 * np.pi / K**2 * float(np.real(fwd @ OPTICS.polarization))
@@ -179,13 +179,13 @@ def test_optical_theorem_absorbing_dimer() -> None:
 def test_absorption_formula_is_mie_for_one_sphere() -> None:
     sphere = Sphere(0.4, 1.59 + 0.05j)
     cl = Cluster((0.4,), (sphere.index,), ((0.1, 0.0, 0.2),))
-    sol = ClusterTheory().solution(cl, OPTICS)
+    sol = ClusterEngine().solution(cl, OPTICS)
     wave = ClusterWave(cl, OPTICS, Orientation(), sol)
     ref = cross_sections(sphere.index / OPTICS.n_medium, 0.4, K)
     assert _absorption(sol, wave) == pytest.approx(ref.absorption_um2, rel=1e-10)
 
 
-def _amplitude(theory: ClusterTheory, model: Cluster, inc: np.ndarray, e_inc: np.ndarray,
+def _amplitude(theory: ClusterEngine, model: Cluster, inc: np.ndarray, e_inc: np.ndarray,
                out: np.ndarray) -> np.ndarray:
     """Far-field amplitude (particle frame) in direction ``out`` for a plane wave along
     ``inc`` polarised ``e_inc`` (particle frame): the particle is turned so that ``inc``
@@ -207,7 +207,7 @@ def test_reciprocity() -> None:
     """``e_s . F(v; u, e_i) = e_i . F(-u; -v, e_s)`` for any directions and polarisations."""
     cl = Cluster((0.25, 0.2, 0.22), (1.59, 1.8 + 0.05j, 1.45),
                  ((0, 0, -0.28), (0.12, 0.3, 0.2), (-0.38, -0.12, 0.25)))
-    th = ClusterTheory()
+    th = ClusterEngine()
     rng = np.random.default_rng(5)
     for _ in range(3):
         u, v = (x / np.linalg.norm(x) for x in rng.normal(size=(2, 3)))
@@ -225,7 +225,7 @@ def test_reciprocity() -> None:
 
 def test_truncation_rule_is_converged_for_touching_spheres() -> None:
     model = Dimer(0.53, 0.53, 0.0, 1.59, 1.59)
-    th = ClusterTheory()
+    th = ClusterEngine()
     base = th.solution(model, OPTICS)
     from holofit.scattering.cluster import cluster_spheres
 
@@ -269,7 +269,7 @@ def test_against_treams(model: Cluster) -> None:
     """An independent T-matrix code (treams: its own Mie coefficients, translation
     coefficients and field evaluation), same sphere orders: the fields agree within 1e-6."""
     optics = Optics(OPTICS.wavelength_um, OPTICS.n_medium, 0.0)
-    sol = ClusterTheory().solution(model, optics)
+    sol = ClusterEngine().solution(model, optics)
     wave = ClusterWave(model, optics, Orientation(), sol)
     rng = np.random.default_rng(3)
     pts = rng.normal(size=(4, 3))
@@ -286,14 +286,14 @@ def test_auto_picks_the_exact_engines() -> None:
     from holofit.dda.settings import DDASettings
 
     dimer = Dimer(0.5, 0.5, 0.0, 1.59, 1.59)
-    assert select_theory(dimer).name == "cluster"
-    assert select_theory(dimer, DDASettings()).name == "cluster"
-    assert select_theory(dimer, DDASettings(), engine="builtin").name == "builtin"
+    assert select_engine(dimer).name == "cluster"
+    assert select_engine(dimer, DDASettings()).name == "cluster"
+    assert select_engine(dimer, DDASettings(), engine="builtin").name == "builtin"
     coated = CoatedSphere(0.44, 0.047, 1.58, 2.74)
-    assert select_theory(coated).name == "coated_sphere"
-    assert select_theory(Sphere(0.5, 1.5), DDASettings()).name == "builtin"
+    assert select_engine(coated).name == "coated_sphere"
+    assert select_engine(Sphere(0.5, 1.5), DDASettings()).name == "builtin"
     with pytest.raises(ValueError, match="cluster engine handles"):
-        select_theory(Spherocylinder(0.3, 0.8, 1.5), engine="cluster")
+        select_engine(Spherocylinder(0.3, 0.8, 1.5), engine="cluster")
 
 
 def test_cluster_config_errors_name_the_file(tmp_path) -> None:
@@ -318,7 +318,7 @@ def test_example_cluster_config_loads_and_solves() -> None:
     cfg = load_particle(Path(__file__).resolve().parents[1] / "configs" / "particles"
                         / "cluster_trimer.toml")
     assert isinstance(cfg.model, Cluster) and len(cfg.model.radii_um) == 3
-    assert isinstance(cfg.theory(), ClusterTheory)
+    assert isinstance(cfg.theory(), ClusterEngine)
     assert cfg.theory("builtin").name == "builtin"
 
 
@@ -335,7 +335,7 @@ def test_lens_image_of_one_sphere_cluster_is_the_mie_image() -> None:
     sphere = Sphere(0.5, 1.59)
     grid = DetectorGrid((40, 40), 0.15)
     pos = (3.0, 3.1, 9.0)
-    cl = ClusterTheory().solve(Cluster((0.5,), (1.59,), ((0.0, 0.0, 0.0),)), optics,
+    cl = ClusterEngine().solve(Cluster((0.5,), (1.59,), ((0.0, 0.0, 0.0),)), optics,
                                Orientation(0.3, 0.8, 0.1))
     a = np.stack(lens_field_on_detector(cl, pos, grid))
     b = np.stack(lens_field_on_detector(MieWave(sphere, optics), pos, grid))
@@ -351,12 +351,12 @@ def test_coated_sphere_engine() -> None:
 
     optics = Optics(0.66, 1.33, 0.3, numerical_aperture=1.2)
     model = CoatedSphere(0.443, 0.047, 1.581, 2.74)
-    wave = select_theory(model).solve(model, optics)
+    wave = select_engine(model).solve(model, optics)
     ref = CoatedSphereWave(0.443, 0.49, 1.581, 2.74, optics)
     pts = np.array([[1.0, 0.2, 0.5], [0.1, -2.0, 3.0]])
     assert _rel(wave.field_at(pts), ref.field_at(pts)) < 1e-14
     same = CoatedSphere(0.3, 0.2, 1.59, 1.59)
-    coated = select_theory(same).solve(same, optics)
+    coated = select_engine(same).solve(same, optics)
     mie = MieWave(Sphere(0.5, 1.59), optics)
     grid = DetectorGrid((30, 30), 0.15)
     pos = (2.0, 2.3, 8.0)
@@ -365,7 +365,7 @@ def test_coated_sphere_engine() -> None:
     assert _rel(np.stack(lens_field_on_detector(coated, pos, grid)),
                 np.stack(lens_field_on_detector(mie, pos, grid))) < 1e-6
     with pytest.raises(ValueError, match="coated_sphere engine handles coated spheres"):
-        select_theory(Sphere(0.5, 1.5), engine="coated_sphere")
+        select_engine(Sphere(0.5, 1.5), engine="coated_sphere")
 
 
 @pytest.mark.parametrize("model", [
@@ -379,8 +379,8 @@ def test_builtin_dda_of_the_new_models_is_close_to_exact(model) -> None:
 
     optics = Optics(0.66, 1.33, 0.0)
     o = Orientation(0.3, 0.6, 0.2)
-    exact = select_theory(model).solve(model, optics, o)
-    dda = select_theory(model, engine="builtin").solve(model, optics, o)
+    exact = select_engine(model).solve(model, optics, o)
+    dda = select_engine(model, engine="builtin").solve(model, optics, o)
     grid = DetectorGrid((40, 40), 0.2)
     pos = (4.0, 4.0, 10.0)
     assert _rel(np.stack(dda.field_on_detector(pos, grid)),
@@ -401,7 +401,7 @@ def test_frame_fit_with_the_cluster_engine_recovers_the_truth() -> None:
 
     optics = Optics(0.66, 1.33, 0.0)
     model = Dimer(0.4, 0.45, 0.0, 1.59, 1.59)
-    th = select_theory(model)
+    th = select_engine(model)
     truth = Orientation(0.7, 1.1, 0.0)
     px = 0.12
     grid = DetectorGrid((90, 90), px, (10, 20))
@@ -435,7 +435,7 @@ def test_sphere_sum_far_field_form_is_the_expansion_far_field() -> None:
     """The spheres' own far fields, phased by their positions, equal the cluster expansion's
     asymptotic field (two independent evaluations of ``far_field=True``)."""
     cl = Cluster((0.3, 0.25), (1.59, 1.7 + 0.02j), ((0.0, 0.0, -0.3), (0.1, 0.2, 0.25)))
-    sol = ClusterTheory().solution(cl, OPTICS)
+    sol = ClusterEngine().solution(cl, OPTICS)
     o = Orientation(0.4, 0.8, 0.2)
     pts = np.array([[3.0, -2.0, 40.0], [-5.0, 1.0, -30.0], [20.0, 10.0, 5.0]])
     a = SphereSumWave(sol, OPTICS, o).field_at(pts, far_field=True)

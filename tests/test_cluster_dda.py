@@ -12,7 +12,7 @@ from holofit.dda.engine import BuiltinDDA
 from holofit.hologram import calc_hologram
 from holofit.optics import Optics
 from holofit.particles import Dimer
-from holofit.scattering.cluster import ClusterTheory
+from holofit.scattering.cluster import ClusterEngine
 from holofit.scattering.theory import Orientation
 
 OPTICS = Optics(0.66, 1.33, 0.0)
@@ -23,7 +23,7 @@ ORIENTATION = Orientation(0.4, 1.0, 0.3)
 
 
 def test_dda_dimer_converges_to_the_cluster_engine() -> None:
-    exact = ClusterTheory().solve(MODEL, OPTICS, ORIENTATION)
+    exact = ClusterEngine().solve(MODEL, OPTICS, ORIENTATION)
     e_ref = np.stack(exact.field_on_detector(POS, GRID))
     h_ref = calc_hologram(exact, POS, GRID)
     errors, misfit, sizes = [], [], []

@@ -27,7 +27,7 @@ from holofit.config import load_instrument, resolve_config
 from holofit.crop import CropConfig, run_crop
 from holofit.crop.profile import FringeOptics, measure_profile
 from holofit.crop.track_crops import link_detections
-from holofit.crop.tracks import LinkOptions
+from holofit.crop.tracks import LinkSettings
 from holofit.crop.transform import estimate_noise
 from holofit.particles import Sphere
 from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
@@ -202,7 +202,7 @@ def test_overlap_where_a_neighbours_reach_enters_the_crop():
     from its edge), one reaching 50 px does not."""
     for reach, expected in ((80.0, True), (50.0, False)):
         frames = [[(100.0, 100.0, reach), (200.0, 100.0 + 0.1 * k, reach)] for k in range(12)]
-        plan = link_detections(_detections(frames), 12, 0.1, LinkOptions(min_track_length=4),
+        plan = link_detections(_detections(frames), 12, 0.1, LinkSettings(min_track_length=4),
                                64, frame_shape=(300, 400))
         assert (plan.linked["overlap"] == expected).all(), reach
         assert (plan.linked["n_overlapping"] == int(expected)).all()
@@ -217,7 +217,7 @@ def test_a_track_lost_next_to_another_is_reported_one_leaving_the_frame_is_not()
         if k < 20:  # leaves through the right edge
             here.append((360.0 + 2 * k, 250.0, 60.0))
         frames.append(here)
-    plan = link_detections(_detections(frames), 30, 0.2, LinkOptions(min_track_length=4), 64,
+    plan = link_detections(_detections(frames), 30, 0.2, LinkSettings(min_track_length=4), 64,
                            frame_shape=(300, 400))
     lost = [e for e in plan.losses if e["kind"] == "lost"]
     assert len(lost) == 1, plan.losses
@@ -232,14 +232,14 @@ def _twelve_bit_movie(tmp, clip: bool):
     4095 (``clip``) or not (background 1900)."""
     from holofit.camera import Camera
     from holofit.conventions import hologram_intensity, pixel_centres
-    from holofit.engines.select import select_theory
+    from holofit.engines.select import select_engine
     from holofit.scattering.recorded_field import recorded_field
     from holofit.scattering.theory import Orientation
 
     inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
     shape = (160, 160)
     xs, ys = pixel_centres(shape, inst.pixel_size_um)
-    wave = select_theory(PS).solve(PS, inst.optics, Orientation(0.0, 0.0, 0.0))
+    wave = select_engine(PS).solve(PS, inst.optics, Orientation(0.0, 0.0, 0.0))
     fx, fy = recorded_field(wave, (80.2 * inst.pixel_size_um, 79.6 * inst.pixel_size_um, 12.0),
                             xs.ravel(), ys.ravel())
     image = hologram_intensity(fx.reshape(shape), fy.reshape(shape), 0.0)

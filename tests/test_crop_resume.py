@@ -12,7 +12,7 @@ import pytest
 import tifffile
 
 import holofit.crop.detect as detect_module
-from holofit.batch import BatchOptions, journal_path, published_fingerprint
+from holofit.batch import BatchSettings, journal_path, published_fingerprint
 from holofit.batch.journal import read_journal
 from holofit.crop import CropConfig, run_crop
 from tests.test_crop_run import _outputs, simulated  # noqa: F401 (fixture)
@@ -57,7 +57,7 @@ def test_workers_give_the_outputs_of_a_run_in_this_process(simulated, tmp_path):
     folder, background, _, _ = simulated
     serial = _run(folder, background, tmp_path / "serial", plot=False)
     pool = _run(folder, background, tmp_path / "pool", plot=False,
-                batch=BatchOptions(workers=2, progress=False))
+                batch=BatchSettings(workers=2, progress=False))
     pd.testing.assert_frame_equal(serial.frames, pool.frames)
     _same(_snapshot(tmp_path / "serial"), _snapshot(tmp_path / "pool"))
     assert "detections.csv" not in _outputs(tmp_path / "pool")

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from holofit.crop.tracks import LinkOptions, TrackError, link_tracks, mark_neighbours
+from holofit.crop.tracks import LinkSettings, TrackError, link_tracks, mark_neighbours
 
 PIXEL_UM = 0.12
 FRAMES = 300
@@ -56,7 +56,7 @@ def _scene(seed: int = 3) -> tuple[pd.DataFrame, dict[int, tuple[int, int]]]:
 
 def test_every_track_found_without_identity_swaps():
     candidates, spans = _scene()
-    result = link_tracks(candidates, PIXEL_UM, LinkOptions(search_range_um=1.5, memory=3))
+    result = link_tracks(candidates, PIXEL_UM, LinkSettings(search_range_um=1.5, memory=3))
     linked = result.candidates
     assert len(result.particles) == 5
     for pid in result.particles:
@@ -89,7 +89,7 @@ def test_ids_follow_first_appearance_and_are_reproducible():
 
 def test_max_particles_keeps_the_longest():
     candidates, spans = _scene()
-    result = link_tracks(candidates, PIXEL_UM, LinkOptions(max_particles=2))
+    result = link_tracks(candidates, PIXEL_UM, LinkSettings(max_particles=2))
     assert len(result.particles) == 2
     kept_truth = set(result.candidates["true"].unique())
     lengths = {pid: spans[pid][1] - spans[pid][0] for pid in spans}
@@ -119,7 +119,7 @@ def test_bad_input_is_named():
     with pytest.raises(TrackError, match="frame 4"):
         link_tracks(pd.DataFrame({"frame": [4], "x_px": [np.nan], "y_px": [1.0]}), PIXEL_UM)
     with pytest.raises(TrackError, match="search_range_um"):
-        LinkOptions(search_range_um=0)
+        LinkSettings(search_range_um=0)
     empty = link_tracks(pd.DataFrame({"frame": [], "x_px": [], "y_px": []}), PIXEL_UM)
     assert empty.particles == [] and empty.summary.empty
 
@@ -142,11 +142,11 @@ def _merging_pair(gap: int) -> pd.DataFrame:
 
 def test_default_memory_outlives_a_merged_pair_without_a_swap():
     candidates = _merging_pair(gap=8)
-    for options, mixes in ((LinkOptions(memory=3), True), (LinkOptions(), False)):
+    for options, mixes in ((LinkSettings(memory=3), True), (LinkSettings(), False)):
         linked = link_tracks(candidates, PIXEL_UM, options).candidates
         known = linked[linked["true"] >= 0]
         mixed = known.groupby("particle")["true"].nunique().max() > 1
         # with a memory shorter than the gap, the merged detection's track carries on with the
         # right sphere once they part: the swap the default's longer memory prevents
         assert mixed == mixes, f"memory {options.memory}"
-    assert LinkOptions().memory >= 10
+    assert LinkSettings().memory >= 10

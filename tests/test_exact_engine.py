@@ -8,8 +8,8 @@ import pytest
 
 from holofit.dda.settings import DDASettings
 from holofit.dda.tmatrix_io import load_tmatrix, save_tmatrix
-from holofit.engines.registry import ENGINE_NAMES, EXACT_ENGINES, get_theory
-from holofit.engines.select import select_theory
+from holofit.engines.registry import ENGINE_NAMES, EXACT_ENGINES, get_engine
+from holofit.engines.select import select_engine
 from holofit.optics import Optics
 from holofit.particles import (
     CoatedSphere,
@@ -38,20 +38,20 @@ ROD = Spherocylinder(0.501, 1.079, 1.495)
 
 def test_auto_picks_the_exact_engine_for_bodies_of_revolution() -> None:
     assert "exact" in ENGINE_NAMES and "exact" in EXACT_ENGINES
-    assert isinstance(get_theory("exact"), AxisymmetricTMatrix)
+    assert isinstance(get_engine("exact"), AxisymmetricTMatrix)
     # auto: the exact T-matrix for a rod, a spheroid, a cylinder and a Janus sphere, with or
     # without DDA settings; the series for spheres and coated spheres; the DDA otherwise
     for model in (ROD, Spheroid(0.5, 1.0, 1.5), Cylinder(0.5, 1.0, 1.5),
                   JanusSphere(0.443, 0.047, 1.581, 2.74),
                   TaperedJanusSphere(0.443, 0.047, 1.581, 2.74)):
-        assert select_theory(model).name == "exact", model.kind
-        assert select_theory(model, DDASettings()).name == "exact", model.kind
-        assert select_theory(model, engine="builtin").name == "builtin" or isinstance(
+        assert select_engine(model).name == "exact", model.kind
+        assert select_engine(model, DDASettings()).name == "exact", model.kind
+        assert select_engine(model, engine="builtin").name == "builtin" or isinstance(
             model, TaperedJanusSphere)
-    assert select_theory(Sphere(0.5, 1.59)).name == "mie"
-    assert select_theory(Sphere(0.5, 1.59), DDASettings()).name == "builtin"
-    assert select_theory(CoatedSphere(0.4, 0.05, 1.59, 2.7)).name == "coated_sphere"
-    assert select_theory(Ellipsoid(0.3, 0.4, 0.5, 1.5)).name == "builtin"
+    assert select_engine(Sphere(0.5, 1.59)).name == "mie"
+    assert select_engine(Sphere(0.5, 1.59), DDASettings()).name == "builtin"
+    assert select_engine(CoatedSphere(0.4, 0.05, 1.59, 2.7)).name == "coated_sphere"
+    assert select_engine(Ellipsoid(0.3, 0.4, 0.5, 1.5)).name == "builtin"
 
 
 def test_auto_gives_a_voxel_shape_the_dda(tmp_path) -> None:
@@ -63,17 +63,17 @@ def test_auto_gives_a_voxel_shape_the_dda(tmp_path) -> None:
     geom = tmp_path / "l.geom"
     geom.write_text("0 0 0\n1 0 0\n2 0 0\n0 1 0\n")  # an L of four dipoles
     shape = VoxelShape(str(geom), 0.05, (1.5,))
-    assert select_theory(shape).name == "builtin"
-    assert select_theory(shape, DDASettings()).name == "builtin"
+    assert select_engine(shape).name == "builtin"
+    assert select_engine(shape, DDASettings()).name == "builtin"
     with pytest.raises(ValueError, match="exact engine handles"):
-        select_theory(shape, engine="exact")
+        select_engine(shape, engine="exact")
     (tmp_path / "l.toml").write_text(
         f'[particle]\nmodel = "voxels"\npath = "{geom}"\ndipole_size_um = 0.05\n'
         "indices = [1.5]\n")
     assert load_particle(tmp_path / "l.toml").theory().name == "builtin"
     # the DDA settings' engine = "adda" still picks ADDA (here without a binary: it says so)
     with pytest.raises(Exception, match="ADDA"):
-        select_theory(ROD, DDASettings(engine="adda"))
+        select_engine(ROD, DDASettings(engine="adda"))
 
 
 def test_a_config_that_names_its_dda_engine_gets_it_under_auto(tmp_path) -> None:

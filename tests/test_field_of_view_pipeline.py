@@ -14,7 +14,7 @@ from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import CropConfig, run_crop
 from holofit.crop.errors import CropError
 from holofit.crop.track_crops import link_detections, track_rows
-from holofit.crop.tracks import LinkOptions
+from holofit.crop.tracks import LinkSettings
 from holofit.particles import Sphere
 from holofit.prefit.stage import run_prefit
 from holofit.simulate.field_of_view import ParticleInView, simulate_field_of_view
@@ -166,7 +166,7 @@ def test_overlap_is_marked_closer_than_half_a_crop():
     the neighbour; a third, short track is reported and left out."""
     frames = [[(20.0, 50.0), (80.0 - 2 * k, 50.0)] for k in range(12)]
     frames[5].append((150.0, 150.0))  # a one-frame false detection
-    plan = link_detections(_detections(frames), 12, 0.1, LinkOptions(min_track_length=4), 64)
+    plan = link_detections(_detections(frames), 12, 0.1, LinkSettings(min_track_length=4), 64)
     assert sorted(plan.spans) == [0, 1]
     assert "1 track(s) left out" in plan.warnings[0]
     for k in (0, 11):
@@ -241,7 +241,7 @@ def test_fringes_of_a_strong_hologram_are_not_a_track():
             [200.0 - 0.1 * k, 150.0, 90.0, 0.8, 0.95, "symmetry"],
         ]
         det[k] = {"status": "ok", "n_found": 3, "candidates": json.dumps(found)}
-    plan = link_detections(det, 12, 0.1, LinkOptions(min_track_length=4), 48)
+    plan = link_detections(det, 12, 0.1, LinkSettings(min_track_length=4), 48)
     assert sorted(plan.spans) == [0, 1]
     assert plan.linked.groupby("particle")["x_px"].median().round().tolist() == [51.0, 199.0]
     assert any("fringes of a stronger hologram" in w and "(70, 50) px" in w for w in plan.warnings)
@@ -266,7 +266,7 @@ def test_run_fit_on_several_tracks_is_what_holofit_fit_runs(scene, tmp_path):
         None,
         tmp_path / "api",
         config,
-        batch=holofit.BatchOptions(workers=0, progress=False),
+        batch=holofit.BatchSettings(workers=0, progress=False),
     )
     res = CliRunner().invoke(
         main,
@@ -299,16 +299,16 @@ def test_run_fit_on_several_tracks_is_what_holofit_fit_runs(scene, tmp_path):
 
 
 def test_sparse_detections_strung_by_the_memory_are_not_a_track():
-    from holofit.crop.tracks import LinkOptions, link_tracks
+    from holofit.crop.tracks import LinkSettings, link_tracks
 
     rows = [(f, 100.0, 100.0) for f in range(60)]  # a particle, every frame
     rows += [(f, 135.0, 100.0) for f in range(10, 43, 3)]  # a fringe: 11 of 33 frames
     table = pd.DataFrame(rows, columns=["frame", "x_px", "y_px"])
-    result = link_tracks(table, 0.1, LinkOptions(memory=10))
+    result = link_tracks(table, 0.1, LinkSettings(memory=10))
     assert len(result.particles) == 1
     dropped = result.summary[~result.summary["kept"].astype(bool)]
     assert dropped["reason"].str.contains("detected in 11 of the 31 frames").all()
     assert (
-        len(link_tracks(table, 0.1, LinkOptions(memory=10, min_detected_fraction=0.0)).particles)
+        len(link_tracks(table, 0.1, LinkSettings(memory=10, min_detected_fraction=0.0)).particles)
         == 2
     )

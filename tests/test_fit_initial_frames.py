@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.batch import stage as skeleton
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.crop import CropConfig, run_crop
@@ -17,7 +17,7 @@ from holofit.fit.defaults import default_initial_frames
 from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
 
-SERIAL = BatchOptions(workers=0, progress=False)
+SERIAL = BatchSettings(workers=0, progress=False)
 
 
 @pytest.mark.parametrize(("n", "k"), [(1, 1), (5, 5), (8, 8), (30, 8), (150, 8), (161, 9),

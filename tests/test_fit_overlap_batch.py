@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.config import load_instrument, load_particle, resolve_config
 from holofit.fit import overlaps as overlaps_module
 from holofit.fit.config import FitConfig
@@ -41,7 +41,7 @@ def pair(tmp_path_factory):
                     CropConfig(size=128, plot=False))
     assert crop.frames["overlap"].astype(str).str.lower().eq("true").all()
     run_prefit(crop.out_dir, root / "prefit", plot=False,
-               batch=BatchOptions(workers=0, progress=False))
+               batch=BatchSettings(workers=0, progress=False))
     cfg = load_particle(resolve_config("sphere_ps_1um", "particles"))
     static = root / "static.json"
     static.write_text(json.dumps({"particle_model": "sphere",
@@ -57,7 +57,7 @@ def _fit(pair, out, workers=0, **kwargs):
         None,
         out,
         FitConfig(pair["cfg"], plot=False, **kwargs),
-        batch=BatchOptions(workers=workers, progress=False),
+        batch=BatchSettings(workers=workers, progress=False),
     )
 
 
@@ -175,7 +175,7 @@ def test_the_neighbours_fields_may_come_from_another_models_rows(pair, tmp_path)
     inst = load_instrument(resolve_config("paper_100x_oil", "instruments"))
     cfg = PassConfig(pair["cfg"], inst, "final", fixed=("radius_um", "n"))
     crops = CropSet(pair["crop"])
-    batch = BatchOptions(workers=0, progress=False)
+    batch = BatchSettings(workers=0, progress=False)
     pulled, *_ = refit_overlaps(bad, crops, cfg, tmp_path / "a.csv", batch)
     fixed, *_ = refit_overlaps(bad, crops, cfg, tmp_path / "b.csv", batch,
                                Neighbours(cfg, good))

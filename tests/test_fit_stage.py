@@ -52,11 +52,11 @@ def test_library_tilts_solved_once_for_the_workers_give_the_same_candidates(movi
     """On two worker processes the driver has the tilts solved once (``tilts.npz``, their
     expansions) and the workers score the frames with them: the same candidates as the serial
     library, which solves the tilts itself."""
-    from holofit.batch import BatchOptions
+    from holofit.batch import BatchSettings
 
     root, particle, _ = movie
     run_library(root / "crop", root / "prefit", particle, tmp_path / "lib",
-                settings=LIB, batch=BatchOptions(workers=2, progress=False), plot=False)
+                settings=LIB, batch=BatchSettings(workers=2, progress=False), plot=False)
     assert (tmp_path / "lib" / "tilts.npz").exists()
     assert not (root / "lib" / "tilts.npz").exists()  # serial: nothing shared
     shared = pd.read_csv(tmp_path / "lib" / "library.csv").drop(columns="fit_time_s")

@@ -97,7 +97,7 @@ def test_a_track_no_model_fits_is_left_out_and_the_others_go_on(three_spheres, t
     config = holofit.FitConfig(cfg, initial_frames=3, frame=holofit.FrameFitSettings(
         quality=limits), plot=False)
     run = holofit.run_fit(crop_dir, prefit, None, tmp_path / "fit", config,
-                          batch=holofit.BatchOptions(workers=0, progress=False))
+                          batch=holofit.BatchSettings(workers=0, progress=False))
     assert list(run.left_out) == [big], run.left_out
     tracks = pd.read_csv(tmp_path / "fit" / "tracks.csv").set_index("particle")
     assert tracks.loc[big, "status"] == "left_out"

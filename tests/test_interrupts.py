@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from holofit.batch import BatchOptions, journal_path, partial_path, run_batch
+from holofit.batch import BatchSettings, journal_path, partial_path, run_batch
 from holofit.cli import main
 from tests.batch_helpers import ToyConfig, calls, toy_frame, toy_payload, toy_table
 from tests.test_prefit_cli import _crop_folder
@@ -21,7 +21,7 @@ from tests.test_prefit_cli import _crop_folder
 def _run(out, config, before_publish):
     return run_batch(toy_frame, config, list(range(6)), toy_payload,
                      toy_table(out, meta={"kind": "toy"}, desc="toy"),
-                     options=BatchOptions(workers=0, progress=False),
+                     options=BatchSettings(workers=0, progress=False),
                      before_publish=before_publish)
 
 

@@ -13,7 +13,7 @@ from holofit.holomodel.forward import HologramModel
 from holofit.holomodel.parameters import ParameterSpace, State, static_values
 from holofit.optics import Optics
 from holofit.particles import Dimer
-from holofit.scattering.cluster import ClusterTheory
+from holofit.scattering.cluster import ClusterEngine
 
 OPTICS = Optics(0.66, 1.33, 0.0, numerical_aperture=1.3)
 
@@ -27,7 +27,7 @@ def test_lens_jacobian_columns_are_the_derivatives_of_the_hologram(free):
     start = State(position=(3.05, 3.1, 8.0), rotation=euler_zyz(0.7, 1.1, 0.0), alpha=0.9,
                   statics=static_values(model))
     space = ParameterSpace(model, free, start)
-    fm = HologramModel(ClusterTheory(), space, OPTICS, x.ravel(), y.ravel())
+    fm = HologramModel(ClusterEngine(), space, OPTICS, x.ravel(), y.ravel())
     v0 = space.initial_vector()
     jac = fm.jacobian(v0)
     # five-point central differences of the model's holograms (single-precision images:

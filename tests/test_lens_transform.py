@@ -120,12 +120,12 @@ def test_derivative_waves_imaged_in_one_pass_are_the_derivatives_of_the_image():
     derivatives imaged one by one."""
     from holofit.optics import Optics
     from holofit.particles import Dimer
-    from holofit.scattering.cluster import ClusterTheory
+    from holofit.scattering.cluster import ClusterEngine
     from holofit.scattering.lens import lens_field_on_pixels, lens_fields_on_pixels
     from holofit.scattering.theory import Orientation
 
     optics = Optics(0.66, 1.33, 0.3, numerical_aperture=1.2)
-    theory = ClusterTheory()
+    theory = ClusterEngine()
     model = Dimer(0.3, 0.35, 0.0, 1.59, 1.5)
     angles = (0.4, 0.9, 0.2)
     wave = theory.solve(model, optics, Orientation(*angles))
@@ -159,12 +159,12 @@ def test_height_derivative_of_the_lens_image_is_exact():
     z column through the lens) equals the five-point difference of images at z +- h."""
     from holofit.optics import Optics
     from holofit.particles import Dimer
-    from holofit.scattering.cluster import ClusterTheory
+    from holofit.scattering.cluster import ClusterEngine
     from holofit.scattering.lens import lens_field_on_pixels, lens_fields_on_pixels
     from holofit.scattering.theory import Orientation
 
     optics = Optics(0.66, 1.33, 0.0, numerical_aperture=1.4)
-    wave = ClusterTheory().solve(Dimer(0.3, 0.35, 0.0, 1.59, 1.5), optics,
+    wave = ClusterEngine().solve(Dimer(0.3, 0.35, 0.0, 1.59, 1.5), optics,
                                  Orientation(1.0, 0.5, 0.0))
     x, y = np.meshgrid(np.linspace(-1.0, 7.0, 33), np.linspace(0.0, 6.0, 27))
     pos = np.array([3.0, 2.6, 9.0])

@@ -82,7 +82,7 @@ def test_the_refits_find_the_dda_bias_of_an_exact_coated_sphere_hologram() -> No
     from holofit.config import Instrument, ParticleConfig
     from holofit.conventions import DetectorGrid
     from holofit.dda.settings import DDASettings
-    from holofit.engines.registry import get_theory
+    from holofit.engines.registry import get_engine
     from holofit.fit.model_error import RefitConfig, RefitPayload, refit_task
     from holofit.fit.settings import FrameFitSettings
     from holofit.fit.task import PassConfig
@@ -95,7 +95,7 @@ def test_the_refits_find_the_dda_bias_of_an_exact_coated_sphere_hologram() -> No
     px = 0.1
     pos = (3.2, 3.2, 7.0)
     data = hologram(truth, pos, DetectorGrid((64, 64), px), optics,
-                    theory=get_theory("coated_sphere"))
+                    theory=get_engine("coated_sphere"))
     d0 = DDASettings().dipole_size_for(truth, optics)
     particle = ParticleConfig(truth, {"dda": {"dipole_size_um": d0}})
     inst = Instrument("test", optics.wavelength_um, optics.n_medium, px)

@@ -22,14 +22,14 @@ import pandas as pd
 import pytest
 import tifffile
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.config import load_instrument
 from holofit.crop import CropConfig, run_crop
 from holofit.prefit.sphere import SphereFitSettings
 from holofit.prefit.stage import run_prefit
 from tests.conftest import CONFIGS, DATA
 
-SERIAL = BatchOptions(workers=0, progress=False)
+SERIAL = BatchSettings(workers=0, progress=False)
 
 
 def _crop_folder(tmp_path, raw, background_level, size, instrument, follow_start=None):

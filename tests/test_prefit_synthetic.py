@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.config import load_instrument
 from holofit.particles import Sphere
 from holofit.prefit.stage import run_prefit
@@ -42,7 +42,7 @@ def _prefit_movies(tmp_path, inst, spheres, positions, centres, frame_shape, cro
         truths.append(sim.truth.assign(radius_um=a, n=n))
     crops = make_crops_from_movies(movies, centres, crop_size, inst, tmp_path / "crops")
     res = run_prefit(
-        crops, tmp_path / "prefit", batch=BatchOptions(workers=workers, progress=False), plot=False
+        crops, tmp_path / "prefit", batch=BatchSettings(workers=workers, progress=False), plot=False
     )
     return pd.read_csv(res.table), pd.concat(truths, ignore_index=True)
 

@@ -92,7 +92,7 @@ Sizes = dict[str, tuple[float, float, str]]
 Predictions = dict[str, tuple[hd.Prediction, str, str]]
 
 
-class MeasureOptions(Protocol):
+class MeasureSettings(Protocol):
     """The settings a measurement reads (:class:`holofit.analysis.settings.AnalysisConfig`)."""
 
     projection_amplitude: bool
@@ -226,7 +226,7 @@ class Recipe:
     reject: bool
     sizes: tuple[str, ...]
     measure: Callable[[FitFunction, NDArray[np.int64], NDArray[np.int64] | None,
-                       MeasureOptions], dict[str, Measurement]]
+                       MeasureSettings], dict[str, Measurement]]
     predict: Callable[[Sizes, float, float, list[str]], Predictions]
     summary: tuple[Compared | Reported, ...]
     radius_is_hydrodynamic: bool
@@ -284,7 +284,7 @@ def _combined(parts: list, value: float, unit: str) -> Measurement:
 
 def _measure_rod(
     fit: FitFunction, t_lags: NDArray[np.int64], r_lags: NDArray[np.int64] | None,
-    options: MeasureOptions,
+    options: MeasureSettings,
 ) -> dict[str, Measurement]:
     meas: dict[str, Measurement] = {}
     if options.body_frame:
@@ -386,7 +386,7 @@ ROD = Recipe(
 
 def _measure_xy(
     fit: FitFunction, t_lags: NDArray[np.int64], r_lags: NDArray[np.int64] | None,
-    options: MeasureOptions,
+    options: MeasureSettings,
 ) -> dict[str, Measurement]:
     fx = fit("xy", "xy", linear_msd_model(4, "xy"), t_lags)
     return {"D_t": _d(fx, "um^2/s"), "eps": _eps_nm(fx)}
@@ -394,7 +394,7 @@ def _measure_xy(
 
 def _measure_janus(
     fit: FitFunction, t_lags: NDArray[np.int64], r_lags: NDArray[np.int64] | None,
-    options: MeasureOptions,
+    options: MeasureSettings,
 ) -> dict[str, Measurement]:
     meas = _measure_xy(fit, t_lags, r_lags, options)
     amplitude = options.projection_amplitude

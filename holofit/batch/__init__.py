@@ -3,7 +3,7 @@
 writing results as they come.
 
 - :mod:`holofit.batch.runner`: :func:`run_batch`; :mod:`holofit.batch.loop`, its run loop;
-- :mod:`holofit.batch.options`: how a batch runs (:class:`BatchOptions`) and what it did
+- :mod:`holofit.batch.options`: how a batch runs (:class:`BatchSettings`) and what it did
   (:class:`BatchSummary`);
 - :mod:`holofit.batch.layout`: a stage table's files (:class:`StageTable`), publishing a
   derived table (:func:`publish_table`), its fingerprint (:func:`published_fingerprint`),
@@ -30,7 +30,7 @@ from holofit.batch.layout import (
 from holofit.batch.loop import run_frame
 from holofit.batch.options import (
     FAILED_STATUSES,
-    BatchOptions,
+    BatchSettings,
     BatchSummary,
     Precomputed,
     make_backend,
@@ -41,7 +41,7 @@ from holofit.batch.worker import release_worker_resources, worker_resource
 __all__ = [
     "FAILED_STATUSES",
     "BatchError",
-    "BatchOptions",
+    "BatchSettings",
     "BatchSummary",
     "DaskBackend",
     "Precomputed",

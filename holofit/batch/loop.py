@@ -26,7 +26,7 @@ from holofit.batch.journal import Journal
 from holofit.batch.keys import FRAME_KEY, Key, item_rows, key_of_row, key_row, sorted_keys
 from holofit.batch.layout import OutputFiles
 from holofit.batch.mainguard import GUARD_ADVICE
-from holofit.batch.options import BatchOptions, BatchSummary, Precomputed
+from holofit.batch.options import BatchSettings, BatchSummary, Precomputed
 from holofit.status import ERROR, FAILED_STATUSES, SKIPPED
 
 __all__ = ["WAIT_S", "BatchRun", "run_frame"]
@@ -98,7 +98,7 @@ class BatchRun:
         ``n_run`` is counted up.
     info : dict
         The sidecar's ``batch`` entry.
-    options : BatchOptions
+    options : BatchSettings
         In-flight bound and flush interval.
     n_failed : int
         Failed frames among those done before (shown beside the progress bar).
@@ -114,7 +114,7 @@ class BatchRun:
         progress: Any,
         summary: BatchSummary,
         info: dict[str, Any],
-        options: BatchOptions,
+        options: BatchSettings,
         n_failed: int,
     ) -> None:
         self.func = func

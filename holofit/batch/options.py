@@ -1,4 +1,4 @@
-"""How a batch runs and what it did: its settings (:class:`BatchOptions`: workers, Dask,
+"""How a batch runs and what it did: its settings (:class:`BatchSettings`: workers, Dask,
 resumption), the backend they choose (:func:`make_backend`), a row known without running
 (:class:`Precomputed`) and the summary of a run (:class:`BatchSummary`)."""
 
@@ -21,7 +21,7 @@ from holofit.status import FAILED_STATUSES
 
 __all__ = [
     "FAILED_STATUSES",
-    "BatchOptions",
+    "BatchSettings",
     "BatchSummary",
     "Precomputed",
     "available_cpus",
@@ -38,7 +38,7 @@ class Precomputed:
 
 
 @dataclass(frozen=True)
-class BatchOptions:
+class BatchSettings:
     """How a batch runs.
 
     Attributes
@@ -109,7 +109,7 @@ def available_cpus() -> int:
         return max(os.cpu_count() or 1, 1)
 
 
-def make_backend(options: BatchOptions) -> Backend:
+def make_backend(options: BatchSettings) -> Backend:
     """The backend chosen by ``options``."""
     workers = options.workers if options.workers is not None else available_cpus()
     if options.scheduler:
@@ -122,7 +122,7 @@ def make_backend(options: BatchOptions) -> Backend:
 
 
 @contextlib.contextmanager
-def backend_for(options: BatchOptions, given: Backend | None) -> Iterator[Backend]:
+def backend_for(options: BatchSettings, given: Backend | None) -> Iterator[Backend]:
     """The backend given (left open), or one made from ``options`` (closed afterwards)."""
     if given is not None:
         yield given
@@ -132,3 +132,7 @@ def backend_for(options: BatchOptions, given: Backend | None) -> Iterator[Backen
         yield backend
     finally:
         backend.close()
+
+
+#: the former name, kept for existing code (deprecated)
+BatchOptions = BatchSettings

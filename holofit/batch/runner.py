@@ -64,7 +64,7 @@ from holofit.batch.layout import (
 from holofit.batch.loop import BatchRun
 from holofit.batch.mainguard import refuse_while_worker_starts
 from holofit.batch.options import (
-    BatchOptions,
+    BatchSettings,
     BatchSummary,
     backend_for,
 )
@@ -96,7 +96,7 @@ class _Batch:
     load: Callable[[Any], Any]
     table: StageTable
     files: OutputFiles
-    options: BatchOptions
+    options: BatchSettings
     backend: Backend | None
     sizes: Mapping[Any, int] | None = None
 
@@ -157,7 +157,7 @@ def run_batch(
     load: Callable[[Any], Any],
     table: StageTable,
     *,
-    options: BatchOptions | None = None,
+    options: BatchSettings | None = None,
     backend: Backend | None = None,
     before_publish: Callable[[Path], Any] | None = None,
     sizes: Mapping[Any, int] | None = None,
@@ -184,7 +184,7 @@ def run_batch(
         ``<name>.partial.csv``. Its folder is locked for the run
         (:func:`holofit.io.lock.output_lock`, stage ``table.desc``). Earlier results are
         reused only if their fingerprint matches.
-    options : BatchOptions, optional
+    options : BatchSettings, optional
         Backend and resumption settings.
     backend : Backend, optional
         Use this backend (left open) instead of making one from ``options``.
@@ -215,6 +215,6 @@ def run_batch(
     table = replace(table, key_columns=check_key_columns(table.key_columns))
     items = _checked_frames(items, table.columns, table.key_columns)
     return _Batch(func, config, items, load, table, OutputFiles(table, before_publish),
-                  options or BatchOptions(), backend,
+                  options or BatchSettings(), backend,
                   None if sizes is None else {normal_key(k, table.key_columns): n
                                               for k, n in sizes.items()}).run()

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice, fit_instrument
 from holofit.batch.layout import StageTable
-from holofit.batch.options import BatchOptions, BatchSummary, Precomputed
+from holofit.batch.options import BatchSettings, BatchSummary, Precomputed
 from holofit.batch.runner import run_batch
 from holofit.config import Instrument
 from holofit.status import FITTABLE_CROP_STATUSES, SKIPPED
@@ -239,7 +239,7 @@ def run_stage(
     load: Callable[[Any], Any],
     table: StageTable,
     *,
-    batch: BatchOptions | None = None,
+    batch: BatchSettings | None = None,
     complete: Callable[[Path], Any] | None = None,
     sizes: Mapping[Any, int] | None = None,
 ) -> tuple[BatchSummary, Any]:
@@ -252,7 +252,7 @@ def run_stage(
         for :func:`~holofit.batch.runner.run_batch`.
     table : StageTable
         The table written.
-    batch : BatchOptions, optional
+    batch : BatchSettings, optional
         Backend and resumption.
     sizes : mapping, optional
         Item -> the rows it writes (a chunk's frames), for the progress bar.

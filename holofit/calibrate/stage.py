@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.batch.stage import crop_skip
 from holofit.calibrate.config import (
     CalibrateConfig,
@@ -259,7 +259,7 @@ def calibrated_instrument(start: Instrument, fit: InstrumentFit) -> Instrument:
 
 def run_calibrate(crop_dir: str | Path, prefit_dir: str | Path, out_dir: str | Path,
                   config: CalibrateConfig | None = None, *,
-                  batch: BatchOptions | None = None) -> CalibrationRun:
+                  batch: BatchSettings | None = None) -> CalibrationRun:
     """Calibrate the instrument on a sphere movie's crops; write ``OUT/instrument.toml``,
     ``OUT/calibration.csv`` (+ sidecar) and ``OUT/calibration.png`` (module docstring).
 
@@ -273,7 +273,7 @@ def run_calibrate(crop_dir: str | Path, prefit_dir: str | Path, out_dir: str | P
         Where the outputs go (created; locked while written).
     config : CalibrateConfig, optional
         What is fitted on which frames (default: NA and two coefficients, up to 20 frames).
-    batch : BatchOptions, optional
+    batch : BatchSettings, optional
         Only its ``progress`` is used: the frames are fitted jointly, in this process.
 
     Returns

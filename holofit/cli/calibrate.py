@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from holofit.aberration import MAX_SPHERICAL_TERMS
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.calibrate.config import (
     DEFAULT_MAX_FRAMES,
     DEFAULT_MAX_PIXELS,
@@ -93,7 +93,7 @@ def calibrate(crop_dir: Path, prefit_dir: Path, out: Path, instrument: str | Non
             radius_sd_um=radius_sd_um, fix_alpha=fix_alpha, max_pixels=max_pixels, plot=plot)
     except CalibrateError as exc:
         raise click.UsageError(str(exc)) from None
-    run = run_calibrate(crop_dir, prefit_dir, out, config, batch=BatchOptions(progress=progress))
+    run = run_calibrate(crop_dir, prefit_dir, out, config, batch=BatchSettings(progress=progress))
     for note in run.notes:
         click.echo(f"note: {note}", err=True)
     fit = run.fit

@@ -6,12 +6,12 @@ from pathlib import Path
 
 import click
 
-from holofit.batch.options import BatchOptions
+from holofit.batch.options import BatchSettings
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
 from holofit.crop import CenterFinder, CropConfig, CropResult, run_crop
 from holofit.crop.centerfind import MIN_RADIUS_PX
 from holofit.crop.settings import CROP_MODES, DEFAULT_CROP_SIZE, MIN_CROP_SIZE, TRACKS
-from holofit.crop.tracks import LinkOptions, TrackError
+from holofit.crop.tracks import LinkSettings, TrackError
 from holofit.status import CROP_ERROR
 
 
@@ -81,13 +81,13 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 @click.option("--particle", type=click.IntRange(min=0), default=None,
               help="With tracks: keep only this track (its id in a run without --particle).")
 @click.option("--search-range-um", type=click.FloatRange(min=0, min_open=True),
-              default=LinkOptions.search_range_um, show_default=True,
+              default=LinkSettings.search_range_um, show_default=True,
               help="With tracks: farthest a hologram centre moves between frames, um.")
-@click.option("--memory", type=click.IntRange(min=0), default=LinkOptions.memory,
+@click.option("--memory", type=click.IntRange(min=0), default=LinkSettings.memory,
               show_default=True,
               help="With tracks: frames a hologram may go undetected and keep its track.")
 @click.option("--min-track-length", type=click.IntRange(min=1),
-              default=LinkOptions.min_track_length, show_default=True,
+              default=LinkSettings.min_track_length, show_default=True,
               help="With tracks: shorter tracks (frames detected; at most half the movie) are "
               "reported and left out.")
 @click.option(
@@ -200,7 +200,7 @@ def crop(
             min_symmetry=min_symmetry,
             max_centers=_max_centers(follow, max_particles),
         )
-        link = (LinkOptions(search_range_um, memory, min_track_length, max_particles)
+        link = (LinkSettings(search_range_um, memory, min_track_length, max_particles)
                 if follow == TRACKS else None)
     except (ValueError, TrackError) as exc:
         raise click.UsageError(str(exc)) from None
@@ -210,7 +210,7 @@ def crop(
                         finder=finder, link=link, particle=particle, normalized=normalized,
                         dark=list(darks) or dark_count, mask_saturated=mask_saturated, plot=plot)
     result = run_crop(movie, list(backgrounds) or None, inst, out, config,
-                      batch=BatchOptions(workers=workers, progress=progress))
+                      batch=BatchSettings(workers=workers, progress=progress))
     _report(result)
 
 

@@ -9,7 +9,7 @@ from typing import Any, TypeVar
 
 import click
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice, parse_numerical_aperture
 
 __all__ = [
@@ -115,10 +115,10 @@ def batch_options(func: F) -> F:
 
 def make_batch_options(workers: int | None, scheduler: str | None, dask_local: bool,
                        retry_failed: bool, overwrite: bool, progress: bool | None
-                       ) -> BatchOptions:
-    """:class:`BatchOptions` from the options, bad combinations as a usage error."""
+                       ) -> BatchSettings:
+    """:class:`BatchSettings` from the options, bad combinations as a usage error."""
     try:
-        return BatchOptions(workers=workers, scheduler=scheduler, dask_local=dask_local,
+        return BatchSettings(workers=workers, scheduler=scheduler, dask_local=dask_local,
                             retry_failed=retry_failed, overwrite=overwrite, progress=progress)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--scheduler / --dask-local") from None

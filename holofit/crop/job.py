@@ -26,7 +26,7 @@ import pandas as pd
 
 from holofit.batch.errors import BatchError
 from holofit.batch.layout import StageTable, discard_outputs, publish_table
-from holofit.batch.options import BatchOptions
+from holofit.batch.options import BatchSettings
 from holofit.batch.stage import fingerprint, run_stage
 from holofit.config import Instrument
 from holofit.crop.detect import (
@@ -44,7 +44,7 @@ from holofit.crop.inputs import movie_info
 from holofit.crop.normalize import Normalizer
 from holofit.crop.settings import TRACKS, CropConfig
 from holofit.crop.track_crops import crop_tracks, link_detections, one_per_frame
-from holofit.crop.tracks import LinkOptions
+from holofit.crop.tracks import LinkSettings
 from holofit.io.lock import output_lock
 from holofit.io.movie import Movie
 from holofit.io.tables import read_table, sidecar_path, write_json
@@ -101,7 +101,7 @@ class CropResult:
 
 
 def search_frames(path: Path, config: DetectConfig, n_frames: int, movie_path: str | Path,
-                  batch: BatchOptions | None) -> dict[int, dict[str, Any]]:
+                  batch: BatchSettings | None) -> dict[int, dict[str, Any]]:
     """Every frame's row of ``detections.csv`` (``path``): the frames not searched yet by an
     earlier run with the same movie and settings are searched (another run's results are
     discarded), through the stage skeleton.
@@ -112,7 +112,7 @@ def search_frames(path: Path, config: DetectConfig, n_frames: int, movie_path: s
         The search failed as a whole (every frame in error, the backend would not start); the
         detections are removed.
     """
-    opts = batch or BatchOptions(workers=0, progress=False)
+    opts = batch or BatchSettings(workers=0, progress=False)
     meta = {"kind": "crop detections (candidate centres of every frame searched; "
                     "removed when the crop folder is complete)",
             "candidates": f"JSON list of [{', '.join(FOUND_COLUMNS)}] per candidate"}
@@ -197,9 +197,9 @@ class CropJob:
     given: CropInputs
     config: CropConfig
     follower: Follower
-    link: LinkOptions
+    link: LinkSettings
     out: Path
-    batch: BatchOptions | None = None
+    batch: BatchSettings | None = None
     progress: Callable[[int], Any] | None = None
 
     def run(self) -> CropResult:

@@ -18,7 +18,7 @@ from holofit.crop.errors import CropError
 from holofit.crop.follow import FOLLOW_MODES, Follower
 from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND
 from holofit.crop.profile import FringeOptics
-from holofit.crop.tracks import LinkOptions
+from holofit.crop.tracks import LinkSettings
 
 __all__ = [
     "CROP_MODES",
@@ -69,8 +69,8 @@ class CropConfig:
         The largest move between frames (default ``size / 4``).
     finder : CenterFinder, optional
         Centre-finder settings (default: vote radius ``size / 2``).
-    link : LinkOptions, optional
-        ``"tracks"`` only: how holograms are linked (:class:`holofit.crop.tracks.LinkOptions`).
+    link : LinkSettings, optional
+        ``"tracks"`` only: how holograms are linked (:class:`holofit.crop.tracks.LinkSettings`).
     particle : int, optional
         ``"tracks"`` only: the one track to keep (its rows get ``particle`` 0).
     normalized : bool
@@ -92,7 +92,7 @@ class CropConfig:
     start: tuple[float, float] | None = None
     max_jump_px: float | None = None
     finder: CenterFinder | None = None
-    link: LinkOptions | None = None
+    link: LinkSettings | None = None
     particle: int | None = None
     normalized: bool = False
     dark: References | float | None = None
@@ -180,16 +180,16 @@ def follower(config: CropConfig) -> Follower:
                     config.max_jump_px if config.max_jump_px is not None else config.size / 4.0)
 
 
-def link_options(config: CropConfig) -> LinkOptions:
+def link_options(config: CropConfig) -> LinkSettings:
     """The linking options; refused with a single-particle ``follow``."""
     if config.follow != TRACKS and (config.link is not None or config.particle is not None):
         raise CropError("--particle and the linking options (--search-range-um, --memory, "
                         "--min-track-length, --max-particles) need --follow tracks")
-    return config.link or LinkOptions()
+    return config.link or LinkSettings()
 
 
 def settings_record(config: CropConfig, chosen: Follower, finder: CenterFinder,
-                    norm_info: dict[str, Any], link: LinkOptions) -> dict[str, Any]:
+                    norm_info: dict[str, Any], link: LinkSettings) -> dict[str, Any]:
     """The crop's settings as its sidecar records them."""
     start = config.start
     settings = {"size_px": config.size, "follow": config.follow,

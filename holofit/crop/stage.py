@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from holofit.batch.mainguard import refuse_while_worker_starts
-from holofit.batch.options import BatchOptions
+from holofit.batch.options import BatchSettings
 from holofit.config import Instrument
 from holofit.crop.inputs import (
     check_for_movie,
@@ -71,7 +71,7 @@ def run_crop(
     out_dir: str | Path,
     config: CropConfig | None = None,
     *,
-    batch: BatchOptions | None = None,
+    batch: BatchSettings | None = None,
     progress: Callable[[int], Any] | None = None,
 ) -> CropResult:
     """Normalise a raw movie, find the hologram centre of every frame and crop around it.
@@ -95,7 +95,7 @@ def run_crop(
         How to normalise, search and crop (:class:`~holofit.crop.settings.CropConfig`: crop
         side, which holograms to follow, the centre finder, the dark level, ...; default:
         its defaults).
-    batch : BatchOptions, optional
+    batch : BatchSettings, optional
         Where frames are searched (:mod:`holofit.crop.detect`; default: in this process).
     progress : callable, optional
         Called with 1 after each frame is cropped.

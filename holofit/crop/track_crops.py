@@ -45,7 +45,7 @@ from holofit.crop.detect import DETECTED, found_from_json, read_normalised
 from holofit.crop.errors import CropError
 from holofit.crop.losses import describe_losses, track_losses
 from holofit.crop.normalize import Normalizer
-from holofit.crop.tracks import LinkOptions, TrackError, link_tracks, mark_neighbours
+from holofit.crop.tracks import LinkSettings, TrackError, link_tracks, mark_neighbours
 from holofit.io.movie import Movie
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.status import CROP_ERROR, CROP_NO_PARTICLE
@@ -60,13 +60,13 @@ def one_per_frame(detections: dict[int, dict[str, Any]]) -> bool:
                if d["status"] == DETECTED)
 
 
-def effective_link_options(options: LinkOptions, n_frames: int) -> LinkOptions:
+def effective_link_options(options: LinkSettings, n_frames: int) -> LinkSettings:
     """``options`` with ``min_track_length`` at most half the movie (rounded up): a movie of
     five frames keeps a particle seen in three of them."""
     cap = max(1, math.ceil(n_frames / 2))
     if options.min_track_length <= cap:
         return options
-    return LinkOptions(options.search_range_um, options.memory, cap, options.max_particles)
+    return LinkSettings(options.search_range_um, options.memory, cap, options.max_particles)
 
 
 @dataclass
@@ -117,7 +117,7 @@ def _candidates_table(detections: dict[int, dict[str, Any]]) -> pd.DataFrame:
 
 
 def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_size_um: float,
-                    options: LinkOptions, size: int, particle: int | None = None,
+                    options: LinkSettings, size: int, particle: int | None = None,
                     frame_shape: tuple[int, int] | None = None) -> TrackPlan:
     """Link every frame's candidates into tracks; the rows to crop.
 
@@ -129,7 +129,7 @@ def link_detections(detections: dict[int, dict[str, Any]], n_frames: int, pixel_
         Frames in the movie.
     pixel_size_um : float
         Camera pixel in the sample plane, um.
-    options : LinkOptions
+    options : LinkSettings
         Linking settings (``min_track_length`` capped: :func:`effective_link_options`).
     size : int
         Crop side, pixels (a hologram whose reach comes into a track's ``size`` square

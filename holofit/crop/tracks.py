@@ -28,7 +28,7 @@ import pandas as pd
 
 __all__ = [
     "TRACK_SUMMARY_UNITS",
-    "LinkOptions",
+    "LinkSettings",
     "LinkedTracks",
     "TrackError",
     "hidden_positions",
@@ -61,7 +61,7 @@ class TrackError(ValueError):
 
 
 @dataclass(frozen=True)
-class LinkOptions:
+class LinkSettings:
     """How holograms are linked into tracks.
 
     Attributes
@@ -176,7 +176,7 @@ def _summarise(linked: pd.DataFrame) -> pd.DataFrame:
 
 
 def link_tracks(
-    candidates: pd.DataFrame, pixel_size_um: float, options: LinkOptions | None = None
+    candidates: pd.DataFrame, pixel_size_um: float, options: LinkSettings | None = None
 ) -> LinkedTracks:
     """Link the hologram centres of every frame into tracks.
 
@@ -187,7 +187,7 @@ def link_tracks(
         optionally, ``score`` and any others (carried along).
     pixel_size_um : float
         Size of a camera pixel in the sample plane, um.
-    options : LinkOptions, optional
+    options : LinkSettings, optional
         Linking settings.
 
     Returns
@@ -201,7 +201,7 @@ def link_tracks(
     """
     import trackpy
 
-    options = options or LinkOptions()
+    options = options or LinkSettings()
     if not (math.isfinite(pixel_size_um) and pixel_size_um > 0):
         raise TrackError(f"pixel_size_um must be a positive number, got {pixel_size_um!r}")
     table = _check_candidates(candidates)
@@ -361,3 +361,7 @@ def hidden_positions(linked: pd.DataFrame) -> pd.DataFrame:
         return pd.DataFrame({"particle": pd.Series(dtype=int), "frame": pd.Series(dtype=int),
                              "x_px": pd.Series(dtype=float), "y_px": pd.Series(dtype=float)})
     return pd.concat(parts, ignore_index=True)
+
+
+#: the former name, kept for existing code (deprecated)
+LinkOptions = LinkSettings

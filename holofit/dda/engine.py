@@ -1,4 +1,4 @@
-"""The built-in DDA engine: a :class:`~holofit.scattering.theory.ScatteringTheory`.
+"""The built-in DDA engine: a :class:`~holofit.scattering.theory.ScatteringEngine`.
 
 Solving a particle (``BuiltinDDA.solve``):
 
@@ -40,7 +40,7 @@ from holofit.scattering.multipole import (
     project_far_field,
     quadrature,
 )
-from holofit.scattering.theory import Orientation, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteringEngine
 from holofit.scattering.tmatrix import TMatrix
 from holofit.scattering.tmatrix_wave import TMatrixWave
 from holofit.scattering.wigner import rotate_coefficients
@@ -216,7 +216,7 @@ class DDAWave(ExpansionWave):
         return e_p @ self.rotation.T
 
 
-class BuiltinDDA(ScatteringTheory):
+class BuiltinDDA(ScatteringEngine):
     """holofit's own discrete-dipole engine.
 
     Parameters

@@ -24,7 +24,7 @@ import pandas as pd
 
 from holofit.analysis import AnalysisConfig, run_analysis
 from holofit.analysis.hydrodynamics import spherocylinder_diffusion
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.config import (
     Instrument,
     ParticleConfig,
@@ -100,7 +100,7 @@ def run_rod_demo(out: str | Path, echo: Callable[[str], None] = print, workers: 
     demo = _Demo(Path(out), echo, n_frames)
     inst = load_instrument(resolve_config("paper_60x_water", "instruments"))
     config = load_particle(resolve_config("rod_paper", "particles"))
-    batch = BatchOptions(workers=workers, progress=False)
+    batch = BatchSettings(workers=workers, progress=False)
     echo(f"holofit demo: the paper's silica rod (a {ROD.a_um * 1e3:.0f} nm, b "
          f"{ROD.b_um * 1e3:.0f} nm, n {ROD.index:g}) diffusing (D_par {ROD_D_PAR}, D_perp "
          f"{ROD_D_PERP} um^2/s, D_r {ROD_D_R} 1/s) and sinking {SEDIMENTATION_UM_S} um/s in "
@@ -147,7 +147,7 @@ def _simulate_and_crop(demo: _Demo, inst: Instrument, truth_config: ParticleConf
     demo.timed("crop", t0)
 
 
-def _prefit_and_library(demo: _Demo, config: ParticleConfig, batch: BatchOptions) -> None:
+def _prefit_and_library(demo: _Demo, config: ParticleConfig, batch: BatchSettings) -> None:
     """Steps 3 and 4: the Lorenz-Mie prefit and the orientation library."""
     out, truth = demo.out, demo.truth
     t0 = time.perf_counter()
@@ -173,7 +173,7 @@ def _prefit_and_library(demo: _Demo, config: ParticleConfig, batch: BatchOptions
     demo.timed("library", t0)
 
 
-def _fit(demo: _Demo, config: ParticleConfig, batch: BatchOptions, initial_frames: int
+def _fit(demo: _Demo, config: ParticleConfig, batch: BatchSettings, initial_frames: int
          ) -> tuple[dict, pd.Series, dict[str, float], np.ndarray]:
     """Step 5: both DDA passes; the static parameters, the ok mask and the final-pass errors."""
     out = demo.out

@@ -18,7 +18,7 @@ import pandas as pd
 
 from holofit.analysis import AnalysisConfig, format_report, run_analysis
 from holofit.analysis.hydrodynamics import sphere_diffusion
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.config import load_instrument, resolve_config
 from holofit.crop import CropConfig, run_crop
 from holofit.particles import Sphere
@@ -78,7 +78,7 @@ def run_sphere_demo(out: Path, echo: Callable[[str], None] = print, workers: int
 
     t0 = time.perf_counter()
     pre = run_prefit(out / "crop", out / "prefit",
-                     batch=BatchOptions(workers=workers, progress=False))
+                     batch=BatchSettings(workers=workers, progress=False))
     fit = pd.read_csv(pre.table)
     ok = (fit["status"] == OK).to_numpy()
     rms = {

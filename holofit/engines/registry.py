@@ -4,7 +4,7 @@ This is the one list of engine names: the exact engines are listed here; the dis
 engines are those a particle's ``[dda]`` table may name (:data:`holofit.dda.settings.DDA_ENGINES`,
 where their settings are validated); :data:`holofit.engines.select.ENGINE_CHOICES` is ``auto``
 plus :data:`ENGINE_NAMES`. Each engine's class says what it handles
-(:meth:`~holofit.scattering.theory.ScatteringTheory.can_handle`). Engines are imported when
+(:meth:`~holofit.scattering.theory.ScatteringEngine.can_handle`). Engines are imported when
 first asked for, so that choosing Lorenz-Mie never compiles the DDA kernels.
 """
 
@@ -14,37 +14,37 @@ from collections.abc import Callable
 from typing import Any
 
 from holofit.dda.settings import DDA_ENGINES
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 
-__all__ = ["ENGINES", "ENGINE_NAMES", "EXACT_ENGINES", "engine_class", "get_theory"]
+__all__ = ["ENGINES", "ENGINE_NAMES", "EXACT_ENGINES", "engine_class", "get_engine"]
 
 
-def _mie() -> type[ScatteringTheory]:
+def _mie() -> type[ScatteringEngine]:
     from holofit.scattering.mie import LorenzMie
 
     return LorenzMie
 
 
-def _cluster() -> type[ScatteringTheory]:
-    from holofit.scattering.cluster import ClusterTheory
+def _cluster() -> type[ScatteringEngine]:
+    from holofit.scattering.cluster import ClusterEngine
 
-    return ClusterTheory
+    return ClusterEngine
 
 
-def _coated_sphere() -> type[ScatteringTheory]:
+def _coated_sphere() -> type[ScatteringEngine]:
     from holofit.scattering.coated_mie import CoatedMie
 
     return CoatedMie
 
 
-def _exact() -> type[ScatteringTheory]:
+def _exact() -> type[ScatteringEngine]:
     from holofit.scattering.axisym.engine import AxisymmetricTMatrix
 
     return AxisymmetricTMatrix
 
 
-def _dda(name: str) -> Callable[[], type[ScatteringTheory]]:
-    def load() -> type[ScatteringTheory]:
+def _dda(name: str) -> Callable[[], type[ScatteringEngine]]:
+    def load() -> type[ScatteringEngine]:
         from holofit.dda.adda.engine import AddaEngine
         from holofit.dda.engine import BuiltinDDA
 
@@ -56,7 +56,7 @@ def _dda(name: str) -> Callable[[], type[ScatteringTheory]]:
 #: the exact engines, in ``auto``'s order of preference (the first that can handle a model):
 #: a sphere's and a coated sphere's series before the T-matrix of a body of revolution, which
 #: also handles them (through the same series, or the imbedding)
-_EXACT: dict[str, Callable[[], type[ScatteringTheory]]] = {
+_EXACT: dict[str, Callable[[], type[ScatteringEngine]]] = {
     "mie": _mie,
     "cluster": _cluster,
     "coated_sphere": _coated_sphere,
@@ -64,14 +64,14 @@ _EXACT: dict[str, Callable[[], type[ScatteringTheory]]] = {
 }
 #: engine name -> loader of its class (Lorenz-Mie, the discrete-dipole engines, the other
 #: exact ones: the order ``--engine`` lists them in)
-_CLASSES: dict[str, Callable[[], type[ScatteringTheory]]] = {
+_CLASSES: dict[str, Callable[[], type[ScatteringEngine]]] = {
     "mie": _mie, **{name: _dda(name) for name in DDA_ENGINES},
     **{name: load for name, load in _EXACT.items() if name != "mie"}}
 EXACT_ENGINES: tuple[str, ...] = tuple(_EXACT)
 ENGINE_NAMES: tuple[str, ...] = tuple(_CLASSES)
 
 
-def engine_class(name: str) -> type[ScatteringTheory]:
+def engine_class(name: str) -> type[ScatteringEngine]:
     """The class of the engine called ``name`` (imported on first use).
 
     Raises
@@ -88,16 +88,16 @@ def engine_class(name: str) -> type[ScatteringTheory]:
     return load()
 
 
-def _factory(name: str) -> Callable[..., ScatteringTheory]:
+def _factory(name: str) -> Callable[..., ScatteringEngine]:
     return lambda **options: engine_class(name)(**options)
 
 
 #: engine name -> factory taking the engine's keyword options
-ENGINES: dict[str, Callable[..., ScatteringTheory]] = {name: _factory(name)
+ENGINES: dict[str, Callable[..., ScatteringEngine]] = {name: _factory(name)
                                                        for name in ENGINE_NAMES}
 
 
-def get_theory(name: str, **options: Any) -> ScatteringTheory:
+def get_engine(name: str, **options: Any) -> ScatteringEngine:
     """The scattering engine called ``name`` (one of :data:`ENGINE_NAMES`: ``mie``,
     ``builtin``, ``adda``, ``cluster``, ``coated_sphere``, ``exact``).
 
@@ -114,3 +114,7 @@ def get_theory(name: str, **options: Any) -> ScatteringTheory:
         For an unknown name (the message lists the known ones).
     """
     return engine_class(name)(**options)
+
+
+#: the former name, kept for existing code (deprecated)
+get_theory = get_engine

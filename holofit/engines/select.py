@@ -23,11 +23,11 @@ theory`). ``docs/engines/index.md`` ("What auto picks") lists the choice by part
 from __future__ import annotations
 
 from holofit.dda.settings import DDASettings
-from holofit.engines.registry import ENGINE_NAMES, EXACT_ENGINES, engine_class, get_theory
+from holofit.engines.registry import ENGINE_NAMES, EXACT_ENGINES, engine_class, get_engine
 from holofit.particles import ParticleModel
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 
-__all__ = ["ENGINE_CHOICES", "exact_engine", "select_theory"]
+__all__ = ["ENGINE_CHOICES", "exact_engine", "select_engine"]
 
 #: what ``--engine`` and a config's ``engine`` accept
 ENGINE_CHOICES: tuple[str, ...] = ("auto", *ENGINE_NAMES)
@@ -41,9 +41,9 @@ def exact_engine(model: ParticleModel) -> str | None:
     return None
 
 
-def select_theory(
+def select_engine(
     model: ParticleModel, settings: DDASettings | None = None, engine: str | None = None
-) -> ScatteringTheory:
+) -> ScatteringEngine:
     """The engine for ``model``.
 
     Parameters
@@ -74,5 +74,9 @@ def select_theory(
     if not cls.can_handle(model):
         raise ValueError(f"the {engine} engine handles {cls.handles} only, not {model.kind!r}")
     if engine in EXACT_ENGINES:
-        return get_theory(engine)
-    return get_theory(engine, settings=settings or DDASettings())
+        return get_engine(engine)
+    return get_engine(engine, settings=settings or DDASettings())
+
+
+#: the former name, kept for existing code (deprecated)
+select_theory = select_engine

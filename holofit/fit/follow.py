@@ -67,7 +67,7 @@ from holofit.holomodel.result import FitResult, result_row
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
 from holofit.quality import flag_above_bar, join_message, under_bar
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 from holofit.status import ERROR, OK
 
 __all__ = ["FOLLOW_COLUMNS", "RECHECK_DEPTH", "follow_chunk"]
@@ -143,7 +143,7 @@ def follow_chunk(
     return pd.DataFrame(rows)
 
 
-def chunk_fitter(theory: ScatteringTheory, model: ParticleModel, optics: Optics,
+def chunk_fitter(theory: ScatteringEngine, model: ParticleModel, optics: Optics,
                  pixel_size_um: float, free: Sequence[str],
                  options: FollowSettings | None = None) -> ChunkFitter:
     """The :class:`~holofit.fit.follower.ChunkFitter` of a chunk (default settings)."""

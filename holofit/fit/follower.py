@@ -22,7 +22,7 @@ from holofit.holomodel.result import FitResult
 from holofit.library.search import Candidate
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 
 __all__ = [
     "ChunkFitter",
@@ -162,7 +162,7 @@ class ChunkFitter:
         (:func:`holofit.fit.rescue.library_fit`).
     """
 
-    theory: ScatteringTheory
+    theory: ScatteringEngine
     model: ParticleModel
     optics: Optics
     pixel_size_um: float

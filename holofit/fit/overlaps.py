@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from holofit.batch.options import BatchOptions, BatchSummary
+from holofit.batch.options import BatchSettings, BatchSummary
 from holofit.batch.stage import StageTable, fingerprint, run_stage
 from holofit.fit.problem import FrameProblem, state_of
 from holofit.fit.task import PassConfig, item_theory, pass_columns
@@ -39,7 +39,7 @@ from holofit.io.tables import read_table
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
 from holofit.provenance import sidecar
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 from holofit.status import ERROR, OK, OVERLAP, SKIPPED
 from holofit.tables.cropset import PARTICLE_KEY, CropSet
 
@@ -47,7 +47,7 @@ __all__ = ["Neighbours", "OverlapPayload", "mark_overlap", "neighbour_field", "o
            "refit_overlap_task", "refit_overlaps"]
 
 
-def neighbour_field(theory: ScatteringTheory, model: ParticleModel, optics: Optics,
+def neighbour_field(theory: ScatteringEngine, model: ParticleModel, optics: Optics,
                     values: dict[str, float], crop_shape: tuple[int, int],
                     corner_rc: tuple[int, int], pixel_size_um: float, far_field: bool = False
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -165,7 +165,7 @@ def overlap_rows(crops: CropSet) -> pd.DataFrame:
 
 
 def refit_overlaps(table: pd.DataFrame, crops: CropSet, config: PassConfig, output: Path,
-                   batch: BatchOptions | None = None, neighbours: Neighbours | None = None
+                   batch: BatchSettings | None = None, neighbours: Neighbours | None = None
                    ) -> tuple[pd.DataFrame, int, int, BatchSummary | None]:
     """Refit a pass's overlapping rows with their neighbour's field.
 
@@ -179,7 +179,7 @@ def refit_overlaps(table: pd.DataFrame, crops: CropSet, config: PassConfig, outp
         The pass (the final pass's: each track's settled statics).
     output : Path
         The batch's table.
-    batch : BatchOptions, optional
+    batch : BatchSettings, optional
         Backend and resumption.
     neighbours : Neighbours, optional
         Where the neighbours' fields come from, if not from ``table`` itself (another model's

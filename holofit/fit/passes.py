@@ -20,7 +20,7 @@ from typing import Any, cast
 
 import pandas as pd
 
-from holofit.batch.options import BatchOptions, Precomputed, available_cpus
+from holofit.batch.options import BatchSettings, Precomputed, available_cpus
 from holofit.batch.stage import FrameLoader, StageInputs, StageTable, fingerprint, run_stage
 from holofit.config import ParticleConfig
 from holofit.fit.chunk_task import (
@@ -102,7 +102,7 @@ class FitPasses:
         The output folder.
     run : FitRun
         What the stage wrote, filled in.
-    batch : BatchOptions, optional
+    batch : BatchSettings, optional
         Backend and resumption.
     """
 
@@ -113,7 +113,7 @@ class FitPasses:
     inputs: list[Path]
     out: Path
     run: FitRun
-    batch: BatchOptions | None = None
+    batch: BatchSettings | None = None
 
     @property
     def tracks(self) -> list[int]:

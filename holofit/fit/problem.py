@@ -20,7 +20,7 @@ from holofit.fit.settings import FrameFitSettings
 from holofit.holomodel.parameters import State, static_values
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 
 __all__ = ["FrameProblem", "state_of"]
 
@@ -37,7 +37,7 @@ class FrameProblem:
         Full-frame ``(row, column)`` of the crop's pixel ``[0, 0]``.
     pixel_size_um : float
         Pixel pitch in the sample plane, um.
-    theory : ScatteringTheory
+    theory : ScatteringEngine
         The engine (kept across frames by the caller: its caches and warm starts pay).
     model : ParticleModel
         The particle; its static parameters are the start values (and the fixed values of
@@ -60,7 +60,7 @@ class FrameProblem:
     crop: NDArray[Any]
     corner: tuple[int, int]
     pixel_size_um: float
-    theory: ScatteringTheory
+    theory: ScatteringEngine
     model: ParticleModel
     optics: Optics
     free: tuple[str, ...]

@@ -39,7 +39,7 @@ from holofit.fit.warm import fit_frame_warm
 from holofit.holomodel.parameters import static_parameters
 from holofit.holomodel.result import FitResult
 from holofit.library.search import Candidate
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 
 __all__ = ["SEED_BUILD", "SEED_RETRY_CHI2_RED", "SEED_TOLERANCE", "fit_frame_seeded",
            "seed_particle"]
@@ -69,7 +69,7 @@ def seed_particle(particle: ParticleConfig) -> ParticleConfig:
     return replace(particle, settings={**particle.settings, "dda": {**dda, "tolerance": tol}})
 
 
-def fit_frame_seeded(problem: FrameProblem, seed_theory: ScatteringTheory,
+def fit_frame_seeded(problem: FrameProblem, seed_theory: ScatteringEngine,
                      position_um: tuple[float, float, float], alpha: float,
                      candidates: Sequence[Candidate],
                      retry_chi2_red: float = SEED_RETRY_CHI2_RED) -> FitResult:
@@ -80,7 +80,7 @@ def fit_frame_seeded(problem: FrameProblem, seed_theory: ScatteringTheory,
     problem : FrameProblem
         The full fit (its engine solves directly: the statics move); ``problem.model``'s
         static parameters are the seed's held values and the full fit's start.
-    seed_theory : ScatteringTheory
+    seed_theory : ScatteringEngine
         The engine with the model's T-matrix in use (every orientation without a solve); the
         seed fits ``problem.free`` without the static parameters.
     position_um, alpha, candidates

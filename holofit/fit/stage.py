@@ -27,7 +27,7 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
-from holofit.batch import BatchOptions
+from holofit.batch import BatchSettings
 from holofit.batch.stage import FrameLoader, StageInputs, stage_inputs
 from holofit.config import ParticleConfig
 from holofit.fit.config import PASSES, FitConfig, FitRun
@@ -44,7 +44,7 @@ __all__ = ["PASSES", "FitConfig", "FitRun", "FitStageError", "run_fit"]
 
 def run_fit(crop_dir: str | Path, prefit: str | Path, library: str | Path | None,
             out_dir: str | Path, config: FitConfig, *,
-            batch: BatchOptions | None = None) -> FitRun:
+            batch: BatchSettings | None = None) -> FitRun:
     """The DDA fit of every track of a crop folder (see the module docstring).
 
     Parameters
@@ -60,7 +60,7 @@ def run_fit(crop_dir: str | Path, prefit: str | Path, library: str | Path | None
         and the frame pictures go.
     config : FitConfig
         What is fitted and how.
-    batch : BatchOptions, optional
+    batch : BatchSettings, optional
         Parallel backend and resumption.
 
     Raises
@@ -112,7 +112,7 @@ def _chosen_tracks(given: StageInputs, config: FitConfig) -> list[tuple[int, int
 
 
 def _open(given: Any, config: FitConfig, prefit: Path, library: Path | None, out: Path,
-          run: FitRun, batch: BatchOptions | None) -> FitPasses:
+          run: FitRun, batch: BatchSettings | None) -> FitPasses:
     """Read the prefit's and the library's tables (checked against the crops and the
     particle) into the shared frame loader."""
     crops = given.crops

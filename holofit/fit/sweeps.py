@@ -17,7 +17,7 @@ from typing import Any
 
 import pandas as pd
 
-from holofit.batch import BatchOptions, Precomputed, run_frame
+from holofit.batch import BatchSettings, Precomputed, run_frame
 from holofit.batch.stage import StageTable, fingerprint, run_stage
 from holofit.fit.continuity import (
     ContinuityReport,
@@ -49,7 +49,7 @@ class SweepRun:
 
     config: PassConfig
     load: Loader
-    batch: BatchOptions | None
+    batch: BatchSettings | None
     folder: Path
     meta: dict[str, Any]
     key: str

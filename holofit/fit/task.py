@@ -32,7 +32,7 @@ from holofit.holomodel.parameters import APERTURE, particle_with, static_paramet
 from holofit.holomodel.result import result_columns, result_row
 from holofit.library.search import Candidate
 from holofit.particles import ParticleModel
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 
 __all__ = [
     "FitPayload",
@@ -217,14 +217,14 @@ class FitPayload:
     candidates: tuple[Candidate, ...]
 
 
-def worker_theory(config: PassConfig) -> ScatteringTheory:
+def worker_theory(config: PassConfig) -> ScatteringEngine:
     """The engine this worker keeps for ``config``'s particle (and T-matrix), with its
     caches: made on first use, then reused by every frame (or chunk) of the pass."""
     inst = config.instrument
     key = json.dumps({"particle": config.particle.as_dict(), "engine": config.engine},
                      sort_keys=True, default=str)
 
-    def make_theory() -> ScatteringTheory:
+    def make_theory() -> ScatteringEngine:
         theory = config.particle.theory(config.engine, fixed_lattice_for=inst.optics)
         if config.tmatrix is not None:
             serve_tmatrix_file(theory, config.particle.model, inst.optics, config.tmatrix)
@@ -233,9 +233,9 @@ def worker_theory(config: PassConfig) -> ScatteringTheory:
     return worker_resource("fit engine", key + str(config.tmatrix), make_theory, size=4)
 
 
-def item_theory(config: PassConfig) -> ScatteringTheory:
+def item_theory(config: PassConfig) -> ScatteringEngine:
     """:func:`worker_theory` with its solver history forgotten
-    (:meth:`~holofit.scattering.theory.ScatteringTheory.forget_history`): what a batch item
+    (:meth:`~holofit.scattering.theory.ScatteringEngine.forget_history`): what a batch item
     starts from, so that its rows do not depend on the items its worker ran before."""
     theory = worker_theory(config)
     theory.forget_history()
@@ -243,7 +243,7 @@ def item_theory(config: PassConfig) -> ScatteringTheory:
 
 
 def frame_problem(config: PassConfig, payload: FitPayload, frame: int,
-                  theory: ScatteringTheory | None = None) -> FrameProblem:
+                  theory: ScatteringEngine | None = None) -> FrameProblem:
     """The fitting problem of one frame of a pass (``config`` as its track sees it)."""
     inst = config.instrument
     return FrameProblem(payload.crop, payload.corner, inst.pixel_size_um,

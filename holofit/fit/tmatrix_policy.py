@@ -23,7 +23,7 @@ from holofit.dda.tmatrix_io import TMatrixMismatch, load_tmatrix, save_tmatrix
 from holofit.fit.errors import FitStageError
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
-from holofit.scattering.theory import ScatteringTheory
+from holofit.scattering.theory import ScatteringEngine
 from holofit.scattering.tmatrix import TMatrix
 
 __all__ = ["TMATRIX_CHOICES", "TMATRIX_MIN_FRAMES", "FinalTMatrix", "check_policy",
@@ -126,7 +126,7 @@ def _own_tmatrix(theory: Any, model: Any, inst: Instrument, path: Path,
         "rotation)"])
 
 
-def serve_tmatrix_file(theory: ScatteringTheory, model: ParticleModel, optics: Optics,
+def serve_tmatrix_file(theory: ScatteringEngine, model: ParticleModel, optics: Optics,
                        path: str) -> None:
     """Give ``theory`` the T-matrix file ``path`` of ``model`` (the driver's: the final pass's
     or the initial pass's seeds): the DDA engine loads it (its lattice's, or
@@ -142,7 +142,7 @@ def serve_tmatrix_file(theory: ScatteringTheory, model: ParticleModel, optics: O
     tmatrix_builder(theory)(model, optics, path=path)
 
 
-def tmatrix_builder(theory: ScatteringTheory) -> Callable[..., TMatrix]:
+def tmatrix_builder(theory: ScatteringEngine) -> Callable[..., TMatrix]:
     """``theory``'s ``tmatrix(model, optics, **options)`` (the built-in DDA's and the exact
     engine's: :func:`no_tmatrix_reason` says whether it has one); an engine without one is a
     :class:`~holofit.fit.errors.FitStageError`."""
@@ -152,7 +152,7 @@ def tmatrix_builder(theory: ScatteringTheory) -> Callable[..., TMatrix]:
     return build
 
 
-def no_tmatrix_reason(theory: ScatteringTheory) -> str:
+def no_tmatrix_reason(theory: ScatteringEngine) -> str:
     """Why ``theory`` cannot serve a T-matrix ('' if it can)."""
     if getattr(theory, "own_tmatrix", False):
         return ""

@@ -1,7 +1,7 @@
 """The forward model of every fit: parameters -> hologram on a set of pixels, and its Jacobian.
 
 One object serves the Lorenz-Mie prefit and the DDA fits alike: it works for any
-:class:`~holofit.scattering.theory.ScatteringTheory` through ``theory.solve`` and the field the
+:class:`~holofit.scattering.theory.ScatteringEngine` through ``theory.solve`` and the field the
 camera records (:func:`holofit.scattering.recorded_field.recorded_field`: the objective lens's image
 when the optics have a numerical aperture), and keeps a small cache of solved waves keyed by
 what a solve depends on (the static parameters and the orientation), so that
@@ -53,7 +53,7 @@ from holofit.holomodel.parameters import ParameterSpace, State
 from holofit.optics import Optics
 from holofit.scattering.lens import lens_fields_on_pixels, lens_image
 from holofit.scattering.recorded_field import recorded_field
-from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringEngine
 
 __all__ = ["Evaluation", "HologramModel", "InvalidParameters"]
 
@@ -78,7 +78,7 @@ class HologramModel:
 
     Parameters
     ----------
-    theory : ScatteringTheory
+    theory : ScatteringEngine
         Any engine (Lorenz-Mie, the built-in DDA, ADDA).
     space : ParameterSpace
         Which parameters vary and how the optimiser's vector maps to a particle state.
@@ -97,7 +97,7 @@ class HologramModel:
 
     def __init__(
         self,
-        theory: ScatteringTheory,
+        theory: ScatteringEngine,
         space: ParameterSpace,
         optics: Optics,
         xs_um: ArrayLike,

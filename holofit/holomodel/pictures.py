@@ -26,7 +26,7 @@ from holofit.holomodel.parameters import APERTURE, particle_with, static_paramet
 from holofit.holomodel.plots import plot_frame_fit
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
-from holofit.scattering.theory import Orientation, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteringEngine
 from holofit.status import NOT_CONVERGED, OK, POOR_FIT
 
 __all__ = ["choose_frames", "model_image", "write_frame_pictures"]
@@ -51,7 +51,7 @@ def choose_frames(table: pd.DataFrame, requested: Iterable[int] | None = None) -
 
 
 def model_image(
-    row: Mapping[str, Any], model: ParticleModel, theory: ScatteringTheory, optics: Optics,
+    row: Mapping[str, Any], model: ParticleModel, theory: ScatteringEngine, optics: Optics,
     shape: tuple[int, int], corner_rc: tuple[int, int], pixel_size_um: float,
     far_field: bool = False,
 ) -> NDArray[np.float64]:
@@ -85,7 +85,7 @@ def model_image(
 
 
 def write_frame_pictures(
-    table: pd.DataFrame, crops: CropSource, model: ParticleModel, theory: ScatteringTheory,
+    table: pd.DataFrame, crops: CropSource, model: ParticleModel, theory: ScatteringEngine,
     optics: Optics, pixel_size_um: float, out_dir: str | Path, stage: str,
     frames: Iterable[int] | None = None, far_field: bool = False, prefix: str = "",
 ) -> list[Path]:

@@ -37,7 +37,7 @@ from holofit.library.polar import PolarGrid
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
 from holofit.scattering.recorded_field import recorded_field
-from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringEngine
 
 __all__ = ["Candidate", "OrientationLibrary", "Tilt", "pick_candidates", "tilt_grid"]
 
@@ -89,7 +89,7 @@ class OrientationLibrary:
 
     Parameters
     ----------
-    theory : ScatteringTheory
+    theory : ScatteringEngine
         The engine.
     model : ParticleModel
         The particle.
@@ -105,7 +105,7 @@ class OrientationLibrary:
         first); None computes them at every frame's own height.
     """
 
-    def __init__(self, theory: ScatteringTheory, model: ParticleModel, optics: Optics,
+    def __init__(self, theory: ScatteringEngine, model: ParticleModel, optics: Optics,
                  tilts: list[Tilt], z_step_um: float | None = 0.05) -> None:
         if not tilts:
             raise ValueError("the library needs at least one tilt")

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.batch import BatchOptions, BatchSummary, Precomputed
+from holofit.batch import BatchSettings, BatchSummary, Precomputed
 from holofit.batch.options import available_cpus
 from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage, stage_inputs
 from holofit.batch.worker import worker_resource
@@ -193,7 +193,7 @@ def run_library(
     settings: LibrarySettings | None = None,
     engine: str | None = None,
     frames: list[int] | None = None,
-    batch: BatchOptions | None = None,
+    batch: BatchSettings | None = None,
     plot: bool = True,
 ) -> LibraryResult:
     """Candidate orientations of every frame; writes ``OUT/library.csv`` (+ sidecar, plot).
@@ -217,7 +217,7 @@ def run_library(
         Scattering engine (default: the particle config's).
     frames : list of int, optional
         Only these frames.
-    batch : BatchOptions, optional
+    batch : BatchSettings, optional
         Parallel backend, resumption.
     plot : bool
         Write ``library.png`` (best candidate against frame).
@@ -257,14 +257,14 @@ def run_library(
     return LibraryResult(table.path, summary, png)
 
 
-def _shared_tilts(config: LibraryConfig, batch: BatchOptions | None, n_frames: int,
+def _shared_tilts(config: LibraryConfig, batch: BatchSettings | None, n_frames: int,
                   out: Path) -> LibraryConfig:
     """``config`` with the tilts solved once by the driver on the stage's local workers
     (:mod:`holofit.library.tilts`), where the frames run on at least two local worker
     processes; else as it is (each worker solves the tilts it needs). An engine that serves
     every orientation from its own T-matrix (``exact``, ``cluster``) has nothing to share:
     each worker solves once and rotates, without the spawned processes' start-up."""
-    opts = batch or BatchOptions()
+    opts = batch or BatchSettings()
     workers = opts.workers if opts.workers is not None else available_cpus()
     workers = min(workers, n_frames)
     if opts.scheduler or opts.dask_local or workers < 2:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.batch import BatchOptions, BatchSummary, Precomputed
+from holofit.batch import BatchSettings, BatchSummary, Precomputed
 from holofit.batch.aperture import FROM_INSTRUMENT, ApertureChoice
 from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage, stage_inputs
 from holofit.config import ConfigError, Instrument
@@ -132,7 +132,7 @@ def run_prefit(
     instrument: Instrument | None = None,
     fit: SphereFitSettings | None = None,
     frames: list[int] | None = None,
-    batch: BatchOptions | None = None,
+    batch: BatchSettings | None = None,
     plot: bool = True,
     plot_frames: list[int] | None = None,
     override_instrument: bool = False,

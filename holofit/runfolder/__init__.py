@@ -19,14 +19,14 @@ from holofit.runfolder.create import (
 )
 from holofit.runfolder.errors import RunFolderError
 from holofit.runfolder.makefile import targets
-from holofit.runfolder.spec import STAGES, RunSpec
+from holofit.runfolder.spec import STAGES, RunFolderConfig
 
 __all__ = [
     "STAGES",
     "RunFolder",
+    "RunFolderConfig",
     "RunFolderError",
     "RunInputs",
-    "RunSpec",
     "default_holofit_command",
     "init_run",
     "targets",

@@ -36,7 +36,7 @@ from holofit.runfolder.makefile import (
 from holofit.runfolder.readme import render_readme
 from holofit.runfolder.spec import (
     STAGES,
-    RunSpec,
+    RunFolderConfig,
     analysis_model_for,
     check_make_path,
     check_stage_options,
@@ -60,7 +60,7 @@ class RunFolder:
         The run folder.
     makefile, readme, instrument, particle : Path
         Its Makefile, README.md and the two config copies.
-    spec : RunSpec
+    spec : RunFolderConfig
         What the Makefile says.
     batch_makefile : Path, optional
         The parent folder's Makefile that runs every run folder (``batch_makefile=True``).
@@ -73,7 +73,7 @@ class RunFolder:
     readme: Path
     instrument: Path
     particle: Path
-    spec: RunSpec
+    spec: RunFolderConfig
     batch_makefile: Path | None = None
     notes: list[str] = field(default_factory=list)
 
@@ -286,7 +286,7 @@ def init_run(
     alternatives = _population(sources, part_source, cfg)
     analysis = _check_engine_and_analysis(cfg, engine, model, temperature_c)
     opts, notes = _check_options(options, cfg, frame_shape, n_frames)
-    spec = RunSpec(
+    spec = RunFolderConfig(
         movie=movie_abs, backgrounds=bg_abs, darks=dark_abs, dark_count=dark_count,
         normalized=normalized, particle_kind=cfg.model.kind, anisotropic=cfg.model.anisotropic,
         analysis_model=analysis, temperature_c=float(temperature_c), engine=engine,
@@ -406,7 +406,7 @@ def _check_options(options: Mapping[str, str] | None, cfg: ParticleConfig,
     return opts, [note] if note else []
 
 
-def _write_folder(run: Path, spec: RunSpec, inst_source: Path, part_source: Path,
+def _write_folder(run: Path, spec: RunFolderConfig, inst_source: Path, part_source: Path,
                   shape: PurePosixPath | None, notes: list[str], batch_makefile: bool) -> RunFolder:
     """Write the configs' copies, the README and the Makefile (last: it marks the folder)."""
     run.mkdir(parents=True, exist_ok=True)

@@ -25,7 +25,7 @@ is not recorded and reruns nothing.
 
 from __future__ import annotations
 
-from holofit.runfolder.spec import RunSpec, make_value
+from holofit.runfolder.spec import RunFolderConfig, make_value
 
 __all__ = ["BATCH_MAKEFILE_MARK", "render_batch_makefile", "render_run_makefile", "targets"]
 
@@ -33,7 +33,7 @@ __all__ = ["BATCH_MAKEFILE_MARK", "render_batch_makefile", "render_run_makefile"
 BATCH_MAKEFILE_MARK = "# holofit: runs every run folder in this folder"
 
 
-def targets(spec: RunSpec) -> dict[str, str]:
+def targets(spec: RunFolderConfig) -> dict[str, str]:
     """Stage -> the file that marks it complete (the library only for anisotropic particles)."""
     out = {"crop": "crop/crops.csv", "prefit": "prefit/prefit.csv"}
     if spec.anisotropic:
@@ -43,7 +43,7 @@ def targets(spec: RunSpec) -> dict[str, str]:
     return out
 
 
-def _header(spec: RunSpec) -> str:
+def _header(spec: RunFolderConfig) -> str:
     lines = [f"# {line}" for line in spec.header]
     return "\n".join(lines)
 
@@ -214,7 +214,7 @@ library:
 """
 
 
-def render_run_makefile(spec: RunSpec) -> str:
+def render_run_makefile(spec: RunFolderConfig) -> str:
     """The Makefile of a run folder (see the module docstring)."""
     done = targets(spec)
     if spec.anisotropic:

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from holofit.runfolder.spec import RunSpec
+from holofit.runfolder.spec import RunFolderConfig
 
 __all__ = ["render_readme"]
 
 
-def _inputs(spec: RunSpec) -> list[str]:
+def _inputs(spec: RunFolderConfig) -> list[str]:
     lines = [f"- movie: `{spec.movie}`"]
     if spec.normalized:
         lines.append("- the movie is background-divided already (`--normalized`)")
@@ -20,7 +20,7 @@ def _inputs(spec: RunSpec) -> list[str]:
     return lines
 
 
-def render_readme(spec: RunSpec) -> str:
+def render_readme(spec: RunFolderConfig) -> str:
     """The run folder's README (Markdown)."""
     rows = [
         "| `make crop` | `crop/crops.csv`, `crop/crops.tif` | normalise every frame by the "
@@ -90,7 +90,7 @@ def render_readme(spec: RunSpec) -> str:
     ])
 
 
-def _analysis_model(spec: RunSpec) -> str:
+def _analysis_model(spec: RunFolderConfig) -> str:
     """The analysis model the Makefile gives (a population: each track's own)."""
     if spec.alternatives:
         return "each track with the model of the particle the fit gave it"

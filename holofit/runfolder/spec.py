@@ -1,5 +1,6 @@
-"""What a run folder's Makefile needs to know, checked: :class:`RunSpec`, and the rules for its
-parts (paths make can use, the options a stage may be given, the analysis model of a particle).
+"""What a run folder's Makefile needs to know, checked: :class:`RunFolderConfig`, and the rules
+for its parts (paths make can use, the options a stage may be given, the analysis model of a
+particle).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ __all__ = [
     "ANALYSIS_MODEL_OF",
     "RESERVED_OPTIONS",
     "STAGES",
-    "RunSpec",
+    "RunFolderConfig",
     "analysis_model_for",
     "check_make_path",
     "check_stage_options",
@@ -121,7 +122,7 @@ def make_value(text: str) -> str:
 
 
 @dataclass(frozen=True)
-class RunSpec:
+class RunFolderConfig:
     """Everything a run folder's Makefile and README say.
 
     Attributes
@@ -179,3 +180,7 @@ class RunSpec:
     def option(self, stage: str) -> str:
         """Extra options of ``stage`` (empty when none)."""
         return self.options.get(stage, "")
+
+
+#: the former name, kept for existing code (deprecated)
+RunSpec = RunFolderConfig

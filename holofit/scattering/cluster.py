@@ -62,7 +62,7 @@ from holofit.optics import Optics
 from holofit.particles import Cluster, Dimer, ParticleModel, Sphere
 from holofit.scattering.mie_coefficients import mie_coefficients, n_stop
 from holofit.scattering.multipole import MultipoleExpansion
-from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringEngine
 from holofit.scattering.tmatrix import TMatrix
 from holofit.scattering.tmatrix_wave import TMatrixWave
 from holofit.scattering.translation import axial_entries, translation_matrix, wigner_matrix
@@ -70,8 +70,8 @@ from holofit.scattering.vsw import n_terms, term_indices, unpack
 
 __all__ = [
     "SPHERE_MARGIN",
+    "ClusterEngine",
     "ClusterSolution",
-    "ClusterTheory",
     "ClusterWave",
     "SphereSumWave",
     "cluster_spheres",
@@ -361,7 +361,7 @@ class ClusterWave(TMatrixWave):
 CACHE_SIZE = 8
 
 
-class ClusterTheory(ScatteringTheory):
+class ClusterEngine(ScatteringEngine):
     """Exact multiple-sphere scattering (the superposition T-matrix) for spheres, dimers and
     clusters; one solve per geometry and illumination, every orientation by rotation.
 
@@ -395,3 +395,7 @@ class ClusterTheory(ScatteringTheory):
               orientation: Orientation | None = None) -> ClusterWave:
         return ClusterWave(model, optics, orientation or Orientation(),
                            self.solution(model, optics))
+
+
+#: the former name, kept for existing code (deprecated)
+ClusterTheory = ClusterEngine

@@ -40,7 +40,7 @@ from holofit.scattering.mie import (
     series_cross_sections,
 )
 from holofit.scattering.mie_coefficients import n_stop, riccati_xi
-from holofit.scattering.theory import Orientation, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteringEngine
 
 __all__ = [
     "CoatedMie",
@@ -190,7 +190,7 @@ class CoatedSphereWave(SphereSeriesWave):
         super().__init__(a, b, self.outer_radius_um, optics)
 
 
-class CoatedMie(ScatteringTheory):
+class CoatedMie(ScatteringEngine):
     """Exact Lorenz-Mie theory for coated spheres (:class:`holofit.particles.CoatedSphere`)."""
 
     name = "coated_sphere"

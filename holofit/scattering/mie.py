@@ -20,7 +20,7 @@ from holofit.optics import Optics
 from holofit.particles import ParticleModel, Sphere
 from holofit.scattering.mie_coefficients import mie_coefficients
 from holofit.scattering.mie_kernels import angular_pi_tau, field_at_points, field_on_pixels
-from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringEngine
 
 if TYPE_CHECKING:
     from holofit.scattering.multipole import MultipoleExpansion
@@ -238,7 +238,7 @@ class MieWave(SphereSeriesWave):
         super().__init__(*mie_coefficients(self.m, self.x), sphere.radius_um, optics)
 
 
-class LorenzMie(ScatteringTheory):
+class LorenzMie(ScatteringEngine):
     """Exact Lorenz-Mie theory for homogeneous spheres."""
 
     name = "mie"

@@ -1,6 +1,6 @@
 """The scattering-theory interface that every engine implements.
 
-A :class:`ScatteringTheory` (Lorenz-Mie, the built-in DDA, ADDA) turns a particle model, an
+A :class:`ScatteringEngine` (Lorenz-Mie, the built-in DDA, ADDA) turns a particle model, an
 orientation and the optics into a :class:`ScatteredWave`: a solved problem that knows the
 scattered field at any point outside the particle. Positions are applied afterwards, so one
 solve serves every position change. The hologram code, ``simulate`` and the fits only talk to
@@ -24,7 +24,7 @@ from holofit.conventions import DetectorGrid, incident_phase_at
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
 
-__all__ = ["Orientation", "ScatteredWave", "ScatteringTheory"]
+__all__ = ["Orientation", "ScatteredWave", "ScatteringEngine"]
 
 
 @dataclass(frozen=True)
@@ -131,7 +131,7 @@ class ScatteredWave(ABC):
         return ex.reshape(grid.shape), ey.reshape(grid.shape)
 
 
-class ScatteringTheory(ABC):
+class ScatteringEngine(ABC):
     """An engine that solves a particle model for a given orientation and illumination.
 
     Its name is its entry in the engine registry (:mod:`holofit.engines.registry`);
@@ -169,3 +169,7 @@ class ScatteringTheory(ABC):
         self, model: ParticleModel, optics: Optics, orientation: Orientation | None = None
     ) -> ScatteredWave:
         """Solve the scattering problem; the result serves every particle position."""
+
+
+#: the former name, kept for existing code (deprecated)
+ScatteringTheory = ScatteringEngine

@@ -23,10 +23,10 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.camera import Camera
 from holofit.config import Instrument
 from holofit.conventions import hologram_intensity, pixel_centres
-from holofit.engines.select import select_theory
+from holofit.engines.select import select_engine
 from holofit.particles import ParticleModel
 from holofit.scattering.recorded_field import recorded_field
-from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringEngine
 from holofit.simulate.holograms import (
     TRUTH_UNITS,
     Exposure,
@@ -58,7 +58,7 @@ class ParticleInView:
         ``(psi, theta, phi)`` per frame, rad (ignored for isotropic models).
     alpha : float
         Scattered-field scaling.
-    theory : ScatteringTheory, optional
+    theory : ScatteringEngine, optional
         Engine; the model's default otherwise.
     """
 
@@ -66,7 +66,7 @@ class ParticleInView:
     positions_um: ArrayLike
     orientations: ArrayLike | None = None
     alpha: float = 1.0
-    theory: ScatteringTheory | None = None
+    theory: ScatteringEngine | None = None
 
 
 class _Solved:
@@ -94,7 +94,7 @@ class _Solved:
                     f"{self.orient.shape}"
                 )
         self.particle = particle
-        self.theory = particle.theory or select_theory(particle.model)
+        self.theory = particle.theory or select_engine(particle.model)
         self.optics = instrument.optics
         self._wave: ScatteredWave | None = None
         self._orientation: tuple[float, ...] | None = None

@@ -20,13 +20,13 @@ from numpy.typing import ArrayLike, NDArray
 from holofit.camera import Camera
 from holofit.config import Instrument
 from holofit.conventions import DetectorGrid
-from holofit.engines.select import select_theory
+from holofit.engines.select import select_engine
 from holofit.hologram import calc_hologram
 from holofit.io.tables import write_table
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.particles import ParticleModel
 from holofit.provenance import sidecar
-from holofit.scattering.theory import Orientation, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteringEngine
 
 __all__ = [
     "Exposure",
@@ -191,7 +191,7 @@ def smooth_illumination(
 def simulate_movie(
     model: ParticleModel, instrument: Instrument, positions_um: ArrayLike,
     frame_shape: tuple[int, int], *, orientations: ArrayLike | None = None, alpha: float = 1.0,
-    theory: ScatteringTheory | None = None, exposure: Exposure | None = None, seed: int = 0,
+    theory: ScatteringEngine | None = None, exposure: Exposure | None = None, seed: int = 0,
     out_dir: str | Path | None = None, keep_frames: bool = False, progress: Any = None,
 ) -> SimulatedMovie:
     """Simulate a movie of holograms of one particle.
@@ -210,7 +210,7 @@ def simulate_movie(
         ``(psi, theta, phi)`` per frame, rad (ignored for isotropic models).
     alpha : float
         Scattered-field scaling.
-    theory : ScatteringTheory, optional
+    theory : ScatteringEngine, optional
         Engine; Lorenz-Mie for spheres and the built-in DDA otherwise.
     exposure : Exposure, optional
         Camera, noise, illumination and background frames (default: the instrument's camera,
@@ -236,7 +236,7 @@ def simulate_movie(
     """
     pos = check_positions(model, positions_um, instrument.optics.numerical_aperture is not None)
     orient = _check_orientations(orientations, pos.shape[0])
-    theory = theory or select_theory(model)
+    theory = theory or select_engine(model)
     exposure = (exposure or Exposure()).for_instrument(instrument)
     assert exposure.camera is not None
     rng = np.random.default_rng(seed)
@@ -292,7 +292,7 @@ def truth_table(instrument: Instrument, pos: NDArray, orient: NDArray,
 
 
 def movie_holograms(
-    model: ParticleModel, theory: ScatteringTheory, instrument: Instrument, pos: NDArray,
+    model: ParticleModel, theory: ScatteringEngine, instrument: Instrument, pos: NDArray,
     orient: NDArray, grid: DetectorGrid, alpha: float,
 ) -> Iterator[NDArray[np.float64]]:
     """The normalised hologram of each frame (:func:`holofit.hologram.calc_hologram`, through

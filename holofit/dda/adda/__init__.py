@@ -1,5 +1,5 @@
 """ADDA (the Amsterdam DDA code) as an alternative scattering engine, driven as the user's own
-binary behind holofit's :class:`~holofit.scattering.theory.ScatteringTheory` interface.
+binary behind holofit's :class:`~holofit.scattering.theory.ScatteringEngine` interface.
 
 One module per job:
 

@@ -58,7 +58,7 @@ from holofit.dda.settings import DDASettings
 from holofit.dda.voxelize import voxelize
 from holofit.optics import Optics
 from holofit.particles import ParticleModel
-from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringEngine
 
 __all__ = ["AddaEngine", "AddaWave"]
 
@@ -157,7 +157,7 @@ class AddaWave(ScatteredWave):
         return f * (np.exp(1j * k * r) / (-1j * k * r))[:, None]
 
 
-class AddaEngine(ScatteringTheory):
+class AddaEngine(ScatteringEngine):
     """Scattering by the user's ADDA binary, behind holofit's scattering-theory interface.
 
     Parameters

@@ -35,7 +35,7 @@ from holofit.scattering.axisym.discretisation import (
 )
 from holofit.scattering.axisym.profiles import SUPPORTED
 from holofit.scattering.expansion_wave import NearField
-from holofit.scattering.theory import Orientation, ScatteringTheory
+from holofit.scattering.theory import Orientation, ScatteringEngine
 from holofit.scattering.tmatrix import TMatrix
 from holofit.scattering.tmatrix_wave import TMatrixWave
 
@@ -45,7 +45,7 @@ __all__ = ["AxisymmetricTMatrix"]
 CACHE_SIZE = 8
 
 
-class AxisymmetricTMatrix(ScatteringTheory):
+class AxisymmetricTMatrix(ScatteringEngine):
     """Exact T-matrix engine for bodies of revolution (engine name ``exact``).
 
     Parameters
