@@ -124,3 +124,28 @@ def test_column_units():
     assert column_unit("b_um") == "um" and column_unit("d_b_um") == "um"
     assert column_unit("d_psi_rad") == "rad" and column_unit("n") == "1"
     assert column_unit("time_s") == "s" and column_unit("status").startswith("text")
+
+
+def test_an_empty_message_column_reads_back_as_text_and_takes_a_message(tmp_path):
+    """A pass table whose every row is fine has no message at all: the CSV's column is empty
+    and would read back as floats. read_table gives text, so that a quality rule can write a
+    message into it (the per-track rules of a multi-track pass stopped with a TypeError)."""
+    import pandas as pd
+
+    from holofit.io.tables import read_table
+    from holofit.quality import per_track
+
+    path = tmp_path / "t.csv"
+    pd.DataFrame({"particle": [0, 0, 1, 1], "frame": [0, 1, 0, 1], "status": "ok",
+                  "message": [""] * 4, "chi2_red": [1.0, 9.0, 1.0, 1.0]}).to_csv(path,
+                                                                            index=False)
+    table = read_table(path)
+    assert (table["message"] == "").all()
+
+    def flag_big(part):
+        big = part["chi2_red"] > 5
+        part.loc[big, ["status", "message"]] = ["poor_fit", "chi2_red above 5"]
+        return int(big.sum())
+
+    assert per_track(flag_big)(table) == 1
+    assert table.loc[1, "message"] == "chi2_red above 5" and table.loc[1, "status"] == "poor_fit"

@@ -11,7 +11,7 @@ import pandas as pd
 
 from holofit.io.atomic import atomic_path, atomic_write_text
 
-__all__ = ["read_table", "sidecar_path", "write_json", "write_table"]
+__all__ = ["TEXT_COLUMNS", "read_table", "sidecar_path", "write_json", "write_table"]
 
 
 def sidecar_path(path: str | Path) -> Path:
@@ -61,9 +61,22 @@ def write_table(path: str | Path, table: pd.DataFrame, meta: dict[str, Any] | No
     return path
 
 
+#: columns of text in every stage's tables
+TEXT_COLUMNS = ("status", "message")
+
+
 def read_table(path: str | Path) -> pd.DataFrame:
-    """Read a CSV table written by :func:`write_table` (or any CSV with a header)."""
+    """Read a CSV table written by :func:`write_table` (or any CSV with a header).
+
+    The text columns every stage writes (:data:`TEXT_COLUMNS`) are read as text, empty cells
+    as ``""``: a column whose every cell is empty would otherwise be read as floats (NaN),
+    into which no message can be written later.
+    """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: table not found")
-    return pd.read_csv(path)
+    table = pd.read_csv(path)
+    for name in TEXT_COLUMNS:
+        if name in table.columns and pd.api.types.is_numeric_dtype(table[name]):
+            table[name] = table[name].astype(object).where(table[name].notna(), "")
+    return table
