@@ -45,7 +45,13 @@ from holofit.crop.detect import DETECTED, found_from_json, read_normalised
 from holofit.crop.errors import CropError
 from holofit.crop.losses import describe_losses, track_losses
 from holofit.crop.normalize import Normalizer
-from holofit.crop.tracks import LinkSettings, TrackError, link_tracks, mark_neighbours
+from holofit.crop.tracks import (
+    LinkSettings,
+    TrackError,
+    link_tracks,
+    mark_neighbours,
+    track_reach,
+)
 from holofit.io.movie import Movie
 from holofit.io.tiffstack import TiffStackWriter
 from holofit.status import CROP_ERROR, CROP_NO_PARTICLE
@@ -212,7 +218,8 @@ def drop_ghosts(linked: pd.DataFrame, summary: pd.DataFrame, size: int
 
     The centre finder also finds points where a hologram's rings are cut by the frame edge
     or cross: near a strong hologram they form steady tracks. A track whose nearest other
-    track lies within :data:`GHOST_REACH` of a crop's side and scores at least
+    track lies within :data:`GHOST_REACH` of a crop's side (or, for a detection neither
+    refinement placed, within that track's reach) and scores at least
     :data:`GHOST_SCORE_RATIO` times
     higher in at least :data:`GHOST_FRACTION` of its frames (frames where it was found with
     the neighbour's rings subtracted, ``refinement`` ``peeled``, do not count: a fringe goes
@@ -231,7 +238,15 @@ def drop_ghosts(linked: pd.DataFrame, summary: pd.DataFrame, size: int
     if linked.empty or linked["particle"].nunique() < 2:
         return linked, []
     score = linked.set_index(["particle", "frame"])["score"]
-    near = linked["neighbour_px"] < GHOST_REACH * size
+    near = np.array(linked["neighbour_px"] < GHOST_REACH * size, dtype=bool)
+    if "refinement" in linked.columns:
+        # a candidate neither refinement placed (no point symmetry, no circular rings about
+        # it: a frame corner cutting a strong hologram's rings) is that hologram's fringes
+        # anywhere within its reach (holofit.crop.profile), not only within the crop
+        reach = track_reach(linked)
+        theirs = np.array([reach.get(int(q), 0.0) for q in linked["neighbour"]])
+        near |= ((linked["refinement"].to_numpy() == "none")
+                 & (linked["neighbour_px"].to_numpy(dtype=float) < theirs))
     keys = list(zip(linked["neighbour"], linked["frame"], strict=True))
     other = np.array([score.get(k, np.nan) if n else np.nan
                       for k, n in zip(keys, near, strict=True)], dtype=float)
