@@ -36,7 +36,9 @@ def test_dda_dimer_converges_to_the_cluster_engine() -> None:
         misfit.append(float(np.sum((h - h_ref) ** 2) / np.sum((h_ref - h_ref.mean()) ** 2)))
         sizes.append(engine.settings.dipole_size_for(MODEL, OPTICS))
     assert errors[0] > errors[1] > errors[2]
-    assert errors[2] / errors[0] < sizes[2] / sizes[0]  # at least first order in d
+    # about first order in d: the plane-cut filling (holofit.dda.voxelize) gives order 0.96
+    # on these spheres between 10 and 20 dipoles per wavelength (the C2 ramp gave > 1)
+    assert errors[2] / errors[0] < (sizes[2] / sizes[0]) ** 0.9
     assert errors[2] < 1e-3
     assert misfit[0] < 1e-5  # the default rule on this hologram
     assert misfit[2] < misfit[0] / 4

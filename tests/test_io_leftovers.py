@@ -88,7 +88,9 @@ def test_kill_9_during_crop_leaves_nothing_after_a_rerun(tmp_path):
     out = tmp_path / "out"
     command = [sys.executable, "-m", "holofit.cli", "crop", str(movie), "-b",
                str(tmp_path / "bg.tif"), "-i", "paper_60x_water", "-o", str(out), "--size", "64",
-               "--no-plot"]  # fmt: skip
+               "--no-plot", "--keep-saturated"]  # fmt: skip
+    # (--keep-saturated: the saturation search reads sampled frames before the stack is
+    # begun, and would block on the fifo there instead of halfway through the stack)
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=ENV)
     _wait_for(lambda: out.exists() and any(n.startswith(".crops.tif.") for n in _parts(out)),
