@@ -23,6 +23,7 @@ The frame, its truth and the library's candidates (:func:`make_case`, :class:`Ca
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
 import math
 import sys
@@ -182,6 +183,9 @@ def use_tmatrix(theory: ScatteringEngine, model: ParticleModel, inst: Instrument
     does: loaded from ``path`` if it holds this particle's, else built (and saved there).
     Returns the seconds it took."""
     t0 = time.perf_counter()
+    if "path" not in inspect.signature(theory.tmatrix).parameters:
+        theory.tmatrix(model, inst.optics)  # the exact engine builds in a second, no file
+        return time.perf_counter() - t0
     try:
         theory.tmatrix(model, inst.optics, path=None if path is None else str(path))
     except TMatrixMismatch:  # made for another particle or settings: build anew
