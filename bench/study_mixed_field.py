@@ -9,7 +9,9 @@ within about 2.2 um) run with ``-p rod_small.toml``.
 
 Measured per true particle: the frames in which it is at least ``APART_UM`` (3D) from every
 other particle and the fraction of those in which a crop row of its track lies within
-``FOUND_UM`` of it (laterally); identity swaps (a track whose rows hold two true particles);
+``FOUND_UM`` of it (laterally); identity swaps (a track whose rows hold two true particles
+in frames where each is ``APART_UM`` from every other; the frames a merged pair's centre lies
+nearer the other particle are counted apart);
 the model the fit gave its track; each diffusion coefficient of its analysis against the
 analysis of its true trajectory (same settings), as a pull in the fit's error; and the frames
 in which another particle's hologram reaches into its crop, with how many of them the crop
@@ -134,8 +136,22 @@ def measure(name: str, work: Path, kinds: list[str]) -> dict:
     crops = _owners(pd.read_csv(run / "crop" / "crops.csv"), truth)
     apart = _apart(truth)
     found_rows = crops[crops["status"].isin(["ok", "edge"]) & (crops["truth"] >= 0)]
-    holders = found_rows.groupby("particle")["truth"].agg(lambda s: sorted(set(s)))
+    # identity is defined where the true particles are resolvable (>= APART_UM from every
+    # other): a track holding two of them there is a swap; nearer, the finder may merge the
+    # pair and the merged centre may lie nearer either (counted apart, not as a swap)
+    alone = apart.loc[apart["nearest_um"] >= APART_UM, ["particle", "frame"]].rename(
+        columns={"particle": "truth"})
+    resolvable = found_rows.merge(alone, on=["truth", "frame"], how="inner")
+    holders = resolvable.groupby("particle")["truth"].agg(lambda s: sorted(set(s)))
     swaps = {int(k): v for k, v in holders.items() if len(v) > 1}
+    merged_changes = {}
+    for k, g in found_rows.groupby("particle"):
+        own = holders.get(k, [])
+        if int(k) in swaps or len(set(g["truth"])) < 2 or len(own) != 1:
+            continue
+        other = g[g["truth"] != own[0]]
+        merged_changes[int(k)] = {"truth": own[0], "rows_nearer_another": len(other),
+                                  "frames": sorted(int(f) for f in other["frame"])}
     track_of = {}
     for p, g in found_rows.groupby("truth"):
         counts = g["particle"].value_counts()
@@ -200,6 +216,7 @@ def measure(name: str, work: Path, kinds: list[str]) -> dict:
                                        else None)
         per_particle.append(entry)
     return {"study": f"mixed_field_{name}", "identity_swaps": swaps,
+            "apart_um": APART_UM, "owner_changes_while_near": merged_changes,
             "tracks": sorted(int(t) for t in crops["particle"].unique()),
             "particles": per_particle}
 

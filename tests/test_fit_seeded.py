@@ -15,6 +15,7 @@ from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
 from holofit.fit.frame import fit_frame
 from holofit.fit.initial_pass import initial_choice, initial_particle
+from holofit.tables.crop import merge_suspects
 from holofit.fit.passes import load_payload
 from holofit.fit.problem import FrameProblem
 from holofit.fit.seeded import SEED_BUILD, fit_frame_seeded
@@ -40,8 +41,38 @@ def test_spread_frames_are_the_middles_of_equal_runs_clean_ones_first():
     assert initial_choice(frames, [False] * 20, 4) == [0, 1, 2, 3]
     over = [f % 2 == 0 for f in frames]  # the odd frames are clean
     assert initial_choice(frames, over, 2, spread=True) == [5, 15]
-    assert initial_choice(frames, over, 12, spread=True) == sorted([0, 2, *range(1, 20, 2)])
+    # two overlapped frames needed: spread over the farther half of the overlapped ones
+    assert initial_choice(frames, over, 12, spread=True) == sorted([2, 6, *range(1, 20, 2)])
+    far = [float(f) for f in frames]  # the later, the farther the nearest neighbour
+    assert initial_choice(frames, over, 12, spread=True, distance=far) == sorted(
+        [12, 16, *range(1, 20, 2)])
+    assert initial_choice(frames, over, 12, distance=far) == sorted([16, 18, *range(1, 20, 2)])
     assert initial_choice(frames, [False] * 20, 25, spread=True) == frames
+
+
+def test_frames_that_may_hold_a_merged_neighbour_come_last():
+    # a crossing: track 1 lost next to track 0 at frame 8, found again (as track 2) at 14;
+    # track 0 looks alone in 8-13 but may hold both holograms there
+    losses = [{"particle": 1, "kind": "lost", "first_frame": 8, "last_frame": 19,
+               "neighbour": 0, "distance_um": 1.2},
+              {"particle": 2, "kind": "late", "first_frame": 0, "last_frame": 13,
+               "neighbour": 0, "distance_um": 1.5},
+              {"particle": 2, "kind": "undetected", "first_frame": 16, "last_frame": 16,
+               "neighbour": 0, "distance_um": 2.0}]
+    suspects = merge_suspects(losses)
+    assert suspects == {0: {8, 9, 10, 11, 12, 13, 16}}
+    frames = list(range(20))
+    over = [f < 8 or f > 13 for f in frames]  # the others' holograms reach into the crop
+    far = [10.0 - f if f < 8 else f - 5.0 for f in frames]
+    doubt = [f in suspects[0] for f in frames]
+    got = initial_choice(frames, over, 4, spread=True, distance=far, suspect=doubt)
+    assert not set(got) & suspects[0]
+    # the farther half of the 13 overlapped frames (19, 18, 17, 0, 15, 1), spread
+    assert got == [0, 15, 17, 19]
+    assert set(initial_choice(frames, over, 19, distance=far, suspect=doubt)) == set(
+        frames) - {16}
+    # a loss with no partner: its whole span
+    assert merge_suspects(losses[:1]) == {0: set(range(8, 20))}
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ run; each track's model and static parameters (``static.json``) and what became 
 
 from __future__ import annotations
 
+import math
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -43,6 +44,7 @@ from holofit.io.tables import read_table
 from holofit.particles import Sphere
 from holofit.quality import flag_off_level, initial_level, per_track
 from holofit.status import FITTABLE_CROP_STATUSES, OK
+from holofit.tables.crop import merge_suspects
 
 __all__ = ["INITIAL_PRECISION", "flag_initial", "initial_choice",
            "initial_particle", "initial_pass"]
@@ -67,19 +69,38 @@ def initial_particle(particle: ParticleConfig) -> ParticleConfig:
 
 
 def initial_choice(fittable: list[int], overlapped: list[bool], n: int,
-                   spread: bool = False) -> list[int]:
+                   spread: bool = False, distance: list[float] | None = None,
+                   suspect: list[bool] | None = None) -> list[int]:
     """A track's initial frames: ``n`` of ``fittable`` whose crop no other track's hologram
-    overlaps, then (too few of those) the first overlapped ones; in frame order. The static
-    parameters are best measured on a particle alone.
+    overlaps, then (too few of those) overlapped ones, those whose nearest neighbour is
+    farthest first (``distance``; else in frame order), then frames suspected of holding a
+    merged neighbour (``suspect``: :func:`holofit.tables.crop.merge_suspects`); in frame
+    order. The static parameters are best measured on a particle alone, and a merged pair
+    looks alone.
 
     ``spread``: evenly spaced over the clean frames (the middle one of each of ``n`` equal
-    runs), for frames fitted each on its own: the statics need orientations; else the first
-    ``n``, for a pass that follows the track from frame to frame."""
-    clean = [f for f, o in zip(fittable, overlapped, strict=True) if not o]
-    rest = [f for f, o in zip(fittable, overlapped, strict=True) if o]
+    runs; overlapped ones: over the farther half), for frames fitted each on its own: the
+    statics need orientations; else the first ``n``, for a pass that follows the track from
+    frame to frame."""
+    doubt = suspect if suspect is not None else [False] * len(fittable)
+    far = distance if distance is not None else [0.0] * len(fittable)
+    rows = list(zip(fittable, overlapped, doubt, far, strict=True))
+    clean = [f for f, o, d, _ in rows if not o and not d]
+    near = [f for f, o, d, _ in sorted((r for r in rows if r[1] and not r[2]),
+                                       key=lambda r: -r[3])]
+    doubtful = [f for f, _, d, _ in rows if d]
     if spread and n < len(clean):
-        clean = [clean[(2 * i + 1) * len(clean) // (2 * n)] for i in range(n)]
-    return sorted((clean + rest)[:n])
+        clean = _spread(clean, n)
+    need = n - len(clean)
+    if spread and 0 < need < len(near):
+        # the farther half (at least ``need``), spread over the movie
+        near = _spread(sorted(near[:max(need, len(near) // 2)]), need)
+    return sorted((clean + near + doubtful)[:n])
+
+
+def _spread(frames: list[int], n: int) -> list[int]:
+    """``n`` of ``frames`` (``n < len(frames)``): the middle one of each of ``n`` equal runs."""
+    return [frames[(2 * i + 1) * len(frames) // (2 * n)] for i in range(n)]
 
 
 def flag_initial(table: pd.DataFrame, sigmas: float) -> dict[str, Any] | None:
@@ -98,6 +119,15 @@ def flag_initial(table: pd.DataFrame, sigmas: float) -> dict[str, Any] | None:
     else:
         doc["chi2_red_by_track"] = levels
     return doc
+
+
+def _neighbour_px(crop_row: dict[str, Any]) -> float:
+    """The crop table's distance to the nearest other track, px (inf: none; 0: unknown)."""
+    try:
+        value = float(crop_row.get("neighbour_px", 0.0))
+    except (TypeError, ValueError):
+        return 0.0
+    return 0.0 if math.isnan(value) else value
 
 
 def _overlapped(crop_row: dict[str, Any]) -> bool:
@@ -288,11 +318,16 @@ def _initial_keys(fp: FitPasses, fittable: dict[int, list[int]], spread: bool
                   ) -> list[tuple[int, int]]:
     """Each track's initial frames (:func:`initial_choice`), said in the notes."""
     crops, n_given = fp.given.crops, fp.config.initial_frames
+    suspects = merge_suspects(list(crops.sidecar.get("track_losses") or []))
     keys: list[tuple[int, int]] = []
     for p, frames in fittable.items():
         n = n_given if n_given is not None else default_initial_frames(len(frames))
         over = [_overlapped(crops.row((p, f))) for f in frames]
-        chosen = initial_choice(frames, over, n, spread=spread)
+        merged = suspects.get(p, set())
+        doubt = [f in merged for f in frames]
+        chosen = initial_choice(frames, over, n, spread=spread,
+                                distance=[_neighbour_px(crops.row((p, f))) for f in frames],
+                                suspect=doubt)
         keys += [(p, f) for f in chosen]
         who = "" if len(fittable) == 1 else f"particle {p}: "
         if n_given is None:
@@ -303,6 +338,16 @@ def _initial_keys(fp: FitPasses, fittable: dict[int, list[int]], spread: bool
                 f"{who}initial pass (every parameter free) on {which}: the default, 1 in "
                 f"{INITIAL_SHARE}, at least {INITIAL_MIN}, at most {INITIAL_MAX} "
                 "(--initial-frames N to choose)")
+        n_doubt = sum(f in merged for f in chosen)
+        if n_doubt:
+            fp.run.notes.append(
+                f"{who}initial pass: {n_doubt} of {len(chosen)} frames may hold a merged "
+                "neighbour (a track lost or found late within reach: the crop sidecar's "
+                "track_losses); no other frames to take")
+        elif merged:
+            fp.run.notes.append(
+                f"{who}initial pass: {len(merged)} frame(s) left out that may hold a merged "
+                "neighbour (the crop sidecar's track_losses)")
         if any(over if spread else over[:n]):
             fp.run.notes.append(
                 f"{who}initial pass: frames without another track's overlapping hologram "

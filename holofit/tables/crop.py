@@ -20,6 +20,7 @@ __all__ = [
     "REQUIRED_CROP_COLUMNS",
     "crop_extra",
     "keyed_columns",
+    "merge_suspects",
     "stack_header",
     "write_candidates",
     "write_crop_table",
@@ -146,3 +147,60 @@ def write_crop_table(table_path: Path, stack_path: Path, frames: pd.DataFrame,
                        config=config, inputs=inputs, extra=extra))
     write_table(table_path, frames, sidecar(kind="crop table", units=CROP_UNITS, config=config,
                                             inputs=inputs, extra=extra))
+
+
+def _span(event: dict[str, Any]) -> tuple[int, int]:
+    return int(event["first_frame"]), int(event["last_frame"])
+
+
+def merge_suspects(losses: list[dict[str, Any]]) -> dict[int, set[int]]:
+    """The frames of each track whose hologram may hold a lost neighbour's, from the crop
+    sidecar's ``track_losses`` (:func:`crop_extra`).
+
+    A neighbour ``undetected`` within reach for frames ``a..b`` makes those frames suspect; a
+    neighbour ``lost`` within reach from frame ``f`` and another one that starts ``late``
+    within reach at frame ``s > f`` make ``f..s-1`` suspect (the two halves of a track split
+    by a merge); a loss or a late start with no such partner makes its whole span suspect.
+    Such frames look like a lone particle (no other track is there to mark an overlap) while
+    the finder may have merged two holograms into one, so a static size or index measured on
+    them is not the particle's.
+
+    Parameters
+    ----------
+    losses : list of dict
+        Loss events (``particle``, ``kind``, ``first_frame``, ``last_frame``,
+        ``neighbour``).
+
+    Returns
+    -------
+    dict of int to set of int
+        Track id -> frames suspected of a merge (tracks without any left out).
+    """
+    out: dict[int, set[int]] = {}
+    by_neighbour: dict[int, list[dict[str, Any]]] = {}
+    for e in losses:
+        if e.get("neighbour") is not None and e.get("kind") in ("lost", "late", "undetected"):
+            by_neighbour.setdefault(int(e["neighbour"]), []).append(e)
+    for p, events in by_neighbour.items():
+        frames: set[int] = set()
+        lost = sorted((e for e in events if e["kind"] == "lost"), key=_span)
+        late = sorted((e for e in events if e["kind"] == "late"), key=lambda e: _span(e)[1])
+        paired: set[int] = set()
+        for e in lost:
+            start = _span(e)[0]
+            partner = next((j for j, g in enumerate(late)
+                            if j not in paired and _span(g)[1] + 1 > start), None)
+            if partner is None:
+                frames.update(range(start, _span(e)[1] + 1))
+                continue
+            paired.add(partner)
+            frames.update(range(start, _span(late[partner])[1] + 1))
+        for j, g in enumerate(late):
+            if j not in paired:
+                frames.update(range(_span(g)[0], _span(g)[1] + 1))
+        for e in events:
+            if e["kind"] == "undetected":
+                frames.update(range(_span(e)[0], _span(e)[1] + 1))
+        if frames:
+            out[p] = frames
+    return out
