@@ -15,7 +15,6 @@ from holofit.crop import CropConfig, run_crop
 from holofit.fit.config import FitConfig
 from holofit.fit.frame import fit_frame
 from holofit.fit.initial_pass import initial_choice, initial_particle
-from holofit.tables.crop import merge_suspects
 from holofit.fit.passes import load_payload
 from holofit.fit.problem import FrameProblem
 from holofit.fit.seeded import SEED_BUILD, fit_frame_seeded
@@ -24,6 +23,7 @@ from holofit.fit.stage import run_fit
 from holofit.fit.task import free_parameters
 from holofit.prefit import run_prefit
 from holofit.simulate.holograms import simulate_movie
+from holofit.tables.crop import merge_suspects
 from holofit.tables.cropset import CropSet
 from holofit.tables.fit import read_fit_table
 from holofit.tables.inputs import read_stage_table

@@ -104,6 +104,8 @@ def test_a_track_no_model_fits_is_left_out_and_the_others_go_on(three_spheres, t
     assert "radius_um" in tracks.loc[big, "reason"] and "outside" in tracks.loc[big, "reason"]
     assert "another kind of particle" in tracks.loc[big, "remedy"]
     assert (tracks.drop(index=big)["status"] == "fitted").all()
+    # the final pass's rewrite keeps the initial frames each track was judged on
+    assert (tracks["n_initial_frames"] == 3).all(), tracks["n_initial_frames"]
     static = json.loads((tmp_path / "fit" / "static.json").read_text())
     assert static["tracks"][str(big)]["status"] == "left_out"
     fit = pd.read_csv(run.final)

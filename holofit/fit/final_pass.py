@@ -186,12 +186,18 @@ def _write_tracks(fp: FitPasses, statics: dict[int, TrackStatic], path: Path) ->
     table = read_table(path)
     counts = {int(p): rows["status"].value_counts().to_dict()
               for p, rows in table.groupby("particle")}
+    initial = fp.out / "initial.csv"
+    initial_frames: dict[int, tuple[int, ...]] = {}
+    if initial.exists():
+        first = read_table(initial)
+        initial_frames = {int(p): tuple(int(f) for f in rows["frame"])
+                          for p, rows in first.groupby("particle")}
     outcomes = []
     for p, s in statics.items():
         status = s.status if s.status in ("fitted", "left_out", "unmodelled") else "left_out"
         reason = str(s.doc.get("model_test", {}).get("reason", "") or s.doc.get("reason", ""))
         outcomes.append(TrackOutcome(p, s.model, status, reason, str(s.doc.get("remedy", "")),
-                                     statics=dict(s.values)))
+                                     initial_frames.get(p, ()), statics=dict(s.values)))
         if not s.fitted:
             fp.run.left_out[p] = reason
     fp.run.tracks = write_tracks(fp.out / "tracks.csv", outcomes, counts, inputs=[path])
