@@ -5,12 +5,12 @@ the instrument's simulated camera (:func:`holofit.simulate.holograms.default_cam
 read and quantisation noise); the crop stage's default centre finder (the instrument's fringe
 limits; vote radius half the default crop side, which the crop chooses from the movie's
 holograms: the larger of 140 px and four zone radii, :func:`holofit.crop.settings.
-sized_for_movie`; here the median zone radius of the holograms the preview's two vote radii
-find in five draws of the pair 10 um apart at that height) searches every noise draw. A draw
-resolves the pair when both particles have a detection within :data:`TOLERANCE_UM` of their
-centre and no other detection lies within ``d + 1 um`` of the pair's midpoint. The *resolvable
-separation* is the smallest ``d`` of the grid from which on every larger ``d`` resolves the pair
-in at least 95 % of the draws.
+sized_for_movie`; here the median zone radius of the holograms the default finder finds in
+five draws of the pair 10 um apart at that height, as the crop's preview does) searches
+every noise draw. A draw resolves the pair when both particles have a detection within
+:data:`TOLERANCE_UM` of their centre and no other detection lies within ``d + 1 um`` of the
+pair's midpoint. The *resolvable separation* is the smallest ``d`` of the grid from which on
+every larger ``d`` resolves the pair in at least 95 % of the draws.
 
 Particles: the 1 um polystyrene sphere (``sphere_ps_1um``) and the paper's rod (``rod_paper``,
 its DDA T-matrix; the two rods at independent random orientations) at heights
@@ -29,16 +29,13 @@ import math
 import sys
 import time
 import zlib
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from holofit.config import Instrument, load_instrument, load_particle, resolve_config
 from holofit.conventions import hologram_intensity, pixel_centres
 from holofit.crop.settings import (
-    PREVIEW_RADII,
     SIZE_PREVIEW_FRAMES,
     CropConfig,
     crop_size_for_zone,
@@ -136,9 +133,7 @@ def default_finder(pairs: _Pairs, z_um: float, rng: np.random.Generator) -> tupl
     zones = []
     for _ in range(SIZE_PREVIEW_FRAMES):
         image, _ = pairs.intensity(max(SEPARATIONS_UM), z_um, rng)
-        frame = pairs.frame(image, rng)
-        zones += hologram_zones(pd.concat(
-            [replace(probe, radius_px=r * probe.radius_px).find(frame) for r in PREVIEW_RADII]))
+        zones += hologram_zones(probe.find(pairs.frame(image, rng)))
     zone = float(np.median(zones)) if zones else math.nan
     side = crop_size_for_zone(zone, pairs.shape)
     return CropConfig(size=side).finder_for_size(pairs.inst), zone

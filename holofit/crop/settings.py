@@ -72,10 +72,6 @@ AUTO_VOTE_RADIUS: float = DefaultRadius(DEFAULT_CROP_SIZE / 2.0)
 CROP_ZONE_RADII = 4.0
 #: frames of the movie (evenly spread) whose holograms' zone radii set the default crop side
 SIZE_PREVIEW_FRAMES = 5
-#: the preview searches with these multiples of the default vote radius: the default's alone
-#: finds no hologram whose central spot fills its vote disc (two alike spheres 2.5 um apart
-#: at 20 um on a 0.048-um-pixel camera), twice it does
-PREVIEW_RADII = (1.0, 2.0)
 #: a preview candidate counts if it scores at least this share of its frame's strongest
 #: (holograms score hundreds, fringes cut by the frame's edge tens)
 PREVIEW_SCORE_SHARE = 0.25
@@ -183,8 +179,8 @@ def crop_size_for_zone(zone_px: float, frame_shape: tuple[int, int]) -> int:
 
 
 def hologram_zones(found: pd.DataFrame) -> list[float]:
-    """The zone radii of a frame's holograms (its candidates, of one search or several):
-    its refined candidates' that score at least :data:`PREVIEW_SCORE_SHARE` of its
+    """The zone radii of a frame's holograms (its candidates): its refined candidates' that
+    score at least :data:`PREVIEW_SCORE_SHARE` of its
     strongest (the rest are fringes cut by the frame's edge, whose zone is that of the cut,
     or junk beside a hologram)."""
     if "zone_px" not in found.columns or not len(found):
@@ -201,12 +197,13 @@ def sized_for_movie(config: CropConfig, movie: Any, normalizer: Normalizer,
                     instrument: Instrument | None = None) -> tuple[CropConfig, dict[str, Any]]:
     """``config`` with its crop side and vote radius chosen for ``movie`` where not given.
 
-    The default finder searches :data:`SIZE_PREVIEW_FRAMES` frames spread over the movie, at
-    its vote radius and at twice it (:data:`PREVIEW_RADII`); the median zone radius of their
-    holograms (:func:`hologram_zones`, each candidate's from :mod:`holofit.crop.profile`)
-    gives the side (:func:`crop_size_for_zone`), and the vote radius is half of it where it was not
-    given either (the default finder, or :data:`AUTO_VOTE_RADIUS`). A side given stays as
-    given; so does a finder's radius given.
+    The default finder searches :data:`SIZE_PREVIEW_FRAMES` frames spread over the movie;
+    the median zone radius of their holograms (:func:`hologram_zones`, each candidate's from
+    :mod:`holofit.crop.profile`) gives the side (:func:`crop_size_for_zone`), and the vote
+    radius is half of it where it was not given either (the default finder, or
+    :data:`AUTO_VOTE_RADIUS`). A side given stays as given; so does a finder's radius given.
+    A movie whose preview frames show no hologram the default finder finds (every one in a
+    pair closer than its vote disc) keeps 140 px.
 
     Returns
     -------
@@ -216,17 +213,16 @@ def sized_for_movie(config: CropConfig, movie: Any, normalizer: Normalizer,
     """
     if not is_automatic(config):
         return replace(config, size=int(config.size)), {"rule": "given"}
-    base = config.finder_for_size(instrument)
+    finder = config.finder_for_size(instrument)
     n = len(movie)
     frames = sorted({int(k) for k in np.linspace(0, n - 1, min(SIZE_PREVIEW_FRAMES, n))})
     zones: list[float] = []
     for k in frames:
         try:
-            found = [detect(movie, k, normalizer, replace(base, radius_px=f * base.radius_px))[2]
-                     for f in PREVIEW_RADII]
+            _, _, found = detect(movie, k, normalizer, finder)
         except FrameError:
             continue
-        zones += hologram_zones(pd.concat(found, ignore_index=True))
+        zones += hologram_zones(found)
     zone = float(np.median(zones)) if zones else math.nan
     side = crop_size_for_zone(zone, tuple(movie.frame_shape))
     out = replace(config, size=side)
