@@ -113,6 +113,8 @@ def run_crop(
     refuse_while_worker_starts("run_crop")
     inst = resolve_instrument(instrument)
     backgrounds = check_arguments(cfg, background_path)
+    cfg.finder_for_size(inst)
+    follower(cfg)  # the finder's and follower's own checks, before the movie is opened
     link = link_options(cfg)
     with open_checked(movie_path) as movie:
         check_for_movie(movie, movie_path, cfg)
