@@ -31,6 +31,7 @@ __all__ = [
     "CROP_ZONE_RADII",
     "DEFAULT_CROP_SIZE",
     "MIN_CROP_SIZE",
+    "SIZE_PREVIEW_FRAMES",
     "TRACKS",
     "CropConfig",
     "DefaultRadius",
@@ -180,9 +181,8 @@ def crop_size_for_zone(zone_px: float, frame_shape: tuple[int, int]) -> int:
 
 def hologram_zones(found: pd.DataFrame) -> list[float]:
     """The zone radii of a frame's holograms (its candidates): its refined candidates' that
-    score at least :data:`PREVIEW_SCORE_SHARE` of its
-    strongest (the rest are fringes cut by the frame's edge, whose zone is that of the cut,
-    or junk beside a hologram)."""
+    score at least :data:`PREVIEW_SCORE_SHARE` of its strongest (the rest are fringes cut by
+    the frame's edge, whose zone is that of the cut, or junk beside a hologram)."""
     if "zone_px" not in found.columns or not len(found):
         return []
     score = found["score"].to_numpy(float)
@@ -209,7 +209,7 @@ def sized_for_movie(config: CropConfig, movie: Any, normalizer: Normalizer,
     -------
     CropConfig, dict
         The config (plain ``int`` side) and what the sidecar records of the choice
-        (``rule``, ``zone_px``, ``frames``).
+        (``rule``, ``zone_px``: None where no hologram was found, ``frames``, ``size_px``).
     """
     if not is_automatic(config):
         return replace(config, size=int(config.size)), {"rule": "given"}
@@ -229,7 +229,8 @@ def sized_for_movie(config: CropConfig, movie: Any, normalizer: Normalizer,
     if config.finder is not None and isinstance(config.finder.radius_px, DefaultRadius):
         out = replace(out, finder=replace(config.finder, radius_px=side / 2.0))
     record = {"rule": f"max(140 px, {CROP_ZONE_RADII:g} zone radii of the movie's holograms)",
-              "zone_px": zone, "frames": frames, "size_px": side}
+              "zone_px": zone if math.isfinite(zone) else None, "frames": frames,
+              "size_px": side}
     return out, record
 
 
