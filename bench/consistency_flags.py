@@ -9,7 +9,9 @@ Then a 500 nm sphere that sticks for frames 50-99 of 150 (and variants): the fra
 study's rod whose D_r is a factor off the spherocylinder of its optical size
 (``holofit.studies.consistency.rotation_case``; factor 1: the clean rod, its false-flag
 rate; 0.6: a rod that drags, or is larger than its fit says, the power), by the whole check
-and by the ``size D_r`` test alone, with the mean and s.d. of that test's ``z``.
+and by the ``size D_r`` test alone, with the mean and s.d. of that test's ``z``; and the
+clean rods again (the same seeds) with the prediction exact (no temperature error, no theory
+tolerance), whose ``z`` is then the measurement's own pull.
 
 Usage::
 
@@ -67,25 +69,36 @@ def example() -> dict:
             "flagged": c.flagged, "message": c.message}
 
 
+#: the prediction exact (the simulated rod is the spherocylinder of its optical size at the
+#: settings' temperature): the rotational size test's z is then the measurement's pull
+EXACT = AnalysisConfig("rod", temperature_c=CALIBRATION_T_C, temperature_err_c=0.0,
+                       theory_tolerance=0.0)
+
+
 def rotation_rows(seeds: int, lengths: list[int], factors: list[float], first_seed: int
                   ) -> list[dict]:
-    """The rotational size test's power (factor != 1) and false-flag rate (factor 1)."""
+    """The rotational size test's power (factor != 1) and false-flag rate (factor 1); then,
+    with the prediction exact (:data:`EXACT`), the clean rods' z (mean 0, s.d. 1 if the
+    measurement's error is right)."""
     rows = []
-    for n in lengths:
-        for factor in factors:
-            t0 = time.perf_counter()
-            s, z = rotation_case(seeds, n, factor, first_seed=first_seed)
-            zs = np.asarray(z, float)
-            size_r = s.failed_by_test.get("size D_r", 0)
-            rows.append({**s.case, "n": s.n, "errors": s.errors, "flagged": s.flagged,
-                         "rate": s.rate, "rate_err": s.rate_error, "size_D_r": size_r,
-                         "size_D_r_rate": size_r / s.n if s.n else float("nan"),
-                         "z_mean": float(np.nanmean(zs)), "z_sd": float(np.nanstd(zs, ddof=1)),
-                         **{f"failed_{k}": v for k, v in s.failed_by_test.items()}})
-            print(f"rod D_r x {factor:g}, {n} frames: flagged {s.flagged}/{s.n} "
-                  f"({100 * s.rate:.1f} %), size D_r {size_r}/{s.n}, z {np.nanmean(zs):+.2f} "
-                  f"+- {np.nanstd(zs, ddof=1):.2f}; {dict(s.failed_by_test)} "
-                  f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    cases = [(n, f, None) for n in lengths for f in factors] + [(n, 1.0, EXACT)
+                                                                  for n in lengths]
+    for n, factor, settings in cases:
+        t0 = time.perf_counter()
+        s, z = rotation_case(seeds, n, factor, first_seed=first_seed, settings=settings)
+        s.case["prediction"] = "exact" if settings is not None else "default"
+        zs = np.asarray(z, float)
+        size_r = s.failed_by_test.get("size D_r", 0)
+        rows.append({**s.case, "n": s.n, "errors": s.errors, "flagged": s.flagged,
+                     "rate": s.rate, "rate_err": s.rate_error, "size_D_r": size_r,
+                     "size_D_r_rate": size_r / s.n if s.n else float("nan"),
+                     "z_mean": float(np.nanmean(zs)), "z_sd": float(np.nanstd(zs, ddof=1)),
+                     **{f"failed_{k}": v for k, v in s.failed_by_test.items()}})
+        print(f"rod D_r x {factor:g}, {n} frames, {s.case['prediction']} prediction: "
+              f"flagged {s.flagged}/{s.n} "
+              f"({100 * s.rate:.1f} %), size D_r {size_r}/{s.n}, z {np.nanmean(zs):+.2f} "
+              f"+- {np.nanstd(zs, ddof=1):.2f}; {dict(s.failed_by_test)} "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
     return rows
 
 
