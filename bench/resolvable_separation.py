@@ -2,12 +2,15 @@
 
 Two identical particles at the same height, ``d`` apart along a random direction, filmed by
 the instrument's simulated camera (:func:`holofit.simulate.holograms.default_camera`: shot,
-read and quantisation noise); the crop stage's default centre finder (vote radius 70 px, half
-the default 140-px crop; the instrument's fringe limits) searches every noise draw. A draw
-resolves the pair when both particles have a detection within :data:`TOLERANCE_UM` of their
-centre and no other detection lies within ``d + 1 um`` of the pair's midpoint. The *resolvable
-separation* is the smallest ``d`` of the grid from which on every larger ``d`` resolves the pair
-in at least 95 % of the draws.
+read and quantisation noise); the crop stage's default centre finder (the instrument's fringe
+limits; vote radius half the default crop side, which the crop chooses from the movie's
+holograms: the larger of 140 px and four zone radii, :func:`holofit.crop.settings.
+sized_for_movie`; here the median zone radius of the holograms the default finder finds in
+five draws of the pair 10 um apart at that height, as the crop's preview does) searches
+every noise draw. A draw resolves the pair when both particles have a detection within
+:data:`TOLERANCE_UM` of their centre and no other detection lies within ``d + 1 um`` of the
+pair's midpoint. The *resolvable separation* is the smallest ``d`` of the grid from which on
+every larger ``d`` resolves the pair in at least 95 % of the draws.
 
 Particles: the 1 um polystyrene sphere (``sphere_ps_1um``) and the paper's rod (``rod_paper``,
 its DDA T-matrix; the two rods at independent random orientations) at heights
@@ -32,7 +35,12 @@ import numpy as np
 
 from holofit.config import Instrument, load_instrument, load_particle, resolve_config
 from holofit.conventions import hologram_intensity, pixel_centres
-from holofit.crop.settings import CropConfig
+from holofit.crop.settings import (
+    SIZE_PREVIEW_FRAMES,
+    CropConfig,
+    crop_size_for_zone,
+    hologram_zones,
+)
 from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation
 from holofit.simulate.holograms import default_camera
@@ -118,17 +126,32 @@ def resolvable(fractions: dict[float, float], required: float = 0.95) -> float:
     return best
 
 
+def default_finder(pairs: _Pairs, z_um: float, rng: np.random.Generator) -> tuple[Any, float]:
+    """The crop stage's default finder for a movie of pairs at ``z_um``: its side from the
+    zone radii the 140-px default measures on a few frames (as the crop's preview does)."""
+    probe = CropConfig().finder_for_size(pairs.inst)
+    zones = []
+    for _ in range(SIZE_PREVIEW_FRAMES):
+        image, _ = pairs.intensity(max(SEPARATIONS_UM), z_um, rng)
+        zones += hologram_zones(probe.find(pairs.frame(image, rng)))
+    zone = float(np.median(zones)) if zones else math.nan
+    side = crop_size_for_zone(zone, pairs.shape)
+    return CropConfig(size=side).finder_for_size(pairs.inst), zone
+
+
 def run(draws: int, instruments: tuple[str, ...]) -> dict[str, Any]:
     out: dict[str, Any] = {"draws": draws, "tolerance_um": TOLERANCE_UM}
     for name in instruments:
         inst = load_instrument(resolve_config(name, "instruments"))
-        finder = CropConfig().finder_for_size(inst)
         out[f"{name}_frame_px"] = _frame_shape(inst)[0]
         for particle, heights in HEIGHTS_UM.items():
             t0 = time.time()
             pairs = _Pairs(inst, particle)
             for z in heights:
                 rng = np.random.default_rng(zlib.crc32(f"{name}/{particle}/{z:g}".encode()))
+                finder, zone = default_finder(pairs, z, rng)
+                out[f"{name}_{particle}_z{z:g}_zone_px"] = round(zone, 1)
+                out[f"{name}_{particle}_z{z:g}_vote_radius_px"] = finder.radius_px
                 fractions = {}
                 for d in SEPARATIONS_UM:
                     ok = 0
@@ -139,7 +162,8 @@ def run(draws: int, instruments: tuple[str, ...]) -> dict[str, Any]:
                     fractions[d] = ok / draws
                     out[f"{name}_{particle}_z{z:g}_d{d:g}"] = round(fractions[d], 3)
                 out[f"{name}_{particle}_z{z:g}_resolvable_um"] = resolvable(fractions)
-                print(name, particle, z, fractions, flush=True)
+                print(name, particle, z, f"zone {zone:.1f} px, vote radius "
+                      f"{finder.radius_px:g} px", fractions, flush=True)
             out[f"{name}_{particle}_time_s"] = round(time.time() - t0, 1)
     return out
 

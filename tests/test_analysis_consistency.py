@@ -18,6 +18,7 @@ from holofit.studies.consistency import (
     OPTICAL_SIZES,
     _with_sizes,
     false_flag_case,
+    rotation_case,
     sticking_case,
     sticking_sphere,
 )
@@ -90,21 +91,60 @@ def test_clean_tracks_are_rarely_flagged(model: str, n_frames: int, n_seeds: int
 
 def test_rod_of_the_wrong_size_is_flagged_with_a_and_b() -> None:
     # the paper's rod's dynamics with a fitted size 1.6 times too small (a 313 nm, b 674 nm):
-    # D_t and D_r would be 1.6 and ~4 times faster. D_t fails; D_r, with its 30 % theory
-    # tolerance taken on the prediction's scale, is only at z ~ -2.3, but its size ratio (the
-    # most precise: D_r ~ size^-3) is in the message
+    # D_t and D_r would be 1.6 and ~4 times faster. Both size tests fail (D_r, on its log
+    # scale, by far: ln 4 against a ~15 % combined error), and the D_r size ratio (the most
+    # precise: D_r ~ size^-3) is in the message
     traj = calibration_trajectory("rod", "replicate", 300, 11)
     sizes = {k: v / 1.6 for k, v in OPTICAL_SIZES["rod"].items()}
     res = analyze_trajectory(_with_sizes(traj, sizes, 300),
                              AnalysisConfig("rod", temperature_c=CALIBRATION_T_C))
     c = res.consistency
     assert c is not None and res.flagged
-    assert "size D_t" in c.failed
+    assert "size D_t" in c.failed and "size D_r" in c.failed
     size = c.test("size D_r")
     assert size is not None and size.values["size_ratio"] == pytest.approx(1.6, rel=0.15)
+    assert size.statistic < -5
     assert f"{size.values['hydrodynamic_a_nm']:.0f} +- " in c.message
     assert "hydrodynamic a " in c.message and ", b " in c.message
     assert "(at the fitted aspect ratio) against the fitted a 313" in c.message
+
+
+def test_rotational_size_statistic_is_standard_normal_for_a_clean_rod() -> None:
+    # with the prediction exact (no temperature error, no theory tolerance: the simulated rod
+    # is the spherocylinder of its optical size) the log-scale z of D_r against the prediction
+    # is the measurement's own pull: mean 0, s.d. 1 (s.e. 0.11 and 0.08 over 80 seeds)
+    exact = AnalysisConfig("rod", temperature_c=CALIBRATION_T_C, temperature_err_c=0.0,
+                           theory_tolerance=0.0)
+    _, z = rotation_case(80, 300, 1.0, first_seed=40_000, settings=exact)
+    zs = np.asarray(z)
+    assert np.isfinite(zs).all()
+    assert abs(zs.mean()) < 0.35 and 0.8 < zs.std(ddof=1) < 1.2, (zs.mean(), zs.std(ddof=1))
+
+
+def test_rod_whose_rotation_is_slow_is_flagged_by_the_rotational_size_test() -> None:
+    # a rod whose D_r is 0.6 x the spherocylinder of its fitted a, b (it drags, or is larger
+    # than its fit says), its translation right, 1000 frames: ln 0.6 = -0.51 against a ~13 %
+    # combined error (measurement ~6 %, prediction 5.5 % from the default 2 C, theory 10 %);
+    # bench/consistency_flags.py measures the power over 500 seeds per length
+    slow, z = rotation_case(40, 1000, 0.6, first_seed=40_000)
+    assert slow.failed_by_test["size D_r"] >= 28, dict(slow.failed_by_test)
+    assert np.mean(z) < -3
+    clean, _ = rotation_case(40, 1000, 1.0, first_seed=40_000)
+    assert clean.failed_by_test.get("size D_r", 0) <= _most_flagged(clean.n)
+    assert clean.flagged <= _most_flagged(clean.n)
+    # the message says how far off and in which units
+    traj = calibration_trajectory("rod", "replicate", 300, 11)
+    res = analyze_trajectory(_with_sizes(traj, OPTICAL_SIZES["rod"], 300),
+                             AnalysisConfig("rod", temperature_c=CALIBRATION_T_C))
+    c = res.consistency
+    assert c is not None
+    size = c.test("size D_r")
+    assert size is not None and "combined relative error" in size.detail
+    assert "log scale" in size.detail
+    assert size.values["sigma_total"] == pytest.approx(math.sqrt(
+        size.values["sigma"] ** 2 + size.values["sigma_prediction"] ** 2 + 0.10 ** 2))
+    assert size.statistic == pytest.approx(
+        math.log(size.values["ratio"]) / size.values["sigma_total"])
 
 
 def _swimming_rod(speed_um_s: float, n_frames: int, seed: int) -> Trajectory:

@@ -67,8 +67,8 @@ def test_the_makefile_chains_the_stages_with_the_run_folder_inputs(tmp_path, inp
     assert opts["library"].split()[:6] == ["crop", "--prefit", "prefit", "-p", "particle.toml",
                                            "-o"]
     assert "--library library -p particle.toml" in opts["fit initial"]
-    assert opts["analyze"].split() == ["fit/fit.csv", "-o", "analysis", "--model", "rod",
-                                       "--temperature-c", "21"]
+    # the analysis reads each track's model from the fit table, as in a population
+    assert opts["analyze"].split() == ["fit/fit.csv", "-o", "analysis", "--temperature-c", "21"]
     assert not any("--overwrite" in o for o in opts.values())
     # how the stages run: workers, a Dask scheduler, the holofit command
     proc = run_make(run, "-n", "JOBS=3", "SCHEDULER=tcp://10.0.0.5:8786", "HOLOFIT=myholofit")
@@ -97,8 +97,14 @@ def test_a_sphere_has_no_library_stage_and_options_reach_their_stage(tmp_path, i
     for fit in ("fit initial", "fit final"):
         assert "--library" not in opts[fit]
         assert "--engine mie --initial-frames 50 --no-plot" in opts[fit]
-    assert "--model sphere --temperature-c 25" in opts["analyze"]
+    assert "--model" not in opts["analyze"] and "--temperature-c 25" in opts["analyze"]
     assert "library: skipped: a sphere" in run_make(run, "library").stdout
+    # a model given to init is imposed on every track
+    res = _init(tmp_path, inputs, "--model", "sphere", run="run02", particle="sphere_ps_1um")
+    assert res.exit_code == 0, res.output
+    forced = dict(stages_run(run_make(tmp_path / "run02", "-n").stdout, tmp_path / "run02"))
+    assert "--model sphere --temperature-c 21" in forced["analyze"]
+    assert "`--model sphere`" in (tmp_path / "run02" / "README.md").read_text()
 
 
 @needs_make
@@ -134,6 +140,8 @@ def test_init_again_needs_force_and_keeps_unchanged_copies(tmp_path, inputs):
     assert _init(tmp_path, inputs, "--force", particle="dimer_holopy2011").exit_code == 0
     assert (run / "particle.toml").stat().st_mtime_ns > stamps["particle.toml"]
     assert "model = \"dimer\"" in (run / "particle.toml").read_text()
+    # a dimer of unequal spheres: the fit table does not decide its analysis, the Makefile does
+    assert "\nMODEL         = rod\n" in (run / "Makefile").read_text()
 
 
 @pytest.mark.parametrize("case", ["missing movie", "not a movie", "unknown instrument",
@@ -395,5 +403,11 @@ def test_a_population_names_every_model_and_the_rod_is_the_primary(tmp_path, inp
     # no model forced on the analysis: each track gets the one of the model the fit gave it
     assert ran["analyze"].split() == ["fit/fit.csv", "-o", "analysis", "--temperature-c", "21"]
     assert "each track with the model of the particle" in (run / "README.md").read_text()
+    # ... unless one is given (it was dropped in a population)
+    res = _init(tmp_path, inputs, "-p", "rod_paper", "--model", "rod", run="run02",
+                particle="sphere_ps_1um")
+    assert res.exit_code == 0, res.output
+    forced = dict(stages_run(run_make(tmp_path / "run02", "-n").stdout, tmp_path / "run02"))
+    assert "--model rod --temperature-c 21" in forced["analyze"]
     twice = _init(tmp_path / "b", inputs, "-p", "janus_paper", particle="rod_paper")
     assert twice.exit_code == 1 and "second non-spherical model" in twice.output

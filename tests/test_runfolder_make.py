@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -95,6 +96,28 @@ def test_first_make_runs_every_stage_in_order_and_recovers_the_sphere(finished, 
     proc = run_make(run, "library")
     assert proc.returncode == 0 and "library: skipped: a sphere" in proc.stdout
     assert not (run / "library").exists()
+
+
+def test_the_analysis_step_reads_the_model_and_forcing_it_changes_nothing(finished, tmp_path):
+    """A run of one particle model passes no --model: the analysis reads the track's model
+    from the fit table (the fit's particle, a sphere), as in a population; forcing it
+    (make MODEL=sphere, holofit init --model) reruns the analysis only, with the same
+    result."""
+    run, output = finished
+    analyze = dict(stages_run(output, run))["analyze"]
+    assert "--model" not in analyze.split(), analyze
+    assert re.search(r"^MODEL\s*=$", (run / "Makefile").read_text(), re.M)
+    forced = _copy(run, tmp_path)
+    proc = run_make(forced, "MODEL=sphere", "JOBS=0")
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    ran = stages_run(proc.stdout, forced)
+    assert names(ran) == ["analyze"] and "--model sphere" in ran[0][1]
+    free = pd.read_csv(run / "analysis" / "summary.csv")
+    given = pd.read_csv(forced / "analysis" / "summary.csv")
+    assert len(free) > 0 and free["quantity"].astype(str).str.startswith("D").any()
+    pd.testing.assert_frame_equal(free, given)
+    model = json.loads((run / "analysis" / "summary.json").read_text())["analysis"]
+    assert model["settings"]["model"] == "sphere"
 
 
 def test_a_second_make_does_nothing(finished):

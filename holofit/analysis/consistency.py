@@ -6,18 +6,26 @@ for the motion tests):
 
 * **Size** (``size D_t``, ``size D_r``): the measured coefficient against the hydrodynamic
   prediction from the fitted size (Stokes-Einstein(-Debye) for a sphere's radius, the
-  spherocylinder for a rod's ``a`` and ``b``), as the score statistic
+  spherocylinder for a rod's ``a`` and ``b``), on a log scale, as the score statistic
 
-      z = (D_hat - D_th) / sqrt(sigma^2 + sigma_th^2 + (tol D_th)^2),
+      z = ln(D_hat / D_th) / sqrt(s^2 + s_th^2 + tol^2),
 
-  ``sigma`` the larger of the error the fit would have if the coefficient were the prediction
-  (the fit's covariance moved to ``D_th``: a diffusion coefficient's error grows with it, and
-  the error at a low estimate would make a short, noisy run look inconsistent) and the
-  measurement's error on the prediction's side (larger where a nonlinear fit, such as the
-  Janus projection correlation, scatters upwards more than its covariance at ``D_th`` says),
-  ``sigma_th`` the prediction's error from the temperature and size errors, and ``tol`` the
-  theory's own relative uncertainty (:attr:`ConsistencyPlan.tolerance`: walls, the shape
-  model). The
+  all three relative errors. ``s`` is the larger of the error the fit would have if the
+  coefficient were the prediction (the fit's covariance moved to ``D_th``, over ``D_th``: a
+  diffusion coefficient's error grows with it, and the error at a low estimate would make a
+  short, noisy run look inconsistent) and the measurement's log-scale error on the
+  prediction's side (``ln((D_hat + sigma_+) / D_hat)`` above, ``ln(D_hat / (D_hat -
+  sigma_-))`` below: larger where a nonlinear fit, such as the Janus projection correlation,
+  scatters upwards more than its covariance at ``D_th`` says). ``s_th`` is the prediction's
+  relative error from the temperature and the optical size errors, propagated through the
+  prediction (:func:`holofit.analysis.hydrodynamics.predict`: a rod's ``D_r ~ size^-3``
+  carries three times its size's relative error). ``tol`` is the theory's own relative
+  uncertainty (:attr:`ConsistencyPlan.tolerance`: walls, the shape model), the same for
+  translation and rotation. The log scale is that of the rule ``D ~ size^-e``: a rotational
+  coefficient's relative error is large and its distribution skewed, and a factor off (a rod
+  that sticks, or one larger than its optical size) is the same distance from the prediction
+  whichever way. A measured value that is not positive (and not an upper limit) is tested on
+  the linear scale. The
   size the measurement implies is reported as the ratio hydrodynamic / optical,
   ``(D_th / D_hat)^(1/e)`` with ``e = 1`` for translation and 3 for rotation (a sphere's
   Stokes-Einstein radius over its fitted radius; for a rod, the factor by which ``a`` and ``b``
@@ -113,9 +121,12 @@ class ConsistencyPlan:
         ``axis`` (a rod's 3D axis: body-frame steps, rotation tested too) or ``projection``
         (a Janus particle's x-y direction of its axis); None: no axis.
     tolerance : float
-        Relative uncertainty of the hydrodynamic theory itself, for translation (rotation:
-        three times it): a wall a few radii away slows a sphere by several per cent; the
-        spherocylinder and cylinder theories of a rod differ by ~7 % in D_t.
+        Relative uncertainty of the hydrodynamic theory itself (on the log scale of the size
+        tests; translation and rotation alike): a wall a few radii away slows a sphere's
+        translation by several per cent (its rotation less: the wall's effect on it falls as
+        the cube of the distance); the spherocylinder and cylinder theories of a rod differ
+        by ~7 % in D_t. The rotational coefficient's stronger dependence on the size is the
+        optical size's error, propagated through the prediction, not a wider tolerance.
     """
 
     sizes: tuple[SizeCheck, ...]
@@ -212,13 +223,39 @@ def _size_words(ratio: float, ratio_err: float, sizes: dict[str, tuple[float, fl
             f"{', '.join(parts_o)}"), values
 
 
+def _log_errors(measured: Measurement, fit: FitResult | None,
+                prediction: Prediction) -> tuple[float, float, float]:
+    """The measurement's relative error (the larger of the fit's at the prediction and the
+    log-scale error on the prediction's side), the fit's at the prediction alone, and the
+    prediction's relative error."""
+    d, d_th = measured.value, prediction.value
+    lo, hi = measured.sides()
+    side = math.log1p(hi / d) if d_th > d else (
+        -math.log1p(-lo / d) if lo < d else math.inf)
+    at_th = fit.d_sigma(d_th) / d_th if fit is not None else math.nan
+    sig = max(at_th, side) if math.isfinite(at_th) else side
+    return sig, at_th, prediction.error / d_th
+
+
 def size_test(check: SizeCheck, measured: Measurement, fit: FitResult | None,
               prediction: Prediction, tolerance: float,
               sizes: dict[str, tuple[float, float, str]] | None = None) -> TestResult:
-    """The score test of a measured coefficient against its prediction (module docstring).
+    """The score test of a measured coefficient against its prediction, on a log scale
+    (module docstring).
 
     Parameters
     ----------
+    check : SizeCheck
+        What is tested (its exponent converts the ratio to a size ratio).
+    measured : Measurement
+        The measured coefficient with its sided errors.
+    fit : FitResult, optional
+        The fit it comes from (its error at the prediction); None: the sided errors alone.
+    prediction : Prediction
+        The hydrodynamic prediction from the optical size, with its error from the
+        temperature and the sizes.
+    tolerance : float
+        The theory's relative uncertainty.
     sizes : dict, optional
         The fitted sizes (``a_um``, ``b_um``: value, error, source), for the hydrodynamic
         sizes in nm beside the ratio.
@@ -227,21 +264,30 @@ def size_test(check: SizeCheck, measured: Measurement, fit: FitResult | None,
     -------
     TestResult
         Statistic ``z``; values: ``ratio`` (measured / predicted), ``size_ratio``
-        (hydrodynamic / optical) with ``size_ratio_err`` (from the sided errors), ``z``, and
-        for each fitted size ``hydrodynamic_<a|b>_nm`` and ``optical_<a|b>_nm`` (each with
-        ``_err_nm``); the sizes in words in ``detail`` and :attr:`TestResult.sizes`.
+        (hydrodynamic / optical) with ``size_ratio_err`` (from the sided errors), ``z``,
+        ``sigma`` (the measurement's relative error used), ``sigma_at_prediction`` (the fit's
+        at the prediction, relative), ``sigma_prediction`` (the prediction's, relative),
+        ``sigma_total`` (the combined relative error), and for each fitted size
+        ``hydrodynamic_<a|b>_nm`` and ``optical_<a|b>_nm`` (each with ``_err_nm``); the sizes
+        in words in ``detail`` and :attr:`TestResult.sizes`.
     """
     name = f"size {check.prediction}"
     d, d_th = measured.value, prediction.value
     if not (math.isfinite(d) and math.isfinite(d_th) and d_th > 0):
         return TestResult(name, math.nan, math.nan, "not tested: no value or prediction")
     lo, hi = measured.sides()
-    side = hi if d_th > d else lo
-    at_th = fit.d_sigma(d_th) if fit is not None else math.nan
-    sig = max(at_th, side) if math.isfinite(at_th) else side
-    tol = tolerance * check.exponent * d_th
-    total = math.sqrt(sig**2 + prediction.error**2 + tol**2)
-    z = (d - d_th) / total
+    if d > 0:
+        sig, at_th, s_th = _log_errors(measured, fit, prediction)
+        total = math.sqrt(sig**2 + s_th**2 + tolerance**2)
+        z = math.log(d / d_th) / total
+        scale = "log scale"
+    else:  # no log: the linear score, every error relative to the prediction
+        at_th = fit.d_sigma(d_th) / d_th if fit is not None else math.nan
+        sig = max(at_th, hi / d_th) if math.isfinite(at_th) else hi / d_th
+        s_th = prediction.error / d_th
+        total = math.sqrt(sig**2 + s_th**2 + tolerance**2)
+        z = (d / d_th - 1.0) / total
+        scale = "linear scale: the measured value is not positive"
     p = float(2.0 * stats.norm.sf(abs(z)))
     e = check.exponent
     size = (d_th / d) ** (1 / e) if d > 0 else math.inf
@@ -254,11 +300,14 @@ def size_test(check: SizeCheck, measured: Measurement, fit: FitResult | None,
                   else f"hydrodynamic size {size:.3g} +- {size_err:.2g} x the optical "
                        f"(from {check.measured})")
     detail = (f"{check.measured} {d:.4g} (-{lo:.2g} +{hi:.2g}) against {d_th:.4g} +- "
-              f"{prediction.error:.2g} from the fitted size, {100 * tolerance * e:.0f} % theory "
-              f"tolerance: ratio {d / d_th:.3f}, z = {z:+.2f} (p = {p:.2g}); {sizes_text}")
+              f"{prediction.error:.2g} from the fitted size and temperature: ratio "
+              f"{d / d_th:.3f}, combined relative error {100 * total:.0f} % (measurement "
+              f"{100 * sig:.0f} %, prediction {100 * s_th:.1f} %, {100 * tolerance:.0f} % "
+              f"theory tolerance; {scale}), z = {z:+.2f} (p = {p:.2g}); {sizes_text}")
     return TestResult(name, z, p, detail, {"ratio": d / d_th, "size_ratio": size,
                                            "size_ratio_err": size_err, "z": z,
                                            "sigma": sig, "sigma_at_prediction": at_th,
+                                           "sigma_prediction": s_th, "sigma_total": total,
                                            **size_values}, sizes_text)
 
 

@@ -10,7 +10,13 @@ from holofit.batch.options import BatchSettings
 from holofit.cli.common import instrument_option, load_instrument_arg, out_dir_option
 from holofit.crop import CenterFinder, CropConfig, CropResult, run_crop
 from holofit.crop.centerfind import MIN_RADIUS_PX
-from holofit.crop.settings import CROP_MODES, DEFAULT_CROP_SIZE, MIN_CROP_SIZE, TRACKS
+from holofit.crop.settings import (
+    AUTO_VOTE_RADIUS,
+    CROP_MODES,
+    DEFAULT_CROP_SIZE,
+    MIN_CROP_SIZE,
+    TRACKS,
+)
 from holofit.crop.tracks import LinkSettings, TrackError
 from holofit.status import CROP_ERROR
 
@@ -65,9 +71,10 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
 @click.option(
     "--size",
     type=click.IntRange(min=MIN_CROP_SIZE),
-    default=DEFAULT_CROP_SIZE,
-    show_default=True,
-    help="Crop side N, pixels.",
+    default=None,
+    help="Crop side N, pixels [default: 140, the paper's, or 4 zone radii sqrt(wavelength in "
+    "the medium x height) of the movie's holograms where that is larger: measured on a few "
+    "frames].",
 )
 @click.option(
     "--follow",
@@ -111,7 +118,8 @@ def _parse_start(value: str | None) -> tuple[float, float] | None:
     "radius",
     type=click.FloatRange(min=MIN_RADIUS_PX),
     default=None,
-    help="Vote radius of the centre finder, pixels [default: size/2] (--radius: the old "
+    help="Vote radius of the centre finder, pixels [default: half the crop side] (--radius: "
+    "the old "
     "name, deprecated). Close holograms are resolved whatever it is: two centres merge only "
     "within half a hologram's measured zone radius, sqrt(wavelength in the medium x height).",
 )
@@ -158,7 +166,7 @@ def crop(
     dark_count: float | None,
     instrument: str,
     out: Path,
-    size: int,
+    size: int | None,
     follow: str,
     particle: int | None,
     search_range_um: float,
@@ -195,7 +203,8 @@ def crop(
     inst = load_instrument_arg(instrument)
     try:
         finder = CenterFinder(
-            radius_px=radius if radius is not None else size / 2.0,
+            radius_px=(radius if radius is not None else
+                       AUTO_VOTE_RADIUS if size is None else size / 2.0),
             min_score=min_score,
             min_symmetry=min_symmetry,
             max_centers=_max_centers(follow, max_particles),
@@ -206,7 +215,8 @@ def crop(
         raise click.UsageError(str(exc)) from None
     if follow != TRACKS and particle is not None:
         raise click.UsageError("--particle needs --follow tracks (the default)")
-    config = CropConfig(size=size, follow=follow, start=start_xy, max_jump_px=max_jump,
+    config = CropConfig(size=DEFAULT_CROP_SIZE if size is None else size, follow=follow,
+                        start=start_xy, max_jump_px=max_jump,
                         finder=finder, link=link, particle=particle, normalized=normalized,
                         dark=list(darks) or dark_count, mask_saturated=mask_saturated, plot=plot)
     result = run_crop(movie, list(backgrounds) or None, inst, out, config,

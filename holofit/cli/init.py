@@ -78,8 +78,9 @@ def _stage_option(stage: str):  # type: ignore[no-untyped-def]
 @click.option("--temperature-c", type=float, default=21.0, show_default=True,
               help="Sample temperature for the analysis, C.")
 @click.option("--model", "-m", type=click.Choice(MODELS), default=None,
-              help="Diffusion analysis [default: from the particle: sphere, janus, rod for "
-                   "rods, cylinders, spheroids and dimers].")
+              help="Diffusion analysis imposed on every track [default: each track's from "
+                   "the particle the fit gave it, read from the fit table: sphere, janus, rod "
+                   "for rods, cylinders, spheroids and dimers].")
 @_stage_option("crop")
 @_stage_option("prefit")
 @_stage_option("library")

@@ -7,34 +7,75 @@ with a message naming the option to change.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import pandas as pd
+
 from holofit.config import Instrument
 from holofit.crop.centerfind import CenterFinder
-from holofit.crop.errors import CropError
+from holofit.crop.detect import detect
+from holofit.crop.errors import CropError, FrameError
 from holofit.crop.follow import FOLLOW_MODES, Follower
-from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND
+from holofit.crop.normalize import DEFAULT_MIN_BACKGROUND, Normalizer
 from holofit.crop.profile import FringeOptics
 from holofit.crop.tracks import LinkSettings
 
 __all__ = [
+    "AUTO_VOTE_RADIUS",
     "CROP_MODES",
+    "CROP_ZONE_RADII",
     "DEFAULT_CROP_SIZE",
     "MIN_CROP_SIZE",
+    "SIZE_PREVIEW_FRAMES",
     "TRACKS",
     "CropConfig",
+    "DefaultRadius",
+    "DefaultSize",
     "References",
     "check_crop_settings",
+    "crop_size_for_zone",
+    "hologram_zones",
+    "is_automatic",
     "reference_paths",
+    "sized_for_movie",
 ]
 
 #: smallest crop side, pixels
 MIN_CROP_SIZE = 8
-#: the paper's crop side, pixels
-DEFAULT_CROP_SIZE = 140
+
+
+class DefaultSize(int):
+    """A crop side in pixels that was not given: the crop stage may enlarge it to the movie's
+    holograms (:func:`sized_for_movie`). Compares and computes as the plain ``int``."""
+
+
+class DefaultRadius(float):
+    """A vote radius in pixels that was not given: half the crop side the crop stage
+    chooses (:func:`sized_for_movie`). Compares and computes as the plain ``float``."""
+
+
+#: the paper's crop side, pixels: the smallest default side (a :class:`DefaultSize`: a
+#: ``CropConfig`` without a ``size`` grows it with the movie's holograms)
+DEFAULT_CROP_SIZE: int = DefaultSize(140)
+#: the vote radius of a centre finder whose radius was not given (``holofit crop`` without
+#: ``--vote-radius``): half the crop side, chosen with it
+AUTO_VOTE_RADIUS: float = DefaultRadius(DEFAULT_CROP_SIZE / 2.0)
+#: The default crop side spans this many zone radii ``sqrt(lambda_m z)`` of the movie's
+#: typical hologram (the vote radius, half the side, two): a vote disc that holds little more
+#: than the central spot of a hologram at the movie's height merges close pairs and lets the
+#: rings between them pass as centres; four keeps the paper's 140 px on the paper's
+#: instruments at their heights (docs: validation, "field of view").
+CROP_ZONE_RADII = 4.0
+#: frames of the movie (evenly spread) whose holograms' zone radii set the default crop side
+SIZE_PREVIEW_FRAMES = 5
+#: a preview candidate counts if it scores at least this share of its frame's strongest
+#: (holograms score hundreds, fringes cut by the frame's edge tens)
+PREVIEW_SCORE_SHARE = 0.25
 #: every hologram linked into tracks (:mod:`holofit.crop.track_crops`; the default)
 TRACKS = "tracks"
 #: what ``follow`` may be: tracks, or one hologram per frame (:mod:`holofit.crop.follow`)
@@ -58,7 +99,9 @@ class CropConfig:
     Attributes
     ----------
     size : int
-        Crop side N, pixels (default 140, the paper's).
+        Crop side N, pixels. Default :data:`DEFAULT_CROP_SIZE`: the larger of the paper's
+        140 px and :data:`CROP_ZONE_RADII` zone radii of the movie's typical hologram
+        (:func:`sized_for_movie`); a side given stays as given.
     follow : str
         Which holograms to crop: ``"tracks"`` (the default) every one, linked into tracks
         (:mod:`holofit.crop.track_crops`), or one per frame, ``"strongest"`` or ``"nearest"``
@@ -68,7 +111,8 @@ class CropConfig:
     max_jump_px : float, optional
         The largest move between frames (default ``size / 4``).
     finder : CenterFinder, optional
-        Centre-finder settings (default: vote radius ``size / 2``).
+        Centre-finder settings (default: vote radius ``size / 2``; a finder whose radius is
+        :data:`AUTO_VOTE_RADIUS` gets half the side chosen).
     link : LinkSettings, optional
         ``"tracks"`` only: how holograms are linked (:class:`holofit.crop.tracks.LinkSettings`).
     particle : int, optional
@@ -114,6 +158,80 @@ class CropConfig:
     def dark_files(self) -> list[Path]:
         """The dark frame files (none for a dark level in counts)."""
         return [] if isinstance(self.dark, int | float) else reference_paths(self.dark)
+
+
+def is_automatic(config: CropConfig) -> bool:
+    """The crop side was not given (:class:`DefaultSize`): the movie's holograms choose it."""
+    return isinstance(config.size, DefaultSize)
+
+
+def crop_size_for_zone(zone_px: float, frame_shape: tuple[int, int]) -> int:
+    """The default crop side for holograms of zone radius ``zone_px`` (pixels).
+
+    :data:`CROP_ZONE_RADII` zone radii, rounded up to an even side, never below the paper's
+    140 px nor above the frame's shorter side: the crop and the vote disc follow the
+    hologram's reach in micrometres (the zone radius grows with the height and shrinks with
+    the pixel), not a fixed count of pixels.
+    """
+    side = int(DEFAULT_CROP_SIZE)
+    if math.isfinite(zone_px) and zone_px > 0:
+        side = max(side, 2 * math.ceil(CROP_ZONE_RADII * zone_px / 2.0))
+    return min(side, int(min(frame_shape)))
+
+
+def hologram_zones(found: pd.DataFrame) -> list[float]:
+    """The zone radii of a frame's holograms (its candidates): its refined candidates' that
+    score at least :data:`PREVIEW_SCORE_SHARE` of its strongest (the rest are fringes cut by
+    the frame's edge, whose zone is that of the cut, or junk beside a hologram)."""
+    if "zone_px" not in found.columns or not len(found):
+        return []
+    score = found["score"].to_numpy(float)
+    keep = score >= PREVIEW_SCORE_SHARE * np.nanmax(score)
+    if "refinement" in found.columns:
+        keep &= found["refinement"].astype(str).to_numpy() != "none"
+    z = found["zone_px"].to_numpy(float)[keep]
+    return [float(v) for v in z[np.isfinite(z) & (z > 0)]]
+
+
+def sized_for_movie(config: CropConfig, movie: Any, normalizer: Normalizer,
+                    instrument: Instrument | None = None) -> tuple[CropConfig, dict[str, Any]]:
+    """``config`` with its crop side and vote radius chosen for ``movie`` where not given.
+
+    The default finder searches :data:`SIZE_PREVIEW_FRAMES` frames spread over the movie;
+    the median zone radius of their holograms (:func:`hologram_zones`, each candidate's from
+    :mod:`holofit.crop.profile`) gives the side (:func:`crop_size_for_zone`), and the vote
+    radius is half of it where it was not given either (the default finder, or
+    :data:`AUTO_VOTE_RADIUS`). A side given stays as given; so does a finder's radius given.
+    A movie whose preview frames show no hologram the default finder finds (every one in a
+    pair closer than its vote disc) keeps 140 px.
+
+    Returns
+    -------
+    CropConfig, dict
+        The config (plain ``int`` side) and what the sidecar records of the choice
+        (``rule``, ``zone_px``: None where no hologram was found, ``frames``, ``size_px``).
+    """
+    if not is_automatic(config):
+        return replace(config, size=int(config.size)), {"rule": "given"}
+    finder = config.finder_for_size(instrument)
+    n = len(movie)
+    frames = sorted({int(k) for k in np.linspace(0, n - 1, min(SIZE_PREVIEW_FRAMES, n))})
+    zones: list[float] = []
+    for k in frames:
+        try:
+            _, _, found = detect(movie, k, normalizer, finder)
+        except FrameError:
+            continue
+        zones += hologram_zones(found)
+    zone = float(np.median(zones)) if zones else math.nan
+    side = crop_size_for_zone(zone, tuple(movie.frame_shape))
+    out = replace(config, size=side)
+    if config.finder is not None and isinstance(config.finder.radius_px, DefaultRadius):
+        out = replace(out, finder=replace(config.finder, radius_px=side / 2.0))
+    record = {"rule": f"max(140 px, {CROP_ZONE_RADII:g} zone radii of the movie's holograms)",
+              "zone_px": zone if math.isfinite(zone) else None, "frames": frames,
+              "size_px": side}
+    return out, record
 
 
 def check_crop_settings(
@@ -192,7 +310,7 @@ def settings_record(config: CropConfig, chosen: Follower, finder: CenterFinder,
                     norm_info: dict[str, Any], link: LinkSettings) -> dict[str, Any]:
     """The crop's settings as its sidecar records them."""
     start = config.start
-    settings = {"size_px": config.size, "follow": config.follow,
+    settings = {"size_px": int(config.size), "follow": config.follow,
                 "start_px": list(start) if start is not None else None,
                 "max_jump_px": chosen.max_jump_px, "finder": finder.as_dict(),
                 "normalization": {**norm_info, "mask_saturated": config.mask_saturated}}

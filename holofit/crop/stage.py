@@ -30,7 +30,6 @@ leaves no output behind.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +57,7 @@ from holofit.crop.settings import (
     follower,
     link_options,
     settings_record,
+    sized_for_movie,
 )
 
 __all__ = ["CROP_MODES", "DEFAULT_CROP_SIZE", "MIN_CROP_SIZE", "TRACKS", "CropConfig",
@@ -112,17 +112,21 @@ def run_crop(
     cfg = config or CropConfig()
     refuse_while_worker_starts("run_crop")
     inst = resolve_instrument(instrument)
-    cfg = replace(cfg, size=int(cfg.size))
     backgrounds = check_arguments(cfg, background_path)
-    finder = cfg.finder_for_size(inst)
-    chosen = follower(cfg)
+    cfg.finder_for_size(inst)
+    follower(cfg)  # the finder's and follower's own checks, before the movie is opened
     link = link_options(cfg)
     with open_checked(movie_path) as movie:
         check_for_movie(movie, movie_path, cfg)
         full = saturation(movie, inst) if cfg.mask_saturated else None
         normalizer, norm_info, warnings = prepare_normalizer(movie, backgrounds, cfg, full, inst)
+        # the crop side and vote radius not given follow the movie's holograms
+        cfg, size_choice = sized_for_movie(cfg, movie, normalizer, inst)
+        finder = cfg.finder_for_size(inst)
+        chosen = follower(cfg)
+        record = {**settings_record(cfg, chosen, finder, norm_info, link),
+                  "size_choice": size_choice}
         given = CropInputs(movie, movie_path, normalizer,
                            detect_config(movie, movie_path, backgrounds, cfg, normalizer, finder),
-                           inst, settings_record(cfg, chosen, finder, norm_info, link),
-                           [movie_path, *backgrounds, *cfg.dark_files()], warnings)
+                           inst, record, [movie_path, *backgrounds, *cfg.dark_files()], warnings)
         return CropJob(given, cfg, chosen, link, Path(out_dir), batch, progress).run()

@@ -38,6 +38,7 @@ from holofit.runfolder.spec import (
     STAGES,
     RunFolderConfig,
     analysis_model_for,
+    analysis_reads_model,
     check_make_path,
     check_stage_options,
 )
@@ -251,7 +252,9 @@ def init_run(
     temperature_c : float
         Sample temperature for the analysis, C.
     model : {"rod", "janus", "sphere"}, optional
-        Diffusion analysis (default: from the particle model).
+        Diffusion analysis imposed on every track (the Makefile passes ``--model``); default:
+        each track's from the particle model the fit gave it, which the analysis reads from
+        the fit table, in a run of one model as in a population.
     options : mapping, optional
         Stage (``crop``, ``prefit``, ``library``, ``fit``, ``analyze``) -> extra options.
     holofit_command : str, optional
@@ -285,6 +288,9 @@ def init_run(
     inst_source, part_source, cfg, shape = _configs(instrument, primary)
     alternatives = _population(sources, part_source, cfg)
     analysis = _check_engine_and_analysis(cfg, engine, model, temperature_c)
+    # --model only where given, or where a run of one model could not do without it
+    forced = bool(model) or (not alternatives and not analysis_reads_model(
+        cfg.model.kind, cfg.as_dict(), analysis))
     opts, notes = _check_options(options, cfg, frame_shape, n_frames)
     spec = RunFolderConfig(
         movie=movie_abs, backgrounds=bg_abs, darks=dark_abs, dark_count=dark_count,
@@ -293,7 +299,7 @@ def init_run(
         options=opts, holofit=holofit_command or default_holofit_command(),
         instrument_source=str(inst_source.resolve()), particle_source=str(part_source.resolve()),
         alternatives=tuple(sorted(alternatives)),
-        header=_header(),
+        header=_header(), analysis_forced=forced,
     )
     folder = _write_folder(run, spec, inst_source, part_source, shape, notes, batch_makefile)
     for name, source in alternatives.items():
@@ -379,7 +385,7 @@ def _check_engine_and_analysis(cfg: ParticleConfig, engine: str | None, model: s
             raise RunFolderError(f"engine {engine!r}: expected one of "
                                  f"{', '.join(ENGINE_CHOICES)}")
         cfg.theory(engine)  # an engine that cannot handle the particle: ConfigError now
-    analysis = analysis_model_for(cfg.model.kind, model)
+    analysis = analysis_model_for(cfg.model.kind, model, cfg.as_dict())
     try:
         AnalysisConfig(model=analysis, temperature_c=temperature_c)
     except SettingError as exc:

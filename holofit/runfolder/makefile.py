@@ -242,8 +242,8 @@ def render_run_makefile(spec: RunFolderConfig) -> str:
     variables = _VARIABLES.format(
         movie=spec.movie, backgrounds=" ".join(spec.backgrounds), darks=" ".join(spec.darks),
         dark_count=dark_count, normalized="yes" if spec.normalized else "",
-        # a population: each track is analysed with its own model, none forced on all
-        engine=spec.engine or "", model="" if spec.alternatives else spec.analysis_model,
+        # each track is analysed with its own model (the fit table's), unless one is forced
+        engine=spec.engine or "", model=spec.analysis_model if spec.analysis_forced else "",
         temperature=f"{spec.temperature_c:g}",
         **{stage: make_value(spec.option(stage)) for stage in
            ("crop", "prefit", "library", "fit", "analyze")},

@@ -91,7 +91,10 @@ def render_readme(spec: RunFolderConfig) -> str:
 
 
 def _analysis_model(spec: RunFolderConfig) -> str:
-    """The analysis model the Makefile gives (a population: each track's own)."""
+    """The analysis model the Makefile gives (unless forced: each track's own)."""
+    if spec.analysis_forced:
+        return f"`--model {spec.analysis_model}`"
     if spec.alternatives:
         return "each track with the model of the particle the fit gave it"
-    return f"`--model {spec.analysis_model}`"
+    return (f"each track with the model of the particle the fit gave it "
+            f"({spec.analysis_model})")

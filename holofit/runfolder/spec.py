@@ -9,7 +9,9 @@ import re
 import shlex
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
+from holofit.analysis.population import analysis_model_of
 from holofit.runfolder.errors import RunFolderError
 
 __all__ = [
@@ -18,6 +20,7 @@ __all__ = [
     "STAGES",
     "RunFolderConfig",
     "analysis_model_for",
+    "analysis_reads_model",
     "check_make_path",
     "check_stage_options",
     "make_value",
@@ -39,10 +42,14 @@ RESERVED_OPTIONS: dict[str, tuple[str, ...]] = {
     "analyze": ("-m", "--model", "--temperature-c", "-o", "--out"),
 }
 
-#: the diffusion analysis that suits each particle model (``holofit analyze --model``); models
-#: missing here (ellipsoid, voxels: no symmetry axis the analysis can rely on) need one given
+#: the particle models a run folder analyses without being told how, and the analysis of those
+#: the analysis cannot decide from the fit table alone
+#: (:func:`holofit.analysis.population.analysis_model_of`): a dimer of spheres not known to be
+#: equal is analysed as a rod (``holofit analyze --model rod``); models missing here
+#: (ellipsoid, voxels: no symmetry axis the analysis can rely on) need one given
 ANALYSIS_MODEL_OF: dict[str, str] = {
     "sphere": "sphere",
+    "coated_sphere": "sphere",
     "janus": "janus",
     "spherocylinder": "rod",
     "cylinder": "rod",
@@ -54,22 +61,32 @@ ANALYSIS_MODEL_OF: dict[str, str] = {
 _SAFE_PATH = re.compile(r"[\w./+,@=~-]+")
 
 
-def analysis_model_for(kind: str, given: str | None) -> str:
-    """The ``holofit analyze --model`` of a particle model ``kind`` (``given`` wins).
+def analysis_model_for(kind: str, given: str | None,
+                       particle: Mapping[str, Any] | None = None) -> str:
+    """The diffusion analysis of a particle model ``kind`` (``given`` wins) of
+    :data:`ANALYSIS_MODEL_OF`: the one the analysis itself reads from the fit table
+    (:func:`holofit.analysis.population.analysis_model_of`, with the model's parameters
+    ``particle``), else :data:`ANALYSIS_MODEL_OF`'s.
 
     Raises
     ------
     RunFolderError
-        No default for ``kind`` and none given.
+        No model for ``kind`` and none given.
     """
     if given:
         return given
-    try:
-        return ANALYSIS_MODEL_OF[kind]
-    except KeyError:
+    if kind not in ANALYSIS_MODEL_OF:
         raise RunFolderError(
             f"which diffusion analysis suits a {kind!r} particle? give the analysis model "
-            f"(--model rod, janus or sphere)") from None
+            f"(--model rod, janus or sphere)")
+    own, _ = analysis_model_of(kind, particle)
+    return own if own is not None else ANALYSIS_MODEL_OF[kind]
+
+
+def analysis_reads_model(kind: str, particle: Mapping[str, Any] | None, model: str) -> bool:
+    """The analysis gives a track of particle model ``kind`` the analysis ``model`` by itself
+    (from the fit table's model column and sidecar): the Makefile need not pass ``--model``."""
+    return analysis_model_of(kind, particle)[0] == model
 
 
 def check_make_path(path: str, what: str) -> str:
@@ -141,7 +158,7 @@ class RunFolderConfig:
     anisotropic : bool
         The particle has an orientation: the library stage runs.
     analysis_model : str
-        ``holofit analyze --model``.
+        The diffusion analysis of the run's (primary) particle model.
     temperature_c : float
         Sample temperature, C.
     engine : str, optional
@@ -156,6 +173,12 @@ class RunFolderConfig:
     alternatives : tuple of str
         The copies of the population's other models (``particle_<kind>.toml``): each track is
         fitted with the model that fits it best (:mod:`holofit.fit.models`).
+    analysis_forced : bool
+        The Makefile passes ``--model analysis_model`` to the analysis, imposing it on every
+        track: it was given (``holofit init --model``), or the analysis cannot tell it from
+        the fit table of a single-model run (a dimer of spheres not known to be equal).
+        Otherwise the analysis reads each track's model from the fit table, in a run of one
+        model as in a population.
     header : tuple of str
         Lines about who wrote the folder and how (version, date, command).
     """
@@ -176,6 +199,7 @@ class RunFolderConfig:
     particle_source: str = ""
     alternatives: tuple[str, ...] = ()
     header: tuple[str, ...] = ()
+    analysis_forced: bool = False
 
     def option(self, stage: str) -> str:
         """Extra options of ``stage`` (empty when none)."""
