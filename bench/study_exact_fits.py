@@ -154,8 +154,11 @@ def reference_accuracy(case: str, refs: References, o: Orientation) -> dict[str,
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     truth, optics = refs.truth, refs.optics
     ref = refs.wave(o)
-    exact = TMatrixWave(truth, optics, o, build_exact_tmatrix(truth, optics, max_seconds=60.0))
-    out = {f"{case}_reference_vs_exact_engine_far_field": _far_error(exact, ref, dirs)}
+    tm = build_exact_tmatrix(truth, optics, max_seconds=60.0)
+    exact = TMatrixWave(truth, optics, o, tm)
+    out = {f"{case}_reference_vs_exact_engine_far_field": _far_error(exact, ref, dirs),
+           f"{case}_exact_engine_order": float(tm.order),
+           f"{case}_exact_engine_truncation_estimate": float(tm.provenance["truncation_estimate"])}
     if case == "rod":
         lower = FarFieldWave(truth, optics, o,
                              ld_ebcm_amplitude(truth, optics, ROD_ORDER - 4, cache=CACHE))
@@ -271,7 +274,10 @@ def _engine(name: str, truth: ParticleModel, optics):
     ``exact``; ``builtin``: the DDA at its default rule (one lattice for the whole fit);
     ``builtin-ramp``: the same with the filling before issue 37 (to compare)."""
     if name == "exact":
-        return get_engine("exact")
+        engine = get_engine("exact")
+        # one discretisation for the fit, fixed at its start model, as the pipeline's fit does
+        engine.fix_discretisation(_start_model(truth), optics)
+        return engine
     d = DDASettings().dipole_size_for(truth, optics)
     filling = "ramp" if name == "builtin-ramp" else "fractional"
     return get_engine("builtin", settings=DDASettings(dipole_size_um=d, filling=filling))

@@ -175,7 +175,10 @@ def _pytmatrix(shape: int, radius: float, ratio: float):
 
 @pytest.mark.parametrize(("model", "shape", "radius", "tol"), [
     (SPHEROID, -1, 0.25 ** (1 / 3), 1e-6),
-    (CYLINDER, -2, (0.5**2 * 1.0 * 1.5) ** (1 / 3), 2e-5),
+    # pytmatrixc stops the cylinder at nmax 29 (its ddelt test on the cross sections): its far
+    # field is 3.4e-5 from the long-double EBCM at order 48 and 6e-6 from ours solved at 30;
+    # ours, solved at 38, is 1.2e-5 from the long-double one (bench/results/exact/)
+    (CYLINDER, -2, (0.5**2 * 1.0 * 1.5) ** (1 / 3), 3e-5),
 ])
 def test_extinction_matches_pytmatrix_for_both_polarisations(model, shape: int, radius: float,
                                                             tol: float) -> None:

@@ -21,8 +21,11 @@ field changes by less than ``tolerance`` between orders ``L - 4`` and ``L``
 the EBCM's surface integrals cancel by more digits than the change still has; the order of
 the smallest change is kept), or a cap is reached (the equilibrated ``Q`` beyond
 :data:`EBCM_MAX_CONDITION`; :data:`MAX_ORDER_EXTRA` orders past the start; or the time budget
-``max_seconds``); the imbedding's steps double until Richardson's estimate of their error is
-below a tenth of ``tolerance`` (at most three times).
+``max_seconds``); the imbedding's steps of the kept build double until Richardson's estimate
+of their error is below :data:`IITM_STEP_SHARE` of its truncation estimate, or a tenth of
+``tolerance`` if larger (concentric layers, whose coefficients are exact but for the radial
+integration: a hundredth of ``tolerance``; with the order given: a tenth; at most three
+times).
 """
 
 from __future__ import annotations
@@ -56,6 +59,7 @@ from holofit.scattering.axisym.profiles import (
     profile_of,
     supports_model,
 )
+from holofit.scattering.legendre import legendre_tables
 from holofit.scattering.tmatrix import TMatrix
 
 __all__ = [
@@ -86,6 +90,10 @@ EBCM_AHEAD = 12
 #: default wall-clock budget of the order search, s: no higher order is tried that would end
 #: past it (predicted from the last build's time and its ~L^4 growth)
 DEFAULT_MAX_SECONDS = 2.0
+#: the radial steps of the imbedding's kept build are refined until Richardson's change (of
+#: the T-matrix's elements) is below this share of its truncation estimate: finer steps would
+#: not change the stated accuracy (the extrapolated T-matrix is closer still)
+IITM_STEP_SHARE = 0.05
 #: the file format :func:`holofit.dda.tmatrix_io.load_tmatrix` reads
 FILE_FORMAT = "holofit-tmatrix/1"
 
@@ -106,21 +114,23 @@ def choose_method(profile: Profile) -> str:
 
 def _ebcm_nodes(order: int) -> int:
     """Gauss-Legendre nodes per surface piece: ``2 L + 10`` (the integrands' angular degree is
-    about ``2 L``; measured: a spheroid's T changes by < 1e-12 from 2L + 10 to 4L nodes)."""
+    about ``2 L``; measured: a spheroid's T changes by < 1e-12 from 2L + 10 to 4L nodes, and
+    ``3 L / 2 + 10`` leaves it 5e-5 off at order 24)."""
     return 2 * order + 10
 
 
 def _iitm_steps(profile: Profile, k: float, n_medium: float, order: int) -> list[int]:
-    """Starting Runge-Kutta steps per segment: twelve per unit of the segment's optical
+    """Starting Runge-Kutta steps per segment: four per unit of the segment's optical
     thickness in the densest material plus the growth ``2L / r`` of the highest order, at least
-    eight (measured on the 47 nm TiO2 cap: Richardson's change ~1e-6 at order 16-20; the
-    check in :func:`_iitm_build` doubles them where a resonance needs more)."""
+    eight (measured on the 47 nm TiO2 cap at order 16: 28 steps with Richardson's
+    extrapolation leave the far field 1.3e-6 from a converged integration; the check in
+    :func:`_iitm_build` doubles them where the step target needs more)."""
     br = profile.breaks()
     n_max = max(abs(complex(v)) for v in _indices(profile)) / n_medium
     out = []
     for a, b in itertools.pairwise(br):
         rate = k * n_max + 2.0 * order / a
-        out.append(max(8, int(np.ceil(12.0 * rate * (b - a)))))
+        out.append(max(8, int(np.ceil(4.0 * rate * (b - a)))))
     return out
 
 
@@ -179,6 +189,7 @@ class _EBCMBuilder:
     def __call__(self, L: int) -> tuple[NDArray, int, dict[str, Any]]:
         if self.system is None or self.system.order < L:
             order = self._next_system_order(L)
+            legendre_tables(np.array([0.5]), 2)  # loads the compiled code outside the timing
             t0 = time.perf_counter()
             self.system = ebcm_system(self.profile, order, self.k, self.n_medium,
                                       _ebcm_nodes(order), max_m=self.out_order)
@@ -220,6 +231,10 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
     else:
         top = L0 + MAX_ORDER_EXTRA if max_order is None else max(int(max_order), L0)
     ebcm = _EBCMBuilder(profile, k, n_medium, out_order, top)
+    # the imbedding's radial steps: with the order given, Richardson's change below a tenth
+    # of the tolerance; in the search, the start steps (enough to measure the change between
+    # orders), the kept build's refined below IITM_STEP_SHARE of its truncation estimate
+    step_target = [0.1 * tolerance if order is not None else math.inf]
 
     def build(L: int) -> tuple[TMatrix, dict[str, Any]]:
         out = L
@@ -229,7 +244,7 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
         elif method == "ebcm":
             blocks, out, info = ebcm(L)
         elif method == "iitm":
-            blocks, info = _iitm_build(profile, L, k, n_medium, 0.1 * tolerance, radial_steps,
+            blocks, info = _iitm_build(profile, L, k, n_medium, step_target[0], radial_steps,
                                        richardson)
         else:
             raise ValueError(f"unknown method {method!r} (mie, ebcm, iitm)")
@@ -289,6 +304,13 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
             L += ORDER_STEP
         assert best is not None
         change, tm, info = best
+        # concentric layers: each kept coefficient is exact but for the radial integration,
+        # whose steps go to a hundredth of the tolerance; else to a share of the truncation
+        target = (0.01 * tolerance if isinstance(profile, LayeredProfile)
+                  else max(0.1 * tolerance, IITM_STEP_SHARE * change))
+        if method == "iitm" and radial_steps is None and info["richardson_change"] > target:
+            step_target[0] = target
+            tm, info = build(tm.order)
     seconds = time.perf_counter() - t0
     tm.provenance.update({
         "format": FILE_FORMAT, "engine": "exact", "method": method, "order": tm.order,
