@@ -21,7 +21,8 @@ field changes by less than ``tolerance`` between orders ``L - 4`` and ``L``
 the EBCM's surface integrals cancel by more digits than the change still has; the order of
 the smallest change is kept), or a cap is reached (the equilibrated ``Q`` beyond
 :data:`EBCM_MAX_CONDITION`; :data:`MAX_ORDER_EXTRA` orders past the start; or the time budget
-``max_seconds``); the imbedding's steps of the kept build double until Richardson's estimate
+``max_seconds``, counted in the process's CPU time so that the order reached does not depend
+on the machine's load); the imbedding's steps of the kept build double until Richardson's estimate
 of their error is below :data:`IITM_STEP_SHARE` of its truncation estimate, or a tenth of
 ``tolerance`` if larger (concentric layers, whose coefficients are exact but for the radial
 integration: a hundredth of ``tolerance``; with the order given: a tenth; at most three
@@ -87,8 +88,9 @@ STALL_ORDERS = 1
 #: the EBCM's ``Q`` and ``RgQ`` are computed this many orders past the order tried, so that
 #: the next steps of the search are solves of their sub-blocks
 EBCM_AHEAD = 12
-#: default wall-clock budget of the order search, s: no higher order is tried that would end
-#: past it (predicted from the last build's time and its ~L^4 growth)
+#: default budget of the order search, s of the process's CPU time (on an idle machine, with
+#: one thread, its wall time): no higher order is tried that would end past it (predicted
+#: from the last build's time and its growth with the order)
 DEFAULT_MAX_SECONDS = 2.0
 #: the radial steps of the imbedding's kept build are refined until Richardson's change (of
 #: the T-matrix's elements) is below this share of its truncation estimate: finer steps would
@@ -190,10 +192,10 @@ class _EBCMBuilder:
         if self.system is None or self.system.order < L:
             order = self._next_system_order(L)
             legendre_tables(np.array([0.5]), 2)  # loads the compiled code outside the timing
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             self.system = ebcm_system(self.profile, order, self.k, self.n_medium,
                                       _ebcm_nodes(order), max_m=self.out_order)
-            self.system_seconds = time.perf_counter() - t0
+            self.system_seconds = time.process_time() - t0
         out = L if self.out_order is None else min(L, self.out_order)
         blocks, cond = ebcm_solve(self.system, L, out)
         info = {"solve_order": L, "quadrature_nodes_per_piece": _ebcm_nodes(self.system.order),
@@ -220,6 +222,7 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
                           solve_order: int | None = None) -> TMatrix:
     """The T-matrix of a profile (see :func:`build_exact_tmatrix`)."""
     t0 = time.perf_counter()
+    cpu0 = time.process_time()
     method = method or choose_method(profile)
     radius = float(profile.r_outer)
     L0 = start_order(k, radius)
@@ -268,9 +271,9 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
         stalled = 0
         L = L0
         while True:
-            t_build = time.perf_counter()
+            t_build = time.process_time()
             cand, cand_info = build(L)
-            t_build = time.perf_counter() - t_build
+            t_build = time.process_time() - t_build
             if (method == "ebcm" and cand_info["q_condition_max"] > EBCM_MAX_CONDITION
                     and best is not None):
                 stop = "EBCM conditioning"
@@ -297,7 +300,7 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
                 break
             predicted = (ebcm.next_seconds(L + ORDER_STEP, t_build) if method == "ebcm"
                          else t_build * ((L + ORDER_STEP) / L) ** 4)
-            if time.perf_counter() - t0 + predicted > max_seconds:
+            if time.process_time() - cpu0 + predicted > max_seconds:
                 stop = "time budget"
                 break
             prev_probe = probe
@@ -312,6 +315,7 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
             step_target[0] = target
             tm, info = build(tm.order)
     seconds = time.perf_counter() - t0
+    cpu_seconds = time.process_time() - cpu0
     tm.provenance.update({
         "format": FILE_FORMAT, "engine": "exact", "method": method, "order": tm.order,
         "truncation_estimate": float(change), "tolerance": float(tolerance),
@@ -319,6 +323,7 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
         "order_search_stop": stop,
         "k_per_um": float(k), "n_medium": float(n_medium), "radius_um": radius,
         "storage": "modulus 2L+1: one block per m", "build_seconds": seconds,
+        "build_cpu_seconds": cpu_seconds,
         "holofit_version": holofit.__version__, **info,
     })
     return tm
@@ -362,7 +367,8 @@ def build_exact_tmatrix(model: ParticleModel, optics: Optics,
     method : {"mie", "ebcm", "iitm"}, optional
         Override the choice of :func:`choose_method`.
     max_seconds : float
-        Time after which the order is no longer raised, s.
+        CPU time of this process after which the order is no longer raised, s (load
+        independent; with one thread, the wall time of an idle machine).
     radial_steps : sequence of int, optional
         The imbedding's Runge-Kutta steps per radial segment instead of its own rule (no
         doubling): a fit's builds keep one discretisation, so that the T-matrix moves

@@ -105,14 +105,14 @@ def _inner_rows(y: NDArray) -> NDArray:
 
 @dataclass(frozen=True)
 class EBCMSystem:
-    """``Q`` and ``RgQ`` of every ``m = 0..L`` of a homogeneous body at order ``L``.
+    """``Q`` and ``RgQ`` of the orders ``m = 0..max_m`` of a homogeneous body at order ``L``.
 
     Attributes
     ----------
     order : int
         The highest order ``L`` of the rows and columns.
     q, rgq : list of ndarray
-        Per ``m = 0..max_m``, the ``2 N``-square matrices (``N = L - max(1, m) + 1``; rows ``a`` then
+        Per ``m``, the ``2 N``-square matrices (``N = L - max(1, m) + 1``; rows ``a`` then
         ``b``, columns ``c`` then ``d``, orders ``n = max(1, m)..L`` in each); for a
         mirror-symmetric body only the entries of its two parity classes are filled.
     mirror_symmetric : bool
