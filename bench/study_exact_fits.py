@@ -26,6 +26,10 @@ references' own accuracy is measured here too (``reference_accuracy``): the rod'
 change between orders ``ROD_ORDER - 4`` and ``ROD_ORDER``; pytmatrixc against holofit's exact
 spheroid; the Janus extrapolation from rules (20, 28) against a quadratic one from (14, 20, 28).
 
+With ``--precision-order N`` the holograms are made by holofit's exact engine itself at order
+``N`` instead: not an independent reference, but a measure of what the fit's own
+(lower) order costs; each row says so (``reference``).
+
 Crops: 140 x 140 pixels, alpha 0.9, the frames of :data:`FRAMES` (orientation, height), each
 without noise (seed -1: the fit's offset from the truth is the model's own bias) and with 8-bit
 camera noise (background 120 counts; seeds 0, 1: the errors, and the pulls). A parameter's bias
@@ -109,8 +113,11 @@ def truth_of(case: str) -> ParticleModel:
 class References:
     """The independent reference waves of each case, built once (module docstring)."""
 
-    def __init__(self, case: str, truth: ParticleModel, optics) -> None:
+    def __init__(self, case: str, truth: ParticleModel, optics,
+                 precision_order: int | None = None) -> None:
         self.case, self.truth, self.optics = case, truth, optics
+        self.precision_order = precision_order
+        self._exact = None
         self.seconds = 0.0
         self._solves: dict[tuple, object] = {}
         t0 = time.perf_counter()
@@ -134,7 +141,12 @@ class References:
 
     def wave(self, o: Orientation):
         t0 = time.perf_counter()
-        if self.case == "janus":
+        if self.precision_order is not None:
+            if self._exact is None:
+                self._exact = build_exact_tmatrix(self.truth, self.optics,
+                                                  order=self.precision_order, estimate=False)
+            out = TMatrixWave(self.truth, self.optics, o, self._exact)
+        elif self.case == "janus":
             out = self.janus_wave(o, JANUS_RULES)
         else:
             out = FarFieldWave(self.truth, self.optics, o, self._amp)
@@ -294,7 +306,7 @@ def _print_fit(r: dict) -> None:
 
 
 def run(cases: list[str], seeds: list[int], engines: list[str], partial: Path | None,
-        frames_wanted: list[int] | None = None) -> dict:
+        frames_wanted: list[int] | None = None, precision_order: int | None = None) -> dict:
     fits: list[dict] = []
     accuracy: dict[str, float] = {}
     done = set()
@@ -310,8 +322,9 @@ def run(cases: list[str], seeds: list[int], engines: list[str], partial: Path | 
         inst_name, frames = FRAMES[case]
         inst = load_instrument(resolve_config(inst_name, "instruments"))
         truth = truth_of(case)
-        refs = References(case, truth, inst.optics)
-        if not any(k.startswith(f"{case}_reference") for k in accuracy):
+        refs = References(case, truth, inst.optics, precision_order)
+        if precision_order is None and not any(k.startswith(f"{case}_reference")
+                                               for k in accuracy):
             acc = reference_accuracy(case, refs, Orientation(frames[0][0], frames[0][1]))
             accuracy.update(acc)
             print(f"## {case} reference accuracy: {acc}", flush=True)
@@ -334,6 +347,8 @@ def run(cases: list[str], seeds: list[int], engines: list[str], partial: Path | 
                 r = fit_one(engine_of[name], truth, inst, crop, frame, grid, pos)
                 r.update(case=case, engine=name, frame=fi, seed=seed,
                          frame_geometry=list(frame), model=truth.kind)
+                if precision_order is not None:
+                    r["reference"] = f"exact engine at order {precision_order} (precision)"
                 _print_fit(r)
                 fits.append(r)
                 if partial is not None:
@@ -355,8 +370,12 @@ def main() -> None:
                     "study_exact_fits.json")
     ap.add_argument("--partial", type=Path, default=None,
                     help="JSON-lines file of finished fits, read to resume and appended to")
+    ap.add_argument("--precision-order", type=int, default=None,
+                    help="make the holograms by holofit's exact engine at this order instead "
+                         "(not independent: a precision check of the fit's own order)")
     args = ap.parse_args()
-    out = run(args.cases, args.seeds, args.engines, args.partial, args.frames)
+    out = run(args.cases, args.seeds, args.engines, args.partial, args.frames,
+              args.precision_order)
     for key, s in out["summary"].items():
         print(f"## summary {key}: " + ", ".join(f"{k} {v:.3g}" for k, v in s.items()))
     args.out.parent.mkdir(parents=True, exist_ok=True)
