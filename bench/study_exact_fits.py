@@ -69,7 +69,7 @@ from holofit.hologram import calc_hologram  # noqa: E402
 from holofit.holomodel.parameters import static_parameters  # noqa: E402
 from holofit.library.search import Candidate  # noqa: E402
 from holofit.particles import ParticleModel, Spheroid  # noqa: E402
-from holofit.scattering.axisym import build_exact_tmatrix  # noqa: E402
+from holofit.scattering.axisym import build_exact_tmatrix, discretisation  # noqa: E402
 from holofit.scattering.theory import Orientation  # noqa: E402
 from holofit.scattering.tmatrix_wave import TMatrixWave  # noqa: E402
 from tests.exact_references import (  # noqa: E402
@@ -373,7 +373,12 @@ def main() -> None:
     ap.add_argument("--precision-order", type=int, default=None,
                     help="make the holograms by holofit's exact engine at this order instead "
                          "(not independent: a precision check of the fit's own order)")
+    ap.add_argument("--iitm-extra-orders", type=int, default=None,
+                    help="orders past the start the fit's imbedding may rise (default: "
+                         "holofit.scattering.axisym.discretisation.IITM_EXTRA_ORDERS)")
     args = ap.parse_args()
+    if args.iitm_extra_orders is not None:
+        discretisation.IITM_EXTRA_ORDERS = args.iitm_extra_orders
     out = run(args.cases, args.seeds, args.engines, args.partial, args.frames,
               args.precision_order)
     for key, s in out["summary"].items():
