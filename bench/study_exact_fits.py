@@ -26,6 +26,10 @@ references' own accuracy is measured here too (``reference_accuracy``): the rod'
 change between orders ``ROD_ORDER - 4`` and ``ROD_ORDER``; pytmatrixc against holofit's exact
 spheroid; the Janus extrapolation from rules (20, 28) against a quadratic one from (14, 20, 28).
 
+With ``--precision-order N`` the holograms are made by holofit's exact engine itself at order
+``N`` instead: not an independent reference, but a measure of what the fit's own
+(lower) order costs; each row says so (``reference``).
+
 Crops: 140 x 140 pixels, alpha 0.9, the frames of :data:`FRAMES` (orientation, height), each
 without noise (seed -1: the fit's offset from the truth is the model's own bias) and with 8-bit
 camera noise (background 120 counts; seeds 0, 1: the errors, and the pulls). A parameter's bias
@@ -65,7 +69,7 @@ from holofit.hologram import calc_hologram  # noqa: E402
 from holofit.holomodel.parameters import static_parameters  # noqa: E402
 from holofit.library.search import Candidate  # noqa: E402
 from holofit.particles import ParticleModel, Spheroid  # noqa: E402
-from holofit.scattering.axisym import build_exact_tmatrix  # noqa: E402
+from holofit.scattering.axisym import build_exact_tmatrix, discretisation  # noqa: E402
 from holofit.scattering.theory import Orientation  # noqa: E402
 from holofit.scattering.tmatrix_wave import TMatrixWave  # noqa: E402
 from tests.exact_references import (  # noqa: E402
@@ -109,8 +113,11 @@ def truth_of(case: str) -> ParticleModel:
 class References:
     """The independent reference waves of each case, built once (module docstring)."""
 
-    def __init__(self, case: str, truth: ParticleModel, optics) -> None:
+    def __init__(self, case: str, truth: ParticleModel, optics,
+                 precision_order: int | None = None) -> None:
         self.case, self.truth, self.optics = case, truth, optics
+        self.precision_order = precision_order
+        self._exact = None
         self.seconds = 0.0
         self._solves: dict[tuple, object] = {}
         t0 = time.perf_counter()
@@ -134,7 +141,12 @@ class References:
 
     def wave(self, o: Orientation):
         t0 = time.perf_counter()
-        if self.case == "janus":
+        if self.precision_order is not None:
+            if self._exact is None:
+                self._exact = build_exact_tmatrix(self.truth, self.optics,
+                                                  order=self.precision_order, estimate=False)
+            out = TMatrixWave(self.truth, self.optics, o, self._exact)
+        elif self.case == "janus":
             out = self.janus_wave(o, JANUS_RULES)
         else:
             out = FarFieldWave(self.truth, self.optics, o, self._amp)
@@ -154,8 +166,11 @@ def reference_accuracy(case: str, refs: References, o: Orientation) -> dict[str,
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     truth, optics = refs.truth, refs.optics
     ref = refs.wave(o)
-    exact = TMatrixWave(truth, optics, o, build_exact_tmatrix(truth, optics, max_seconds=60.0))
-    out = {f"{case}_reference_vs_exact_engine_far_field": _far_error(exact, ref, dirs)}
+    tm = build_exact_tmatrix(truth, optics, max_seconds=60.0)
+    exact = TMatrixWave(truth, optics, o, tm)
+    out = {f"{case}_reference_vs_exact_engine_far_field": _far_error(exact, ref, dirs),
+           f"{case}_exact_engine_order": float(tm.order),
+           f"{case}_exact_engine_truncation_estimate": float(tm.provenance["truncation_estimate"])}
     if case == "rod":
         lower = FarFieldWave(truth, optics, o,
                              ld_ebcm_amplitude(truth, optics, ROD_ORDER - 4, cache=CACHE))
@@ -271,7 +286,10 @@ def _engine(name: str, truth: ParticleModel, optics):
     ``exact``; ``builtin``: the DDA at its default rule (one lattice for the whole fit);
     ``builtin-ramp``: the same with the filling before issue 37 (to compare)."""
     if name == "exact":
-        return get_engine("exact")
+        engine = get_engine("exact")
+        # one discretisation for the fit, fixed at its start model, as the pipeline's fit does
+        engine.fix_discretisation(_start_model(truth), optics)
+        return engine
     d = DDASettings().dipole_size_for(truth, optics)
     filling = "ramp" if name == "builtin-ramp" else "fractional"
     return get_engine("builtin", settings=DDASettings(dipole_size_um=d, filling=filling))
@@ -288,7 +306,7 @@ def _print_fit(r: dict) -> None:
 
 
 def run(cases: list[str], seeds: list[int], engines: list[str], partial: Path | None,
-        frames_wanted: list[int] | None = None) -> dict:
+        frames_wanted: list[int] | None = None, precision_order: int | None = None) -> dict:
     fits: list[dict] = []
     accuracy: dict[str, float] = {}
     done = set()
@@ -304,8 +322,9 @@ def run(cases: list[str], seeds: list[int], engines: list[str], partial: Path | 
         inst_name, frames = FRAMES[case]
         inst = load_instrument(resolve_config(inst_name, "instruments"))
         truth = truth_of(case)
-        refs = References(case, truth, inst.optics)
-        if not any(k.startswith(f"{case}_reference") for k in accuracy):
+        refs = References(case, truth, inst.optics, precision_order)
+        if precision_order is None and not any(k.startswith(f"{case}_reference")
+                                               for k in accuracy):
             acc = reference_accuracy(case, refs, Orientation(frames[0][0], frames[0][1]))
             accuracy.update(acc)
             print(f"## {case} reference accuracy: {acc}", flush=True)
@@ -328,6 +347,8 @@ def run(cases: list[str], seeds: list[int], engines: list[str], partial: Path | 
                 r = fit_one(engine_of[name], truth, inst, crop, frame, grid, pos)
                 r.update(case=case, engine=name, frame=fi, seed=seed,
                          frame_geometry=list(frame), model=truth.kind)
+                if precision_order is not None:
+                    r["reference"] = f"exact engine at order {precision_order} (precision)"
                 _print_fit(r)
                 fits.append(r)
                 if partial is not None:
@@ -349,8 +370,17 @@ def main() -> None:
                     "study_exact_fits.json")
     ap.add_argument("--partial", type=Path, default=None,
                     help="JSON-lines file of finished fits, read to resume and appended to")
+    ap.add_argument("--precision-order", type=int, default=None,
+                    help="make the holograms by holofit's exact engine at this order instead "
+                         "(not independent: a precision check of the fit's own order)")
+    ap.add_argument("--iitm-extra-orders", type=int, default=None,
+                    help="orders past the start the fit's imbedding may rise (default: "
+                         "holofit.scattering.axisym.discretisation.IITM_EXTRA_ORDERS)")
     args = ap.parse_args()
-    out = run(args.cases, args.seeds, args.engines, args.partial, args.frames)
+    if args.iitm_extra_orders is not None:
+        discretisation.IITM_EXTRA_ORDERS = args.iitm_extra_orders
+    out = run(args.cases, args.seeds, args.engines, args.partial, args.frames,
+              args.precision_order)
     for key, s in out["summary"].items():
         print(f"## summary {key}: " + ", ".join(f"{k} {v:.3g}" for k, v in s.items()))
     args.out.parent.mkdir(parents=True, exist_ok=True)

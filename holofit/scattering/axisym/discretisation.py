@@ -13,13 +13,15 @@ stated accuracy of them all (the models of a fit differ by a few per cent in siz
 
 The reference build is the order search without its wall-clock budget, so that it does not
 depend on the machine's load (a resumed run gets the rows of an uninterrupted one): the
-EBCM's order stops where the tolerance is met, where ``cond(Q)`` would exceed its bound, or
-16 orders past the start; the imbedding's order (Janus spheres, layered spheres) stays at
-its start ``L_0`` (:data:`IITM_EXTRA_ORDERS`): each order step past it costs about 2.5 times
-the build, and a fit makes tens of builds per frame. The imbedding's order being capped, its
-tolerance only sets its radial steps (to a tenth of it): :data:`IITM_TOLERANCE`, far below
-the truncation error at ``L_0`` of a cap (the paper's Janus particle: ~4e-3), where the
-default 1e-5 would double the steps (and the build's time) for nothing. The fit's builds of an
+EBCM's solve order stops where the tolerance is met, where the change stops falling, or
+:data:`EBCM_EXTRA_ORDERS` past the start (the T-matrix is kept at the start order); the
+imbedding's order (Janus spheres, layered spheres) rises at most
+:data:`IITM_EXTRA_ORDERS` past its start ``L_0``: each order step costs about 1.7 times the
+build, a fit makes tens of builds per frame, and a cap's convergence in the order is
+algebraic (the paper's Janus particle: far-field change 4.5e-3 at ``L_0 = 16``, 5.2e-4 at
+28). The imbedding's order being capped, its tolerance only sets its radial steps (to a tenth
+of it): :data:`IITM_TOLERANCE`, far below the truncation error of a cap, where the default
+1e-5 would double the steps (and the build's time) for nothing. The fit's builds of an
 imbedding then drop Richardson's extrapolation and halve the steps while plain RK4 stays
 within :data:`STEP_SHARE` of the truncation estimate of the reference (measured against it:
 the radial integration is then no longer the accuracy's limit, at a third to a sixth of the
@@ -41,11 +43,16 @@ from holofit.scattering.axisym.order import far_field_change, start_order
 from holofit.scattering.axisym.profiles import profile_of
 from holofit.scattering.tmatrix import TMatrix
 
-__all__ = ["IITM_EXTRA_ORDERS", "IITM_TOLERANCE", "MIN_STEPS", "STEP_SHARE", "Discretisation",
+__all__ = ["EBCM_EXTRA_ORDERS", "IITM_EXTRA_ORDERS", "IITM_TOLERANCE", "MIN_STEPS",
+           "STEP_SHARE", "Discretisation",
            "reference_build", "remember_reference"]
 
 #: orders past the start ``L_0`` that the reference build of an imbedding may raise
-IITM_EXTRA_ORDERS = 0
+IITM_EXTRA_ORDERS = 12
+#: orders past the start ``L_0`` that the reference build of the EBCM may solve at (it keeps
+#: ``L_0``): a rebuild's cost grows about as the solve order's cube (the paper's rod: 0.05 s
+#: at 26, 0.12 s at 38, 0.38 s at 58 of CPU), and a fit makes tens of builds per frame
+EBCM_EXTRA_ORDERS = 12
 #: the reference build's tolerance for the imbedding (whose order is capped): its radial steps
 #: are refined until Richardson's change is below a tenth of it
 IITM_TOLERANCE = 1e-4
@@ -80,6 +87,8 @@ class Discretisation:
     step_error : float
         Far-field change of these radial steps from the reference build's (0 where they are
         the reference's own).
+    solve_order : int, optional
+        The EBCM's solve order (``order`` is the order it keeps; None: the same).
     """
 
     order: int
@@ -90,6 +99,7 @@ class Discretisation:
     stop: str = ""
     richardson: bool = True
     step_error: float = 0.0
+    solve_order: int | None = None
 
     @classmethod
     def of(cls, tm: TMatrix) -> Discretisation:
@@ -103,12 +113,15 @@ class Discretisation:
                        str(d.get("method", "")), float(d.get("truncation_estimate", math.nan)),
                        float(d.get("tolerance", DEFAULT_TOLERANCE)),
                        str(d.get("order_search_stop", "")), bool(d.get("richardson", True)),
-                       float(d.get("step_error", 0.0)))
+                       float(d.get("step_error", 0.0)),
+                       None if d.get("solve_order") is None else int(d["solve_order"]))
         steps = p.get("radial_steps") if p.get("method") == "iitm" else None
+        solve = p.get("solve_order") if p.get("method") == "ebcm" else None
         return cls(int(tm.order), None if steps is None else tuple(int(s) for s in steps),
                    str(p.get("method", "")), float(p.get("truncation_estimate", math.nan)),
                    float(p.get("tolerance", DEFAULT_TOLERANCE)),
-                   str(p.get("order_search_stop", "")))
+                   str(p.get("order_search_stop", "")),
+                   solve_order=None if solve is None else int(solve))
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-able form (sidecars)."""
@@ -116,14 +129,15 @@ class Discretisation:
                 else list(self.radial_steps), "method": self.method,
                 "truncation_estimate": self.truncation_estimate, "tolerance": self.tolerance,
                 "order_search_stop": self.stop, "richardson": self.richardson,
-                "step_error": self.step_error}
+                "step_error": self.step_error, "solve_order": self.solve_order}
 
     def build(self, model: ParticleModel, optics: Optics) -> TMatrix:
         """``model``'s T-matrix at this discretisation (no search, no estimate of its own:
         the provenance states the reference build's, ``truncation_estimate_of``)."""
         tm = build_exact_tmatrix(model, optics, self.tolerance, order=self.order,
                                  method=self.method or None, radial_steps=self.radial_steps,
-                                 estimate=False, richardson=self.richardson)
+                                 estimate=False, richardson=self.richardson,
+                                 solve_order=self.solve_order)
         tm.provenance.update({"truncation_estimate": self.truncation_estimate,
                               "truncation_estimate_of": "the fit's reference build",
                               "tolerance_met": bool(self.truncation_estimate
@@ -167,6 +181,8 @@ def _reference(model: ParticleModel, optics: Optics, tolerance: float) -> TMatri
     if method == "iitm":
         cap = start_order(optics.k, profile_of(model).r_outer) + IITM_EXTRA_ORDERS
         tolerance = max(tolerance, IITM_TOLERANCE)
+    elif method == "ebcm":
+        cap = start_order(optics.k, profile_of(model).r_outer) + EBCM_EXTRA_ORDERS
     tm = build_exact_tmatrix(model, optics, tolerance, max_seconds=math.inf, max_order=cap)
     ref = Discretisation.of(tm)
     if method != "iitm" or ref.radial_steps is None:

@@ -15,14 +15,28 @@ with ``S[X x Y] = int n^ . (Y x X) dS`` over the surface ``r(theta)`` (``n^ dS =
 r_theta theta^) sin(theta) dtheta dphi``), ``N~, M~`` outgoing (``h_n``) for ``Q`` and regular
 (``j_n``) for ``RgQ``. The integrals run on Gauss-Legendre nodes in ``theta`` split at the
 profile's kinks (the rod's cap-cylinder junction, a cylinder's edges), where the integrand
-is not smooth. Conditioning: ``Q``'s entries span the ratio of ``h_n(k r_min)`` to
-``j_n(k r_max)``, so an elongated body loses digits (DESIGN notes: about nine for the paper's
-rod at order 42); :func:`ebcm_blocks` reports ``Q``'s condition number per ``m``.
+is not smooth. For a mirror-symmetric body only the couplings that do not vanish (within the
+two parity classes under ``z -> -z``) are integrated, each class solved apart. The integrals
+run over the whole surface although those integrands are even about ``theta = pi / 2``: over
+the upper half alone, doubled, the rod's far field at order 58 is 2.5e-4 from the long-double
+reference instead of 1.5e-5 (entries of ``Q`` that cancel by fifteen digits come out
+differently; measured, ``docs/validation/exact-studies.md``).
+
+The entries of ``Q`` and ``RgQ`` of orders ``n, l <= L`` do not depend on the truncation
+``L``: :func:`ebcm_system` computes them once at the highest order an order search may need,
+and :func:`ebcm_solve` solves any truncation ``L`` of them. Conditioning: ``Q``'s raw
+entries span the ratio of ``h_n(k r_min)`` to ``j_n(k r_max)`` (about 1e33 for the paper's rod
+at order 42), which the solve's row and column equilibration removes; what it leaves is the
+condition number reported (``1e2 - 1e4`` for the rod at orders 22-66). What limits double
+precision at high orders is not the solve but the cancellation in the surface integrals of
+the large outgoing waves, which no scaling removes: :mod:`holofit.scattering.axisym.build`
+stops raising the order where the order-to-order change stops falling.
 """
 
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,7 +45,7 @@ from scipy.special import spherical_jn, spherical_yn
 from holofit.scattering.axisym.profiles import Profile
 from holofit.scattering.legendre import legendre_tables
 
-__all__ = ["ebcm_blocks", "surface_quadrature"]
+__all__ = ["EBCMSystem", "ebcm_blocks", "ebcm_solve", "ebcm_system", "surface_quadrature"]
 
 
 def surface_quadrature(profile: Profile, nodes: int) -> tuple[NDArray, NDArray]:
@@ -48,16 +62,18 @@ def surface_quadrature(profile: Profile, nodes: int) -> tuple[NDArray, NDArray]:
 
 
 def _radial_tables(order: int, x: NDArray, outgoing: bool) -> tuple[NDArray, NDArray]:
-    """``z_n(x)`` and ``(x z_n(x))'/x`` for ``n = 0..L`` (``j_n``, or ``h_n`` if ``outgoing``)
-    at the nodes ``x`` (real or complex); arrays ``[node, n]``, computed once for every ``m``."""
-    n = np.arange(order + 1)[None, :]
+    """``z_n(x)`` and ``(x z_n(x))'/x = z_{n-1} - n z_n / x`` for ``n = 0..L`` (``j_n``, or
+    ``h_n`` if ``outgoing``; ``n = 0``: ``z_0 / x - z_1``) at the nodes ``x`` (real or
+    complex); arrays ``[node, n]``, computed once for every ``m``."""
+    n = np.arange(order + 2)[None, :]
     xx = x[:, None]
-    j = spherical_jn(n, xx)
-    dj = spherical_jn(n, xx, derivative=True)
+    z = spherical_jn(n, xx)
     if outgoing:
-        j = j + 1j * spherical_yn(n, xx)
-        dj = dj + 1j * spherical_yn(n, xx, derivative=True)
-    return j, j / xx + dj
+        z = z + 1j * spherical_yn(n, xx)
+    dz = np.empty_like(z[:, :-1])
+    dz[:, 0] = z[:, 0] / x - z[:, 1]
+    dz[:, 1:] = z[:, :-2] - n[:, 1:-1] * z[:, 1:-1] / xx
+    return z[:, :-1], dz
 
 
 def _waves(n: NDArray, kr: NDArray, radial: tuple[NDArray, NDArray], pb: NDArray,
@@ -73,91 +89,158 @@ def _waves(n: NDArray, kr: NDArray, radial: tuple[NDArray, NDArray], pb: NDArray
     return mm, nn
 
 
-def _cross_integral(x_bar: NDArray, y: NDArray, nr: NDArray, nt: NDArray) -> NDArray:
-    """``[n, l] = sum_q (n_r (Y_th X_ph - Y_ph X_th) + n_th (Y_ph X_r - Y_r X_ph))`` with the
-    weights folded into ``nr, nt``."""
-    xr, xt, xp = x_bar
-    yr, yt, yp = y
-    out = (xp * nr[:, None]).T @ yt - (xt * nr[:, None]).T @ yp
-    out += (xr * nt[:, None]).T @ yp - (xp * nt[:, None]).T @ yr
-    return out
+def _outer_rows(x: NDArray, nr: NDArray, nt: NDArray) -> NDArray:
+    """The surface wave ``X`` ``[3, node, n]`` as the rows ``[3 node, n]`` that, against an
+    inner wave's ``(theta, phi, r)`` components stacked the same way, give the integral
+    ``sum_q n_r (Y_th X_ph - Y_ph X_th) + n_th (Y_ph X_r - Y_r X_ph)`` (weights in ``nr, nt``)."""
+    xr, xt, xp = x
+    return np.concatenate([xp * nr[:, None], xr * nt[:, None] - xt * nr[:, None],
+                           -xp * nt[:, None]])
 
 
-def _q_matrix(bm: NDArray, bn: NDArray, in_m: NDArray, in_n: NDArray, nr: NDArray,
-              nt: NDArray, m_rel: complex, pref: NDArray) -> NDArray[np.complex128]:
-    """``Q`` (outgoing ``bm, bn``) or ``RgQ`` (regular) of one ``m``: rows ``p``/``a`` then
-    ``q``/``b``, columns ``c`` then ``d`` (module docstring)."""
-    cnt = pref.shape[0]
-    q = np.empty((2 * cnt, 2 * cnt), dtype=complex)
-    q[:cnt, :cnt] = m_rel * _cross_integral(bn, in_m, nr, nt) + _cross_integral(bm, in_n, nr, nt)
-    q[:cnt, cnt:] = m_rel * _cross_integral(bn, in_n, nr, nt) + _cross_integral(bm, in_m, nr, nt)
-    q[cnt:, :cnt] = m_rel * _cross_integral(bm, in_m, nr, nt) + _cross_integral(bn, in_n, nr, nt)
-    q[cnt:, cnt:] = m_rel * _cross_integral(bm, in_n, nr, nt) + _cross_integral(bn, in_m, nr, nt)
-    return q * np.concatenate([pref, pref])
+def _inner_rows(y: NDArray) -> NDArray:
+    """An inner wave ``[3, node, n]`` as ``[3 node, n]`` in the order of :func:`_outer_rows`."""
+    return np.concatenate([y[1], y[2], y[0]])
 
 
-def _solve_right(q: NDArray, rgq: NDArray) -> NDArray[np.complex128]:
-    """``-RgQ Q^-1`` with ``Q`` equilibrated: columns scaled to unit maximum (``T`` does not
-    change), then rows (``T = -RgQ (D Q)^-1 D``), so that partial pivoting sees entries of
-    comparable size although they span ``h_n(k r_min) / j_n(k r_max)``."""
-    dc = 1.0 / np.abs(q).max(axis=0)
-    qs = q * dc[None, :]
-    dr = 1.0 / np.abs(qs).max(axis=1)
-    qs = qs * dr[:, None]
-    x = np.linalg.solve(qs.T, (rgq * dc[None, :]).T).T  # (RgQ Dc) (Dr Q Dc)^-1
-    return -x * dr[None, :]
+@dataclass(frozen=True)
+class EBCMSystem:
+    """``Q`` and ``RgQ`` of the orders ``m = 0..max_m`` of a homogeneous body at order ``L``.
+
+    Attributes
+    ----------
+    order : int
+        The highest order ``L`` of the rows and columns.
+    q, rgq : list of ndarray
+        Per ``m``, the ``2 N``-square matrices (``N = L - max(1, m) + 1``; rows ``a`` then
+        ``b``, columns ``c`` then ``d``, orders ``n = max(1, m)..L`` in each); for a
+        mirror-symmetric body only the entries of its two parity classes are filled.
+    mirror_symmetric : bool
+        Whether the parity classes decouple (solved apart).
+    """
+
+    order: int
+    q: list[NDArray[np.complex128]]
+    rgq: list[NDArray[np.complex128]]
+    mirror_symmetric: bool
 
 
-def ebcm_blocks(profile: Profile, order: int, k: float, n_medium: float, nodes: int
-                ) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
-    """Padded T-matrix blocks ``(L + 1, 2L, 2L)`` of ``m = 0..L`` (layout of
-    :func:`holofit.scattering.axisym.iitm.mie_start`) and the condition number of ``Q`` per
-    ``m``, for a homogeneous profile, with ``nodes`` Gauss-Legendre nodes per piece."""
+def _parity(m: int, n: NDArray) -> NDArray:
+    """Parity class (0 or 1) of the rows ``a_n`` then ``b_n``: under ``z -> -z`` the class of
+    ``M_n`` with ``n + m`` even is that of ``N_n`` with ``n + m`` odd."""
+    return np.concatenate([(n + m) % 2, (n + m + 1) % 2])
+
+
+def ebcm_system(profile: Profile, order: int, k: float, n_medium: float, nodes: int,
+                max_m: int | None = None) -> EBCMSystem:
+    """``Q`` and ``RgQ`` (module docstring) of a homogeneous profile at ``order``, with
+    ``nodes`` Gauss-Legendre nodes per piece of the surface, for ``m = 0..max_m`` (default
+    all); ``k`` in rad/um in the medium of index ``n_medium``."""
     L = order
-    m_rel = complex(profile.index) / n_medium
+    m_rel: complex | float = complex(profile.index) / n_medium
+    if m_rel.imag == 0.0:
+        m_rel = m_rel.real  # real Bessel functions inside: several times faster
+    mirror = bool(profile.mirror_symmetric)
     theta, w = surface_quadrature(profile, nodes)
     r, dr = profile.surface(theta)
-    st = np.sin(theta)
-    weight = 2.0 * np.pi * w * st * r
-    nr = weight * r
-    nt = -weight * dr
+    weight = 2.0 * np.pi * w * np.sin(theta) * r
+    nr, nt = weight * r, -weight * dr
     pb, dp, mp = legendre_tables(np.cos(theta), L)
     kr, k1r = k * r, m_rel * k * r
     rad_rg = _radial_tables(L, kr, outgoing=False)
     rad_out = _radial_tables(L, kr, outgoing=True)
     rad_in = _radial_tables(L, k1r, outgoing=False)
-    out = np.zeros((L + 1, 2 * L, 2 * L), dtype=complex)
-    conds = np.zeros(L + 1)
-    for m in range(L + 1):
+    qs, rgqs = [], []
+    for m in range(L + 1 if max_m is None else min(L, max_m) + 1):
         n0 = max(1, m)
         n = np.arange(n0, L + 1)
-        cnt = n.size
         tabs = (pb[:, n0:, m], dp[:, n0:, m], mp[:, n0:, m])
-        rg_m, rg_n = _waves(n, kr, rad_rg, *tabs, conj=True)
-        ou_m, ou_n = _waves(n, kr, rad_out, *tabs, conj=True)
         in_m, in_n = _waves(n, k1r, rad_in, *tabs, conj=False)
-        pref = (1j * k * k / (n * (n + 1.0)))[:, None]
-
-        rgq = _q_matrix(rg_m, rg_n, in_m, in_n, nr, nt, m_rel, pref)
-        q = _q_matrix(ou_m, ou_n, in_m, in_n, nr, nt, m_rel, pref)
-        if profile.mirror_symmetric:
-            # the parity classes under z -> -z decouple: N_n with n + m even goes with M_n of
-            # odd n + m; solved apart, the analytically zero couplings (numerical noise of the
-            # large entries) do not enter the solve
-            t = np.zeros_like(q)
-            parity = np.concatenate([(n + m) % 2, (n + m + 1) % 2])
-            cond = 0.0
+        # columns c_l, d_l: the inner wave of their own type (c: M, d: N) and the other one
+        own = np.concatenate([_inner_rows(in_m), _inner_rows(in_n)], axis=1)
+        swap = np.concatenate([_inner_rows(in_n), _inner_rows(in_m)], axis=1)
+        inner = np.concatenate([own, swap])
+        outer = []
+        for rad in (rad_out, rad_rg):
+            wm, wn = _waves(n, kr, rad, *tabs, conj=True)
+            rm, rn = _outer_rows(wm, nr, nt), _outer_rows(wn, nr, nt)
+            # rows a_n: m_rel N_n against the own type + M_n against the other; rows b_n:
+            # m_rel M_n against the own type + N_n against the other
+            outer.append(np.concatenate([np.concatenate([m_rel * rn, rm]),
+                                         np.concatenate([m_rel * rm, rn])], axis=1))
+        pref = np.tile(1j * k * k / (n * (n + 1.0)), 2)[:, None]
+        if mirror:
+            q = np.zeros((2 * n.size, 2 * n.size), dtype=complex)
+            rgq = np.zeros_like(q)
+            parity = _parity(m, n)
             for cls in (0, 1):
-                sel = np.nonzero(parity == cls)[0]
+                sel = np.flatnonzero(parity == cls)
                 if sel.size == 0:
                     continue
-                qq, rr = q[np.ix_(sel, sel)], rgq[np.ix_(sel, sel)]
-                cond = max(cond, float(np.linalg.cond(qq)))
-                t[np.ix_(sel, sel)] = _solve_right(qq, rr)
-            conds[m] = cond
+                both = np.concatenate([outer[0][:, sel], outer[1][:, sel]], axis=1)
+                prod = both.T @ inner[:, sel]
+                q[np.ix_(sel, sel)] = prod[:sel.size] * pref[sel]
+                rgq[np.ix_(sel, sel)] = prod[sel.size:] * pref[sel]
         else:
-            conds[m] = float(np.linalg.cond(q))
-            t = _solve_right(q, rgq)
-        sel = np.concatenate([np.arange(cnt), L + np.arange(cnt)])
-        out[m][np.ix_(sel, sel)] = t
-    return out, conds
+            both = np.concatenate(outer, axis=1)
+            prod = both.T @ inner
+            q, rgq = prod[:2 * n.size] * pref, prod[2 * n.size:] * pref
+        qs.append(q)
+        rgqs.append(rgq)
+    return EBCMSystem(L, qs, rgqs, mirror)
+
+
+def _solve_right(q: NDArray, rgq: NDArray) -> tuple[NDArray[np.complex128], float]:
+    """``-RgQ Q^-1`` with ``Q`` equilibrated: columns scaled to unit maximum (``T`` does not
+    change), then rows (``T = -RgQ (D Q)^-1 D``), so that partial pivoting sees entries of
+    comparable size although they span ``h_n(k r_min) / j_n(k r_max)``; and the condition
+    number of the equilibrated ``Q``."""
+    dc = 1.0 / np.abs(q).max(axis=0)
+    qs = q * dc[None, :]
+    dr = 1.0 / np.abs(qs).max(axis=1)
+    qs = qs * dr[:, None]
+    x = np.linalg.solve(qs.T, (rgq * dc[None, :]).T).T  # (RgQ Dc) (Dr Q Dc)^-1
+    return -x * dr[None, :], float(np.linalg.cond(qs))
+
+
+def ebcm_solve(system: EBCMSystem, order: int, out_order: int | None = None
+               ) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
+    """Padded T-matrix blocks ``(L' + 1, 2L', 2L')`` of ``m = 0..L'`` (layout of
+    :func:`holofit.scattering.axisym.iitm.mie_start`) solved at a truncation
+    ``L <= system.order`` and kept at ``L' = out_order <= L`` (default ``L``: the sub-blocks
+    of orders ``n, l <= L'``), and the condition number of the equilibrated ``Q`` per ``m``."""
+    L = int(order)
+    out = L if out_order is None else min(int(out_order), L)
+    if not 1 <= L <= system.order or out + 1 > len(system.q):
+        raise ValueError(f"EBCM order {L} (kept at {out}) outside the computed system "
+                         f"(order {system.order}, m <= {len(system.q) - 1})")
+    blocks = np.zeros((out + 1, 2 * out, 2 * out), dtype=complex)
+    conds = np.zeros(out + 1)
+    for m in range(out + 1):
+        n0 = max(1, m)
+        full = system.order - n0 + 1
+        cnt = L - n0 + 1
+        keep = np.concatenate([np.arange(cnt), full + np.arange(cnt)])
+        q = system.q[m][np.ix_(keep, keep)]
+        rgq = system.rgq[m][np.ix_(keep, keep)]
+        n = np.arange(n0, L + 1)
+        classes = ([np.flatnonzero(_parity(m, n) == c) for c in (0, 1)]
+                   if system.mirror_symmetric else [np.arange(2 * cnt)])
+        t = np.zeros_like(q)
+        for sel in classes:
+            if sel.size == 0:
+                continue
+            t[np.ix_(sel, sel)], cond = _solve_right(q[np.ix_(sel, sel)], rgq[np.ix_(sel, sel)])
+            conds[m] = max(conds[m], cond)
+        c_out = out - n0 + 1
+        src = np.concatenate([np.arange(c_out), cnt + np.arange(c_out)])
+        dst = np.concatenate([np.arange(c_out), out + np.arange(c_out)])
+        blocks[m][np.ix_(dst, dst)] = t[np.ix_(src, src)]
+    return blocks, conds
+
+
+def ebcm_blocks(profile: Profile, order: int, k: float, n_medium: float, nodes: int
+                ) -> tuple[NDArray[np.complex128], NDArray[np.float64]]:
+    """:func:`ebcm_solve` of :func:`ebcm_system` at one ``order``: padded T-matrix blocks
+    and the equilibrated condition number of ``Q`` per ``m``."""
+    return ebcm_solve(ebcm_system(profile, order, k, n_medium, nodes), order)

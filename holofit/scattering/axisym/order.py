@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from holofit.scattering.tmatrix import TMatrix
 
-__all__ = ["ORDER_STEP", "far_field_change", "probe_far_fields", "start_order"]
+__all__ = ["ORDER_STEP", "far_field_change", "probe_change", "probe_far_fields", "start_order"]
 
 #: orders added per refinement
 ORDER_STEP = 4
@@ -53,7 +53,11 @@ def probe_far_fields(tm: TMatrix) -> NDArray[np.complex128]:
     return np.array(out)
 
 
+def probe_change(fa: NDArray, fb: NDArray) -> float:
+    """``max |A_a - A_b| / max |A_b|`` of two :func:`probe_far_fields`."""
+    return float(np.abs(fa - fb).max() / np.abs(fb).max())
+
+
 def far_field_change(a: TMatrix, b: TMatrix) -> float:
     """``max |A_a - A_b| / max |A_b|`` over the probes (:func:`probe_far_fields`)."""
-    fa, fb = probe_far_fields(a), probe_far_fields(b)
-    return float(np.abs(fa - fb).max() / np.abs(fb).max())
+    return probe_change(probe_far_fields(a), probe_far_fields(b))
