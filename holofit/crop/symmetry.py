@@ -119,12 +119,21 @@ def fft_size(half_width: int, reach: int) -> int:
     return sfft.next_fast_len(2 * half_width + reach + 1, real=True)
 
 
+def _inverse_near(spec: NDArray, n: int, near: slice) -> NDArray:
+    """``irfft2(spec, (n, n))[near, near]``: the inverse transform along the rows for every
+    column, along the columns for the rows wanted only (the same 1-D transforms, a third of
+    the second pass)."""
+    rows = sfft.ifft(spec, n, axis=0, workers=1)[near]
+    return sfft.irfft(rows, n, axis=1, workers=1)[:, near]
+
+
 def _score_map(
     image: NDArray, valid: NDArray | None, ci: int, cj: int, half_width: int, sigma: float,
     reach: int,
 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """``N``, ``D``, ``W`` and the valid fraction of the pair weight on the lattice of the
-    window (exact at the ``s`` within ``reach`` of its centre, :func:`fft_size`)."""
+    """``N``, ``D``, ``W`` and the valid fraction of the pair weight at the lattice points
+    ``s`` within ``reach`` of the window's centre (``(2 reach + 1)^2`` values each,
+    :func:`fft_size`)."""
     rows, cols = image.shape
     size = 2 * half_width + 1
     i0, j0 = ci - half_width, cj - half_width
@@ -132,6 +141,7 @@ def _score_map(
     b0, b1 = max(j0, 0), min(j0 + size, cols)
     n = fft_size(half_width, reach)
     shape = (n, n)
+    near = slice(2 * half_width - reach, 2 * half_width + reach + 1)
     w, spec_w, full = _window(size, sigma, n)
     f = np.zeros((size, size), dtype=np.float64)
     inner = (slice(a0 - i0, a1 - i0), slice(b0 - j0, b1 - j0))
@@ -157,21 +167,22 @@ def _score_map(
         f *= mask
     wf = w * f
     spec = sfft.rfft2(wf, shape, workers=1)
-    num = sfft.irfft2(spec * spec, shape, workers=1)
+    num = _inverse_near(spec * spec, n, near)
+    full_near = full[near, near]
     if rect and inner == (slice(0, size), slice(0, size)):
-        spec_wm, pairs = spec_w, full  # the whole window valid: its own mask terms
+        spec_wm, pairs = spec_w, full_near  # the whole window valid: its own mask terms
     elif rect:  # a rectangle: the window's mask terms factorise into rows and columns
         g1 = w[half_width] / w[half_width, half_width]
         u, v = np.zeros(size), np.zeros(size)
         u[inner[0]], v[inner[1]] = g1[inner[0]], g1[inner[1]]
         fu, fv = np.fft.fft(u, n), np.fft.rfft(v, n)
         spec_wm = fu[:, None] * fv[None, :]
-        pairs = np.outer(np.fft.ifft(fu * fu).real, np.fft.irfft(fv * fv, n))
+        pairs = np.outer(np.fft.ifft(fu * fu).real[near], np.fft.irfft(fv * fv, n)[near])
     else:
         spec_wm = sfft.rfft2(w * mask, shape, workers=1)
-        pairs = sfft.irfft2(spec_wm * spec_wm, shape, workers=1)
-    den = sfft.irfft2(sfft.rfft2(wf * f, shape, workers=1) * spec_wm, shape, workers=1)
-    fraction = pairs / np.maximum(full, 1e-300)
+        pairs = _inverse_near(spec_wm * spec_wm, n, near)
+    den = _inverse_near(sfft.rfft2(wf * f, shape, workers=1) * spec_wm, n, near)
+    fraction = pairs / np.maximum(full_near, 1e-300)
     return num, den, pairs, fraction
 
 
@@ -235,14 +246,13 @@ def refine_center(
                                                    reach)
         except ValueError:
             return best
-        k0 = 2 * half_width  # s index of the window centre (ci, cj)
-        near = (slice(k0 - reach, k0 + reach + 1), slice(k0 - reach, k0 + reach + 1))
-        sub_n, sub_d = num[near], den[near]
+        # the lattice points within reach of the window centre (ci, cj), s = 2 m
+        sub_n, sub_d = num, den
         tiny = 1e-12 * max(float(np.abs(sub_d).max()), 1e-300)
-        usable = (sub_d > tiny) & (fraction[near] >= min_pair_fraction) & ~outside
+        usable = (sub_d > tiny) & (fraction >= min_pair_fraction) & ~outside
         score = np.where(usable, sub_n / np.where(usable, sub_d, 1.0), -np.inf)
         # minus the mean squared asymmetry A (module docstring), up to a factor 2
-        closeness = np.where(usable, (sub_n - sub_d) / np.where(usable, pairs[near], 1.0), -np.inf)
+        closeness = np.where(usable, (sub_n - sub_d) / np.where(usable, pairs, 1.0), -np.inf)
         pi, pj = np.unravel_index(int(np.argmax(closeness)), closeness.shape)
         if not np.isfinite(score[pi, pj]):
             return best
@@ -252,7 +262,7 @@ def refine_center(
         y = ci + (pi + di - reach) / 2.0
         on_rim = bool(rim[pi, pj])
         best = SymmetryFit(x, y, float(score[pi, pj]), not on_rim, it,
-                           float(fraction[near][pi, pj]))
+                           float(fraction[pi, pj]))
         if not on_rim:
             break
     return best
