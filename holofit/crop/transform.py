@@ -80,7 +80,8 @@ def block_mean(image: NDArray, factor: int) -> NDArray[np.float32]:
     out = acc[:, 0].copy()
     for a in range(1, factor):
         out += acc[:, a]
-    return out / np.float32(factor * factor)
+    out /= np.float32(factor * factor)
+    return out
 
 
 def gradient(image: NDArray) -> tuple[NDArray, NDArray]:
