@@ -17,12 +17,14 @@ is far wider, and the fit, not the library, sets the final precision (docs: user
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.batch import BatchSettings, BatchSummary, Precomputed
@@ -31,7 +33,12 @@ from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage,
 from holofit.batch.worker import worker_resource
 from holofit.config import ConfigError, Instrument, ParticleConfig
 from holofit.library.polar import polar_grid, sample_crop
-from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
+from holofit.library.search import (
+    HEIGHT_STEP_UM,
+    OrientationLibrary,
+    pick_candidates,
+    tilt_grid,
+)
 from holofit.library.tilts import TILTS_FILE, load_tilts, solve_tilts
 from holofit.provenance import sidecar
 from holofit.status import OK
@@ -45,6 +52,7 @@ __all__ = [
     "LibraryPayload",
     "LibraryResult",
     "LibrarySettings",
+    "by_height",
     "candidate_columns",
     "library_frame",
     "run_library",
@@ -251,10 +259,34 @@ def run_library(
                  ("z_um", "prefit z (um)"), ("fit_time_s", "time per frame (s)")),
                 "holofit library", "library.csv")
 
-        summary, png = run_stage(library_frame, config, given.frames,
+        summary, png = run_stage(library_frame, config,
+                                 by_height(given.frames, given.crops, pre),
                                  partial(_load, FrameLoader(given.crops, pre)), table,
                                  batch=batch, complete=pictures if plot else None)
     return LibraryResult(table.path, summary, png)
+
+
+def by_height(frames: Sequence[Any], crops: CropSet, prefit: pd.DataFrame,
+              step_um: float = HEIGHT_STEP_UM) -> list[Any]:
+    """``frames`` in the order of their prefit heights rounded to ``step_um`` (frame order
+    within a step; frames without a height last).
+
+    A worker keeps the tilts' fields on the polar grid for the last few rounded heights
+    (:class:`~holofit.library.search.OrientationLibrary`), and a frame at a height it holds
+    costs only the correlations: in frame order a diffusing particle comes back to a height
+    only now and then, in this order every frame at a height follows the first. The table is
+    written in key order whatever the order of the work.
+    """
+    heights = prefit["z_um"].to_dict() if "z_um" in prefit else {}
+
+    def rank(item: tuple[int, Any]) -> tuple[bool, float, int]:
+        position, frame = item
+        key = crops.key(frame) if hasattr(crops, "key") else frame
+        z = heights.get(key, math.nan)
+        step = round(float(z) / step_um) if math.isfinite(z) else math.inf
+        return (not math.isfinite(step), step, position)
+
+    return [frame for _, frame in sorted(enumerate(frames), key=rank)]
 
 
 def _shared_tilts(config: LibraryConfig, batch: BatchSettings | None, n_frames: int,
