@@ -260,16 +260,19 @@ def run_library(
                 "holofit library", "library.csv")
 
         summary, png = run_stage(library_frame, config,
-                                 by_height(given.frames, given.crops, pre),
+                                 by_height(given.frames, given.crops, pre,
+                                           lanes=_local_workers(batch, len(given.frames))),
                                  partial(_load, FrameLoader(given.crops, pre)), table,
                                  batch=batch, complete=pictures if plot else None)
     return LibraryResult(table.path, summary, png)
 
 
 def by_height(frames: Sequence[Any], crops: CropSet, prefit: pd.DataFrame,
-              step_um: float = HEIGHT_STEP_UM) -> list[Any]:
+              step_um: float = HEIGHT_STEP_UM, lanes: int = 1) -> list[Any]:
     """``frames`` in the order of their prefit heights rounded to ``step_um`` (frame order
-    within a step; frames without a height last).
+    within a step; frames without a height last), the sorted list cut into ``lanes`` runs
+    that take turns (one per worker: workers that take the next frame in turn each stay at
+    their own heights).
 
     A worker keeps the tilts' fields on the polar grid for the last few rounded heights
     (:class:`~holofit.library.search.OrientationLibrary`), and a frame at a height it holds
@@ -286,7 +289,13 @@ def by_height(frames: Sequence[Any], crops: CropSet, prefit: pd.DataFrame,
         step = round(float(z) / step_um) if math.isfinite(z) else math.inf
         return (not math.isfinite(step), step, position)
 
-    return [frame for _, frame in sorted(enumerate(frames), key=rank)]
+    ordered = [frame for _, frame in sorted(enumerate(frames), key=rank)]
+    lanes = max(1, min(int(lanes), len(ordered)))
+    if lanes == 1:
+        return ordered
+    runs = [list(run) for run in np.array_split(np.arange(len(ordered)), lanes)]
+    turns = [ordered[run[k]] for k in range(len(runs[0])) for run in runs if k < len(run)]
+    return turns
 
 
 def _shared_tilts(config: LibraryConfig, batch: BatchSettings | None, n_frames: int,
@@ -297,8 +306,7 @@ def _shared_tilts(config: LibraryConfig, batch: BatchSettings | None, n_frames: 
     every orientation from its own T-matrix (``exact``, ``cluster``) has nothing to share:
     each worker solves once and rotates, without the spawned processes' start-up."""
     opts = batch or BatchSettings()
-    workers = opts.workers if opts.workers is not None else available_cpus()
-    workers = min(workers, n_frames)
+    workers = _local_workers(opts, n_frames)
     if opts.scheduler or opts.dask_local or workers < 2:
         return config
     if getattr(config.particle.theory(config.engine), "own_tmatrix", False):
@@ -311,6 +319,13 @@ def _shared_tilts(config: LibraryConfig, batch: BatchSettings | None, n_frames: 
                        path) is None:
             return config
     return replace(config, tilts=str(path))
+
+
+def _local_workers(batch: BatchSettings | None, n_frames: int) -> int:
+    """The local worker processes the stage's frames run on (at least one)."""
+    opts = batch or BatchSettings()
+    workers = opts.workers if opts.workers is not None else available_cpus()
+    return max(1, min(workers, n_frames))
 
 
 def _load(loader: FrameLoader, frame: int) -> LibraryPayload | Precomputed:
