@@ -6,7 +6,8 @@ R^2, with the particle's holograms at the prefit's height over a grid of orienta
 apart, are the frame's candidates (``library.csv``, schema :mod:`holofit.tables.library`).
 Frames run through the stage skeleton (:mod:`holofit.batch.stage`: parallel, resumable,
 failures recorded); each worker solves the library's tilts once and keeps them for all its
-frames.
+frames, and the frames run in the order of their rounded prefit heights (:func:`by_height`),
+so that a worker computes the tilts' fields at a height once.
 
 Grid resolution: tilts every ``tilt_step_deg`` (10 deg by default) and ``n_phi`` azimuths
 (128: 2.8 deg). The DDA fit converges from an error of half a step (5 deg in tilt): its basin
