@@ -99,8 +99,9 @@ def _pipeline(out: Path, config: ParticleConfig, truth: ParticleConfig, inst, dy
     times: dict[str, float] = {}
     batch = BatchSettings(workers=workers, progress=False)
     sim = _stage(times, "simulate", _simulated, truth, inst, dynamics, out, seed, keep_sim)
+    # every stage on the same workers, as a run folder's JOBS gives them (holofit init)
     _stage(times, "crop", run_crop, sim.movie.movie, sim.movie.background, inst, out / "crop",
-           CropConfig(size=140))
+           CropConfig(size=140), batch=batch)
     # a non-spherical particle's prefit seeds its position only (as `holofit init` sets it)
     prefit_fit = SphereFitSettings(seed_only=config.model.anisotropic)
     _stage(times, "prefit", run_prefit, out / "crop", out / "prefit", batch=batch, fit=prefit_fit)

@@ -150,3 +150,81 @@ def test_find_centers_handles_nan_and_empty_images():
     assert len(find_centers(np.full((200, 200), np.nan))) == 0
     with pytest.raises(ValueError, match="min_alignment"):
         CenterFinder(min_alignment=2)
+
+
+def test_exact_median_is_numpys_median():
+    """The bracketed selection gives np.median's value (and dtype) bit for bit: ties, sorted
+    and periodic data (a strided sample that sees one phase), NaN, both parities."""
+    from holofit.crop.transform import exact_median
+
+    rng = np.random.default_rng(5)
+    cases = [rng.normal(size=300_001).astype(np.float32),
+             rng.integers(0, 4, 200_000).astype(np.float64),
+             np.sort(rng.normal(size=100_000)),
+             np.tile(rng.normal(size=64), 2_000),
+             np.concatenate([np.zeros(50_000), rng.normal(size=50_001)]),
+             rng.normal(size=1_000)]
+    with_nan = rng.normal(size=80_000)
+    with_nan[12_345] = np.nan
+    for values in cases:
+        got, want = exact_median(values), np.median(values)
+        assert got == want and got.dtype == want.dtype
+    assert np.isnan(exact_median(with_nan))
+
+
+def test_block_mean_is_numpys_block_mean_bit_for_bit():
+    """Every block size gives np.mean's float32 block means exactly (the whole-array adds
+    follow its order of summation)."""
+    rng = np.random.default_rng(6)
+    for shape in ((97, 130), (64, 64)):
+        image = (rng.uniform(0.1, 50.0) * (1 + 0.1 * rng.normal(size=shape))).astype(np.float32)
+        for factor in range(2, 17):
+            rows, cols = shape[0] // factor, shape[1] // factor
+            view = image[: rows * factor, : cols * factor].reshape(rows, factor, cols, factor)
+            want = view.mean(axis=(1, 3), dtype=np.float32)
+            got = block_mean(image, factor)
+            assert got.dtype == np.float32 and np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("ci, cj", [(20, 20), (3, 30), (36, 2), (0, 0)])
+def test_symmetry_score_map_matches_direct_sums(ci, cj):
+    """N, D and the pair weight W at the searched lattice points, against their defining sums
+    over the window (module docstring of holofit.crop.symmetry): whole windows, windows cut
+    by the frame's edges (a rectangle of valid pixels) and a masked one."""
+    from holofit.crop.symmetry import _score_map
+
+    rng = np.random.default_rng(7)
+    image = 1 + 0.2 * rng.normal(size=(40, 45))
+    hw, sigma, reach = 8, 3.2, 5
+    masks = [None, rng.uniform(size=image.shape) > 0.1]
+    for valid in masks:
+        num, den, pairs, fraction = _score_map(image, valid, ci, cj, hw, sigma, reach)
+        size = 2 * hw + 1
+        f = np.zeros((size, size))
+        m = np.zeros((size, size))
+        for a in range(size):
+            for b in range(size):
+                i, j = ci - hw + a, cj - hw + b
+                if 0 <= i < image.shape[0] and 0 <= j < image.shape[1] and (
+                        valid is None or valid[i, j]):
+                    f[a, b], m[a, b] = image[i, j], 1.0
+        f = (f - np.median(f[m > 0])) * m
+        g = np.exp(-0.5 * ((np.arange(size) - hw) / sigma) ** 2)
+        w = g[:, None] * g[None, :]
+        scale = float(np.sum(w * f * f)) * float(w.max())  # the size of every sum below
+        for p in range(2 * reach + 1):
+            for q in range(2 * reach + 1):
+                s = (2 * hw - reach + p, 2 * hw - reach + q)  # lattice point s = 2 m
+                n_sum = d_sum = w_sum = full = 0.0
+                for a in range(max(0, s[0] - size + 1), min(size, s[0] + 1)):
+                    for b in range(max(0, s[1] - size + 1), min(size, s[1] + 1)):
+                        a2, b2 = s[0] - a, s[1] - b
+                        pw = w[a, b] * w[a2, b2]
+                        n_sum += pw * f[a, b] * f[a2, b2]
+                        d_sum += pw * f[a, b] ** 2 * m[a2, b2]
+                        w_sum += pw * m[a, b] * m[a2, b2]
+                        full += pw
+                assert abs(num[p, q] - n_sum) <= 1e-10 * scale
+                assert abs(den[p, q] - d_sum) <= 1e-10 * scale
+                assert abs(pairs[p, q] - w_sum) <= 1e-10 * full
+                assert abs(fraction[p, q] - w_sum / full) <= 1e-10

@@ -114,3 +114,32 @@ def test_fields_are_reused_for_frames_at_nearly_the_same_height(engine):
     own = exact.scores(grid, data, weights, near, 0.9)
     assert np.abs(own - again).max() < 0.02
     assert np.argmax(own[0]) == np.argmax(again[0])
+
+
+def test_frames_run_by_height_one_run_per_worker():
+    """The library's work order (holofit.library.stage.by_height) is a permutation of the
+    frames: rounded heights ascending along each worker's run, frame order within a height,
+    frames without a prefit height last, the runs taking turns."""
+    import pandas as pd
+
+    from holofit.library.stage import by_height
+
+    class Crops:  # a crop folder of one track: keys are (particle, frame)
+        def key(self, frame):
+            return (0, frame)
+
+    rng = np.random.default_rng(3)
+    frames = list(range(40))
+    z = 10 + np.cumsum(rng.normal(0, 0.08, len(frames)))
+    z[[5, 17]] = np.nan
+    prefit = pd.DataFrame({"z_um": z},
+                          index=pd.MultiIndex.from_tuples([(0, f) for f in frames]))
+    step = 0.05
+    one = by_height(frames, Crops(), prefit, step)
+    assert sorted(one) == frames and one[-2:] == [5, 17]
+    bins = [round(z[f] / step) for f in one[:-2]]
+    assert bins == sorted(bins)
+    assert all(a < b for a, b, c, d in zip(one, one[1:], bins, bins[1:], strict=False) if c == d)
+    two = by_height(frames, Crops(), prefit, step, lanes=2)
+    assert sorted(two) == frames
+    assert two[0::2] == one[:20] and two[1::2] == one[20:]

@@ -152,18 +152,20 @@ def clipped_profile(image: NDArray, x: float, y: float, radius: float, *,
     flat_b = r[inside].astype(np.int32)
     flat_v = image[box][inside].astype(np.float64) - 1.0
     ok = np.isfinite(flat_v)
-    flat_b, flat_v = flat_b[ok], flat_v[ok]
+    if not ok.all():
+        flat_b, flat_v = flat_b[ok], flat_v[ok]
     n_bins = int(radius) + 1
     count = np.bincount(flat_b, minlength=n_bins)[:n_bins]
     safe = np.maximum(count, 1)
     mean = np.bincount(flat_b, flat_v, n_bins)[:n_bins] / safe
     var = np.bincount(flat_b, flat_v**2, n_bins)[:n_bins] / safe - mean**2
     keep = np.abs(flat_v - mean[flat_b]) <= CLIP * np.sqrt(np.maximum(var, 0.0))[flat_b] + 1e-12
-    kept = np.bincount(flat_b[keep], minlength=n_bins)[:n_bins]
-    clipped = np.bincount(flat_b[keep], flat_v[keep], n_bins)[:n_bins] / np.maximum(kept, 1)
+    kept_b, kept_v = flat_b[keep], flat_v[keep]
+    kept = np.bincount(kept_b, minlength=n_bins)[:n_bins]
+    clipped = np.bincount(kept_b, kept_v, n_bins)[:n_bins] / np.maximum(kept, 1)
     profile = np.where(kept > 0, clipped, mean)
     if spread:
-        power = np.bincount(flat_b[keep], flat_v[keep] ** 2, n_bins)[:n_bins] / np.maximum(kept, 1)
+        power = np.bincount(kept_b, kept_v**2, n_bins)[:n_bins] / np.maximum(kept, 1)
         return box, r, profile, count, mean, np.maximum(var, 0.0), np.where(kept > 0, power, 0.0)
     return box, r, profile, count
 

@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 __all__ = [
     "block_mean",
     "estimate_noise",
+    "exact_median",
     "gradient",
     "noise_strength",
     "orientation_alignment",
@@ -69,7 +70,18 @@ def block_mean(image: NDArray, factor: int) -> NDArray[np.float32]:
         return image.copy()
     rows, cols = image.shape[0] // factor, image.shape[1] // factor
     view = image[: rows * factor, : cols * factor].reshape(rows, factor, cols, factor)
-    return view.mean(axis=(1, 3), dtype=np.float32)
+    if factor >= 8:  # numpy sums 8 or more terms pairwise
+        return view.mean(axis=(1, 3), dtype=np.float32)
+    # np.mean's own order (along each block row, then down the rows), as whole-array adds:
+    # the same float32 values at an eighth of the time
+    acc = view[:, :, :, 0].copy()
+    for b in range(1, factor):
+        acc += view[:, :, :, b]
+    out = acc[:, 0].copy()
+    for a in range(1, factor):
+        out += acc[:, a]
+    out /= np.float32(factor * factor)
+    return out
 
 
 def gradient(image: NDArray) -> tuple[NDArray, NDArray]:
@@ -96,8 +108,39 @@ def estimate_noise(image: NDArray) -> float:
     image = np.asarray(image, dtype=np.float32)
     if image.shape[1] < 3:
         return 0.0
-    d2 = image[:, :-2] - 2.0 * image[:, 1:-1] + image[:, 2:]
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+    d2 = (image[:, :-2] - 2.0 * image[:, 1:-1] + image[:, 2:]).ravel()
+    return float(1.4826 * exact_median(np.abs(d2 - exact_median(d2))) / np.sqrt(6.0))
+
+
+#: :func:`exact_median` looks for the middle values among the samples of every this-many-th
+#: element first
+MEDIAN_STRIDE = 64
+
+
+def exact_median(values: NDArray) -> np.floating:
+    """``np.median`` of a 1-D array, the same value, in a fraction of the time for large ones.
+
+    The two middle order statistics are bracketed by quantiles of a strided sample, counted,
+    and selected among the few values in the bracket only (a full selection where the bracket
+    misses them, or with NaN): a megapixel frame's noise estimate is two medians, which
+    dominated the centre finder's time.
+    """
+    n = values.size
+    if n < 64 * MEDIAN_STRIDE:
+        return np.median(values)
+    sample = np.sort(values[::MEDIAN_STRIDE])
+    m = sample.size
+    # ranks 4.5 sample standard deviations either side of the middle (a miss: ~1e-5)
+    half = int(np.ceil(4.5 * 0.5 * np.sqrt(m))) + 2
+    lo, hi = sample[max(m // 2 - half, 0)], sample[min(m // 2 + half, m - 1)]
+    k1, k2 = (n - 1) // 2, n // 2
+    below = int(np.count_nonzero(values < lo))
+    inside = values[(values >= lo) & (values <= hi)]
+    above = int(np.count_nonzero(values > hi))
+    if not (below <= k1 and k2 < below + inside.size) or below + inside.size + above < n:
+        return np.median(values)  # the bracket missed, or NaN (in no count)
+    part = np.partition(inside, [k1 - below, k2 - below])
+    return np.mean(part[[k1 - below, k2 - below]])
 
 
 def noise_strength(sigma: float, radius: int) -> float:

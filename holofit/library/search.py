@@ -39,7 +39,12 @@ from holofit.particles import ParticleModel
 from holofit.scattering.recorded_field import recorded_field
 from holofit.scattering.theory import Orientation, ScatteredWave, ScatteringEngine
 
-__all__ = ["Candidate", "OrientationLibrary", "Tilt", "pick_candidates", "tilt_grid"]
+__all__ = ["HEIGHT_STEP_UM", "Candidate", "OrientationLibrary", "Tilt", "pick_candidates",
+           "tilt_grid"]
+
+#: the tilts' fields on a frame's polar grid are kept for heights rounded to this step, um
+#: (:class:`OrientationLibrary`)
+HEIGHT_STEP_UM = 0.05
 
 
 @dataclass(frozen=True)
@@ -106,7 +111,7 @@ class OrientationLibrary:
     """
 
     def __init__(self, theory: ScatteringEngine, model: ParticleModel, optics: Optics,
-                 tilts: list[Tilt], z_step_um: float | None = 0.05) -> None:
+                 tilts: list[Tilt], z_step_um: float | None = HEIGHT_STEP_UM) -> None:
         if not tilts:
             raise ValueError("the library needs at least one tilt")
         self.theory = theory

@@ -6,7 +6,8 @@ R^2, with the particle's holograms at the prefit's height over a grid of orienta
 apart, are the frame's candidates (``library.csv``, schema :mod:`holofit.tables.library`).
 Frames run through the stage skeleton (:mod:`holofit.batch.stage`: parallel, resumable,
 failures recorded); each worker solves the library's tilts once and keeps them for all its
-frames.
+frames, and the frames run in the order of their rounded prefit heights (:func:`by_height`),
+so that a worker computes the tilts' fields at a height once.
 
 Grid resolution: tilts every ``tilt_step_deg`` (10 deg by default) and ``n_phi`` azimuths
 (128: 2.8 deg). The DDA fit converges from an error of half a step (5 deg in tilt): its basin
@@ -17,12 +18,14 @@ is far wider, and the fit, not the library, sets the final precision (docs: user
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
 from holofit.batch import BatchSettings, BatchSummary, Precomputed
@@ -31,7 +34,12 @@ from holofit.batch.stage import FrameLoader, StageTable, fingerprint, run_stage,
 from holofit.batch.worker import worker_resource
 from holofit.config import ConfigError, Instrument, ParticleConfig
 from holofit.library.polar import polar_grid, sample_crop
-from holofit.library.search import OrientationLibrary, pick_candidates, tilt_grid
+from holofit.library.search import (
+    HEIGHT_STEP_UM,
+    OrientationLibrary,
+    pick_candidates,
+    tilt_grid,
+)
 from holofit.library.tilts import TILTS_FILE, load_tilts, solve_tilts
 from holofit.provenance import sidecar
 from holofit.status import OK
@@ -45,6 +53,7 @@ __all__ = [
     "LibraryPayload",
     "LibraryResult",
     "LibrarySettings",
+    "by_height",
     "candidate_columns",
     "library_frame",
     "run_library",
@@ -251,10 +260,43 @@ def run_library(
                  ("z_um", "prefit z (um)"), ("fit_time_s", "time per frame (s)")),
                 "holofit library", "library.csv")
 
-        summary, png = run_stage(library_frame, config, given.frames,
+        summary, png = run_stage(library_frame, config,
+                                 by_height(given.frames, given.crops, pre,
+                                           lanes=_local_workers(batch, len(given.frames))),
                                  partial(_load, FrameLoader(given.crops, pre)), table,
                                  batch=batch, complete=pictures if plot else None)
     return LibraryResult(table.path, summary, png)
+
+
+def by_height(frames: Sequence[Any], crops: CropSet, prefit: pd.DataFrame,
+              step_um: float = HEIGHT_STEP_UM, lanes: int = 1) -> list[Any]:
+    """``frames`` in the order of their prefit heights rounded to ``step_um`` (frame order
+    within a step; frames without a height last), the sorted list cut into ``lanes`` runs
+    that take turns (one per worker: workers that take the next frame in turn each stay at
+    their own heights).
+
+    A worker keeps the tilts' fields on the polar grid for the last few rounded heights
+    (:class:`~holofit.library.search.OrientationLibrary`), and a frame at a height it holds
+    costs only the correlations: in frame order a diffusing particle comes back to a height
+    only now and then, in this order every frame at a height follows the first. The table is
+    written in key order whatever the order of the work.
+    """
+    heights = prefit["z_um"].to_dict() if "z_um" in prefit else {}
+
+    def rank(item: tuple[int, Any]) -> tuple[bool, float, int]:
+        position, frame = item
+        key = crops.key(frame) if hasattr(crops, "key") else frame
+        z = heights.get(key, math.nan)
+        step = round(float(z) / step_um) if math.isfinite(z) else math.inf
+        return (not math.isfinite(step), step, position)
+
+    ordered = [frame for _, frame in sorted(enumerate(frames), key=rank)]
+    lanes = max(1, min(int(lanes), len(ordered)))
+    if lanes == 1:
+        return ordered
+    runs = [list(run) for run in np.array_split(np.arange(len(ordered)), lanes)]
+    turns = [ordered[run[k]] for k in range(len(runs[0])) for run in runs if k < len(run)]
+    return turns
 
 
 def _shared_tilts(config: LibraryConfig, batch: BatchSettings | None, n_frames: int,
@@ -265,8 +307,7 @@ def _shared_tilts(config: LibraryConfig, batch: BatchSettings | None, n_frames: 
     every orientation from its own T-matrix (``exact``, ``cluster``) has nothing to share:
     each worker solves once and rotates, without the spawned processes' start-up."""
     opts = batch or BatchSettings()
-    workers = opts.workers if opts.workers is not None else available_cpus()
-    workers = min(workers, n_frames)
+    workers = _local_workers(opts, n_frames)
     if opts.scheduler or opts.dask_local or workers < 2:
         return config
     if getattr(config.particle.theory(config.engine), "own_tmatrix", False):
@@ -279,6 +320,13 @@ def _shared_tilts(config: LibraryConfig, batch: BatchSettings | None, n_frames: 
                        path) is None:
             return config
     return replace(config, tilts=str(path))
+
+
+def _local_workers(batch: BatchSettings | None, n_frames: int) -> int:
+    """The local worker processes the stage's frames run on (at least one)."""
+    opts = batch or BatchSettings()
+    workers = opts.workers if opts.workers is not None else available_cpus()
+    return max(1, min(workers, n_frames))
 
 
 def _load(loader: FrameLoader, frame: int) -> LibraryPayload | Precomputed:
