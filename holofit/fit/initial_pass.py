@@ -322,12 +322,14 @@ def _initial_keys(fp: FitPasses, fittable: dict[int, list[int]], spread: bool
     keys: list[tuple[int, int]] = []
     for p, frames in fittable.items():
         n = n_given if n_given is not None else default_initial_frames(len(frames))
-        over = [_overlapped(crops.row((p, f))) for f in frames]
+        rows = [crops.row((p, f)) for f in frames]
+        over = [_overlapped(r) for r in rows]
         merged = suspects.get(p, set())
         doubt = [f in merged for f in frames]
         chosen = initial_choice(frames, over, n, spread=spread,
-                                distance=[_neighbour_px(crops.row((p, f))) for f in frames],
-                                suspect=doubt)
+                                distance=[_neighbour_px(r) for r in rows], suspect=doubt)
+        taken = set(chosen)
+        clean_chosen = sum(not o for f, o in zip(frames, over, strict=True) if f in taken)
         keys += [(p, f) for f in chosen]
         who = "" if len(fittable) == 1 else f"particle {p}: "
         if n_given is None:
@@ -344,13 +346,13 @@ def _initial_keys(fp: FitPasses, fittable: dict[int, list[int]], spread: bool
                 f"{who}initial pass: {n_doubt} of {len(chosen)} frames may hold a merged "
                 "neighbour (a track lost or found late within reach: the crop sidecar's "
                 "track_losses); no other frames to take")
-        elif merged:
+        elif any(doubt):
             fp.run.notes.append(
-                f"{who}initial pass: {len(merged)} frame(s) left out that may hold a merged "
+                f"{who}initial pass: {sum(doubt)} frame(s) left out that may hold a merged "
                 "neighbour (the crop sidecar's track_losses)")
         if any(over if spread else over[:n]):
             fp.run.notes.append(
                 f"{who}initial pass: frames without another track's overlapping hologram "
-                f"first ({sum(not _overlapped(crops.row((p, f))) for f in chosen)} of "
+                f"first ({clean_chosen} of "
                 f"{len(chosen)})")
     return keys
