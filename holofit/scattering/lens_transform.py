@@ -24,17 +24,18 @@ Bessel tables of many orders (any image but a sphere's) are kept in single preci
 products: the rounding (~6e-8 of each term) adds ~1e-7 of the image's largest value (the DDA
 rod of tests/test_lens.py against the brute-force integral, double -> single precision tables,
 FFT and planes: 4e-8 -> 1.7e-7 at NA 1.2, 2e-8 -> 8e-8 at NA 1.45, 1.2e-7 -> 2.0e-7 at NA 0.9;
-the tests' bound is 1e-6, the pixel noise of a fit ~1e-2); the table
-takes half the memory and the product, which reads the whole table once per image, runs about
-twice as fast. The polar grid's FFT stays in single precision, and the grid keeps its
-single-precision values: its four real planes interleaved per node (shape ``(rows, columns,
-4)``), so that the pixel kernel's stencil rows are contiguous runs whose four sums vectorise,
-converted to double precision as they are read. The spectrum is assembled and transformed in
-place inside the padded grid (no copy). Measured (``bench/polar_kernel_ab.py``, CPU time, one
-core, the rod's and the Janus particle's grids, 19600 pixels) against the previous separate
-double-precision planes: the pixel interpolation 0.55-0.66 of the time, the grids 0.77-0.8,
-the grids equal value for value and the images to 6e-16 of their largest value. A table is
-built once per pupil rule and radial step with every order the source can need
+the tests' bound is 1e-6, the pixel noise of a fit ~1e-2); the table takes half the memory and
+the product, which reads the whole table once per image, runs about twice as fast. Entries too
+small to change a single-precision sum are stored as zeros (:data:`FLUSH`): subnormal numbers
+would slow the product several times over. The polar grid's FFT stays in single precision, and
+the grid keeps its single-precision values: its four real planes interleaved per node (shape
+``(rows, columns, 4)``), so that the pixel kernel's stencil rows are contiguous runs whose four
+sums vectorise, converted to double precision as they are read. The spectrum is assembled and
+transformed in place inside the padded grid (no copy). Measured (``bench/polar_kernel_ab.py``,
+CPU time, one core, the rod's and the Janus particle's grids, 19600 pixels) against the
+previous separate double-precision planes: the pixel interpolation 0.55-0.66 of the time, the
+grids 0.77-0.8, the grids equal value for value and the images to 6e-16 of their largest value.
+A table is built once per pupil rule and radial step with every order the source can need
 (:func:`radial_transform`'s ``max_orders``), so that waves of the same particle whose small
 high orders were trimmed away share it.
 """
@@ -74,6 +75,11 @@ TABLE_DTYPE = np.float32
 ROW_MARGIN = 1.05
 BLOCK_BYTES = 32 * 2**20
 BLOCK_TABLE_BYTES = 2**19
+#: single-precision table entries below this (``|J_m| <= 1``), and pupil-field entries below
+#: this share of the field's largest, are set to zero: they change no sum at single
+#: precision (6e-8), while the subnormal numbers that the high orders near the axis would
+#: otherwise hold, and their products, run the matrix product several times slower
+FLUSH = 1e-15
 
 
 #: most Gauss-Legendre nodes over the pupil (~z = 2 mm at NA 1.2): beyond, a fit's trial step
@@ -137,6 +143,7 @@ def _bessel_rows(x_step: NDArray, rows: range, orders: int | None) -> NDArray:
         flat = x[start:stop].ravel()
         view = out[:, start:stop].reshape(orders + 1, flat.size)
         bessel_planes(flat, special.j0(flat), special.j1(flat), orders, view)
+    out[np.abs(out) < FLUSH] = 0.0
     return out
 
 
@@ -229,6 +236,8 @@ def radial_transform(x_step: NDArray, h: NDArray[np.complex128], n_rho: int,
     cplx = np.result_type(real, np.complex64)
     # (o, i, 2c): real and imaginary parts as columns of reals
     hr = np.ascontiguousarray(h, dtype=cplx).view(real)
+    if not sphere:
+        hr = np.where(np.abs(hr) < FLUSH * np.abs(hr).max(), real.type(0.0), hr)
     if blocks is not None and len(blocks) == 1:
         out = np.matmul(blocks[0][:n_orders, :n_rho], hr)
     elif blocks is not None:

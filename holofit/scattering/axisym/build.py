@@ -85,6 +85,11 @@ MAX_ORDER_EXTRA = 36
 #: EBCM's changes, kept at the start order, fall steadily below it (measured on the rod and
 #: the cylinder: ``docs/validation/exact-studies.md``)
 STALL_ORDERS = 1
+#: a change counts as a new smallest only if it is below the smallest so far by more than this
+#: share: at double precision's floor the rounding of the EBCM's surface integrals moves the
+#: change by several per cent from one way of summing them to another, so a change that
+#: falls by less is noise, not convergence
+STALL_MARGIN = 0.05
 #: the EBCM's ``Q`` and ``RgQ`` are computed this many orders past the order tried, so that
 #: the next steps of the search are solves of their sub-blocks
 EBCM_AHEAD = 12
@@ -281,7 +286,7 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
             probe = probe_far_fields(cand)
             change = probe_change(prev_probe, probe)
             history.append((L, change))
-            if best is None or change < best[0]:
+            if best is None or change < (1.0 - STALL_MARGIN) * best[0]:
                 best, stalled = (change, cand, cand_info), 0
             else:
                 stalled += 1
