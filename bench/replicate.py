@@ -278,14 +278,22 @@ def _table(title: str, rows, paper: dict, r: dict, pulls: dict) -> list[str]:
     return lines
 
 
+def _reported(sc: dict) -> str:
+    """The axis error the fits report, against the one measured."""
+    if sc.get("axis_sigma_rms_deg") is None:
+        return ""
+    return (f" (the fits' own error {sc['axis_sigma_rms_deg']:.2f} deg rms; mean (error / "
+            f"reported)^2 {sc['axis_chi2_mean']:.2f}, 1 at the noise floor)")
+
+
 def _score_line(sc: dict) -> str:
     """The final pass against the truth, in words."""
     rms = sc["rms_nm"]
     text = (f"Frames: {sc['statuses']}; ambiguous {sc['ambiguous_frames']}. The final fit "
             f"against the truth (ok frames): rms x {rms['x_um']:.1f}, y {rms['y_um']:.1f}, "
             f"z {rms['z_um']:.1f} nm; axis {sc['axis_rms_deg']:.2f} deg rms off the wrong "
-            f"branch; {sc['wrong_branch_frames']} frame(s) on the wrong branch (axis > 10 deg "
-            f"off), {sc['wrong_branch_unflagged']} of them not flagged ambiguous")
+            f"branch{_reported(sc)}; {sc['wrong_branch_frames']} frame(s) on the wrong branch "
+            f"(axis > 10 deg off), {sc['wrong_branch_unflagged']} of them not flagged ambiguous")
     if sc["psi_rms_deg"] is not None:
         text += (f"; azimuth psi {sc['psi_rms_deg']:.2f} deg rms over the "
                  f"{sc['psi_frames']} frames with |sin theta| > 0.3")

@@ -43,7 +43,12 @@ def compare_with_truth(fit: pd.DataFrame, truth: pd.DataFrame, *,
         (axis more than :data:`WRONG_BRANCH_DEG` off), ``wrong_branch_unflagged`` (of those,
         not flagged ``ambiguous``), ``ambiguous_frames``, and ``psi_rms_deg`` where
         ``|sin theta| > PSI_SIN_THETA`` over every ``ok`` frame (the azimuth of an axis near
-        the optical axis is undefined), with ``psi_frames`` the frames it is taken over.
+        the optical axis is undefined), with ``psi_frames`` the frames it is taken over;
+        ``axis_sigma_rms_deg``, the rms of the axis error the fits report (``d_theta_rad`` and
+        ``sin theta d_psi_rad`` in quadrature, the right-branch frames), and
+        ``axis_chi2_mean``, the mean of (axis error / reported error)^2 there: 1 where the
+        axis is as good as the noise allows and its error bars hold, more where a model error
+        adds to the noise.
     """
     ok = (fit["status"] == "ok").to_numpy()
     f = fit[ok]
@@ -63,6 +68,10 @@ def compare_with_truth(fit: pd.DataFrame, truth: pd.DataFrame, *,
     if head_tail_symmetric:  # psi and psi + pi are one azimuth of a symmetric axis
         dpsi = (dpsi + np.pi / 2) % np.pi - np.pi / 2
     good = sel  # the azimuth of the mirrored Janus orientation (pi - theta) is the same
+    # the reported axis error: two perpendicular components, so E[angle^2] = their sum
+    sigma = np.degrees(np.hypot(f["d_theta_rad"].to_numpy(),
+                                np.sin(f["theta_rad"].to_numpy()) * f["d_psi_rad"].to_numpy()))
+    right = ~wrong & np.isfinite(sigma) & (sigma > 0)
     return {
         "statuses": fit["status"].value_counts().to_dict(),
         "ok_fraction": float(ok.mean()),
@@ -75,4 +84,6 @@ def compare_with_truth(fit: pd.DataFrame, truth: pd.DataFrame, *,
         "psi_rms_deg": float(np.degrees(np.sqrt(np.mean(dpsi[good] ** 2))))
         if good.any() else None,
         "psi_frames": int(good.sum()),
+        "axis_sigma_rms_deg": float(np.sqrt(np.mean(sigma[right] ** 2))) if right.any() else None,
+        "axis_chi2_mean": float(np.mean((ang[right] / sigma[right]) ** 2)) if right.any() else None,
     }
