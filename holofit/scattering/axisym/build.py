@@ -180,12 +180,14 @@ class _EBCMBuilder:
     and ``RgQ`` computed once at a higher order, every lower order a solve of their
     sub-blocks (:func:`~holofit.scattering.axisym.ebcm.ebcm_solve`). The first system is
     :data:`EBCM_AHEAD` orders past the first order asked (where a smooth body converges); a
-    body that needs more gets one at ``top``, the highest order the search may try."""
+    body that needs more gets one at ``top``, the highest order the search may try.
+    ``condition``: also the condition numbers of ``Q``, which only the search reads."""
 
     def __init__(self, profile: Profile, k: float, n_medium: float, out_order: int | None,
-                 top: int) -> None:
+                 top: int, condition: bool = True) -> None:
         self.profile, self.k, self.n_medium = profile, k, n_medium
         self.out_order, self.top = out_order, top
+        self.condition = condition
         self.system: EBCMSystem | None = None
         self.system_seconds = 0.0
 
@@ -202,11 +204,11 @@ class _EBCMBuilder:
                                       _ebcm_nodes(order), max_m=self.out_order)
             self.system_seconds = time.process_time() - t0
         out = L if self.out_order is None else min(L, self.out_order)
-        blocks, cond = ebcm_solve(self.system, L, out)
+        blocks, cond = ebcm_solve(self.system, L, out, self.condition)
         info = {"solve_order": L, "quadrature_nodes_per_piece": _ebcm_nodes(self.system.order),
                 "quadrature_order": self.system.order,
                 "surface_pieces": len(self.profile.surface_kinks()) + 1,
-                "q_condition_max": float(cond.max())}
+                "q_condition_max": float(cond.max()) if self.condition else None}
         return blocks, out, info
 
     def next_seconds(self, L_next: int, last_seconds: float) -> float:
@@ -238,7 +240,8 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
         top = int(solve_order) if solve_order is not None else int(order)
     else:
         top = L0 + MAX_ORDER_EXTRA if max_order is None else max(int(max_order), L0)
-    ebcm = _EBCMBuilder(profile, k, n_medium, out_order, top)
+    # the condition number steers only the order search (a fixed order's build skips it)
+    ebcm = _EBCMBuilder(profile, k, n_medium, out_order, top, condition=order is None)
     # the imbedding's radial steps: with the order given, Richardson's change below a tenth
     # of the tolerance; in the search, the start steps (enough to measure the change between
     # orders), the kept build's refined below IITM_STEP_SHARE of its truncation estimate
