@@ -86,14 +86,31 @@ Integrals = tuple[NDArray, NDArray, NDArray, NDArray]
 Tables = tuple[NDArray, NDArray, NDArray]
 
 
+Weighted = tuple[NDArray, NDArray, NDArray, NDArray, NDArray]
+
+
 def _orders_from(tables: Tables, n0: int) -> Tables:
     """The columns of orders ``n >= n0`` of radial tables ``[node, n]``."""
     return tables[0][:, n0:], tables[1][:, n0:], tables[2][:, n0:]
 
 
-def _couplings(outers: Sequence[Tables], inner: Tables,
-               angular: tuple[NDArray, NDArray, NDArray], nr: NDArray, nt: NDArray
-               ) -> list[Integrals]:
+def _weighted_from(tables: Weighted, n0: int) -> Weighted:
+    """The columns of orders ``n >= n0`` of :func:`_weighted` tables."""
+    return (tables[0][:, n0:], tables[1][:, n0:], tables[2][:, n0:], tables[3][:, n0:],
+            tables[4][:, n0:])
+
+
+def _weighted(tables: Tables, nr: NDArray, nt: NDArray) -> Weighted:
+    """An outer function's tables with the surface element's components (``nr, nt``, per
+    node) as the integrals use them: ``(nr z, nr z', nt nu^2 z / x, nt z, nt z')``, formed
+    once for every ``m``."""
+    z, dz, zk = tables
+    nr_, nt_ = nr[:, None], nt[:, None]
+    return nr_ * z, nr_ * dz, nt_ * zk, nt_ * z, nt_ * dz
+
+
+def _couplings(outers: Sequence[Weighted], inner: Tables,
+               angular: tuple[NDArray, NDArray, NDArray]) -> list[Integrals]:
     """The surface integrals ``S[X_n x Y_l]`` (module docstring) of outer waves ``X = M~_n,
     N~_n`` (angular part conjugated) against the inner ``Y = M_l, N_l``, as ``(MM, NM, MN,
     NN)``, each ``[n, l]`` (first letter: the outer wave), for each radial function of
@@ -109,30 +126,36 @@ def _couplings(outers: Sequence[Tables], inner: Tables,
     Parameters
     ----------
     outers : sequence of tuple of ndarray
-        Per radial function, ``(z, z', nu^2 z / (k r))`` at the nodes, ``[node, n]``.
+        Per radial function, :func:`_weighted` tables at the nodes, ``[node, n]``.
     inner : tuple of ndarray
-        The same of the inner ``j_l(m k r)`` (``x = m k r``).
+        ``(z, z', nu^2 z / x)`` of the inner ``j_l(m k r)`` (``x = m k r``), ``[node, l]``.
     angular : tuple of ndarray
         ``(P, dP, mP)`` of the ``m`` at the nodes, ``[node, n]``.
-    nr, nt : ndarray
-        The surface element's ``r`` and ``theta`` components with the quadrature weights,
-        ``[node]``.
     """
     zeta, dzeta, zetak = inner
     pb, dp, mp = angular
-    nr_, nt_ = nr[:, None], nt[:, None]
-    lefts, edges = [], []
-    for z, dz, zk in outers:
-        zd, dzr = nr_ * z, nr_ * dz
-        # u pairs with (zeta mP, zeta dP), v with (dzeta dP, dzeta mP) stacked the same way
-        lefts += [np.concatenate([zd * dp, zd * mp]),
-                  np.concatenate([dzr * mp, dzr * dp - nt_ * zk * pb])]
-        edges += [nt_ * z * dp, nt_ * dz * mp]
-    right = np.concatenate([np.concatenate([zeta * mp, zeta * dp]),
-                            np.concatenate([dzeta * dp, dzeta * mp])], axis=1)
-    gram = np.concatenate(lefts, axis=1).T @ right
-    edge = np.concatenate(edges, axis=1).T @ (zetak * pb)
-    size = zeta.shape[1]
+    nodes, size = pb.shape
+    # u pairs with (zeta mP, zeta dP), v with (dzeta dP, dzeta mP), node-stacked the same way;
+    # columns u then v per outer function; the edge terms (z dP, z' mP) pair with zeta_k P
+    left = np.empty((2 * nodes, 2 * size * len(outers)))
+    edge_left = np.empty((nodes, 2 * size * len(outers)))
+    for i, (zr, dzr, zkt, zt, dzt) in enumerate(outers):
+        u = left[:, 2 * i * size:(2 * i + 1) * size]
+        v = left[:, (2 * i + 1) * size:(2 * i + 2) * size]
+        np.multiply(zr, dp, out=u[:nodes])
+        np.multiply(zr, mp, out=u[nodes:])
+        np.multiply(dzr, mp, out=v[:nodes])
+        np.multiply(dzr, dp, out=v[nodes:])
+        v[nodes:] -= zkt * pb
+        np.multiply(zt, dp, out=edge_left[:, 2 * i * size:(2 * i + 1) * size])
+        np.multiply(dzt, mp, out=edge_left[:, (2 * i + 1) * size:(2 * i + 2) * size])
+    right = np.empty((2 * nodes, 2 * size), dtype=np.result_type(zeta, pb))
+    np.multiply(zeta, mp, out=right[:nodes, :size])
+    np.multiply(zeta, dp, out=right[nodes:, :size])
+    np.multiply(dzeta, dp, out=right[:nodes, size:])
+    np.multiply(dzeta, mp, out=right[nodes:, size:])
+    gram = left.T @ right
+    edge = edge_left.T @ (zetak * pb)
     out = []
     for i in range(len(outers)):
         # rows of function i: u then v (gram), the (z dP) then (z' mP) edge terms (edge)
@@ -205,14 +228,15 @@ def ebcm_system(profile: Profile, order: int, k: float, n_medium: float, nodes: 
         return z, dz, z * nu2[None, :] / x[:, None]
 
     # the outgoing h_n = j_n + i y_n: Q from the couplings of j_n and y_n, RgQ from j_n's
-    outer_j, outer_y, inner_j = tables(kr, "j"), tables(kr, "y"), tables(k1r, "j")
+    outer_j, outer_y = (_weighted(tables(kr, kind), nr, nt) for kind in ("j", "y"))
+    inner_j = tables(k1r, "j")
     qs, rgqs = [], []
     for m in range(L + 1 if max_m is None else min(L, max_m) + 1):
         n0 = max(1, m)
         n = np.arange(n0, L + 1)
         angular = (pb[:, n0:, m], dp[:, n0:, m], mp[:, n0:, m])
-        ints_j, ints_y = _couplings([_orders_from(outer_j, n0), _orders_from(outer_y, n0)],
-                                    _orders_from(inner_j, n0), angular, nr, nt)
+        ints_j, ints_y = _couplings([_weighted_from(outer_j, n0), _weighted_from(outer_y, n0)],
+                                    _orders_from(inner_j, n0), angular)
         pref = np.tile(1j * k * k / (n * (n + 1.0)), 2)[:, None]
         rgq = _q_matrix(m_rel, ints_j, pref)
         q = rgq + 1j * _q_matrix(m_rel, ints_y, pref)
