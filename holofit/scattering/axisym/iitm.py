@@ -45,7 +45,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.scattering.axisym.angular import AngularMatrices, angular_matrices
+from holofit.scattering.axisym.angular import angular_matrices
 from holofit.scattering.axisym.bessel import riccati_bessel
 from holofit.scattering.axisym.profiles import Profile
 from holofit.scattering.mie_coefficients import mie_coefficients
@@ -167,7 +167,7 @@ class _Rhs:
     def __init__(self, profile: Profile, order: int, k: float, n_medium: float,
                  groups: Groups, radial_rule: str = "laurent",
                  polar_rule: str = "laurent",
-                 angular_cache: dict[tuple, tuple[AngularMatrices, NDArray]] | None = None
+                 angular_cache: dict[tuple, tuple[NDArray, ...]] | None = None
                  ) -> None:
         self.profile = profile
         self.L = order
@@ -225,17 +225,16 @@ class _Rhs:
                 eye = np.eye(L)[None]
                 yr = np.linalg.inv(eye + mats.yy) - eye
                 yr = yr * self.valid[:, :, None] * self.valid[:, None, :]
-            cached = (mats, yr)
+            k = self.k
+            nu2 = self.nu2
+            cached = (yr * nu2[:, None, :], (1j * k) * mats.psipsi / nu2[:, :, None],
+                      (1j * k) * mats.psiphi / nu2[:, :, None],
+                      (-1j * k) * mats.phipsi / nu2[:, :, None],
+                      (-1j * k) * mats.phiphi / nu2[:, :, None])
             if len(self._angular_cache) < 64:
                 self._angular_cache[key] = cached
-        ang, yr = cached
+        d1, d2, d3, d4, d5 = cached
         k = self.k
-        nu2 = self.nu2
-        d1 = yr * nu2[:, None, :]
-        d2 = (1j * k) * ang.psipsi / nu2[:, :, None]
-        d3 = (1j * k) * ang.psiphi / nu2[:, :, None]
-        d4 = (-1j * k) * ang.phipsi / nu2[:, :, None]
-        d5 = (-1j * k) * ang.phiphi / nu2[:, :, None]
         gm = self.groups.m[:, None, None]
         i_n, i_m = self._in, self._im
         d1n = d1[gm, i_n[:, :, None], i_n[:, None, :]] * self._mask_nn
@@ -355,6 +354,24 @@ def _rows_minus(vu, vsw, a_u, a_s, a_w, out):  # pragma: no cover - compiled
                 out[a, p + i, j] = aw * vsw[a, p + i, j] - out[a, p + i, j]
 
 
+@numba.njit(cache=True, nogil=True)
+def _axpy(y, a, x):  # pragma: no cover - compiled
+    """``y + a x`` (one pass)."""
+    return y + a * x
+
+
+def _rk4_sum(t: NDArray, c: float, k1: NDArray | None, k2: NDArray, k3: NDArray,
+             k4: NDArray | None) -> NDArray:
+    """``t + c (k1 + 2 k2 + 2 k3 + k4)``, a missing ``k`` being zero."""
+    acc = _axpy(k2, 1.0, k3)
+    acc *= 2.0
+    if k1 is not None:
+        acc += k1
+    if k4 is not None:
+        acc += k4
+    return _axpy(t, c, acc)
+
+
 def _smooth_map(s: float) -> tuple[float, float]:
     """``g(s) = 3 s^2 - 2 s^3`` and ``g'(s)``."""
     return s * s * (3.0 - 2.0 * s), 6.0 * s * (1.0 - s)
@@ -380,18 +397,10 @@ def _rk4_segment(rhs: _Rhs, t: NDArray, r0: float, r1: float, steps: int,
         assert s_mid is not None
         # k1 vanishes at the segment's start (dr/ds = 0) and k4 at its end
         k1 = None if s0 is None else rhs(t, s0)
-        k2 = rhs(t if k1 is None else t + (h / 2) * k1, s_mid)
-        acc = 2.0 * k2
-        if k1 is not None:
-            acc += k1
-        k3 = rhs(t + (h / 2) * k2, s_mid)
-        acc += 2.0 * k3
-        if s1 is not None:
-            k3 *= h
-            k3 += t
-            acc += rhs(k3, s1)
-        acc *= h / 6.0
-        t = t + acc
+        k2 = rhs(t if k1 is None else _axpy(t, h / 2, k1), s_mid)
+        k3 = rhs(_axpy(t, h / 2, k2), s_mid)
+        k4 = None if s1 is None else rhs(_axpy(t, h, k3), s1)
+        t = _rk4_sum(t, h / 6.0, k1, k2, k3, k4)
     return t
 
 
@@ -441,7 +450,7 @@ def integrate_profile(profile: Profile, order: int, k: float, n_medium: float,
     if richardson:
         counts = [c + (c % 2) for c in counts]
     blocks = np.zeros_like(start)
-    angular: dict[tuple, tuple[AngularMatrices, NDArray]] = {}
+    angular: dict[tuple, tuple[NDArray, ...]] = {}
     change, evaluations, matrix_evaluations = 0.0, 0, 0
     for ms in m_buckets(L, split):
         groups = make_groups(L, split, ms)
