@@ -457,7 +457,7 @@ def integrate_profile(profile: Profile, order: int, k: float, n_medium: float,
         rhs = _Rhs(profile, L, k, n_medium, groups, radial_rule, polar_rule, angular)
         fine = coarse = to_groups(start, groups)
         for (a, b), c in zip(segs, counts, strict=True):
-            cache: dict[float, tuple] = {}
+            cache: dict[float, Stage | None] = {}
             fine = _rk4_segment(rhs, fine, a, b, c, cache)
             if richardson:
                 coarse = _rk4_segment(rhs, coarse, a, b, c // 2, cache)
