@@ -239,3 +239,28 @@ def test_a_janus_fit_keeps_its_radial_steps_and_moves_smoothly_with_the_cap() ->
     assert np.abs(slope(2)).max() > 1.0
     assert np.abs(big).max() < 0.1 * np.abs(slope(2)).max()
     assert 0.35 < np.abs(small).max() / np.abs(big).max() < 0.65
+
+
+def test_a_janus_fits_radial_steps_stay_within_their_share_of_a_fine_integration() -> None:
+    """The fit's plain-RK4 steps (fewer than the reference's) keep the far field within
+    ``STEP_SHARE`` of the truncation estimate of an integration with four times the
+    reference's steps and Richardson's extrapolation (independent of the step choice)."""
+    from holofit.scattering.axisym.discretisation import (
+        STEP_SHARE,
+        Discretisation,
+        reference_build,
+    )
+    from holofit.scattering.axisym.order import far_field_change
+
+    janus = JanusSphere(0.443, 0.047, 1.581, 2.74)
+    ref = reference_build(janus, OPTICS)
+    d = Discretisation.of(ref)
+    steps = ref.provenance["reference_radial_steps"]
+    assert d.radial_steps is not None and not d.richardson
+    assert d.radial_steps[0] < steps[0]  # the fit's build is cheaper than the reference's
+    fine = build_exact_tmatrix(janus, OPTICS, order=d.order,
+                               radial_steps=[4 * s for s in steps], estimate=False)
+    change = far_field_change(ref, fine)
+    assert change < STEP_SHARE * d.truncation_estimate
+    # the fewest steps: a quarter fewer would be past the bar's half (RK4: steps^-4)
+    assert change > 0.5 * STEP_SHARE * d.truncation_estimate * 0.75 ** 4

@@ -123,3 +123,31 @@ def test_engine_builds_spheres_by_mie_and_coated_spheres_by_imbedding() -> None:
     d = np.diag(tc.blocks[0])  # m = 0
     assert np.abs(d[:L] + a).max() < 1e-7
     assert np.abs(d[L:] + b).max() < 1e-7
+
+
+@pytest.mark.parametrize("parity", [False, True])
+def test_runs_of_m_cover_every_order_once(parity: bool) -> None:
+    from holofit.scattering.axisym.iitm import m_buckets
+
+    for L in (1, 2, 5, 16, 28, 36):
+        runs = m_buckets(L, parity)
+        assert [m for r in runs for m in r] == list(range(L + 1))
+
+
+def test_janus_blocks_do_not_depend_on_how_the_orders_m_are_grouped(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The runs of ``m`` integrated together are padded to their largest block: the padding
+    must stay exactly zero (one run of all ``m``, the most padding, against a run per size,
+    none)."""
+    from holofit.scattering.axisym import iitm
+
+    L = 12
+    prof = CapProfile(CORE, CAP, N_CORE, N_CAP)
+    got = {}
+    for name, cost in (("one run", 1e30), ("one run per size", 0.0)):
+        monkeypatch.setattr(iitm, "BUCKET_COST", cost)
+        runs = iitm.m_buckets(L)
+        assert len(runs) == 1 if name == "one run" else len(runs) >= L  # m = 0, 1: one size
+        got[name] = integrate_profile(prof, L, K, 1.33, [16], polar_rule="inverse").blocks
+    scale = np.abs(got["one run"]).max()
+    assert np.abs(got["one run"] - got["one run per size"]).max() < 1e-13 * scale

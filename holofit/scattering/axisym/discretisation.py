@@ -16,17 +16,21 @@ depend on the machine's load (a resumed run gets the rows of an uninterrupted on
 EBCM's solve order stops where the tolerance is met, where the change stops falling, or
 :data:`EBCM_EXTRA_ORDERS` past the start (the T-matrix is kept at the start order); the
 imbedding's order (Janus spheres, layered spheres) rises at most
-:data:`IITM_EXTRA_ORDERS` past its start ``L_0``: each order step costs about 1.7 times the
-build, a fit makes tens of builds per frame, and a cap's convergence in the order is
-algebraic (the paper's Janus particle: far-field change 4.5e-3 at ``L_0 = 16``, 5.2e-4 at
-28). The imbedding's order being capped, its tolerance only sets its radial steps (to a tenth
-of it): :data:`IITM_TOLERANCE`, far below the truncation error of a cap, where the default
-1e-5 would double the steps (and the build's time) for nothing. The fit's builds of an
-imbedding then drop Richardson's extrapolation and halve the steps while plain RK4 stays
+:data:`IITM_EXTRA_ORDERS` past its start ``L_0``: a cap's convergence in the order is
+algebraic (its rim), and at fewer orders the engine's own truncation biases a side-on cap's
+fitted thickness and index by more than their error bars, while each order step costs about
+1.4 times a build and a fit makes tens of builds per frame (the measurements:
+``docs/validation/exact-studies.md``). The imbedding's order being capped, its tolerance
+only sets its radial steps (to a tenth of it): :data:`IITM_TOLERANCE`, far below the
+truncation error of a cap, where the default 1e-5 would double the steps (and the build's
+time) for nothing. The fit's builds of an
+imbedding then drop Richardson's extrapolation and take the fewest steps that keep plain RK4
 within :data:`STEP_SHARE` of the truncation estimate of the reference (measured against it:
 the radial integration is then no longer the accuracy's limit, at a third to a sixth of the
-work); the reference model itself is rebuilt that way too, so that every build of the fit
-shares one discretisation.
+work): RK4's error falls as the fourth power of the steps, so the change at the reference's
+steps predicts the steps that give :data:`STEP_AIM` of that bar, and a build checks them
+(half way back where it fails); the reference model itself is rebuilt that way too, so that
+every build of the fit shares one discretisation.
 """
 
 from __future__ import annotations
@@ -44,11 +48,12 @@ from holofit.scattering.axisym.profiles import profile_of
 from holofit.scattering.tmatrix import TMatrix
 
 __all__ = ["EBCM_EXTRA_ORDERS", "IITM_EXTRA_ORDERS", "IITM_TOLERANCE", "MIN_STEPS",
-           "STEP_SHARE", "Discretisation",
+           "STEP_AIM", "STEP_SHARE", "STEP_TRIALS", "Discretisation",
            "reference_build", "remember_reference"]
 
-#: orders past the start ``L_0`` that the reference build of an imbedding may raise
-IITM_EXTRA_ORDERS = 12
+#: orders past the start ``L_0`` that the reference build of an imbedding may raise (the
+#: paper's Janus particle: ``L = 36``)
+IITM_EXTRA_ORDERS = 20
 #: orders past the start ``L_0`` that the reference build of the EBCM may solve at (it keeps
 #: ``L_0``): a rebuild's cost grows about as the solve order's cube (the paper's rod: 0.05 s
 #: at 26, 0.12 s at 38, 0.38 s at 58 of CPU), and a fit makes tens of builds per frame
@@ -56,9 +61,14 @@ EBCM_EXTRA_ORDERS = 12
 #: the reference build's tolerance for the imbedding (whose order is capped): its radial steps
 #: are refined until Richardson's change is below a tenth of it
 IITM_TOLERANCE = 1e-4
-#: a fit's imbedding steps: plain RK4, halved while its far-field change from the reference
-#: stays below this share of the reference's truncation estimate
+#: a fit's imbedding steps: plain RK4, as few as keep its far-field change from the
+#: reference below this share of the reference's truncation estimate
 STEP_SHARE = 0.1
+#: the fit's steps are predicted to give this fraction of the :data:`STEP_SHARE` bar (a margin
+#: for the prediction), then checked against the bar itself
+STEP_AIM = 0.5
+#: most builds the choice of a fit's imbedding steps makes
+STEP_TRIALS = 4
 #: fewest Runge-Kutta steps per radial segment of a fit's build
 MIN_STEPS = 8
 
@@ -149,22 +159,36 @@ class Discretisation:
 
 def _cheaper_steps(model: ParticleModel, optics: Optics, ref: Discretisation,
                    ref_tm: TMatrix) -> Discretisation:
-    """The imbedding's fit discretisation: plain RK4 at the reference's steps, halved while
-    its far-field change from the reference stays below :data:`STEP_SHARE` of the
-    reference's truncation estimate (module docstring)."""
+    """The imbedding's fit discretisation: plain RK4 at the fewest steps predicted to keep its
+    far-field change from the reference within :data:`STEP_AIM` of :data:`STEP_SHARE` of the
+    reference's truncation estimate, checked against that bar (module docstring)."""
     assert ref.radial_steps is not None
     bar = STEP_SHARE * ref.truncation_estimate
     best = ref
     steps = ref.radial_steps
-    while True:
+    failed = tuple(0 for _ in steps)  # the fewest steps known to pass lie above these
+    for _ in range(STEP_TRIALS):
         trial = replace(ref, radial_steps=steps, richardson=False)
         change = far_field_change(trial.build(model, optics), ref_tm)
-        if not change <= bar:
+        if change <= bar:
+            best = replace(trial, step_error=change)
+            # RK4's error falls as the fourth power of the steps
+            factor = (change / (STEP_AIM * bar)) ** 0.25 if change > 0 else 0.0
+            nxt = tuple(min(s, max(MIN_STEPS, f + 1, math.ceil(s * factor)))
+                        for s, f in zip(steps, failed, strict=True))
+        elif best is ref:
             return best
-        best = replace(trial, step_error=change)
-        if all(s <= MIN_STEPS for s in steps):
+        else:  # half way back to the last steps that passed
+            failed = steps
+            assert best.radial_steps is not None
+            nxt = tuple(math.ceil((s + b) / 2)
+                        for s, b in zip(steps, best.radial_steps, strict=True))
+            if nxt == best.radial_steps:
+                return best
+        if nxt == steps:
             return best
-        steps = tuple(max(MIN_STEPS, s // 2) for s in steps)
+        steps = nxt
+    return best
 
 
 #: reference builds of this process, by (model, wavelength, medium, tolerance)

@@ -37,22 +37,27 @@ integration is stable at any order, unlike the transfer matrix of the fields the
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from holofit.scattering.axisym.angular import AngularMatrices, angular_matrices
+from holofit.scattering.axisym.angular import angular_matrices
 from holofit.scattering.axisym.bessel import riccati_bessel
 from holofit.scattering.axisym.profiles import Profile
 from holofit.scattering.mie_coefficients import mie_coefficients
 
-__all__ = ["M_BUCKETS", "Groups", "IITMResult", "block_orders", "integrate_profile",
+__all__ = ["BUCKET_COST", "Groups", "IITMResult", "block_orders", "integrate_profile",
            "m_buckets", "make_groups", "mie_start"]
 
-#: runs of ``m`` integrated apart (:func:`m_buckets`)
-M_BUCKETS = 4
+#: the fixed cost of integrating one run of ``m`` apart (:func:`m_buckets`), in units of
+#: the padded work of one group matrix of size 1: that of one group of size 44 (a run's own
+#: calls, radial functions and the small products' lower speed; the fastest setting
+#: measured for the paper's Janus particle at orders 28 and 36)
+BUCKET_COST = 44.0 ** 3
 
 
 def block_orders(order: int) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
@@ -162,7 +167,7 @@ class _Rhs:
     def __init__(self, profile: Profile, order: int, k: float, n_medium: float,
                  groups: Groups, radial_rule: str = "laurent",
                  polar_rule: str = "laurent",
-                 angular_cache: dict[tuple, tuple[AngularMatrices, NDArray]] | None = None
+                 angular_cache: dict[tuple, tuple[NDArray, ...]] | None = None
                  ) -> None:
         self.profile = profile
         self.L = order
@@ -191,6 +196,11 @@ class _Rhs:
         ``D4`` (M, N): ``D1 = -(i/k r^2)(Y_r - I) nu^2``, ``D2 = i k nu^-2 <Psi eps Psi>``,
         ``D3 = i k nu^-2 <Psi eps Phi>``, ``D4 = -i k nu^-2 <Phi eps Psi>``,
         ``D5 = -i k nu^-2 <Phi eps Phi>`` (deviations from the medium)."""
+        d1n, d2n, d5m, d3nm, d4mn, _ = self._lookup(r)
+        return (-1j / (self.k * r * r)) * d1n, d2n, d5m, d3nm, d4mn
+
+    def _lookup(self, r: float) -> tuple[NDArray, ...]:
+        """:meth:`_gather`'s matrices of the intervals at ``r`` (kept per set of intervals)."""
         self.matrix_evaluations += 1
         intervals = self.profile.intervals(r, self.n_medium)
         key = tuple((round(lo, 15), round(hi, 15), e) for lo, hi, e in intervals)
@@ -199,12 +209,12 @@ class _Rhs:
             gathered = self._gather(key, intervals)
             if len(self._gathered) < 64:
                 self._gathered[key] = gathered
-        d1n, d2n, d5m, d3nm, d4mn = gathered
-        return (-1j / (self.k * r * r)) * d1n, d2n, d5m, d3nm, d4mn
+        return gathered
 
     def _gather(self, key: tuple, intervals: list) -> tuple[NDArray, ...]:
         """The group matrices of :meth:`matrices` for one set of intervals, ``D1`` without its
-        factor ``-i / (k r^2)`` (the only one that depends on ``r`` itself)."""
+        factor ``-i / (k r^2)`` (the only one that depends on ``r`` itself), and the ``s`` and
+        ``w`` rows of ``dK`` assembled, ``[[D2, -D3], [D4, -D5]] / k``."""
         L = self.L
         cached = self._angular_cache.get(key)
         if cached is None:
@@ -215,17 +225,16 @@ class _Rhs:
                 eye = np.eye(L)[None]
                 yr = np.linalg.inv(eye + mats.yy) - eye
                 yr = yr * self.valid[:, :, None] * self.valid[:, None, :]
-            cached = (mats, yr)
+            k = self.k
+            nu2 = self.nu2
+            cached = (yr * nu2[:, None, :], (1j * k) * mats.psipsi / nu2[:, :, None],
+                      (1j * k) * mats.psiphi / nu2[:, :, None],
+                      (-1j * k) * mats.phipsi / nu2[:, :, None],
+                      (-1j * k) * mats.phiphi / nu2[:, :, None])
             if len(self._angular_cache) < 64:
                 self._angular_cache[key] = cached
-        ang, yr = cached
+        d1, d2, d3, d4, d5 = cached
         k = self.k
-        nu2 = self.nu2
-        d1 = yr * nu2[:, None, :]
-        d2 = (1j * k) * ang.psipsi / nu2[:, :, None]
-        d3 = (1j * k) * ang.psiphi / nu2[:, :, None]
-        d4 = (-1j * k) * ang.phipsi / nu2[:, :, None]
-        d5 = (-1j * k) * ang.phiphi / nu2[:, :, None]
         gm = self.groups.m[:, None, None]
         i_n, i_m = self._in, self._im
         d1n = d1[gm, i_n[:, :, None], i_n[:, None, :]] * self._mask_nn
@@ -233,7 +242,13 @@ class _Rhs:
         d5m = d5[gm, i_m[:, :, None], i_m[:, None, :]] * self._mask_mm
         d3nm = d3[gm, i_n[:, :, None], i_m[:, None, :]] * self._mask_nm
         d4mn = d4[gm, i_m[:, :, None], i_n[:, None, :]] * self._mask_nm.transpose(0, 2, 1)
-        return d1n, d2n, d5m, d3nm, d4mn
+        p = d1n.shape[1]
+        dsw = np.empty((d1n.shape[0], p + d5m.shape[1], p + d5m.shape[1]), dtype=complex)
+        dsw[:, :p, :p] = d2n / k
+        dsw[:, :p, p:] = d3nm / -k
+        dsw[:, p:, :p] = d4mn / k
+        dsw[:, p:, p:] = d5m / -k
+        return d1n, d2n, d5m, d3nm, d4mn, dsw
 
     def radial(self, r: float) -> tuple[NDArray, ...]:
         """``psi, psi', xi, xi'`` at ``k r`` on the N slots and the M slots (zero on padding)."""
@@ -243,35 +258,118 @@ class _Rhs:
         om = [np.where(g.ok_m, f[g.n_m], 0.0) for f in (psi, dpsi, xi, dxi)]
         return (*on, *om)
 
-    def __call__(self, r: float, t: NDArray, mats: tuple[NDArray, ...],
-                 rad: tuple[NDArray, ...]) -> NDArray:
-        """``dT/dr`` at ``r`` for group matrices ``t``, :meth:`matrices` ``mats`` and
-        :meth:`radial` ``rad``."""
-        self.evaluations += 1
+    def prepare(self, r: float, scale: float = 1.0) -> Stage:
+        """The products of one radius that every right-hand side at ``r`` shares
+        (:class:`Stage`), with ``dT/dr`` scaled by ``scale`` (the smoothing map's
+        ``dr/ds``)."""
+        d1n, _, _, _, _, dsw = self._lookup(r)
+        psi_n, dpsi_n, xi_n, dxi_n, psi_m, _dpsi_m, xi_m, _dxi_m = self.radial(r)
         k = self.k
-        d1n, d2n, d5m, d3nm, d4mn = mats
-        psi_n, dpsi_n, xi_n, dxi_n, psi_m, _dpsi_m, xi_m, _dxi_m = rad
-        p = psi_n.shape[1]
-        tn, tm = t[:, :p, :], t[:, p:, :]
-        zu = dxi_n[:, :, None] * tn
-        zs = xi_n[:, :, None] * tn
-        zv = xi_m[:, :, None] * tm
-        ip = np.arange(p)
-        iq = np.arange(psi_m.shape[1])
-        zu[:, ip, ip] += dpsi_n
-        zs[:, ip, ip] += psi_n
-        zv[:, iq, p + iq] += psi_m
-        # Z_u = zu / k, Z_s = i zs / k, Z_v = -zv / k
-        vu = (1j / k) * (d1n @ zs)
-        vs = (d2n @ zu - d3nm @ zv) / k
-        vw = (d4mn @ zu - d5m @ zv) / k
-        out = np.empty_like(t)
-        out[:, :p] = k * (-1j * psi_n[:, :, None] * vu + dpsi_n[:, :, None] * vs)
-        out[:, p:] = k * (psi_m[:, :, None] * vw)
+        # V = [v_u; v_s; v_w] = dK Z with Z = W_rg + W_out T (module docstring):
+        # v_u = (i/k) D1 (xi_n T_N + [psi_n, 0]) with D1 = -(i/k r^2) d1n,
+        # [v_s; v_w] = dsw ([dxi_n T_N; xi_m T_M] + [dpsi_n, psi_m]) (columns scaled)
+        coef = scale / (k * k * r * r)
+        e1 = d1n * (coef * xi_n)[:, None, :]
+        f = dsw * (scale * np.concatenate([dxi_n, xi_m], axis=1))[:, None, :]
+        # dT/dr = A V - T (B V): rows of A and B, per slot (N: from v_u and v_s; M: from v_w)
+        return Stage(e1, f, d1n, coef * psi_n, dsw,
+                     scale * np.concatenate([dpsi_n, psi_m], axis=1),
+                     (-1j * k) * psi_n, k * dpsi_n, k * psi_m,
+                     (1j * k) * xi_n, -k * dxi_n, -k * xi_m)
+
+    def __call__(self, t: NDArray, stage: Stage) -> NDArray:
+        """``dT/dr`` (times the stage's scale) for group matrices ``t`` at the radius of
+        ``stage`` (:meth:`prepare`)."""
+        self.evaluations += 1
+        p = stage.e1.shape[1]
+        vu = np.matmul(stage.e1, t[:, :p])
+        vsw = np.matmul(stage.f, t)
         g = np.empty_like(t)
-        g[:, :p] = k * (1j * xi_n[:, :, None] * vu - dxi_n[:, :, None] * vs)
-        g[:, p:] = k * (-xi_m[:, :, None] * vw)
-        return out - t @ g
+        _constants_and_rows(vu, vsw, stage.d1, stage.c1, stage.dsw, stage.csw, stage.b_u,
+                            stage.b_s, stage.b_w, g)
+        out = np.matmul(t, g)
+        _rows_minus(vu, vsw, stage.a_u, stage.a_s, stage.a_w, out)
+        return out
+
+
+@dataclass(frozen=True)
+class Stage:
+    """What the right-hand sides at one radius share (:meth:`_Rhs.prepare`): the ``u`` rows
+    of ``V`` are ``e1 T_N + d1 diag(c1)`` (on the ``N`` columns), its ``s`` and ``w`` rows
+    ``f T + dsw diag(csw)``; ``a_*`` and ``b_*`` are the row factors of ``A`` and ``B`` in
+    ``dT/dr = A V - T B V``."""
+
+    e1: NDArray
+    f: NDArray
+    d1: NDArray
+    c1: NDArray
+    dsw: NDArray
+    csw: NDArray
+    a_u: NDArray
+    a_s: NDArray
+    a_w: NDArray
+    b_u: NDArray
+    b_s: NDArray
+    b_w: NDArray
+
+
+@numba.njit(cache=True, nogil=True)
+def _constants_and_rows(vu, vsw, d1, c1, dsw, csw, b_u, b_s, b_w, g):  # pragma: no cover
+    """Adds the constant parts to ``V`` in place (``vu[:, :, :p] += d1 diag(c1)``, ``vsw +=
+    dsw diag(csw)``) and writes ``g = B V``."""
+    ng, p, ncol = vu.shape
+    q = vsw.shape[1] - p
+    for a in range(ng):
+        for i in range(p):
+            for j in range(p):
+                vu[a, i, j] += d1[a, i, j] * c1[a, j]
+        for i in range(p + q):
+            for j in range(ncol):
+                vsw[a, i, j] += dsw[a, i, j] * csw[a, j]
+        for i in range(p):
+            bu = b_u[a, i]
+            bs = b_s[a, i]
+            for j in range(ncol):
+                g[a, i, j] = bu * vu[a, i, j] + bs * vsw[a, i, j]
+        for i in range(q):
+            bw = b_w[a, i]
+            for j in range(ncol):
+                g[a, p + i, j] = bw * vsw[a, p + i, j]
+
+
+@numba.njit(cache=True, nogil=True)
+def _rows_minus(vu, vsw, a_u, a_s, a_w, out):  # pragma: no cover - compiled
+    """``out = A V - out`` in place (``out`` holding ``T B V``)."""
+    ng, p, ncol = vu.shape
+    q = vsw.shape[1] - p
+    for a in range(ng):
+        for i in range(p):
+            au = a_u[a, i]
+            as_ = a_s[a, i]
+            for j in range(ncol):
+                out[a, i, j] = au * vu[a, i, j] + as_ * vsw[a, i, j] - out[a, i, j]
+        for i in range(q):
+            aw = a_w[a, i]
+            for j in range(ncol):
+                out[a, p + i, j] = aw * vsw[a, p + i, j] - out[a, p + i, j]
+
+
+@numba.njit(cache=True, nogil=True)
+def _axpy(y, a, x):  # pragma: no cover - compiled
+    """``y + a x`` (one pass)."""
+    return y + a * x
+
+
+def _rk4_sum(t: NDArray, c: float, k1: NDArray | None, k2: NDArray, k3: NDArray,
+             k4: NDArray | None) -> NDArray:
+    """``t + c (k1 + 2 k2 + 2 k3 + k4)``, a missing ``k`` being zero."""
+    acc = _axpy(k2, 1.0, k3)
+    acc *= 2.0
+    if k1 is not None:
+        acc += k1
+    if k4 is not None:
+        acc += k4
+    return _axpy(t, c, acc)
 
 
 def _smooth_map(s: float) -> tuple[float, float]:
@@ -280,30 +378,29 @@ def _smooth_map(s: float) -> tuple[float, float]:
 
 
 def _rk4_segment(rhs: _Rhs, t: NDArray, r0: float, r1: float, steps: int,
-                 cache: dict[float, tuple]) -> NDArray:
-    """Classical Runge-Kutta over one segment in the smoothing variable ``s``."""
+                 cache: dict[float, Stage | None]) -> NDArray:
+    """Classical Runge-Kutta over one segment in the smoothing variable ``s`` (``cache``: the
+    stages of this segment by ``s``, shared by Richardson's two passes)."""
     width = r1 - r0
     h = 1.0 / steps
 
-    def f(s: float, tt: NDArray) -> NDArray:
-        g, dg = _smooth_map(s)
-        if dg == 0.0:
-            return np.zeros_like(tt)
-        r = r0 + width * g
+    def stage(s: float) -> Stage | None:
         key = round(s, 14)
-        got = cache.get(key)
-        if got is None:
-            got = (rhs.matrices(r), rhs.radial(r))
-            cache[key] = got
-        return rhs(r, tt, *got) * (width * dg)
+        if key not in cache:
+            g, dg = _smooth_map(s)
+            cache[key] = None if dg == 0.0 else rhs.prepare(r0 + width * g, width * dg)
+        return cache[key]
 
     for i in range(steps):
         s = i * h
-        k1 = f(s, t)
-        k2 = f(s + h / 2, t + (h / 2) * k1)
-        k3 = f(s + h / 2, t + (h / 2) * k2)
-        k4 = f(s + h, t + h * k3)
-        t = t + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+        s0, s_mid, s1 = stage(s), stage(s + h / 2), stage(s + h)
+        assert s_mid is not None
+        # k1 vanishes at the segment's start (dr/ds = 0) and k4 at its end
+        k1 = None if s0 is None else rhs(t, s0)
+        k2 = rhs(t if k1 is None else _axpy(t, h / 2, k1), s_mid)
+        k3 = rhs(_axpy(t, h / 2, k2), s_mid)
+        k4 = None if s1 is None else rhs(_axpy(t, h, k3), s1)
+        t = _rk4_sum(t, h / 6.0, k1, k2, k3, k4)
     return t
 
 
@@ -353,14 +450,14 @@ def integrate_profile(profile: Profile, order: int, k: float, n_medium: float,
     if richardson:
         counts = [c + (c % 2) for c in counts]
     blocks = np.zeros_like(start)
-    angular: dict[tuple, tuple[AngularMatrices, NDArray]] = {}
+    angular: dict[tuple, tuple[NDArray, ...]] = {}
     change, evaluations, matrix_evaluations = 0.0, 0, 0
-    for ms in m_buckets(L):
+    for ms in m_buckets(L, split):
         groups = make_groups(L, split, ms)
         rhs = _Rhs(profile, L, k, n_medium, groups, radial_rule, polar_rule, angular)
         fine = coarse = to_groups(start, groups)
         for (a, b), c in zip(segs, counts, strict=True):
-            cache: dict[float, tuple] = {}
+            cache: dict[float, Stage | None] = {}
             fine = _rk4_segment(rhs, fine, a, b, c, cache)
             if richardson:
                 coarse = _rk4_segment(rhs, coarse, a, b, c // 2, cache)
@@ -374,10 +471,26 @@ def integrate_profile(profile: Profile, order: int, k: float, n_medium: float,
     return IITMResult(blocks, counts, evaluations, matrix_evaluations, change)
 
 
-def m_buckets(order: int) -> list[range]:
-    """The orders ``m = 0..L`` in :data:`M_BUCKETS` runs of about equal length, integrated
-    apart: the ``m`` are independent, and a run's matrices are padded only to its own largest
-    block (``2 (L - m + 1)``), not to ``2 L`` (a quarter to a third of the work at ``L >= 16``)."""
-    count = min(M_BUCKETS, max(1, (order + 1) // 4))
-    edges = np.linspace(0, order + 1, count + 1).round().astype(int)
-    return [range(int(a), int(b)) for a, b in itertools.pairwise(edges) if b > a]
+def m_buckets(order: int, parity: bool = False) -> list[range]:
+    """The orders ``m = 0..L`` in runs integrated apart: the ``m`` are independent, and a
+    run's matrices are padded only to its own largest block (``2 (L - max(1, m) + 1)``, the
+    run's first ``m``), not to ``2 L``. The runs minimise the padded work, the sum over runs
+    of their groups times the cube of their largest size, plus :data:`BUCKET_COST` per run
+    (the fixed cost of a run's calls, in the same units), by dynamic programming."""
+    L = order
+    per_m = 2 if parity else 1
+    size = [2 * (L - max(1, m) + 1) // per_m for m in range(L + 1)]
+    # best[b]: least cost of m = 0..b-1; cut[b]: where its last run starts
+    best = [0.0] + [math.inf] * (L + 1)
+    cut = [0] * (L + 2)
+    for b in range(1, L + 2):
+        for a in range(b):
+            cost = best[a] + per_m * (b - a) * float(size[a]) ** 3 + BUCKET_COST
+            if cost < best[b]:
+                best[b], cut[b] = cost, a
+    runs = []
+    b = L + 1
+    while b > 0:
+        runs.append(range(cut[b], b))
+        b = cut[b]
+    return runs[::-1]
