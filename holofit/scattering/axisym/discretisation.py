@@ -12,25 +12,24 @@ surface piece) follows from the order. The reference build's truncation estimate
 stated accuracy of them all (the models of a fit differ by a few per cent in size).
 
 The reference build is the order search without its wall-clock budget, so that it does not
-depend on the machine's load (a resumed run gets the rows of an uninterrupted one): the
-EBCM's solve order stops where the tolerance is met, where the change stops falling, or
+depend on the machine's load (a resumed run gets the rows of an uninterrupted one): the EBCM's
+solve order stops where the tolerance is met, where the change stops falling, or
 :data:`EBCM_EXTRA_ORDERS` past the start (the T-matrix is kept at the start order); the
-imbedding's order (Janus spheres, layered spheres) rises at most
-:data:`IITM_EXTRA_ORDERS` past its start ``L_0``: a cap's convergence in the order is
-algebraic (its rim), and at fewer orders the engine's own truncation biases a side-on cap's
-fitted thickness and index by more than their error bars, while each order step costs about
-1.4 times a build and a fit makes tens of builds per frame (the measurements:
-``docs/validation/exact-studies.md``). The imbedding's order being capped, its tolerance
-only sets its radial steps (to a tenth of it): :data:`IITM_TOLERANCE`, far below the
-truncation error of a cap, where the default 1e-5 would double the steps (and the build's
-time) for nothing. The fit's builds of an
-imbedding then drop Richardson's extrapolation and take the fewest steps that keep plain RK4
-within :data:`STEP_SHARE` of the truncation estimate of the reference (measured against it:
-the radial integration is then no longer the accuracy's limit, at a third to a sixth of the
-work): RK4's error falls as the fourth power of the steps, so the change at the reference's
-steps predicts the steps that give :data:`STEP_AIM` of that bar, and a build checks them
-(half way back where it fails); the reference model itself is rebuilt that way too, so that
-every build of the fit shares one discretisation.
+imbedding's order (Janus spheres, layered spheres) rises at most :data:`IITM_EXTRA_ORDERS` past
+its start ``L_0``: a cap's convergence in the order is algebraic (its rim), and at fewer orders
+the engine's own truncation biases a side-on cap's fitted thickness and index by more than
+their error bars, while each order step costs about 1.4 times a build and a fit makes tens of
+builds per frame (the measurements: ``docs/validation/exact-studies.md``). The imbedding's
+order being capped, its tolerance only sets its radial steps (to a tenth of it):
+:data:`IITM_TOLERANCE`, far below the truncation error of a cap, where the default 1e-5 would
+double the steps (and the build's time) for nothing. The fit's builds of an imbedding then drop
+Richardson's extrapolation and take the fewest steps that keep plain RK4 within
+:data:`STEP_SHARE` of the truncation estimate of the reference (measured against it: the radial
+integration is then no longer the accuracy's limit, at a third to a sixth of the work): RK4's
+error falls as the fourth power of the steps, so the change at the reference's steps predicts
+the steps that give :data:`STEP_AIM` of that bar, and a build checks them (half way back where
+it fails); the reference model itself is rebuilt that way too, so that every build of the fit
+shares one discretisation.
 """
 
 from __future__ import annotations
@@ -55,8 +54,8 @@ __all__ = ["EBCM_EXTRA_ORDERS", "IITM_EXTRA_ORDERS", "IITM_TOLERANCE", "MIN_STEP
 #: paper's Janus particle: ``L = 36``)
 IITM_EXTRA_ORDERS = 20
 #: orders past the start ``L_0`` that the reference build of the EBCM may solve at (it keeps
-#: ``L_0``): a rebuild's cost grows about as the solve order's cube (the paper's rod: 0.05 s
-#: at 26, 0.12 s at 38, 0.38 s at 58 of CPU), and a fit makes tens of builds per frame
+#: ``L_0``): a rebuild's cost grows about as the solve order's cube, and a fit makes tens of
+#: builds per frame (the measurements: ``docs/validation/exact_tmatrix.md``)
 EBCM_EXTRA_ORDERS = 12
 #: the reference build's tolerance for the imbedding (whose order is capped): its radial steps
 #: are refined until Richardson's change is below a tenth of it
