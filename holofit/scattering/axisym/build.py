@@ -226,7 +226,7 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
                           max_seconds: float = DEFAULT_MAX_SECONDS, *,
                           radial_steps: Sequence[int] | None = None, estimate: bool = True,
                           max_order: int | None = None, richardson: bool = True,
-                          solve_order: int | None = None) -> TMatrix:
+                          solve_order: int | None = None, condition: bool = True) -> TMatrix:
     """The T-matrix of a profile (see :func:`build_exact_tmatrix`)."""
     t0 = time.perf_counter()
     cpu0 = time.process_time()
@@ -240,8 +240,9 @@ def build_profile_tmatrix(profile: Profile, k: float, n_medium: float,
         top = int(solve_order) if solve_order is not None else int(order)
     else:
         top = L0 + MAX_ORDER_EXTRA if max_order is None else max(int(max_order), L0)
-    # the condition number steers only the order search (a fixed order's build skips it)
-    ebcm = _EBCMBuilder(profile, k, n_medium, out_order, top, condition=order is None)
+    # the condition number steers the order search, which always computes it
+    ebcm = _EBCMBuilder(profile, k, n_medium, out_order, top,
+                        condition=condition or order is None)
     # the imbedding's radial steps: with the order given, Richardson's change below a tenth
     # of the tolerance; in the search, the start steps (enough to measure the change between
     # orders), the kept build's refined below IITM_STEP_SHARE of its truncation estimate
@@ -353,7 +354,7 @@ def build_exact_tmatrix(model: ParticleModel, optics: Optics,
                         max_seconds: float = DEFAULT_MAX_SECONDS, *,
                         radial_steps: Sequence[int] | None = None, estimate: bool = True,
                         max_order: int | None = None, richardson: bool = True,
-                        solve_order: int | None = None) -> TMatrix:
+                        solve_order: int | None = None, condition: bool = True) -> TMatrix:
     """The exact T-matrix of a body of revolution, in the particle frame.
 
     Same basis, normalisation and storage interface as the DDA-built one
@@ -394,6 +395,10 @@ def build_exact_tmatrix(model: ParticleModel, optics: Optics,
     solve_order : int, optional
         With ``order``, for the EBCM: solve at this order (at least ``order``) and keep the
         T-matrix at ``order`` (a fit's builds at its reference build's orders).
+    condition : bool
+        With ``order``, for the EBCM: record the condition number of the equilibrated ``Q``
+        (``q_condition_max``; False: None, with no SVD per ``m``, as a fit's rebuilds
+        use it). The order search always computes it.
 
     Raises
     ------
@@ -404,7 +409,7 @@ def build_exact_tmatrix(model: ParticleModel, optics: Optics,
     tm = build_profile_tmatrix(profile, optics.k, optics.n_medium, tolerance, order, method,
                                max_seconds, radial_steps=radial_steps, estimate=estimate,
                                max_order=max_order, richardson=richardson,
-                               solve_order=solve_order)
+                               solve_order=solve_order, condition=condition)
     tm.provenance.update({"model": model_description(model),
                           "wavelength_um": float(optics.wavelength_um)})
     return tm

@@ -146,7 +146,7 @@ class Discretisation:
         tm = build_exact_tmatrix(model, optics, self.tolerance, order=self.order,
                                  method=self.method or None, radial_steps=self.radial_steps,
                                  estimate=False, richardson=self.richardson,
-                                 solve_order=self.solve_order)
+                                 solve_order=self.solve_order, condition=False)
         tm.provenance.update({"truncation_estimate": self.truncation_estimate,
                               "truncation_estimate_of": "the fit's reference build",
                               "tolerance_met": bool(self.truncation_estimate
