@@ -44,6 +44,7 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeVar, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -84,20 +85,13 @@ def _radial_tables(order: int, x: NDArray, kind: str) -> tuple[NDArray, NDArray]
 
 Integrals = tuple[NDArray, NDArray, NDArray, NDArray]
 Tables = tuple[NDArray, NDArray, NDArray]
-
-
 Weighted = tuple[NDArray, NDArray, NDArray, NDArray, NDArray]
+TablesT = TypeVar("TablesT", Tables, Weighted)
 
 
-def _orders_from(tables: Tables, n0: int) -> Tables:
-    """The columns of orders ``n >= n0`` of radial tables ``[node, n]``."""
-    return tables[0][:, n0:], tables[1][:, n0:], tables[2][:, n0:]
-
-
-def _weighted_from(tables: Weighted, n0: int) -> Weighted:
-    """The columns of orders ``n >= n0`` of :func:`_weighted` tables."""
-    return (tables[0][:, n0:], tables[1][:, n0:], tables[2][:, n0:], tables[3][:, n0:],
-            tables[4][:, n0:])
+def _orders_from(tables: TablesT, n0: int) -> TablesT:
+    """The columns of orders ``n >= n0`` of tables ``[node, n]`` (radial or weighted)."""
+    return cast(TablesT, tuple(t[:, n0:] for t in tables))
 
 
 def _weighted(tables: Tables, nr: NDArray, nt: NDArray) -> Weighted:
@@ -235,7 +229,7 @@ def ebcm_system(profile: Profile, order: int, k: float, n_medium: float, nodes: 
         n0 = max(1, m)
         n = np.arange(n0, L + 1)
         angular = (pb[:, n0:, m], dp[:, n0:, m], mp[:, n0:, m])
-        ints_j, ints_y = _couplings([_weighted_from(outer_j, n0), _weighted_from(outer_y, n0)],
+        ints_j, ints_y = _couplings([_orders_from(outer_j, n0), _orders_from(outer_y, n0)],
                                     _orders_from(inner_j, n0), angular)
         pref = np.tile(1j * k * k / (n * (n + 1.0)), 2)[:, None]
         rgq = _q_matrix(m_rel, ints_j, pref)
